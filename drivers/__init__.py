@@ -1,0 +1,34 @@
+"""Driver layer: the wire codec and the transports behind one URL-chosen interface.
+
+Installed as ``imudiag.drivers``. ``open_source(url)`` picks the transport by
+URL scheme from a registry, like pyserial's ``serial_for_url`` and
+python-can's interface registry::
+
+    serial:///dev/ttyACM0?baud=921600   CDC-ACM serial port (pyserial; also loop://, socket://)
+    hid://VID:PID                       USB HID input reports (hidapi)
+    usb://VID:PID                       raw USB bulk-IN endpoint (pyusb)
+    replay://PATH?speed=1               a recorded log (.csv, .csv.gz, .npz, .bin)
+    sim://SCENARIO?seed=N               the simulated board
+"""
+
+from .base import (
+    Counters,
+    EndOfStream,
+    Source,
+    SourceError,
+    open_source,
+    parse_url,
+    register,
+    registered_schemes,
+)
+
+__all__ = [
+    "Counters",
+    "EndOfStream",
+    "Source",
+    "SourceError",
+    "open_source",
+    "parse_url",
+    "register",
+    "registered_schemes",
+]

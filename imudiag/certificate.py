@@ -1,0 +1,536 @@
+"""Calibration certificate, format ``imudiag-certificate/1`` (spec/certificate.md).
+
+Per triad the sensor model is ``U = B + diag(S) N x + w`` with
+
+    N = [[1 + e_x,  D_xz,   -D_xy ],
+         [-D_yz,    1 + e_y, D_yx ],
+         [ D_zy,   -D_zx,   1 + e_z]]      e_j = E_j / S_j
+
+``x`` in the triad's ``input_unit`` (rad/s or deg/s for gyros, m/s^2 or g for
+accelerometers), ``U`` in its ``output_unit``. The optional extended blocks
+(temperature, nonlinearity, g-sensitivity) are applied on top when present.
+
+Every rule of the spec is enforced on load: an unknown key, a wrong format, a
+missing key, a wrong length, a non-finite number or a non-positive scale
+factor raises :class:`CertificateError` naming the key path.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+FORMAT = "imudiag-certificate/1"
+
+#: Conversion factor from each allowed input unit to SI (rad/s, m/s^2).
+STANDARD_GRAVITY_M_S2 = 9.80665
+INPUT_UNITS_TO_SI: dict[str, dict[str, float]] = {
+    "gyro": {"rad/s": 1.0, "deg/s": math.pi / 180.0},
+    "accel": {"m/s^2": 1.0, "g": STANDARD_GRAVITY_M_S2},
+}
+TRIADS = ("gyro", "accel")
+AXES = ("x", "y", "z")
+SENSOR_NAMES = {"gyro": ("gx", "gy", "gz"), "accel": ("ax", "ay", "az")}
+#: Misalignment-difference pairs for d1, d2, d3 (spec/reports.md).
+MISALIGNMENT_PAIRS = {
+    "gyro": ("gx/gy", "gx/gz", "gy/gz"),
+    "accel": ("ax/ay", "ax/az", "ay/az"),
+}
+MISALIGNMENT_KEYS = ("xz", "xy", "yz", "yx", "zy", "zx")
+
+
+class CertificateError(ValueError):
+    """A certificate that breaks a rule; ``key`` is the offending key path."""
+
+    def __init__(self, key: str, reason: str, source: str | None = None) -> None:
+        self.key = key
+        self.reason = reason
+        self.source = source
+        where = f"{source}: " if source else ""
+        super().__init__(f"{where}{key}: {reason}")
+
+
+# ---------------------------------------------------------------------------
+# validation helpers
+
+
+def _finite(value: Any, key: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise CertificateError(key, f"expected a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise CertificateError(key, f"not a finite number: {value!r}")
+    return value
+
+
+def _vector(value: Any, key: str, length: int = 3) -> np.ndarray:
+    if not isinstance(value, (list, tuple)):
+        raise CertificateError(key, f"expected a list of {length} numbers, got {value!r}")
+    if len(value) != length:
+        raise CertificateError(key, f"expected {length} values, got {len(value)}")
+    return np.array([_finite(v, f"{key}[{i}]") for i, v in enumerate(value)], dtype=float)
+
+
+def _mapping(value: Any, key: str) -> Mapping[str, Any]:
+    if not isinstance(value, Mapping):
+        raise CertificateError(key, f"expected a mapping, got {type(value).__name__}")
+    return value
+
+
+def _check_keys(
+    node: Mapping[str, Any], key: str, required: tuple[str, ...], optional: tuple[str, ...] = ()
+) -> None:
+    prefix = f"{key}." if key else ""
+    for name in node:
+        if name not in required and name not in optional:
+            raise CertificateError(f"{prefix}{name}", "unknown key")
+    for name in required:
+        if name not in node:
+            raise CertificateError(f"{prefix}{name}", "missing required key")
+
+
+def _positive(value: float, key: str) -> float:
+    if value <= 0.0:
+        raise CertificateError(key, f"must be > 0, got {value!r}")
+    return value
+
+
+# ---------------------------------------------------------------------------
+# typed objects
+
+
+@dataclass
+class Limits:
+    """Tolerances of the paper's predicates (lambda_0 .. lambda_9)."""
+
+    f0: float  #: on 1/2(|u|^2 - 1), dimensionless
+    bias: np.ndarray  #: output units, per axis
+    scale_factor_error: np.ndarray  #: output per input unit, per axis
+    misalignment: np.ndarray  #: rad, on d1, d2, d3
+
+
+@dataclass
+class Noise:
+    """White noise and bias random walk, output units."""
+
+    density: np.ndarray | None = None  #: output units / sqrt(Hz)
+    bias_random_walk: np.ndarray | None = None  #: output units / sqrt(s)
+
+
+@dataclass
+class Temperature:
+    """Temperature dependence of bias and scale factor."""
+
+    reference: float = 25.0  #: degC at which B, S, E hold
+    bias_coefficient: np.ndarray = field(default_factory=lambda: np.zeros(3))  #: output/degC
+    scale_coefficient: np.ndarray = field(default_factory=lambda: np.zeros(3))  #: 1/degC
+
+
+@dataclass
+class TriadModel:
+    """One triad's certificate entry and its sensor model (vectorised over N samples)."""
+
+    name: str  #: "gyro" or "accel"
+    input_unit: str
+    output_unit: str
+    scale_factor: np.ndarray  #: S, output per input unit
+    scale_factor_error: np.ndarray  #: E, output per input unit
+    bias: np.ndarray  #: B, output units
+    misalignment: dict[str, float]  #: D_jk, rad
+    limits: Limits
+    noise: Noise | None = None
+    temperature: Temperature | None = None
+    nonlinearity: np.ndarray | None = None  #: output per (input unit)^2
+    g_sensitivity: np.ndarray | None = None  #: 3x3, gyro output per accel input unit
+
+    # -- derived quantities -------------------------------------------------
+
+    @property
+    def unit_to_si(self) -> float:
+        """Factor from this triad's input unit to SI (rad/s or m/s^2)."""
+        return INPUT_UNITS_TO_SI[self.name][self.input_unit]
+
+    @property
+    def relative_scale_error(self) -> np.ndarray:
+        """e_j = E_j / S_j, dimensionless."""
+        return self.scale_factor_error / self.scale_factor
+
+    @property
+    def misalignment_differences(self) -> np.ndarray:
+        """Observable differences d1 = D_xz - D_yz, d2 = D_zy - D_xy, d3 = D_yx - D_zx, rad."""
+        d = self.misalignment
+        return np.array([d["xz"] - d["yz"], d["zy"] - d["xy"], d["yx"] - d["zx"]])
+
+    def n_matrix(self) -> np.ndarray:
+        """The 3x3 matrix N of the spec (dimensionless)."""
+        e = self.relative_scale_error
+        d = self.misalignment
+        return np.array(
+            [
+                [1.0 + e[0], d["xz"], -d["xy"]],
+                [-d["yz"], 1.0 + e[1], d["yx"]],
+                [d["zy"], -d["zx"], 1.0 + e[2]],
+            ]
+        )
+
+    def _bias_at(self, temp_c: np.ndarray | float | None) -> np.ndarray:
+        """Bias in output units, (3,) or (N, 3) when a temperature series is given."""
+        if self.temperature is None or temp_c is None:
+            return self.bias
+        dt = np.asarray(temp_c, dtype=float)[..., None] - self.temperature.reference
+        return self.bias + self.temperature.bias_coefficient * dt
+
+    def _scale_at(self, temp_c: np.ndarray | float | None) -> np.ndarray:
+        if self.temperature is None or temp_c is None:
+            return self.scale_factor
+        dt = np.asarray(temp_c, dtype=float)[..., None] - self.temperature.reference
+        return self.scale_factor * (1.0 + self.temperature.scale_coefficient * dt)
+
+    # -- the model ----------------------------------------------------------
+
+    def forward(
+        self,
+        x: np.ndarray,
+        temp_c: np.ndarray | float | None = None,
+        accel_input: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Noise-free outputs U (output units) from true inputs ``x`` (N, 3) in input units.
+
+        ``temp_c`` (degC) applies the temperature block, ``accel_input`` (N, 3,
+        accelerometer input units) the gyro g-sensitivity, when present.
+        """
+        x = np.asarray(x, dtype=float)
+        nx = x @ self.n_matrix().T
+        u = self._bias_at(temp_c) + self._scale_at(temp_c) * nx
+        if self.nonlinearity is not None:
+            u = u + self.nonlinearity * nx**2
+        if self.g_sensitivity is not None and accel_input is not None:
+            u = u + np.asarray(accel_input, dtype=float) @ self.g_sensitivity.T
+        return u
+
+    def inverse(
+        self,
+        u: np.ndarray,
+        temp_c: np.ndarray | float | None = None,
+        accel_input: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Inputs x (N, 3) in input units from outputs ``u`` (N, 3) in output units.
+
+        The exact inverse of :meth:`forward` for the linear model; with a
+        nonlinearity block two fixed-point iterations (residual far below noise).
+        """
+        u = np.asarray(u, dtype=float)
+        r = u - self._bias_at(temp_c)
+        if self.g_sensitivity is not None and accel_input is not None:
+            r = r - np.asarray(accel_input, dtype=float) @ self.g_sensitivity.T
+        scale = self._scale_at(temp_c)
+        nx = r / scale
+        if self.nonlinearity is not None:
+            for _ in range(2):
+                nx = (r - self.nonlinearity * nx**2) / scale
+        return nx @ np.linalg.inv(self.n_matrix()).T
+
+    def forward_si(self, x_si: np.ndarray, **kw: Any) -> np.ndarray:
+        """As :meth:`forward` with ``x_si`` in rad/s or m/s^2."""
+        return self.forward(np.asarray(x_si, dtype=float) / self.unit_to_si, **kw)
+
+    def inverse_si(self, u: np.ndarray, **kw: Any) -> np.ndarray:
+        """As :meth:`inverse`, returning rad/s or m/s^2."""
+        return self.inverse(u, **kw) * self.unit_to_si
+
+    def noise_sigma(self, sample_rate_hz: float) -> np.ndarray | None:
+        """Per-sample white-noise standard deviation, output units, or None if unknown.
+
+        sigma = density * sqrt(sample_rate / 2) (noise band up to Nyquist).
+        """
+        if self.noise is None or self.noise.density is None:
+            return None
+        return self.noise.density * math.sqrt(sample_rate_hz / 2.0)
+
+
+@dataclass
+class Certificate:
+    """A whole certificate: device text, environment magnitudes and both triads."""
+
+    gyro: TriadModel
+    accel: TriadModel
+    gravity: float = STANDARD_GRAVITY_M_S2  #: m/s^2, local gravity magnitude
+    earth_rate: float = 7.2921150e-5  #: rad/s
+    sample_rate: float = 200.0  #: Hz, nominal
+    device: dict[str, Any] = field(default_factory=dict)
+    source: str | None = None  #: file it was read from, for messages
+
+    def triad(self, name: str) -> TriadModel:
+        """The triad called ``gyro`` or ``accel``."""
+        if name not in TRIADS:
+            raise KeyError(name)
+        return self.gyro if name == "gyro" else self.accel
+
+    def magnitude_si(self, name: str) -> float:
+        """Known magnitude of a triad's input at rest: gravity m/s^2 or Earth rate rad/s."""
+        return self.gravity if name == "accel" else self.earth_rate
+
+    def copy(self) -> Certificate:
+        """A deep copy (for perturbing in tests and calibration)."""
+        return copy.deepcopy(self)
+
+    # -- serialisation ------------------------------------------------------
+
+    def to_dict(self) -> dict[str, Any]:
+        """The YAML document as plain Python types."""
+        out: dict[str, Any] = {"format": FORMAT, "device": dict(self.device)}
+        out["environment"] = {"gravity": float(self.gravity), "earth_rate": float(self.earth_rate)}
+        rate = float(self.sample_rate)
+        out["sample_rate"] = int(rate) if rate.is_integer() else rate
+        for name in TRIADS:
+            out[name] = _triad_to_dict(self.triad(name))
+        return out
+
+    def dumps(self) -> str:
+        """YAML text of the certificate."""
+        return yaml.dump(self.to_dict(), Dumper=_FlowListDumper, sort_keys=False)
+
+    def save(self, path: str | Path) -> None:
+        """Write the certificate to ``path`` (YAML); reading it back gives the same numbers."""
+        Path(path).write_text(self.dumps(), encoding="utf-8")
+
+
+def _triad_to_dict(t: TriadModel) -> dict[str, Any]:
+    d: dict[str, Any] = {
+        "input_unit": t.input_unit,
+        "output_unit": t.output_unit,
+        "scale_factor": [float(v) for v in t.scale_factor],
+        "scale_factor_error": [float(v) for v in t.scale_factor_error],
+        "bias": [float(v) for v in t.bias],
+        "misalignment": {k: float(t.misalignment[k]) for k in MISALIGNMENT_KEYS},
+    }
+    if t.noise is not None:
+        n: dict[str, Any] = {}
+        if t.noise.density is not None:
+            n["density"] = [float(v) for v in t.noise.density]
+        if t.noise.bias_random_walk is not None:
+            n["bias_random_walk"] = [float(v) for v in t.noise.bias_random_walk]
+        d["noise"] = n
+    d["limits"] = {
+        "f0": float(t.limits.f0),
+        "bias": [float(v) for v in t.limits.bias],
+        "scale_factor_error": [float(v) for v in t.limits.scale_factor_error],
+        "misalignment": [float(v) for v in t.limits.misalignment],
+    }
+    if t.temperature is not None:
+        d["temperature"] = {
+            "reference": float(t.temperature.reference),
+            "bias_coefficient": [float(v) for v in t.temperature.bias_coefficient],
+            "scale_coefficient": [float(v) for v in t.temperature.scale_coefficient],
+        }
+    if t.nonlinearity is not None:
+        d["nonlinearity"] = [float(v) for v in t.nonlinearity]
+    if t.g_sensitivity is not None:
+        d["g_sensitivity"] = [[float(v) for v in row] for row in t.g_sensitivity]
+    return d
+
+
+class _FlowListDumper(yaml.SafeDumper):
+    """Safe dumper writing short numeric lists in flow style ``[a, b, c]``."""
+
+
+def _represent_list(dumper: yaml.SafeDumper, data: list) -> yaml.Node:
+    flow = all(isinstance(v, (int, float)) for v in data) or all(
+        isinstance(v, list) for v in data
+    )
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
+
+
+_FlowListDumper.add_representer(list, _represent_list)
+
+
+# ---------------------------------------------------------------------------
+# parsing
+
+
+def _parse_triad(node: Any, name: str) -> TriadModel:
+    node = _mapping(node, name)
+    _check_keys(
+        node,
+        name,
+        ("input_unit", "output_unit", "scale_factor", "scale_factor_error", "bias",
+         "misalignment", "limits"),
+        ("noise", "temperature", "nonlinearity", "g_sensitivity"),
+    )
+    unit = node["input_unit"]
+    if unit not in INPUT_UNITS_TO_SI[name]:
+        allowed = " or ".join(INPUT_UNITS_TO_SI[name])
+        raise CertificateError(f"{name}.input_unit", f"must be {allowed}, got {unit!r}")
+    out_unit = node["output_unit"]
+    if not isinstance(out_unit, str) or not out_unit:
+        raise CertificateError(f"{name}.output_unit", f"expected text, got {out_unit!r}")
+    scale = _vector(node["scale_factor"], f"{name}.scale_factor")
+    for i, s in enumerate(scale):
+        _positive(s, f"{name}.scale_factor[{i}]")
+    mis = _mapping(node["misalignment"], f"{name}.misalignment")
+    _check_keys(mis, f"{name}.misalignment", MISALIGNMENT_KEYS)
+    misalignment = {k: _finite(mis[k], f"{name}.misalignment.{k}") for k in MISALIGNMENT_KEYS}
+
+    lim = _mapping(node["limits"], f"{name}.limits")
+    _check_keys(lim, f"{name}.limits", ("f0", "bias", "scale_factor_error", "misalignment"))
+    limits = Limits(
+        f0=_positive(_finite(lim["f0"], f"{name}.limits.f0"), f"{name}.limits.f0"),
+        bias=_vector(lim["bias"], f"{name}.limits.bias"),
+        scale_factor_error=_vector(lim["scale_factor_error"], f"{name}.limits.scale_factor_error"),
+        misalignment=_vector(lim["misalignment"], f"{name}.limits.misalignment"),
+    )
+    for key in ("bias", "scale_factor_error", "misalignment"):
+        for i, v in enumerate(getattr(limits, key)):
+            _positive(v, f"{name}.limits.{key}[{i}]")
+
+    noise = None
+    if "noise" in node:
+        nn = _mapping(node["noise"], f"{name}.noise")
+        _check_keys(nn, f"{name}.noise", (), ("density", "bias_random_walk"))
+        noise = Noise(
+            density=_vector(nn["density"], f"{name}.noise.density") if "density" in nn else None,
+            bias_random_walk=(
+                _vector(nn["bias_random_walk"], f"{name}.noise.bias_random_walk")
+                if "bias_random_walk" in nn
+                else None
+            ),
+        )
+        for key in ("density", "bias_random_walk"):
+            vals = getattr(noise, key)
+            if vals is not None:
+                for i, v in enumerate(vals):
+                    if v < 0:
+                        raise CertificateError(f"{name}.noise.{key}[{i}]", f"must be >= 0, got {v}")
+
+    temperature = None
+    if "temperature" in node:
+        tn = _mapping(node["temperature"], f"{name}.temperature")
+        _check_keys(
+            tn, f"{name}.temperature", (), ("reference", "bias_coefficient", "scale_coefficient")
+        )
+        temperature = Temperature()
+        if "reference" in tn:
+            temperature.reference = _finite(tn["reference"], f"{name}.temperature.reference")
+        for key in ("bias_coefficient", "scale_coefficient"):
+            if key in tn:
+                setattr(temperature, key, _vector(tn[key], f"{name}.temperature.{key}"))
+
+    nonlinearity = (
+        _vector(node["nonlinearity"], f"{name}.nonlinearity") if "nonlinearity" in node else None
+    )
+    g_sens = None
+    if "g_sensitivity" in node:
+        if name != "gyro":
+            raise CertificateError(f"{name}.g_sensitivity", "only the gyro triad has g_sensitivity")
+        rows = node["g_sensitivity"]
+        if not isinstance(rows, (list, tuple)) or len(rows) != 3:
+            raise CertificateError(f"{name}.g_sensitivity", "expected 3 rows of 3 numbers")
+        g_sens = np.vstack([_vector(r, f"{name}.g_sensitivity[{i}]") for i, r in enumerate(rows)])
+
+    return TriadModel(
+        name=name,
+        input_unit=unit,
+        output_unit=out_unit,
+        scale_factor=scale,
+        scale_factor_error=_vector(node["scale_factor_error"], f"{name}.scale_factor_error"),
+        bias=_vector(node["bias"], f"{name}.bias"),
+        misalignment=misalignment,
+        limits=limits,
+        noise=noise,
+        temperature=temperature,
+        nonlinearity=nonlinearity,
+        g_sensitivity=g_sens,
+    )
+
+
+def from_dict(doc: Any, source: str | None = None) -> Certificate:
+    """Build and validate a certificate from a parsed YAML document."""
+    try:
+        doc = _mapping(doc, "(document)")
+        _check_keys(doc, "", ("format", "device", "environment", "sample_rate", "gyro", "accel"))
+        if doc["format"] != FORMAT:
+            raise CertificateError("format", f"expected {FORMAT!r}, got {doc['format']!r}")
+        device = _mapping(doc["device"], "device")
+        env = _mapping(doc["environment"], "environment")
+        _check_keys(env, "environment", ("gravity", "earth_rate"))
+        gravity = _positive(_finite(env["gravity"], "environment.gravity"), "environment.gravity")
+        earth_rate = _positive(
+            _finite(env["earth_rate"], "environment.earth_rate"), "environment.earth_rate"
+        )
+        rate = _positive(_finite(doc["sample_rate"], "sample_rate"), "sample_rate")
+        return Certificate(
+            gyro=_parse_triad(doc["gyro"], "gyro"),
+            accel=_parse_triad(doc["accel"], "accel"),
+            gravity=gravity,
+            earth_rate=earth_rate,
+            sample_rate=rate,
+            device={str(k): v for k, v in device.items()},
+            source=source,
+        )
+    except CertificateError as exc:
+        if source and exc.source is None:
+            raise CertificateError(exc.key, exc.reason, source) from None
+        raise
+
+
+def loads(text: str, source: str | None = None) -> Certificate:
+    """Parse certificate YAML text."""
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}" if mark is not None else "(document)"
+        raise CertificateError(where, f"not valid YAML: {exc}", source) from None
+    return from_dict(doc, source=source)
+
+
+def load(path: str | Path) -> Certificate:
+    """Read and validate a certificate file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise CertificateError("(file)", f"cannot read: {exc.strerror or exc}", str(path)) from None
+    except UnicodeDecodeError as exc:
+        raise CertificateError("(file)", f"not UTF-8 text: {exc}", str(path)) from None
+    return loads(text, source=str(path))
+
+
+DEFAULT_CERTIFICATE_NAME = "default-certificate.yaml"
+
+
+def default_certificate_path() -> Path:
+    """Path of the bundled certificate of the simulated board."""
+    return Path(str(resources.files("imudiag.config").joinpath(DEFAULT_CERTIFICATE_NAME)))
+
+
+def load_default() -> Certificate:
+    """The bundled certificate of the simulated ADXRS300/ADXL202 board."""
+    return load(default_certificate_path())
+
+
+__all__ = [
+    "FORMAT",
+    "Certificate",
+    "CertificateError",
+    "Limits",
+    "Noise",
+    "Temperature",
+    "TriadModel",
+    "from_dict",
+    "load",
+    "load_default",
+    "loads",
+    "default_certificate_path",
+    "SENSOR_NAMES",
+    "MISALIGNMENT_PAIRS",
+    "TRIADS",
+]

@@ -1,0 +1,73 @@
+"""The ``imudiag`` command line: one subcommand per module of ``imudiag.commands``.
+
+Each command module defines ``register(subparsers)`` that adds its parser and
+sets ``func`` to a callable ``(args) -> int``. Exit status (spec/reports.md):
+0 done whatever the verdict, 2 bad input (the message names file, line or
+key, and the reason), 1 anything else.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from . import __version__
+from .errors import BadInput
+
+#: Subcommand modules in ``imudiag.commands``, in the order ``--help`` lists them.
+COMMANDS = (
+    "run",
+    "diagnose",
+    "calibrate",
+    "model_check",
+    "simulate",
+    "allan",
+    "bench",
+    "convert",
+)
+
+EXIT_OK = 0
+EXIT_ERROR = 1
+EXIT_BAD_INPUT = 2
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full argument parser with every available subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="imudiag",
+        description="Onboard IMU monitor and scalar diagnosis (Avrutov 2015).",
+    )
+    parser.add_argument("--version", action="version", version=f"imudiag {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"imudiag.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"imudiag.commands.{name}":
+                continue  # command not part of this build
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``imudiag`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help(sys.stderr)
+        return EXIT_BAD_INPUT
+    from .certificate import CertificateError
+    from .logs import LogError
+
+    try:
+        return int(args.func(args) or 0)
+    except (BadInput, CertificateError, LogError) as exc:
+        print(f"imudiag {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        return EXIT_OK
+    except BrokenPipeError:
+        return EXIT_OK
