@@ -1,0 +1,89 @@
+"""``imudiag run``: the monitor daemon (spec/reports.md).
+
+With no arguments: the simulated board (``sim://``), the bundled certificate,
+JSON status lines on standard output. A configuration file (``--config``)
+sets everything; command-line options override it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from typing import Any
+
+from ..errors import BadInput
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``run`` subcommand."""
+    p = sub.add_parser(
+        "run",
+        help="run the monitor daemon",
+        description="Run the monitor daemon: read the IMU, check every sample, diagnose "
+        "the sensors against the certificate, write status.",
+    )
+    p.add_argument("--config", help="daemon configuration YAML (default: the bundled one)")
+    p.add_argument(
+        "--source",
+        help="input URL: serial:///dev/ttyACM0?baud=921600, hid://VID:PID, usb://VID:PID, "
+        "replay://PATH?speed=1, sim://SCENARIO?seed=N (default sim://)",
+    )
+    p.add_argument("--certificate", help="certificate YAML (default: the bundled one)")
+    p.add_argument(
+        "--status",
+        action="append",
+        help="status sink: '-' for JSON lines on stdout, or a serial URL for NMEA sentences "
+        "(repeatable; default '-')",
+    )
+    p.add_argument("--status-rate", type=float, help="steady status rate, Hz (default 1)")
+    p.add_argument("--nmea-rate", type=float, help="steady NMEA status rate, Hz")
+    p.add_argument("--no-data-timeout", type=float, help="seconds without frames -> no_data")
+    p.add_argument("--no-diagnosis", action="store_true", help="per-sample checks only")
+    p.add_argument("--log-level", help="DEBUG, INFO, WARNING, ERROR")
+    p.set_defaults(func=run)
+
+
+def _overrides(args: argparse.Namespace) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key in ("source", "certificate", "status", "status_rate", "nmea_rate", "log_level"):
+        value = getattr(args, key)
+        if value is not None:
+            out[key] = value
+    if args.no_data_timeout is not None:
+        out["no_data_timeout"] = args.no_data_timeout
+    if args.no_diagnosis:
+        out["diagnosis"] = False
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    """Build the daemon from configuration and options and run it until stopped."""
+    from ..certificate import CertificateError
+    from ..drivers.base import SourceError
+    from ..service.config import default_config, load_config, merge_cli
+    from ..service.daemon import Daemon, settings_from_config
+    from ..service.logging_setup import setup_logging
+    from ..service.sinks import make_sinks
+
+    config = load_config(args.config) if args.config else default_config()
+    config = merge_cli(config, _overrides(args))
+    setup_logging(config.log_level)
+    settings = settings_from_config(config)
+    try:
+        sinks = make_sinks(config)
+        daemon = Daemon(settings, sinks)
+    except SourceError as exc:
+        raise BadInput(str(exc)) from None
+    except CertificateError:
+        raise
+    daemon.install_signal_handlers()
+    logging.getLogger("imudiag.daemon").info(
+        "monitoring %s with certificate %s", settings.source_url,
+        settings.certificate_path or "(bundled)",
+    )
+    try:
+        return daemon.run()
+    except BrokenPipeError:
+        sys.stderr.close()
+        return 0

@@ -1,0 +1,267 @@
+"""Per-sample monitor: certificate-corrected F0 checks, persistence, stuck and saturation.
+
+Every sample of both triads is corrected with the certificate. The checks
+(scalar-method.md section 1 and 5):
+
+- accelerometer F0 = 1/2(|f|^2/g^2 - 1) against ``limits.f0``, only while the
+  unit is quasi-static; during manoeuvres it is *not applicable*, not failed;
+- gyro F0 against Earth rate where the certificate's noise makes Earth rate
+  observable per sample (navigation-grade gyros); for MEMS gyros the rest-rate
+  check instead: while quasi-static the certificate-corrected rate averaged
+  over ``gyro_window_s`` must not exceed Earth rate by more than the bias
+  limit plus ``k_sigma`` standard deviations of that mean, per axis;
+- k-of-n persistence before a triad is declared failed;
+- stuck outputs (a channel repeating the same raw value for ``stuck_samples``
+  samples where its noise makes that impossible) and saturation flags.
+
+All of it is vectorised per block; state carries across blocks.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .certificate import SENSOR_NAMES, TRIADS, Certificate, TriadModel
+from .persistence import Persistence
+from .quasistatic import QuasiStaticDetector
+from .ringbuffer import SampleRing
+from .samples import FLAG_ACCEL_SATURATED, FLAG_ADC_ERROR, FLAG_GYRO_SATURATED, SampleBlock
+from .scalar import f0
+
+
+@dataclass
+class MonitorConfig:
+    """Settings of the per-sample checks."""
+
+    persistence_k: int = 20  #: failed checks among the last n checked samples to declare a fault
+    persistence_n: int = 50  #: checked samples in the persistence window
+    stuck_samples: int = 50  #: identical consecutive raw outputs that mean a stuck channel
+    stuck_min_sigma: float = 1.0  #: output units; stuck check only where noise is at least this
+    static_window_s: float = 0.5  #: window of the quasi-static detector, s
+    gyro_window_s: float = 1.0  #: averaging window of the MEMS rest-rate check, s
+    k_sigma: float = 5.0  #: standard deviations of margin in the gyro rest-rate check
+    ring_capacity: int = 4096  #: samples kept in the ring buffer of recent samples
+    earth_rate_noise_ratio: float = 0.2  #: per-sample Earth-rate F0 needs sigma_f0 < ratio*limit
+
+
+@dataclass
+class TriadState:
+    """Running counters and last values of one triad's checks."""
+
+    checked: int = 0  #: samples on which the F0 check applied
+    failed: int = 0  #: of those, samples beyond the limit
+    last_f0: float = float("nan")  #: dimensionless, last checked sample
+    worst_axis: int | None = None  #: axis of the last gyro rest-rate failure
+    persistence: Persistence | None = None
+    saturation: Persistence | None = None
+    stuck_run: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=np.int64))
+    stuck_last: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    stuck_active: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=bool))
+
+
+class Monitor:
+    """Runs the per-sample checks over consecutive blocks of one stream."""
+
+    def __init__(self, certificate: Certificate, config: MonitorConfig | None = None) -> None:
+        self.config = config or MonitorConfig()
+        self.certificate = certificate
+        self.ring = SampleRing(self.config.ring_capacity)
+        self.samples = 0  #: samples seen
+        self.adc_errors = 0  #: samples flagged with an ADC error (not checked)
+        self.t_last: float | None = None  #: sample time of the last sample, s
+        self.static = False  #: the last sample was quasi-static
+        self.state: dict[str, TriadState] = {}
+        self._gyro_tail = np.zeros((0, 3))
+        self._static_tail = np.zeros(0, dtype=bool)
+        self.set_certificate(certificate)
+
+    # -- configuration ----------------------------------------------------
+
+    def set_certificate(self, certificate: Certificate) -> None:
+        """Use a new certificate from the next block on (persistence restarts)."""
+        self.certificate = certificate
+        cfg = self.config
+        rate = certificate.sample_rate
+        self.detector = QuasiStaticDetector(certificate, rate, window_s=cfg.static_window_s)
+        self.state = {}
+        for name in TRIADS:
+            st = TriadState()
+            st.persistence = Persistence(cfg.persistence_k, cfg.persistence_n)
+            st.saturation = Persistence(cfg.persistence_k, cfg.persistence_n)
+            self.state[name] = st
+        self.gyro_mode = self._gyro_mode(certificate.gyro, rate)
+        self._gyro_window = max(1, int(round(cfg.gyro_window_s * rate)))
+        self._gyro_tail = np.zeros((0, 3))
+        self._static_tail = np.zeros(0, dtype=bool)
+
+    def _gyro_mode(self, gyro: TriadModel, rate_hz: float) -> str:
+        """``earth_rate`` when per-sample F0 against Earth rate is meaningful, else ``rest_rate``."""
+        sigma = gyro.noise_sigma(rate_hz)
+        if sigma is None:
+            return "rest_rate"
+        sigma_si = float(np.max(sigma / gyro.scale_factor)) * gyro.unit_to_si
+        sigma_f0 = sigma_si / self.certificate.earth_rate
+        limit = gyro.limits.f0
+        return "earth_rate" if sigma_f0 < self.config.earth_rate_noise_ratio * limit else "rest_rate"
+
+    # -- results ----------------------------------------------------------
+
+    @property
+    def f0_checked(self) -> dict[str, int]:
+        """Samples on which each triad's F0 check applied."""
+        return {name: st.checked for name, st in self.state.items()}
+
+    @property
+    def f0_failed(self) -> dict[str, int]:
+        """Checked samples beyond the F0 limit, per triad."""
+        return {name: st.failed for name, st in self.state.items()}
+
+    @property
+    def active_faults(self) -> list[dict[str, Any]]:
+        """Faults in force now: dicts with triad, sensor (where it can be told), cause, t_first."""
+        out: list[dict[str, Any]] = []
+        for name in TRIADS:
+            st = self.state[name]
+            if st.persistence is not None and st.persistence.active:
+                fault: dict[str, Any] = {"triad": name, "cause": "f0"}
+                if name == "gyro" and self.gyro_mode == "rest_rate" and st.worst_axis is not None:
+                    fault["sensor"] = SENSOR_NAMES[name][st.worst_axis]
+                fault["t_first"] = st.persistence.t_first
+                out.append(fault)
+            for axis in np.flatnonzero(st.stuck_active):
+                out.append({"triad": name, "sensor": SENSOR_NAMES[name][axis], "cause": "stuck"})
+            if st.saturation is not None and st.saturation.active:
+                out.append(
+                    {"triad": name, "cause": "saturation", "t_first": st.saturation.t_first}
+                )
+        return out
+
+    # -- the checks -------------------------------------------------------
+
+    def update(self, block: SampleBlock) -> None:
+        """Check every sample of ``block`` (consecutive with the previous block)."""
+        n = len(block)
+        if n == 0:
+            return
+        cert = self.certificate
+        self.ring.push(block)
+        self.samples += n
+        self.t_last = float(block.t[-1])
+        flags = block.flags if block.flags is not None else np.zeros(n, dtype=np.uint16)
+        flags = flags.astype(np.uint16, copy=False)
+        adc_error = (flags & FLAG_ADC_ERROR) != 0
+        self.adc_errors += int(np.count_nonzero(adc_error))
+
+        static = self.detector.update(block)
+        self.static = bool(static[-1])
+        temp = block.temp
+        accel_in = cert.accel.inverse(block.accel, temp_c=temp)  # accel input units
+        accel_si = accel_in * cert.accel.unit_to_si
+        gyro_si = cert.gyro.inverse_si(
+            block.gyro, temp_c=temp, accel_input=accel_in if cert.gyro.g_sensitivity is not None
+            else None,
+        )
+
+        sat = {
+            "gyro": (flags & FLAG_GYRO_SATURATED) != 0,
+            "accel": (flags & FLAG_ACCEL_SATURATED) != 0,
+        }
+        for name in TRIADS:
+            st = self.state[name]
+            assert st.saturation is not None
+            st.saturation.update(sat[name], block.t)
+
+        # accelerometer F0 on quasi-static samples
+        ok_a = static & ~adc_error & ~sat["accel"]
+        self._record("accel", f0(accel_si[ok_a] / cert.gravity), block.t[ok_a])
+
+        # gyro
+        ok_g = static & ~adc_error & ~sat["gyro"]
+        if self.gyro_mode == "earth_rate":
+            self._record("gyro", f0(gyro_si[ok_g] / cert.earth_rate), block.t[ok_g])
+        else:
+            self._gyro_rest_rate(gyro_si, static, ok_g, block.t)
+
+        self._stuck(block)
+
+    def _record(self, name: str, values: np.ndarray, t: np.ndarray) -> None:
+        st = self.state[name]
+        limit = self.certificate.triad(name).limits.f0
+        failed = np.abs(values) > limit
+        st.checked += int(values.size)
+        st.failed += int(np.count_nonzero(failed))
+        if values.size:
+            st.last_f0 = float(values[-1])
+        assert st.persistence is not None
+        st.persistence.update(failed, t)
+
+    def _gyro_rest_rate(
+        self, gyro_si: np.ndarray, static: np.ndarray, ok: np.ndarray, t: np.ndarray
+    ) -> None:
+        """MEMS rest-rate check: moving mean of the corrected rate over a static window."""
+        cert = self.certificate
+        gyro = cert.gyro
+        w = self._gyro_window
+        seq = np.concatenate([self._gyro_tail, gyro_si])
+        st_seq = np.concatenate([self._static_tail, static])
+        c = np.concatenate([np.zeros((1, 3)), np.cumsum(seq, axis=0)])
+        cs = np.concatenate([[0], np.cumsum(st_seq, dtype=np.int64)])
+        k0 = len(self._gyro_tail)
+        idx = np.arange(k0, len(seq))
+        lo = np.maximum(idx + 1 - w, 0)
+        counts = (idx + 1 - lo).astype(float)
+        mean = (c[idx + 1] - c[lo]) / counts[:, None]
+        full_static = (cs[idx + 1] - cs[lo]) == w  # the whole averaging window was still
+        usable = ok & full_static & (counts == w)
+        self._gyro_tail = seq[-(w - 1) :] if w > 1 else np.zeros((0, 3))
+        self._static_tail = st_seq[-(w - 1) :] if w > 1 else np.zeros(0, dtype=bool)
+
+        bias_lim_si = gyro.limits.bias / gyro.scale_factor * gyro.unit_to_si
+        sigma = gyro.noise_sigma(cert.sample_rate)
+        sigma_mean_si = (
+            np.zeros(3)
+            if sigma is None
+            else sigma / gyro.scale_factor * gyro.unit_to_si / math.sqrt(w)
+        )
+        thr = cert.earth_rate + bias_lim_si + self.config.k_sigma * sigma_mean_si
+        m = mean[usable]
+        excess = np.abs(m) / thr  # > 1 fails
+        failed = np.any(excess > 1.0, axis=1)
+        # a scalar summary of the check in the F0 form, against the per-axis threshold
+        values = 0.5 * (np.einsum("ij,ij->i", excess, excess) / 3.0 - 1.0)
+        st = self.state["gyro"]
+        st.checked += int(m.shape[0])
+        st.failed += int(np.count_nonzero(failed))
+        if m.shape[0]:
+            st.last_f0 = float(values[-1])
+        if np.any(failed):
+            st.worst_axis = int(np.argmax(excess[failed][-1]))
+        assert st.persistence is not None
+        st.persistence.update(failed, t[usable])
+
+    def _stuck(self, block: SampleBlock) -> None:
+        """Run length of identical raw outputs per channel, carried across blocks."""
+        cfg = self.config
+        for name in TRIADS:
+            st = self.state[name]
+            triad = self.certificate.triad(name)
+            sigma = triad.noise_sigma(self.certificate.sample_rate)
+            if sigma is None:
+                continue
+            enabled = sigma >= cfg.stuck_min_sigma
+            raw = block.triad(name)
+            prev = st.stuck_last
+            same_prev = np.vstack([raw[:1] == prev, raw[1:] == raw[:-1]])  # (N, 3)
+            n = raw.shape[0]
+            idx = np.arange(n)[:, None]
+            # index of the last change at or before each sample (-1: none in this block)
+            last_change = np.maximum.accumulate(np.where(~same_prev, idx, -1), axis=0)
+            carried = np.where(last_change < 0, st.stuck_run[None, :] + idx + 1, idx - last_change)
+            run = carried  # samples in the current run of equal values, excluding its first
+            st.stuck_run = run[-1].astype(np.int64)
+            st.stuck_last = raw[-1].copy()
+            st.stuck_active = enabled & (st.stuck_run >= cfg.stuck_samples - 1)

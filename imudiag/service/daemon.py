@@ -1,0 +1,248 @@
+"""The monitor daemon: source -> monitor -> diagnosis -> status, with signals and sd_notify.
+
+One thread does the sampling path; status sinks never block it (the serial
+NMEA sink has its own bounded queue). SIGTERM and SIGINT stop cleanly (exit
+0); SIGHUP reloads the certificate and keeps the old one if the new one is bad.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import signal
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+from .. import certificate as certmod
+from ..certificate import Certificate, CertificateError
+from ..drivers.base import EndOfStream, SourceError
+from ..drivers.reconnect import ReconnectingSource
+from ..monitor import Monitor, MonitorConfig
+from .sdnotify import Notifier, WatchdogGate
+from .status import StatusSchedule, merge_faults
+
+log = logging.getLogger("imudiag.daemon")
+
+
+class StatusSink(Protocol):
+    """Anything that takes status dicts (stdout JSON lines, serial NMEA)."""
+
+    def publish(self, status: dict[str, Any]) -> None: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass
+class DaemonSettings:
+    """What the daemon runs on and how often it reports."""
+
+    source_url: str = "sim://"
+    certificate_path: str | None = None  #: None: the bundled certificate
+    status_period_s: float = 1.0  #: steady status cadence, s
+    no_data_timeout_s: float = 2.0  #: no valid frame for this long -> state no_data, s
+    read_timeout_s: float = 0.05  #: longest wait for data in one loop turn, s
+    reconnect_min_s: float = 0.5  #: first reconnect back-off, s
+    reconnect_max_s: float = 10.0  #: longest reconnect back-off, s
+    degraded_hold_s: float = 10.0  #: transport errors keep the state degraded this long, s
+    diagnosis: bool = True  #: run the sliding-window 18-parameter diagnosis live
+    diagnosis_options: dict[str, Any] = field(default_factory=dict)
+    monitor: MonitorConfig = field(default_factory=MonitorConfig)
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+class Daemon:
+    """The long-running monitor. Call :meth:`run`; :meth:`request_stop` ends it."""
+
+    def __init__(
+        self,
+        settings: DaemonSettings,
+        sinks: list[StatusSink],
+        notifier: Notifier | None = None,
+        clock: Any = time.monotonic,
+    ) -> None:
+        self.settings = settings
+        self.sinks = sinks
+        self.notifier = notifier or Notifier.from_env()
+        self.watchdog = WatchdogGate(self.notifier)
+        self.clock = clock
+        self.certificate = self._load_certificate()
+        self.monitor = Monitor(self.certificate, settings.monitor)
+        self.diagnoser = self._make_diagnoser(self.certificate)
+        self.source = ReconnectingSource(
+            settings.source_url,
+            certificate=self.certificate,
+            backoff_min_s=settings.reconnect_min_s,
+            backoff_max_s=settings.reconnect_max_s,
+        )
+        self.schedule = StatusSchedule(settings.status_period_s)
+        self._stop = False
+        self._reload = False
+        self._last_data_wall: float | None = None
+        self._last_errors = 0
+        self._errors_wall = -math.inf
+        self.notes: list[str] = []
+        self.reloads = 0
+        self.statuses = 0
+
+    # -- setup ------------------------------------------------------------
+
+    def _load_certificate(self) -> Certificate:
+        path = self.settings.certificate_path
+        return certmod.load(path) if path else certmod.load_default()
+
+    def _make_diagnoser(self, cert: Certificate) -> Any:
+        if not self.settings.diagnosis:
+            return None
+        from ..diagnosis import StreamingDiagnoser
+
+        return StreamingDiagnoser(cert, **self.settings.diagnosis_options)
+
+    def install_signal_handlers(self) -> None:
+        """SIGTERM/SIGINT stop, SIGHUP reloads the certificate (main thread only)."""
+        signal.signal(signal.SIGTERM, lambda *_: self.request_stop())
+        signal.signal(signal.SIGINT, lambda *_: self.request_stop())
+        signal.signal(signal.SIGHUP, lambda *_: self.request_reload())
+
+    def request_stop(self) -> None:
+        """Ask the loop to finish after the current turn."""
+        self._stop = True
+
+    def request_reload(self) -> None:
+        """Ask the loop to reload the certificate before the next block."""
+        self._reload = True
+
+    # -- certificate reload -----------------------------------------------
+
+    def reload_certificate(self) -> bool:
+        """Re-read the certificate; keep the old one if the new one is bad. True if replaced."""
+        path = self.settings.certificate_path or str(certmod.default_certificate_path())
+        try:
+            new = certmod.load(path)
+        except CertificateError as exc:
+            msg = f"certificate reload failed, keeping the previous one: {exc}"
+            log.error(msg)
+            self.notes = [msg]
+            return False
+        self.certificate = new
+        self.monitor.set_certificate(new)
+        if self.diagnoser is not None:
+            self.diagnoser = self._make_diagnoser(new)
+        self.reloads += 1
+        self.notes = []
+        log.info("certificate reloaded from %s", path)
+        return True
+
+    # -- status -----------------------------------------------------------
+
+    def _state(self, now: float, faults: list[dict[str, Any]]) -> str:
+        s = self.settings
+        if self._last_data_wall is None or now - self._last_data_wall > s.no_data_timeout_s:
+            return "no_data"
+        if faults:
+            return "fault"
+        if now - self._errors_wall < s.degraded_hold_s or self.notes:
+            return "degraded"
+        return "ok"
+
+    def status(self, now: float) -> dict[str, Any]:
+        """The current status object (spec/reports.md keys first)."""
+        diag_faults = self.diagnoser.faults if self.diagnoser is not None else []
+        faults = merge_faults(
+            [{k: v for k, v in f.items() if k != "t_first"} for f in self.monitor.active_faults],
+            [{k: f[k] for k in ("triad", "sensor", "cause") if k in f} for f in diag_faults],
+        )
+        counters = self.source.counters.as_dict()
+        errors = counters["crc_errors"] + counters["lost"] + self.monitor.adc_errors
+        if errors > self._last_errors:
+            self._errors_wall = now
+            self._last_errors = errors
+        t = self.monitor.t_last
+        status: dict[str, Any] = {
+            "t": None if t is None else round(t, 6),
+            "state": self._state(now, faults),
+            "faults": faults,
+            "counters": counters,
+            "link": self.source.state,
+            "static": self.monitor.static,
+            "f0": {
+                name: {
+                    "checked": st.checked,
+                    "failed": st.failed,
+                    "last": _finite_or_none(st.last_f0),
+                }
+                for name, st in self.monitor.state.items()
+            },
+            "adc_errors": self.monitor.adc_errors,
+            "certificate": {
+                "serial": str(self.certificate.device.get("serial", "")),
+                "reloads": self.reloads,
+            },
+        }
+        if self.diagnoser is not None:
+            status["diagnosis"] = self.diagnoser.verdicts()
+        if self.notes:
+            status["notes"] = list(self.notes)
+        return status
+
+    def _publish(self, status: dict[str, Any]) -> None:
+        for sink in self.sinks:
+            sink.publish(status)
+        self.statuses += 1
+        self.notifier.status(
+            f"{status['state']}; t={status['t']}; faults={len(status['faults'])}; "
+            f"frames={status['counters']['frames']}"
+        )
+
+    # -- the loop ---------------------------------------------------------
+
+    def run(self) -> int:
+        """Run until stopped or a finite source ends; returns the exit status (0)."""
+        try:
+            self.source.open()
+        except SourceError as exc:
+            log.warning("source not available yet, will retry: %s", exc)
+        self.notifier.ready()
+        try:
+            while not self._stop:
+                if self._reload:
+                    self._reload = False
+                    self.reload_certificate()
+                now = self.clock()
+                try:
+                    block = self.source.read(self.settings.read_timeout_s)
+                except EndOfStream:
+                    self._emit(self.clock(), force=True)
+                    break
+                now = self.clock()
+                if len(block):
+                    self._last_data_wall = now
+                    self.watchdog.frames_arrived(now)
+                    self.monitor.update(block)
+                    if self.diagnoser is not None:
+                        self.diagnoser.update(block)
+                self.watchdog.tick(now)
+                self._emit(now)
+        finally:
+            self.notifier.stopping()
+            self.source.close()
+            for sink in self.sinks:
+                sink.close()
+        return 0
+
+    def _emit(self, now: float, force: bool = False) -> None:
+        status = self.status(now)
+        if self.schedule.due(status, now) or force:
+            self._publish(status)
+
+
+def certificate_path_or_default(path: str | None) -> Path:
+    """The certificate file the daemon will read (the bundled one when none is given)."""
+    return Path(path) if path else certmod.default_certificate_path()
+
+
+__all__ = ["Daemon", "DaemonSettings", "certificate_path_or_default"]

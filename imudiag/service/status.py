@@ -1,0 +1,86 @@
+"""The daemon's status: one JSON object per line (spec/reports.md), and when to write it.
+
+Keys required by the contract: ``t`` (sample time, s), ``state`` (ok,
+degraded, fault, no_data), ``faults`` (triad, sensor where it can be told,
+cause), ``counters`` (the receiver counters). Added keys: ``link``,
+``static``, ``f0``, ``diagnosis``, ``certificate``, ``adc_errors``, ``notes``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any, TextIO
+
+STATES = ("ok", "degraded", "fault", "no_data")
+FAULT_KEYS = ("triad", "sensor", "cause")
+
+
+def fault_key(fault: dict[str, Any]) -> tuple[str, str, str]:
+    """Identity of a fault for change detection and de-duplication."""
+    return (fault.get("triad", ""), fault.get("sensor", ""), fault.get("cause", ""))
+
+
+def merge_faults(*groups: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Faults of several checkers, de-duplicated, in a stable order, contract keys first."""
+    seen: dict[tuple[str, str, str], dict[str, Any]] = {}
+    for group in groups:
+        for f in group:
+            key = fault_key(f)
+            if key not in seen:
+                ordered = {k: f[k] for k in FAULT_KEYS if k in f and f[k] is not None}
+                ordered.update({k: v for k, v in f.items() if k not in FAULT_KEYS})
+                seen[key] = ordered
+    return [seen[k] for k in sorted(seen)]
+
+
+@dataclass
+class StatusSchedule:
+    """Decides when a status line is due: every ``period_s`` and at once on a change.
+
+    The period runs on sample time while samples flow (a replay at full speed
+    gives one line per second of data) and on wall-clock time otherwise (so
+    ``no_data`` is still reported at the steady rate).
+    """
+
+    period_s: float = 1.0
+    _last_t: float | None = None
+    _last_wall: float | None = None
+    _last_signature: tuple[Any, ...] | None = field(default=None)
+
+    def due(self, status: dict[str, Any], wall_s: float) -> bool:
+        """True if ``status`` should be written now; records it as written if so."""
+        signature = (status["state"], tuple(fault_key(f) for f in status["faults"]))
+        t = status.get("t")
+        changed = signature != self._last_signature
+        by_sample = t is not None and (self._last_t is None or t - self._last_t >= self.period_s)
+        by_wall = self._last_wall is None or wall_s - self._last_wall >= self.period_s
+        sample_stalled = t is None or t == self._last_t
+        if changed or by_sample or (by_wall and sample_stalled):
+            self._last_signature = signature
+            self._last_wall = wall_s
+            if by_sample:
+                self._last_t = t
+            return True
+        return False
+
+
+class JsonLinesSink:
+    """Writes status objects as single JSON lines to a text stream (flushed per line)."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self.stream = stream
+        self.lines = 0
+
+    def publish(self, status: dict[str, Any]) -> None:
+        """Write one status line."""
+        self.stream.write(json.dumps(status, separators=(",", ":"), allow_nan=False) + "\n")
+        self.stream.flush()
+        self.lines += 1
+
+    def close(self) -> None:
+        """Flush the stream (it is not closed: it may be stdout)."""
+        try:
+            self.stream.flush()
+        except (OSError, ValueError):
+            pass
