@@ -224,18 +224,21 @@ class TriadModel:
     ) -> np.ndarray:
         """Inputs x (N, 3) in input units from outputs ``u`` (N, 3) in output units.
 
-        The exact inverse of :meth:`forward` for the linear model; with a
-        nonlinearity block two fixed-point iterations (residual far below noise).
+        The exact inverse of :meth:`forward`. With a nonlinearity block each
+        axis solves ``q y^2 + S y = r`` in closed form, taking the root that
+        tends to r/S as q -> 0 (NaN beyond the quadratic's turning point).
         """
         u = np.asarray(u, dtype=float)
         r = u - self._bias_at(temp_c)
         if self.g_sensitivity is not None and accel_input is not None:
             r = r - np.asarray(accel_input, dtype=float) @ self.g_sensitivity.T
         scale = self._scale_at(temp_c)
-        nx = r / scale
-        if self.nonlinearity is not None:
-            for _ in range(2):
-                nx = (r - self.nonlinearity * nx**2) / scale
+        if self.nonlinearity is None:
+            nx = r / scale
+        else:
+            with np.errstate(invalid="ignore"):
+                root = np.sqrt(scale**2 + 4.0 * self.nonlinearity * r)
+            nx = 2.0 * r / (scale + root)
         return nx @ np.linalg.inv(self.n_matrix()).T
 
     def forward_si(self, x_si: np.ndarray, **kw: Any) -> np.ndarray:
@@ -366,7 +369,7 @@ def _parse_triad(node: Any, name: str) -> TriadModel:
         ("noise", "temperature", "nonlinearity", "g_sensitivity"),
     )
     unit = node["input_unit"]
-    if unit not in INPUT_UNITS_TO_SI[name]:
+    if not isinstance(unit, str) or unit not in INPUT_UNITS_TO_SI[name]:
         allowed = " or ".join(INPUT_UNITS_TO_SI[name])
         raise CertificateError(f"{name}.input_unit", f"must be {allowed}, got {unit!r}")
     out_unit = node["output_unit"]

@@ -54,7 +54,7 @@ class TriadState:
 
     checked: int = 0  #: samples on which the F0 check applied
     failed: int = 0  #: of those, samples beyond the limit
-    last_f0: float = float("nan")  #: dimensionless, last checked sample
+    last_f0: float = float("nan")  #: last checked value: F0, or the rest-rate ratio (gyro)
     worst_axis: int | None = None  #: axis of the last gyro rest-rate failure
     persistence: Persistence | None = None
     saturation: Persistence | None = None
@@ -66,8 +66,15 @@ class TriadState:
 class Monitor:
     """Runs the per-sample checks over consecutive blocks of one stream."""
 
-    def __init__(self, certificate: Certificate, config: MonitorConfig | None = None) -> None:
+    def __init__(
+        self,
+        certificate: Certificate,
+        config: MonitorConfig | None = None,
+        rate_hz: float | None = None,
+    ) -> None:
+        """``rate_hz``: the stream's sample rate (default: the certificate's nominal rate)."""
         self.config = config or MonitorConfig()
+        self._rate_override = rate_hz
         self.certificate = certificate
         self.ring = SampleRing(self.config.ring_capacity)
         self.samples = 0  #: samples seen
@@ -85,7 +92,8 @@ class Monitor:
         """Use a new certificate from the next block on (persistence restarts)."""
         self.certificate = certificate
         cfg = self.config
-        rate = certificate.sample_rate
+        rate = self._rate_override or certificate.sample_rate
+        self.rate_hz = rate
         self.detector = QuasiStaticDetector(certificate, rate, window_s=cfg.static_window_s)
         self.state = {}
         for name in TRIADS:
@@ -109,6 +117,10 @@ class Monitor:
         return "earth_rate" if sigma_f0 < self.config.earth_rate_noise_ratio * limit else "rest_rate"
 
     # -- results ----------------------------------------------------------
+
+    def check_mode(self, name: str) -> str:
+        """``f0`` (F0 against the known magnitude) or ``rest_rate`` (MEMS gyro at rest)."""
+        return self.gyro_mode if name == "gyro" and self.gyro_mode == "rest_rate" else "f0"
 
     @property
     def f0_checked(self) -> dict[str, int]:
@@ -221,7 +233,7 @@ class Monitor:
         self._static_tail = st_seq[-(w - 1) :] if w > 1 else np.zeros(0, dtype=bool)
 
         bias_lim_si = gyro.limits.bias / gyro.scale_factor * gyro.unit_to_si
-        sigma = gyro.noise_sigma(cert.sample_rate)
+        sigma = gyro.noise_sigma(self.rate_hz)
         sigma_mean_si = (
             np.zeros(3)
             if sigma is None
@@ -230,9 +242,9 @@ class Monitor:
         thr = cert.earth_rate + bias_lim_si + self.config.k_sigma * sigma_mean_si
         m = mean[usable]
         excess = np.abs(m) / thr  # > 1 fails
-        failed = np.any(excess > 1.0, axis=1)
-        # a scalar summary of the check in the F0 form, against the per-axis threshold
-        values = 0.5 * (np.einsum("ij,ij->i", excess, excess) / 3.0 - 1.0)
+        worst = excess.max(axis=1) if m.shape[0] else np.zeros(0)
+        failed = worst > 1.0
+        values = worst  # ratio of the worst axis' mean rate to its threshold
         st = self.state["gyro"]
         st.checked += int(m.shape[0])
         st.failed += int(np.count_nonzero(failed))
@@ -249,7 +261,7 @@ class Monitor:
         for name in TRIADS:
             st = self.state[name]
             triad = self.certificate.triad(name)
-            sigma = triad.noise_sigma(self.certificate.sample_rate)
+            sigma = triad.noise_sigma(self.rate_hz)
             if sigma is None:
                 continue
             enabled = sigma >= cfg.stuck_min_sigma

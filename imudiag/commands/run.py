@@ -40,21 +40,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--nmea-rate", type=float, help="steady NMEA status rate, Hz")
     p.add_argument("--no-data-timeout", type=float, help="seconds without frames -> no_data")
     p.add_argument("--no-diagnosis", action="store_true", help="per-sample checks only")
-    p.add_argument("--log-level", help="DEBUG, INFO, WARNING, ERROR")
+    p.add_argument("--log-level", help="debug, info, warning, error, critical")
     p.set_defaults(func=run)
 
 
 def _overrides(args: argparse.Namespace) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key in ("source", "certificate", "status", "status_rate", "nmea_rate", "log_level"):
-        value = getattr(args, key)
-        if value is not None:
-            out[key] = value
-    if args.no_data_timeout is not None:
-        out["no_data_timeout"] = args.no_data_timeout
-    if args.no_diagnosis:
-        out["diagnosis"] = False
-    return out
+    """Command-line options as DaemonConfig field names (None: not given)."""
+    return {
+        "source": args.source,
+        "certificate": args.certificate,
+        "status": args.status,
+        "status_rate_hz": args.status_rate,
+        "nmea_rate_hz": args.nmea_rate,
+        "no_data_timeout_s": args.no_data_timeout,
+        "log_level": args.log_level,
+    }
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
     config = merge_cli(config, _overrides(args))
     setup_logging(config.log_level)
     settings = settings_from_config(config)
+    if args.no_diagnosis:
+        settings.diagnosis = False
     try:
         sinks = make_sinks(config)
         daemon = Daemon(settings, sinks)

@@ -20,6 +20,7 @@ from ..certificate import Certificate, CertificateError
 from ..drivers.base import EndOfStream, SourceError
 from ..drivers.reconnect import ReconnectingSource
 from ..monitor import Monitor, MonitorConfig
+from .config import DaemonConfig
 from .sdnotify import Notifier, WatchdogGate
 from .status import StatusSchedule, merge_faults
 
@@ -76,8 +77,8 @@ class Daemon:
         self.source = ReconnectingSource(
             settings.source_url,
             certificate=self.certificate,
-            backoff_min_s=settings.reconnect_min_s,
-            backoff_max_s=settings.reconnect_max_s,
+            min_backoff_s=settings.reconnect_min_s,
+            max_backoff_s=settings.reconnect_max_s,
         )
         self.schedule = StatusSchedule(settings.status_period_s)
         self._stop = False
@@ -171,6 +172,7 @@ class Daemon:
             "static": self.monitor.static,
             "f0": {
                 name: {
+                    "check": self.monitor.check_mode(name),
                     "checked": st.checked,
                     "failed": st.failed,
                     "last": _finite_or_none(st.last_f0),
@@ -240,9 +242,33 @@ class Daemon:
             self._publish(status)
 
 
+def settings_from_config(config: DaemonConfig) -> DaemonSettings:
+    """Daemon settings from a validated configuration (file plus command-line overrides)."""
+    monitor = MonitorConfig(
+        persistence_k=config.f0_persistence_k,
+        persistence_n=config.f0_persistence_n,
+        stuck_samples=config.stuck_samples,
+        static_window_s=config.static_window_s,
+    )
+    return DaemonSettings(
+        source_url=config.source,
+        certificate_path=config.certificate,
+        status_period_s=1.0 / config.status_rate_hz,
+        no_data_timeout_s=config.no_data_timeout_s,
+        reconnect_min_s=config.reconnect_min_s,
+        reconnect_max_s=config.reconnect_max_s,
+        diagnosis_options={
+            "window_intervals": config.diagnosis_window_intervals,
+            "period_s": config.diagnosis_period_s,
+            "persist_windows": config.diagnosis_persist_windows,
+        },
+        monitor=monitor,
+    )
+
+
 def certificate_path_or_default(path: str | None) -> Path:
     """The certificate file the daemon will read (the bundled one when none is given)."""
     return Path(path) if path else certmod.default_certificate_path()
 
 
-__all__ = ["Daemon", "DaemonSettings", "certificate_path_or_default"]
+__all__ = ["Daemon", "DaemonSettings", "certificate_path_or_default", "settings_from_config"]

@@ -111,7 +111,7 @@ class Notifier:
         with self._lock:
             try:
                 if self._sock is None:
-                    self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+                    self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)  # non-inheritable
                 self._sock.sendto(data, _socket_address(self.socket_name))
             except OSError as exc:
                 if self.failures == 0:

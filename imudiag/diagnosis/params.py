@@ -1,0 +1,124 @@
+"""The 9 diagnosed parameters of a triad and their estimate record.
+
+Order, units (the certificate's, spec/reports.md): biases ``B_x B_y B_z``
+(output units), scale-factor errors ``E_x E_y E_z`` (output per input unit),
+misalignment differences ``d1 d2 d3`` (rad). Predicates F1..F9 of the paper
+are checked on these in this order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..certificate import MISALIGNMENT_PAIRS, SENSOR_NAMES, TriadModel
+
+CAUSES = ("bias",) * 3 + ("scale_factor",) * 3 + ("misalignment",) * 3
+PARAM_KEYS = ("bias", "scale_factor", "misalignment")
+
+
+def sensor_of(triad: str, index: int) -> str:
+    """Sensor name (``ax``..) or misalignment pair (``ax/ay``..) of parameter ``index``."""
+    if index < 6:
+        return SENSOR_NAMES[triad][index % 3]
+    return MISALIGNMENT_PAIRS[triad][index - 6]
+
+
+def certificate_vector(triad: TriadModel) -> np.ndarray:
+    """The certificate's (B, E, d) as a (9,) vector in certificate units."""
+    return np.concatenate(
+        [triad.bias, triad.scale_factor_error, triad.misalignment_differences]
+    ).astype(float)
+
+
+def limit_vector(triad: TriadModel) -> np.ndarray:
+    """The limits lambda_1..lambda_9 (9,) in certificate units."""
+    lim = triad.limits
+    return np.concatenate([lim.bias, lim.scale_factor_error, lim.misalignment]).astype(float)
+
+
+def internal_scale(triad: TriadModel, magnitude: float) -> np.ndarray:
+    """Factors (9,) from the fits' dimensionless parameters to certificate units.
+
+    Fits use beta = B / (S m), e = E / S and d, with m the reference magnitude
+    in input units; so B = beta S m, E = e S.
+    """
+    s = triad.scale_factor
+    return np.concatenate([s * magnitude, s, np.ones(3)])
+
+
+@dataclass
+class TriadFit:
+    """Estimates of a triad's 9 parameters over one window, in certificate units.
+
+    ``determined[i]`` is true when the window pins parameter i down well
+    enough to compare it with its limit (std at most ``determined_std_ratio``
+    times the limit); ``reasons[i]`` says why not otherwise.
+    """
+
+    triad: str
+    method: str
+    estimate: np.ndarray  #: (9,) certificate units
+    std: np.ndarray  #: (9,) certificate units (inf where not estimable)
+    certificate: np.ndarray  #: (9,)
+    limit: np.ndarray  #: (9,)
+    determined: np.ndarray  #: (9,) bool
+    reasons: list[str] = field(default_factory=lambda: [""] * 9)
+    condition: float = float("inf")  #: condition number of the limit-scaled information matrix
+    points: int = 0  #: intervals (or samples) used
+    rms_residual: float = float("nan")  #: normalised residual RMS, dimensionless
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def deviation(self) -> np.ndarray:
+        """Estimate minus certificate (9,), certificate units."""
+        return self.estimate - self.certificate
+
+    def to_json(self) -> dict:
+        """Estimates and standard deviations grouped by cause (non-finite values as null)."""
+
+        def clean(v: np.ndarray) -> list:
+            return [float(x) if np.isfinite(x) else None for x in v]
+
+        out: dict = {"method": self.method, "points": int(self.points)}
+        for k, key in enumerate(PARAM_KEYS):
+            sl = slice(3 * k, 3 * k + 3)
+            out[key] = {
+                "estimate": clean(self.estimate[sl]),
+                "std": clean(self.std[sl]),
+                "determined": [bool(x) for x in self.determined[sl]],
+            }
+        out["condition"] = float(self.condition) if np.isfinite(self.condition) else None
+        out["rms_residual"] = (
+            float(self.rms_residual) if np.isfinite(self.rms_residual) else None
+        )
+        out.update(self.extra)
+        return out
+
+
+def undetermined_fit(triad: TriadModel, method: str, reason: str) -> TriadFit:
+    """A fit where nothing could be estimated, for ``reason``."""
+    cert = certificate_vector(triad)
+    return TriadFit(
+        triad=triad.name,
+        method=method,
+        estimate=cert.copy(),
+        std=np.full(9, np.inf),
+        certificate=cert,
+        limit=limit_vector(triad),
+        determined=np.zeros(9, dtype=bool),
+        reasons=[reason] * 9,
+    )
+
+
+__all__ = [
+    "CAUSES",
+    "PARAM_KEYS",
+    "TriadFit",
+    "certificate_vector",
+    "limit_vector",
+    "internal_scale",
+    "sensor_of",
+    "undetermined_fit",
+]

@@ -1,0 +1,417 @@
+"""Scalar fits of a triad's 9 parameters: |N^-1 (U - B) / S| = magnitude.
+
+Three solvers, all returning a :class:`TriadFit` in certificate units:
+
+- :func:`exact_fit`: the paper's linear least squares (eqs. 7, 9, 10) as the
+  start, refined by Gauss-Newton with step control on the exact model over the
+  means of quasi-static intervals, weighted by the noise of each mean, with a
+  weak Gaussian prior at the certificate (``prior_factor`` times the limits)
+  that keeps unobservable directions at the certificate and gives them a
+  posterior standard deviation of about ``prior_factor`` limits, so they are
+  reported as undetermined instead of as numbers that look fine (note §4).
+- :func:`linear_fit`: the paper's literal linearised solution, per sample
+  (F0 of every sample, squares of noisy samples included), no iteration.
+- :func:`normal_equation_fit` over :class:`NormalEquations` accumulated from
+  every sample with a per-sample magnitude (the moving-base variant, note §6:
+  bias regressor ``y_j / |y|^2`` through the un-normalised form).
+
+Parameters inside the fits are dimensionless: ``beta = B / (S m0)`` with m0
+the reference magnitude in input units, and the shape ``e_x e_y e_z d1 d2 d3``
+of the symmetric part P of N (see :mod:`.gauge`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..certificate import TriadModel
+from .gauge import p_matrix, shape_of_triad
+from .params import TriadFit, certificate_vector, internal_scale, limit_vector
+
+#: Floor of the standard deviation of a normalised residual (model resolution).
+RESIDUAL_FLOOR = 1e-7
+
+
+def _regressors(y: np.ndarray) -> np.ndarray:
+    """The 9 regressors of the linearised model for corrected vectors y (..., 3)."""
+    return np.concatenate(
+        [
+            y,
+            y * y,
+            (y[..., 0] * y[..., 1])[..., None],
+            (y[..., 0] * y[..., 2])[..., None],
+            (y[..., 1] * y[..., 2])[..., None],
+        ],
+        axis=-1,
+    )
+
+
+def _internal_limits(triad: TriadModel, m0: float) -> np.ndarray:
+    return limit_vector(triad) / internal_scale(triad, m0)
+
+
+def _certificate_internal(triad: TriadModel, m0: float) -> tuple[np.ndarray, np.ndarray]:
+    """theta_c (9,) = (B / (S m0), shape of P) and the rotation Q of the certificate's N."""
+    shape, q = shape_of_triad(triad)
+    return np.concatenate([triad.bias / (triad.scale_factor * m0), shape]), q
+
+
+def _finish(
+    triad: TriadModel,
+    method: str,
+    m0: float,
+    theta_dev: np.ndarray,
+    cov: np.ndarray,
+    null: np.ndarray,
+    determined_std_ratio: float,
+    condition: float,
+    points: int,
+    rms: float,
+) -> TriadFit:
+    """Turn internal deviations and covariance into a TriadFit in certificate units."""
+    scale = internal_scale(triad, m0)
+    cert = certificate_vector(triad)
+    limit = limit_vector(triad)
+    est = cert + theta_dev * scale
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0)) * scale
+    std = np.where(null, np.inf, std)
+    est = np.where(null, cert, est)
+    determined = std <= determined_std_ratio * limit
+    reasons = [
+        ""
+        if determined[i]
+        else (
+            "not excited by the data (no information on it)"
+            if not np.isfinite(std[i])
+            else f"std {std[i]:.3g} above {determined_std_ratio:g} x limit {limit[i]:.3g}"
+        )
+        for i in range(9)
+    ]
+    return TriadFit(
+        triad=triad.name,
+        method=method,
+        estimate=est,
+        std=std,
+        certificate=cert,
+        limit=limit,
+        determined=determined,
+        reasons=reasons,
+        condition=condition,
+        points=points,
+        rms_residual=rms,
+    )
+
+
+def _scaled_condition(info: np.ndarray, lim: np.ndarray) -> float:
+    """Condition number of the information matrix with parameters in units of their limits."""
+    m = info * np.outer(lim, lim)
+    w = np.linalg.eigvalsh(m)
+    if w[-1] <= 0:
+        return float("inf")
+    return float(w[-1] / max(w[0], w[-1] * 1e-300))
+
+
+# ---------------------------------------------------------------------------
+# exact model
+
+
+def _residuals_and_jacobian(
+    theta: np.ndarray, v: np.ndarray, mu: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Residuals |P^-1 (v - beta)| - mu (K,), Jacobian (K, 9) and w = P^-1 x_hat (K, 3)."""
+    beta = theta[:3]
+    p = p_matrix(theta[3:])
+    pinv = np.linalg.inv(p)
+    x = (v - beta) @ pinv.T
+    nx = np.linalg.norm(x, axis=1)
+    xh = x / nx[:, None]
+    w = xh @ pinv.T  # P^-1 symmetric
+    jac = np.empty((v.shape[0], 9))
+    jac[:, 0:3] = -w
+    jac[:, 3:6] = -w * x
+    jac[:, 6] = -0.5 * (w[:, 0] * x[:, 1] + w[:, 1] * x[:, 0])
+    jac[:, 7] = -0.5 * (w[:, 0] * x[:, 2] + w[:, 2] * x[:, 0])
+    jac[:, 8] = -0.5 * (w[:, 1] * x[:, 2] + w[:, 2] * x[:, 1])
+    return nx - mu, jac, w
+
+
+def exact_fit(
+    triad: TriadModel,
+    means: np.ndarray,
+    mean_var: np.ndarray,
+    magnitude: float | np.ndarray,
+    prior_factor: float = 10.0,
+    determined_std_ratio: float = 0.5,
+    max_iter: int = 20,
+    method: str = "exact",
+    start: np.ndarray | None = None,
+) -> TriadFit:
+    """Fit B, E, d of ``triad`` to interval means on the exact scalar model.
+
+    ``means`` (K, 3) mean raw outputs (output units); ``mean_var`` (K, 3) their
+    variances (output units^2); ``magnitude`` the true input magnitude at each
+    mean (input units, scalar or (K,)). ``prior_factor``: prior standard
+    deviation at the certificate in limits (``inf``: no prior). ``start``: an
+    internal starting point (9,) instead of the linear solution.
+    """
+    means = np.asarray(means, dtype=float).reshape(-1, 3)
+    k = means.shape[0]
+    mag = np.broadcast_to(np.asarray(magnitude, dtype=float), (k,))
+    m0 = float(np.median(mag)) if k else 1.0
+    s = triad.scale_factor
+    v = means / (s * m0)
+    var_v = np.asarray(mean_var, dtype=float).reshape(-1, 3) / (s * m0) ** 2
+    mu = mag / m0
+    theta_c, _ = _certificate_internal(triad, m0)
+    lim = _internal_limits(triad, m0)
+    if np.isfinite(prior_factor):
+        prior_prec = 1.0 / (prior_factor * lim) ** 2
+    else:
+        prior_prec = np.zeros(9)
+
+    if start is not None:
+        theta = np.asarray(start, dtype=float).copy()
+    else:
+        theta = theta_c + _linear_start(theta_c, v, mu)
+
+    def cost(th: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        r, jac, w = _residuals_and_jacobian(th, v, mu)
+        sig2 = np.einsum("kj,kj->k", w * w, var_v) + RESIDUAL_FLOOR**2
+        c = float(np.sum(r * r / sig2) + np.sum(prior_prec * (th - theta_c) ** 2))
+        return c, r, jac, sig2
+
+    c0, r, jac, sig2 = cost(theta)
+    lam = 1e-6
+    for _ in range(max_iter):
+        wgt = 1.0 / sig2
+        info = jac.T @ (jac * wgt[:, None])
+        grad = jac.T @ (r * wgt) + prior_prec * (theta - theta_c)
+        hess = info + np.diag(prior_prec)
+        c_before = c0
+        accepted = False
+        for _try in range(8):
+            a = hess + lam * np.diag(np.maximum(np.diag(hess), 1e-30))
+            try:
+                step = -np.linalg.solve(a, grad)
+            except np.linalg.LinAlgError:
+                step = -np.linalg.lstsq(a, grad, rcond=None)[0]
+            cand = theta + step
+            c1, r1, j1, s1 = cost(cand)
+            if np.isfinite(c1) and c1 <= c0:
+                theta, c0, r, jac, sig2 = cand, c1, r1, j1, s1
+                lam = max(lam / 10.0, 1e-12)
+                accepted = True
+                break
+            lam *= 10.0
+        if not accepted or (c_before - c0) <= 1e-10 * max(c0, 1.0):
+            break
+
+    wgt = 1.0 / sig2
+    info = jac.T @ (jac * wgt[:, None])
+    hess = info + np.diag(prior_prec)
+    try:
+        cov = np.linalg.inv(hess)
+    except np.linalg.LinAlgError:
+        cov = np.linalg.pinv(hess)
+    chi2 = float(np.sum(r * r * wgt))
+    dof = k - 9
+    if dof > 0:
+        # real data scatter more than the white noise of the means: Birge ratio
+        cov = cov * max(1.0, chi2 / dof)
+    null = ~np.isfinite(np.diag(cov))
+    if not np.isfinite(prior_factor):
+        # without a prior, directions with no information have no meaningful estimate
+        ev, evec = np.linalg.eigh(info * np.outer(lim, lim))
+        weak = ev < ev[-1] * 1e-12 if ev[-1] > 0 else np.ones(9, dtype=bool)
+        null |= np.sum(evec[:, weak] ** 2, axis=1) > 1e-3
+    rms = float(np.sqrt(np.mean(r * r))) if k else float("nan")
+    return _finish(
+        triad, method, m0, theta - theta_c, cov, null, determined_std_ratio,
+        _scaled_condition(info, lim), k, rms,
+    )
+
+
+def _linear_start(theta_c: np.ndarray, v: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    """Deviation from the certificate by the linearised model (eqs. 7, 9, 10), internal units."""
+    p = p_matrix(theta_c[3:])
+    y = (v - theta_c[:3]) @ np.linalg.inv(p).T
+    h = _regressors(y) / (mu**2)[:, None]
+    z = 0.5 * (np.einsum("kj,kj->k", y, y) / mu**2 - 1.0)
+    # minimum-norm solution: directions the attitudes do not excite stay at the certificate
+    return np.linalg.lstsq(h, z, rcond=1e-10)[0]
+
+
+# ---------------------------------------------------------------------------
+# literal linearised solution and the moving-base normal equations
+
+
+class NormalEquations:
+    """Accumulated normal equations of the linearised scalar model (internal units).
+
+    Each sample contributes z = 1/2 (|y|^2 - mu^2) against the 9 regressors of
+    y, the certificate-corrected output normalised by m0, with weight w:
+    ``A += w h h^T``, ``b += w h z``, ``zz += w z^2``.
+    """
+
+    def __init__(self) -> None:
+        self.a = np.zeros((9, 9))
+        self.b = np.zeros(9)
+        self.zz = 0.0
+        self.n = 0
+
+    def add(self, h: np.ndarray, z: np.ndarray, w: np.ndarray) -> None:
+        """Add samples: regressors h (N, 9), targets z (N,), weights w (N,)."""
+        hw = h * w[:, None]
+        self.a += hw.T @ h
+        self.b += hw.T @ z
+        self.zz += float(np.sum(w * z * z))
+        self.n += int(h.shape[0])
+
+    def __iadd__(self, other: NormalEquations) -> NormalEquations:
+        self.a += other.a
+        self.b += other.b
+        self.zz += other.zz
+        self.n += other.n
+        return self
+
+
+def corrected_normalised(
+    triad: TriadModel, raw: np.ndarray, m0: float
+) -> np.ndarray:
+    """Certificate-corrected outputs (N, 3) in units of ``m0`` (input units)."""
+    theta_c, q = _certificate_internal(triad, m0)
+    p = p_matrix(theta_c[3:])
+    return (np.asarray(raw, dtype=float) / (triad.scale_factor * m0) - theta_c[:3]) @ np.linalg.inv(
+        p
+    ).T
+
+
+def samples_normal_equations(
+    triad: TriadModel,
+    raw: np.ndarray,
+    magnitude: np.ndarray,
+    m0: float,
+    noise_var: np.ndarray | None = None,
+    weight_floor: float = 1e-3,
+) -> NormalEquations:
+    """Normal equations (moving-base variant) from raw samples (N, 3) and magnitudes (N,).
+
+    ``magnitude`` in input units per sample, independent of the triad (another
+    sensor, a known trajectory); ``noise_var`` (3,) per-sample variance of the
+    corrected output in units of m0^2, subtracted from the squares (note §3).
+    Weights 1 / (mu^2 + weight_floor): each sample counts by the relative
+    precision of its normalised F0.
+    """
+    y = corrected_normalised(triad, raw, m0)
+    mu = np.asarray(magnitude, dtype=float) / m0
+    h = _regressors(y)
+    z = 0.5 * (np.einsum("ij,ij->i", y, y) - mu * mu)
+    if noise_var is not None:
+        nv = np.asarray(noise_var, dtype=float)
+        h[:, 3:6] -= nv
+        z -= 0.5 * float(np.sum(nv))
+    w = 1.0 / (mu * mu + weight_floor)
+    ne = NormalEquations()
+    ne.add(h, z, w)
+    return ne
+
+
+def interval_normal_equations(
+    triad: TriadModel,
+    means: np.ndarray,
+    covs: np.ndarray,
+    counts: np.ndarray,
+    magnitude: float | np.ndarray,
+    m0: float,
+) -> NormalEquations:
+    """The paper's literal per-sample normal equations, from interval moments.
+
+    Every sample of interval i enters with F0 of the noisy sample, i.e. the
+    regressors and target are averages of squares (mean^2 + variance), not
+    squares of averages: what a literal per-sample implementation computes.
+    """
+    means = np.asarray(means, dtype=float).reshape(-1, 3)
+    k = means.shape[0]
+    mu = np.broadcast_to(np.asarray(magnitude, dtype=float), (k,)) / m0
+    y = corrected_normalised(triad, means, m0)
+    theta_c, _ = _certificate_internal(triad, m0)
+    pinv = np.linalg.inv(p_matrix(theta_c[3:]))
+    scale = 1.0 / (triad.scale_factor * m0)
+    cy = pinv @ (np.asarray(covs) * np.outer(scale, scale)) @ pinv.T  # (K, 3, 3)
+    m2 = np.einsum("ki,kj->kij", y, y) + cy
+    mu2 = (mu * mu)[:, None]
+    h = np.concatenate(
+        [y, np.stack([m2[:, 0, 0], m2[:, 1, 1], m2[:, 2, 2],
+                      m2[:, 0, 1], m2[:, 0, 2], m2[:, 1, 2]], axis=1)], axis=1
+    ) / mu2
+    z = 0.5 * (np.trace(m2, axis1=1, axis2=2) / mu2[:, 0] - 1.0)
+    n = np.asarray(counts, dtype=float)
+    ne = NormalEquations()
+    ne.add(h, z, n)
+    # per-sample scatter of F0 about the interval mean adds to the residual sum
+    f0_var = np.einsum("ki,kij,kj->k", y, cy, y) / mu2[:, 0] ** 2
+    ne.zz += float(np.sum(n * f0_var))
+    ne.n = int(n.sum())
+    return ne
+
+
+def normal_equation_fit(
+    triad: TriadModel,
+    ne: NormalEquations,
+    m0: float,
+    method: str,
+    determined_std_ratio: float = 0.5,
+    points: int | None = None,
+) -> TriadFit:
+    """Ordinary least squares from normal equations; covariance scaled by the residual."""
+    lim = _internal_limits(triad, m0)
+    if ne.n <= 9 or not np.any(ne.a):
+        from .params import undetermined_fit
+
+        return undetermined_fit(triad, method, "too few samples for the 9-parameter fit")
+    d = lim
+    a_s = ne.a * np.outer(d, d)
+    ev, evec = np.linalg.eigh(a_s)
+    top = ev[-1] if ev[-1] > 0 else 1.0
+    keep = ev > top * 1e-10
+    inv_s = (evec[:, keep] / ev[keep]) @ evec[:, keep].T
+    delta = d * (inv_s @ (ne.b * d))
+    chi2 = ne.zz - 2.0 * float(delta @ ne.b) + float(delta @ ne.a @ delta)
+    dof = ne.n - 9
+    sigma2 = max(chi2, 0.0) / dof
+    cov = np.outer(d, d) * inv_s * sigma2
+    null = np.sum(evec[:, ~keep] ** 2, axis=1) > 1e-3
+    cond = float(top / ev[0]) if ev[0] > 0 else float("inf")
+    return _finish(
+        triad, method, m0, delta, cov, null, determined_std_ratio, cond,
+        int(points if points is not None else ne.n), float(np.sqrt(sigma2)),
+    )
+
+
+def linear_fit(
+    triad: TriadModel,
+    means: np.ndarray,
+    covs: np.ndarray,
+    counts: np.ndarray,
+    magnitude: float | np.ndarray,
+    determined_std_ratio: float = 0.5,
+) -> TriadFit:
+    """The paper's literal linearised least squares over the samples of the intervals."""
+    mag = np.asarray(magnitude, dtype=float)
+    m0 = float(np.median(mag)) if mag.ndim else float(mag)
+    ne = interval_normal_equations(triad, means, covs, counts, magnitude, m0)
+    return normal_equation_fit(
+        triad, ne, m0, "linear", determined_std_ratio, points=len(np.atleast_2d(means))
+    )
+
+
+__all__ = [
+    "exact_fit",
+    "linear_fit",
+    "NormalEquations",
+    "samples_normal_equations",
+    "interval_normal_equations",
+    "normal_equation_fit",
+    "corrected_normalised",
+    "RESIDUAL_FLOOR",
+]

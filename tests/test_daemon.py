@@ -1,0 +1,225 @@
+"""The daemon as a real subprocess fed by the simulated board over a real pty.
+
+F0 flags a gross accelerometer fault, status lines parse, SIGHUP reloads the
+certificate (a bad one is refused and the old one kept), SIGTERM and SIGINT
+stop with exit 0, a stalled stream turns into no_data.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from imudiag.certificate import load_default
+from imudiag.drivers.pty import BoardWriter, PtyPair
+from imudiag.sim.board import SimulatedBoard
+from imudiag.sim.faults import Fault
+from imudiag.sim.scenarios import scenario_motion
+
+FAULT_T_S = 4.0  #: sample time of the injected accelerometer fault, s
+FAULT_COUNTS = 800.0  #: az bias step, counts (about 1.9 m/s^2: a gross fault)
+SPEED = 4.0  #: board pace relative to real time
+
+
+class DaemonProcess:
+    """``imudiag run`` in a subprocess with its status lines collected by a reader thread."""
+
+    def __init__(self, args: list[str]) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "imudiag", "run", *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        self.lines: queue.Queue[dict] = queue.Queue()
+        self.all: list[dict] = []
+        self.stderr: list[str] = []
+        threading.Thread(target=self._read_stdout, daemon=True).start()
+        threading.Thread(target=self._read_stderr, daemon=True).start()
+
+    def _read_stdout(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.put(json.loads(line))  # every line must be one JSON object
+
+    def _read_stderr(self) -> None:
+        assert self.proc.stderr is not None
+        for line in self.proc.stderr:
+            self.stderr.append(line)
+
+    def wait_for(self, predicate, timeout_s: float = 20.0) -> dict:
+        """The first new status line for which ``predicate`` holds."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            try:
+                status = self.lines.get(timeout=0.2)
+            except queue.Empty:
+                if self.proc.poll() is not None:
+                    break
+                continue
+            self.all.append(status)
+            if predicate(status):
+                return status
+        raise AssertionError(
+            f"no matching status within {timeout_s} s; last: {self.all[-3:]}; "
+            f"stderr: {''.join(self.stderr)[-2000:]}"
+        )
+
+    def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 10.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        return self.proc.wait(timeout_s)
+
+
+@pytest.fixture
+def board_pty():
+    """A pty whose master side is fed by the simulated board with a gross az bias fault."""
+    cert = load_default()
+    board = SimulatedBoard(
+        cert,
+        scenario_motion("static", seed=3),
+        seed=3,
+        faults=[Fault("bias", "az", FAULT_T_S, FAULT_COUNTS)],
+        duration_s=120.0,
+    )
+    chunk_s = 0.05
+    with PtyPair() as pair:
+        writer = BoardWriter(pair, board.iter_bytes(chunk_s), rate_hz=SPEED / chunk_s)
+        writer.start()
+        yield pair, writer
+        writer.stop()
+
+
+def _has_accel_f0(status: dict) -> bool:
+    return any(f["triad"] == "accel" and f["cause"] == "f0" for f in status["faults"])
+
+
+def test_daemon_flags_gross_accel_fault_and_obeys_signals(board_pty, tmp_path: Path):
+    pair, _writer = board_pty
+    cert_path = tmp_path / "cert.yaml"
+    cert = load_default()
+    cert.save(cert_path)
+    d = DaemonProcess(
+        ["--source", f"serial://{pair.slave_path}", "--certificate", str(cert_path),
+         "--no-diagnosis"]
+    )
+    try:
+        first = d.wait_for(lambda s: s["t"] is not None and s["static"])
+        assert set(first) >= {"t", "state", "faults", "counters"}
+        assert set(first["counters"]) == {
+            "bytes", "frames", "crc_errors", "skipped_bytes", "lost", "duplicates"
+        }
+        healthy = d.wait_for(lambda s: s["t"] is not None and s["t"] >= 2.0)
+        assert healthy["state"] == "ok" and healthy["faults"] == []
+        assert healthy["f0"]["accel"]["checked"] > 0
+
+        faulty = d.wait_for(_has_accel_f0)
+        assert faulty["state"] == "fault"
+        assert FAULT_T_S <= faulty["t"] < FAULT_T_S + 2.0  # detected within 2 s of sample time
+        # nothing fired before the fault time
+        assert all(not s["faults"] for s in d.all if s["t"] is not None and s["t"] < FAULT_T_S)
+
+        # a bad certificate on SIGHUP is refused; the old one stays in force
+        cert_path.write_text(cert_path.read_text().replace("scale_factor: [416.8", "scale_factor: [-416.8"))
+        d.proc.send_signal(signal.SIGHUP)
+        refused = d.wait_for(lambda s: "notes" in s)
+        assert "keeping the previous one" in refused["notes"][0]
+        assert "accel.scale_factor[0]" in refused["notes"][0]
+        assert refused["certificate"]["reloads"] == 0
+        assert _has_accel_f0(refused)
+
+        # a certificate that knows the new az bias explains the data: the fault clears
+        fixed = load_default()
+        fixed.accel.bias[2] += FAULT_COUNTS
+        fixed.save(cert_path)
+        d.proc.send_signal(signal.SIGHUP)
+        cleared = d.wait_for(lambda s: s["certificate"]["reloads"] == 1 and not s["faults"])
+        assert cleared["state"] == "ok" and "notes" not in cleared
+
+        assert d.stop(signal.SIGTERM) == 0
+    finally:
+        if d.proc.poll() is None:
+            d.proc.kill()
+
+
+def test_daemon_reports_no_data_when_stream_stalls_and_exits_on_sigint(board_pty):
+    pair, writer = board_pty
+    d = DaemonProcess(
+        ["--source", f"serial://{pair.slave_path}", "--no-diagnosis", "--no-data-timeout", "0.5"]
+    )
+    try:
+        d.wait_for(lambda s: s["state"] == "ok" and s["t"] is not None)
+        writer.stop()  # the board goes silent but stays plugged in
+        stalled = d.wait_for(lambda s: s["state"] == "no_data", timeout_s=10)
+        frames = stalled["counters"]["frames"]
+        assert frames > 0
+        again = d.wait_for(lambda s: s["state"] == "no_data", timeout_s=5)
+        assert again["counters"]["frames"] == frames  # steady lines while starved
+        assert d.stop(signal.SIGINT) == 0
+    finally:
+        if d.proc.poll() is None:
+            d.proc.kill()
+
+
+def test_daemon_bad_source_is_bad_input():
+    proc = subprocess.run(
+        [sys.executable, "-m", "imudiag", "run", "--source", "nosuch://x"],
+        capture_output=True, text=True, timeout=30,
+    )
+    assert proc.returncode == 2
+    assert "nosuch" in proc.stderr
+
+
+def test_daemon_speaks_sd_notify_and_pings_watchdog_only_while_frames_flow(board_pty, tmp_path):
+    import os
+    import socket
+
+    pair, writer = board_pty
+    sock_path = tmp_path / "notify.sock"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(sock_path))
+    sock.settimeout(0.2)
+    env = dict(os.environ, NOTIFY_SOCKET=str(sock_path), WATCHDOG_USEC="400000")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "imudiag", "run", "--source", f"serial://{pair.slave_path}",
+         "--no-diagnosis", "--no-data-timeout", "0.5"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
+    )
+    got: list[tuple[float, str]] = []
+
+    def collect(seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            try:
+                got.append((time.monotonic(), sock.recv(4096).decode()))
+            except TimeoutError:
+                pass
+
+    try:
+        collect(2.0)
+        fields = [f for _, msg in got for f in msg.split("\n")]
+        assert "READY=1" in fields
+        pings_flowing = sum(f == "WATCHDOG=1" for f in fields)
+        assert pings_flowing >= 5  # every 0.2 s while frames arrive
+        writer.stop()
+        time.sleep(0.5)
+        got.clear()
+        collect(1.5)
+        starved = [f for _, msg in got for f in msg.split("\n")]
+        assert "WATCHDOG=1" not in starved  # systemd would restart a daemon that gets no frames
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(10) == 0
+        collect(0.5)
+        assert any("STOPPING=1" in msg for _, msg in got)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        sock.close()
