@@ -41,6 +41,12 @@ class AllanResult:
     rate_hz: float
     samples: int
 
+    @property
+    def independent(self) -> np.ndarray:
+        """Non-overlapping second differences at each tau (N // m - 1): the statistics' weight."""
+        m = np.rint(self.tau * self.rate_hz).astype(np.int64)
+        return np.maximum(self.samples // np.maximum(m, 1) - 1, 1)
+
 
 def allan_m_values(n_samples: int, points_per_decade: int = 10, max_fraction: float = 0.5
                    ) -> np.ndarray:
@@ -203,6 +209,9 @@ class NoiseTerms:
     white_taus: tuple[float, float] | None = None
     random_walk_taus: tuple[float, float] | None = None
     fit: dict[str, float] = field(default_factory=dict)
+    #: how N and K were read: "slope" (their slope region) or "fit" (the joint fit, used
+    #: when the other terms leave no clean slope region but the term still dominates an end)
+    sources: dict[str, str] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-able form."""
@@ -216,6 +225,7 @@ class NoiseTerms:
             "white_taus": list(self.white_taus) if self.white_taus else None,
             "random_walk_taus": list(self.random_walk_taus) if self.random_walk_taus else None,
             "fit": dict(self.fit),
+            "sources": dict(self.sources),
         }
 
 
@@ -238,26 +248,65 @@ def _line_reading(allan: AllanResult, mask: np.ndarray, slope: float, tau_read: 
     if not np.any(mask):
         return None
     lt, la = np.log10(allan.tau[mask]), np.log10(allan.adev[mask])
-    w = np.sqrt(allan.n[mask].astype(float))  # ~ 1 / relative error
+    w = np.sqrt(allan.independent[mask].astype(float))  # ~ 1 / relative error
     intercept = float(np.sum(w * (la - slope * lt)) / np.sum(w))
     value = 10.0 ** (intercept + slope * math.log10(tau_read))
     return value, (float(allan.tau[mask].min()), float(allan.tau[mask].max()))
 
 
-def identify_noise(allan: AllanResult, min_terms: int = 8) -> NoiseTerms:
+def _random_walk_reading(allan: AllanResult, ok: np.ndarray, slopes: np.ndarray,
+                         white: float | None, floor_var: float
+                         ) -> tuple[float, tuple[float, float]] | None:
+    """K from the rising part of the curve: points with slope >= 0.2 where, after removing
+    the white-noise variance N^2/tau and the flicker floor ``floor_var``, at least half the
+    variance is left; each gives K = sqrt(3 rest / tau) (the +1/2 line read at tau = 3 s)."""
+    var = allan.adev**2
+    rest = var - (white**2 / allan.tau if white is not None else 0.0) - floor_var
+    mask = ok & (slopes >= 0.2) & (rest >= 0.5 * var)
+    if not np.any(mask):
+        return None
+    k = np.log(3.0 * rest[mask] / allan.tau[mask]) / 2.0
+    w = np.sqrt(allan.independent[mask].astype(float))
+    value = float(np.exp(np.sum(w * k) / np.sum(w)))
+    return value, (float(allan.tau[mask].min()), float(allan.tau[mask].max()))
+
+
+def identify_noise(allan: AllanResult, min_terms: int = 8, floor_terms: int = 100
+                   ) -> NoiseTerms:
     """Read N, B and K from an Allan curve (IEEE Std 952), plus a least-squares model fit.
 
-    N: the slope -1/2 region (local slope within +-0.2 of -1/2), read at tau = 1 s.
-    K: the slope +1/2 region, read at tau = 3 s. B: the minimum / 0.664 over points
-    averaging at least ``min_terms`` differences. ``fit`` holds the non-negative least-squares
-    fit of N, B, K and quantisation Q to the whole curve (``white_noise``,
-    ``bias_instability``, ``random_walk``, ``quantization``).
+    N: the slope -1/2 region (local slope within +-0.1 of -1/2), read at tau = 1 s.
+    K: the rising (slope +1/2) part with the white variance removed, read at tau = 3 s.
+    B: the minimum / 0.664 over points with at least ``floor_terms`` independent
+    differences. Otherwise points with at least ``min_terms`` independent
+    (non-overlapping) differences are used. ``fit`` holds the non-negative least-squares
+    fit of N, B, K and quantisation Q to the whole curve; N and K fall back on it when
+    no clean slope region exists (``sources``).
     """
-    ok = allan.n >= min_terms
+    ok = allan.independent >= min_terms
     slopes = local_slopes(allan)
-    white = _line_reading(allan, ok & (np.abs(slopes + 0.5) <= 0.2), -0.5, 1.0)
-    walk = _line_reading(allan, ok & (np.abs(slopes - 0.5) <= 0.2), 0.5, 3.0)
-    cand = np.flatnonzero(ok) if np.any(ok) else np.arange(allan.tau.shape[0])
+    fit = fit_allan_terms(allan, min_terms=min_terms)
+    rel = np.flatnonzero(ok) if np.any(ok) else np.arange(allan.tau.shape[0])
+    var_lo, tau_lo = allan.adev[rel[0]] ** 2, allan.tau[rel[0]]
+    var_hi, tau_hi = allan.adev[rel[-1]] ** 2, allan.tau[rel[-1]]
+    sources: dict[str, str] = {}
+    white = _line_reading(allan, ok & (np.abs(slopes + 0.5) <= 0.1), -0.5, 1.0)
+    if white is not None:
+        sources["white_noise"] = "slope"
+    elif fit["white_noise"] ** 2 / tau_lo >= 0.5 * var_lo:  # white dominates the short end
+        white = fit["white_noise"], (float(tau_lo), float(tau_lo))
+        sources["white_noise"] = "fit"
+    walk = _random_walk_reading(allan, ok, slopes, None if white is None else white[0],
+                                (FLICKER_FACTOR * fit["bias_instability"]) ** 2)
+    if walk is not None:
+        sources["random_walk"] = "slope"
+    elif fit["random_walk"] ** 2 * tau_hi / 3.0 >= 0.5 * var_hi:  # and the walk the long end
+        walk = fit["random_walk"], (float(tau_hi), float(tau_hi))
+        sources["random_walk"] = "fit"
+    # the floor: the minimum over points averaging >= floor_terms independent differences
+    # (the minimum of scattered estimates at long tau would be biased low)
+    firm = allan.independent >= max(floor_terms, min_terms)
+    cand = np.flatnonzero(firm) if np.any(firm) else rel
     i_min = int(cand[np.argmin(allan.adev[cand])])
     floor = allan.adev[i_min]
     near = ok & (allan.adev <= 1.2 * floor)
@@ -271,7 +320,8 @@ def identify_noise(allan: AllanResult, min_terms: int = 8) -> NoiseTerms:
         random_walk=None if walk is None else walk[0],
         white_taus=None if white is None else white[1],
         random_walk_taus=None if walk is None else walk[1],
-        fit=fit_allan_terms(allan, min_terms=min_terms),
+        fit=fit,
+        sources=sources,
     )
 
 
@@ -295,11 +345,11 @@ def _nnls_small(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def fit_allan_terms(allan: AllanResult, min_terms: int = 8) -> dict[str, float]:
     """Non-negative fit of sigma^2(tau) = N^2/tau + (0.664 B)^2 + K^2 tau/3 + 3 Q^2/tau^2,
     each point weighted by its relative error. Returns N, B, K, Q (units as above)."""
-    ok = allan.n >= min_terms
+    ok = allan.independent >= min_terms
     if np.count_nonzero(ok) < 2:
         ok = np.ones_like(ok)
     tau, var = allan.tau[ok], allan.adev[ok] ** 2
-    w = np.sqrt(allan.n[ok].astype(float)) / var  # ~ 1 / error of var
+    w = np.sqrt(allan.independent[ok].astype(float)) / var  # ~ 1 / error of var
     basis = np.stack([1.0 / tau, np.full_like(tau, FLICKER_FACTOR**2), tau / 3.0, 3.0 / tau**2], 1)
     coef = _nnls_small(basis * w[:, None], var * w)
     return {
@@ -316,9 +366,9 @@ def fit_gauss_markov(
     """Fit a first-order Gauss-Markov bias (sigma u, correlation time T s) plus white noise
     N (u sqrt(s)) to an Allan curve: grid over T, non-negative least squares for the rest.
     Returns (sigma, T, N)."""
-    ok = allan.n >= min_terms
+    ok = allan.independent >= min_terms
     tau, var = allan.tau[ok], allan.adev[ok] ** 2
-    w = np.sqrt(allan.n[ok].astype(float)) / var
+    w = np.sqrt(allan.independent[ok].astype(float)) / var
     best = (math.inf, 0.0, 1.0, 0.0)
     grid = np.logspace(math.log10(tau.min() / 10.0), math.log10(tau.max() * 10.0), 161)
     for tc in grid:  # one small fit per trial correlation time

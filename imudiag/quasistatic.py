@@ -79,6 +79,10 @@ class QuasiStaticDetector:
     ``bias_margin``: gyro mean band in multiples of the bias limit (faults of
     several times the limit must still be seen as static so they can be diagnosed);
     ``None`` disables the mean check.
+    ``gyro_floor_si``: rate jitter (rad/s, per axis, rms) accepted as still even
+    where the gyro noise is lower: a hand-held or vibrating unit is still enough
+    for the scalar checks when its rate jitters by a fraction of a degree per
+    second (a motion that matters also moves the accelerometers or the gyro mean).
     """
 
     def __init__(
@@ -88,7 +92,8 @@ class QuasiStaticDetector:
         window_s: float = 0.5,
         k_sigma: float = 4.0,
         variance_factor: float = 2.0,
-        bias_margin: float | None = 10.0,
+        bias_margin: float | None = 8.0,
+        gyro_floor_si: float = math.radians(0.5),
     ) -> None:
         self.certificate = certificate
         self.rate_hz = float(rate_hz if rate_hz else certificate.sample_rate)
@@ -98,6 +103,9 @@ class QuasiStaticDetector:
         self.k_sigma = float(k_sigma)
         self.variance_factor = float(variance_factor)
         self.bias_margin = bias_margin
+        g = certificate.gyro
+        #: per-axis variance floor of the gyro check, output units^2
+        self._gyro_floor_var = (float(gyro_floor_si) / g.unit_to_si * g.scale_factor) ** 2
         dof = 3.0 * (self.window - 1)
         # sum_j var_j / sigma_j^2 ~ chi2(dof) * 3 / dof: mean 3, std sqrt(2 * 9 / dof)
         self.variance_ratio_limit = 3.0 * max(
@@ -174,7 +182,8 @@ class QuasiStaticDetector:
                     ok[:] = False
                     continue
                 v = var[:, 3 * k : 3 * k + 3]
-                ok &= np.sum(v / sigma2, axis=1) <= self.variance_ratio_limit
+                ref = np.maximum(sigma2, self._gyro_floor_var) if name == "gyro" else sigma2
+                ok &= np.sum(v / ref, axis=1) <= self.variance_ratio_limit
                 if name == "gyro" and self.bias_margin is not None:
                     triad = self.certificate.gyro
                     band = self._mean_band(triad, sigma2)

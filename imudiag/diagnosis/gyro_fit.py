@@ -29,6 +29,14 @@ from .params import limit_vector
 
 #: Floor of the direction residual (rad): integration and modelling resolution.
 DIRECTION_FLOOR = 1e-4
+#: Relative floor of the direction residual per rad of rotation (timing, sampling).
+ROTATION_REL_FLOOR = 1e-3
+#: Largest rotation between two samples (deg) that the rotation check integrates: faster
+#: motions are sampled too coarsely for the gyro integral to be trusted.
+MAX_STEP_DEG = 3.0
+#: Largest shape deviation (relative scale error, misalignment in rad) a fit may reach:
+#: beyond it the model is not a small-error model any more and the step is refused.
+MAX_SHAPE = 0.5
 
 
 # ---------------------------------------------------------------------------
@@ -39,24 +47,26 @@ def qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton products of quaternion arrays (..., 4)."""
     aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
     bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = aw * bw - ax * bx - ay * by - az * bz
+    out[..., 1] = aw * bx + ax * bw + ay * bz - az * by
+    out[..., 2] = aw * by - ax * bz + ay * bw + az * bx
+    out[..., 3] = aw * bz + ax * by - ay * bx + az * bw
+    return out
 
 
 def rotvec_quat(theta: np.ndarray) -> np.ndarray:
     """Quaternions (..., 4) of rotation vectors (..., 3), rad."""
-    a = np.linalg.norm(theta, axis=-1)
+    a2 = np.einsum("...i,...i->...", theta, theta)
+    a = np.sqrt(a2)
     half = 0.5 * a
     # sin(a/2)/a with its series near zero
-    k = np.where(a > 1e-8, np.sin(half) / np.where(a > 1e-8, a, 1.0), 0.5 - a * a / 48.0)
-    return np.concatenate([np.cos(half)[..., None], theta * k[..., None]], axis=-1)
+    big = a > 1e-4
+    k = np.where(big, np.sin(half) / np.where(big, a, 1.0), 0.5 - a2 / 48.0)
+    out = np.empty(theta.shape[:-1] + (4,))
+    out[..., 0] = np.cos(half)
+    out[..., 1:] = theta * k[..., None]
+    return out
 
 
 def quat_matrix(q: np.ndarray) -> np.ndarray:
@@ -168,27 +178,49 @@ class RotationFitResult:
     pairs: int
     rms: float  #: rad
     max_angle_deg: float  #: largest rotation among the pairs
+    dof: float = float("nan")  #: effective degrees of freedom
 
 
-def _stack_pairs(gyro: TriadModel, pairs: list[RotationPair]) -> dict[str, np.ndarray]:
-    m = max(p.t.shape[0] for p in pairs)
-    n = len(pairs)
-    y = np.zeros((n, m, 3))
-    dt = np.zeros((n, m - 1))
-    for i, p in enumerate(pairs):
-        k = p.t.shape[0]
-        y[i, :k] = (p.raw - p.bias) / gyro.scale_factor * gyro.unit_to_si
-        y[i, k:] = y[i, k - 1]
-        dt[i, : k - 1] = np.diff(p.t)
-    return {"y": y, "dt": dt}
+def _block_increments(inc: np.ndarray, block_rad: float) -> np.ndarray:
+    """Sum consecutive increments (M, 3) into blocks of at most about ``block_rad`` of turn.
+
+    The increments are linear in the raw outputs, so N^-1 applies to the sums
+    exactly; only the order of rotations inside a block is lost (a coning
+    error below (block / 2)^2 / 2 rad per block), and a turn costs the same
+    whatever the sample rate.
+    """
+    path = np.cumsum(np.linalg.norm(inc, axis=1))
+    ids = np.floor(path / block_rad).astype(np.int64)
+    starts = np.concatenate([[0], np.flatnonzero(np.diff(ids)) + 1])
+    return np.add.reduceat(inc, starts, axis=0)
+
+
+def _stack_pairs(
+    gyro: TriadModel, pairs: list[RotationPair], block_deg: float = 0.5
+) -> dict[str, np.ndarray]:
+    """Rotation increments of every motion before N^-1 (trapezoid rule, rad), padded.
+
+    ``inc`` (n, B, 3): per motion, blocks of at most about ``block_deg`` of turn
+    (zero padding is the identity); ``path`` (n,): each motion's path length, rad.
+    """
+    blocks = []
+    for p in pairs:
+        y = (p.raw - p.bias) / gyro.scale_factor * gyro.unit_to_si
+        inc = 0.5 * (y[1:] + y[:-1]) * np.diff(p.t)[:, None]
+        blocks.append(_block_increments(inc, math.radians(block_deg)) if inc.shape[0] else inc)
+    b = max(max(x.shape[0] for x in blocks), 1)
+    out = np.zeros((len(pairs), b, 3))
+    for i, x in enumerate(blocks):
+        out[i, : x.shape[0]] = x
+    path = np.sum(np.linalg.norm(out, axis=2), axis=1)
+    return {"inc": out, "path": path}
 
 
 def _predict(
     stack: dict[str, np.ndarray], ninv: np.ndarray, up0: np.ndarray
 ) -> np.ndarray:
     """Predicted end directions (P, n, 3) for parameter sets with N^-1 (P, 3, 3)."""
-    omega = np.einsum("pij,nmj->pnmi", ninv, stack["y"])
-    theta = 0.5 * (omega[:, :, 1:] + omega[:, :, :-1]) * stack["dt"][None, :, :, None]
+    theta = np.matmul(stack["inc"][None], np.swapaxes(ninv, 1, 2)[:, None])
     q = ordered_product(rotvec_quat(theta))
     c = quat_matrix(q)  # body at end -> body at start
     return np.einsum("pnji,nj->pni", c, up0)
@@ -199,22 +231,24 @@ def rotation_fit(
     pairs: list[RotationPair],
     gyro_sample_var: np.ndarray,
     earth_rate_si: float = 7.292115e-5,
-    prior_factor: float = 10.0,
+    prior_factor: float | np.ndarray = 10.0,
     fit_frame: bool = False,
     max_iter: int = 6,
+    scale_by_residual: bool = True,
 ) -> RotationFitResult:
     """Fit the gyro shape (and with ``fit_frame`` its rotation against the accelerometers).
 
     ``gyro_sample_var`` (3,) per-sample output variance (output units^2).
-    Prior: ``prior_factor`` limits around the certificate's shape (frame: 0.1 rad).
+    Prior: ``prior_factor`` limits (scalar or per shape parameter (6,)) around the
+    certificate's shape; the frame rotation has a prior of 0.1 rad.
+    ``scale_by_residual``: inflate the covariance by chi^2 / dof when above 1.
+    ``max_iter=0`` gives the covariance of the linearisation at the certificate.
     """
     shape_c, q_c = shape_of_triad(gyro)
     lim = limit_vector(gyro)[3:] / np.concatenate([gyro.scale_factor, np.ones(3)])
     npar = 9 if fit_frame else 6
-    prior_sd = np.concatenate([prior_factor * lim, np.full(3, 0.1)])[:npar]
-    prior_prec = 1.0 / prior_sd**2 if np.isfinite(prior_factor) else np.zeros(npar)
-    if not np.isfinite(prior_factor) and fit_frame:
-        prior_prec[6:] = 0.0
+    prior_sd = np.concatenate([np.broadcast_to(prior_factor, (6,)) * lim, np.full(3, 0.1)])
+    prior_prec = 1.0 / prior_sd[:npar] ** 2
     stack = _stack_pairs(gyro, pairs)
     up0 = np.array([p.up0 for p in pairs])
     up1 = np.array([p.up1 for p in pairs])
@@ -225,8 +259,11 @@ def rotation_fit(
     bias_rad2 = np.array(
         [float(np.mean(p.bias_var / gyro.scale_factor**2)) * gyro.unit_to_si**2 for p in pairs]
     )
+    # rotation path length of each motion, rad
+    angles = stack["path"]
     var = (
-        np.array([p.dir_var for p in pairs]) * 2.0
+        (ROTATION_REL_FLOOR * angles) ** 2
+        + np.array([p.dir_var for p in pairs]) * 2.0
         + s_rad2 * mean_dt * durations
         + bias_rad2 * durations**2
         + (earth_rate_si * durations) ** 2
@@ -244,32 +281,49 @@ def rotation_fit(
             n = p @ q_c
         return np.linalg.inv(n)
 
-    x = np.zeros(npar)
     h = 1e-6
-    jac = np.zeros((3 * len(pairs), npar))
-    res = np.zeros(3 * len(pairs))
-    for _ in range(max_iter):
+
+    def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """Residuals (3 n,), Jacobian of the prediction (3 n, npar), cost at x."""
         sets = np.vstack([x, x + h * np.eye(npar)])
         pred = _predict(stack, ninv_of(sets), up0)
-        res = (up1 - pred[0]).ravel()
-        jac = ((pred[1:] - pred[0][None]) / h).reshape(npar, -1).T  # d pred / d x
+        r = (up1 - pred[0]).ravel()
+        j = ((pred[1:] - pred[0][None]) / h).reshape(npar, -1).T
+        return r, j, float(np.sum(r * r * wgt) + np.sum(prior_prec * x * x))
+
+    x = np.zeros(npar)
+    res, jac, cost = evaluate(x)
+    lam = 1e-6
+    done = False
+    for _ in range(max_iter):
         info = jac.T @ (jac * wgt[:, None])
+        hess = info + np.diag(prior_prec)
         grad = jac.T @ (res * wgt) - prior_prec * x
-        try:
-            step = np.linalg.solve(info + np.diag(prior_prec), grad)
-        except np.linalg.LinAlgError:
-            step = np.linalg.lstsq(info + np.diag(prior_prec), grad, rcond=None)[0]
-        x = x + step
-        if np.max(np.abs(step)) < 1e-9:
+        accepted = False
+        for _try in range(8):
+            a = hess + lam * np.diag(np.maximum(np.diag(hess), 1e-30))
+            step = np.linalg.lstsq(a, grad, rcond=None)[0]
+            cand = x + step
+            if np.max(np.abs(cand[:6])) > MAX_SHAPE:
+                lam *= 10.0
+                continue
+            r1, j1, c1 = evaluate(cand)
+            if np.isfinite(c1) and c1 <= cost:
+                done = cost - c1 <= 1e-10 * max(cost, 1.0)
+                x, res, jac, cost = cand, r1, j1, c1
+                lam = max(lam / 10.0, 1e-12)
+                accepted = True
+                break
+            lam *= 10.0
+        if not accepted or done:
             break
-    pred = _predict(stack, ninv_of(x[None]), up0)
-    res = (up1 - pred[0]).ravel()
     info = jac.T @ (jac * wgt[:, None])
     hess = info + np.diag(prior_prec)
     cov = np.linalg.pinv(hess)
     chi2 = float(np.sum(res * res * wgt))
-    dof = 2 * len(pairs) - npar
-    if dof > 0:
+    # two observations per motion (a direction), less the parameters the data determine
+    dof = 2 * len(pairs) - float(np.trace(cov @ info))
+    if dof > 0.5 and scale_by_residual:
         cov = cov * max(1.0, chi2 / dof)
     ang = [
         math.degrees(math.acos(float(np.clip(np.dot(p.up0, p.up1), -1.0, 1.0)))) for p in pairs
@@ -282,6 +336,7 @@ def rotation_fit(
         pairs=len(pairs),
         rms=float(np.sqrt(np.mean(res * res))),
         max_angle_deg=max(ang) if ang else 0.0,
+        dof=dof,
     )
 
 

@@ -23,12 +23,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..certificate import Certificate
-from ..quasistatic import QuasiStaticDetector
+from ..quasistatic import BAD_FLAGS, QuasiStaticDetector
 from ..samples import SampleBlock
 
-# column layout of the buffered rows
-_T, _G, _A, _TEMP = 0, slice(1, 4), slice(4, 7), 7
-_NCOL = 8
+# column layout of the buffered rows (_BAD: saturation / ADC-error flag of the sample)
+_T, _G, _A, _TEMP, _BAD = 0, slice(1, 4), slice(4, 7), 7, 8
+_NCOL = 9
 
 
 @dataclass
@@ -100,6 +100,9 @@ def _rows(block: SampleBlock) -> np.ndarray:
     out[:, _G] = block.gyro
     out[:, _A] = block.accel
     out[:, _TEMP] = np.nan if block.temp is None else block.temp
+    out[:, _BAD] = 0.0
+    if block.flags is not None:
+        out[:, _BAD] = (np.asarray(block.flags).astype(np.int64) & BAD_FLAGS) != 0
     return out
 
 
@@ -157,6 +160,11 @@ class IntervalCollector:
             self._gap, self._gap_n = [], 0
             self._gap_usable = False
             self._gap_reason = "motion longer than max_motion_s"
+            return
+        if np.any(rows[:, _BAD] != 0):
+            self._gap, self._gap_n = [], 0
+            self._gap_usable = False
+            self._gap_reason = "saturated or ADC-error samples in the motion"
             return
         self._gap.append(rows)
         self._gap_n += rows.shape[0]

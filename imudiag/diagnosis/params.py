@@ -54,7 +54,10 @@ class TriadFit:
 
     ``determined[i]`` is true when the window pins parameter i down well
     enough to compare it with its limit (std at most ``determined_std_ratio``
-    times the limit); ``reasons[i]`` says why not otherwise.
+    times the limit); ``reasons[i]`` says why not otherwise. ``judged[i]`` is
+    false when the fit behind parameter i had no redundancy to check its noise
+    model (effective degrees of freedom below the configured minimum): such a
+    parameter is neither determined nor a fault candidate.
     """
 
     triad: str
@@ -69,6 +72,21 @@ class TriadFit:
     points: int = 0  #: intervals (or samples) used
     rms_residual: float = float("nan")  #: normalised residual RMS, dimensionless
     extra: dict = field(default_factory=dict)
+    judged: np.ndarray = field(default_factory=lambda: np.ones(9, dtype=bool))
+    dof: float = float("nan")  #: effective degrees of freedom of the fit (observations - params)
+
+    def require_redundancy(self, dof: float, min_dof: float, idx: range, what: str) -> None:
+        """Mark parameters ``idx`` unjudged when the fit's effective dof is below ``min_dof``."""
+        if dof >= min_dof:
+            return
+        for i in idx:
+            self.judged[i] = False
+            if self.determined[i]:
+                self.determined[i] = False
+                self.reasons[i] = (
+                    f"no redundancy to check the fit: {what} for the parameters it "
+                    f"determines ({dof:.1f} degrees of freedom, {min_dof:g} needed)"
+                )
 
     @property
     def deviation(self) -> np.ndarray:
@@ -90,6 +108,7 @@ class TriadFit:
                 "determined": [bool(x) for x in self.determined[sl]],
             }
         out["condition"] = float(self.condition) if np.isfinite(self.condition) else None
+        out["dof"] = float(self.dof) if np.isfinite(self.dof) else None
         out["rms_residual"] = (
             float(self.rms_residual) if np.isfinite(self.rms_residual) else None
         )

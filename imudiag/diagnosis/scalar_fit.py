@@ -30,6 +30,8 @@ from .params import TriadFit, certificate_vector, internal_scale, limit_vector
 
 #: Floor of the standard deviation of a normalised residual (model resolution).
 RESIDUAL_FLOOR = 1e-7
+#: Largest shape deviation from the certificate (relative scale error, rad) a step may reach.
+MAX_SHAPE = 0.5
 
 
 def _regressors(y: np.ndarray) -> np.ndarray:
@@ -140,19 +142,24 @@ def exact_fit(
     means: np.ndarray,
     mean_var: np.ndarray,
     magnitude: float | np.ndarray,
-    prior_factor: float = 10.0,
+    prior_factor: float | np.ndarray = 10.0,
     determined_std_ratio: float = 0.5,
     max_iter: int = 20,
     method: str = "exact",
-    start: np.ndarray | None = None,
+    start: np.ndarray | str = "linear",
+    scale_by_residual: bool = True,
 ) -> TriadFit:
     """Fit B, E, d of ``triad`` to interval means on the exact scalar model.
 
     ``means`` (K, 3) mean raw outputs (output units); ``mean_var`` (K, 3) their
     variances (output units^2); ``magnitude`` the true input magnitude at each
     mean (input units, scalar or (K,)). ``prior_factor``: prior standard
-    deviation at the certificate in limits (``inf``: no prior). ``start``: an
-    internal starting point (9,) instead of the linear solution.
+    deviation at the certificate in limits, scalar or per parameter (9,)
+    (``inf``: no prior). ``start``: ``linear`` (the linearised solution),
+    ``certificate``, or an internal starting point (9,). ``max_iter=0`` with
+    ``start="certificate"`` gives the covariance of the linearisation at the
+    certificate (what the data can determine, whatever the estimate), best
+    with ``scale_by_residual=False`` (no chi^2 / dof inflation of the covariance).
     """
     means = np.asarray(means, dtype=float).reshape(-1, 3)
     k = means.shape[0]
@@ -164,15 +171,19 @@ def exact_fit(
     mu = mag / m0
     theta_c, _ = _certificate_internal(triad, m0)
     lim = _internal_limits(triad, m0)
-    if np.isfinite(prior_factor):
-        prior_prec = 1.0 / (prior_factor * lim) ** 2
-    else:
-        prior_prec = np.zeros(9)
+    pf = np.broadcast_to(np.asarray(prior_factor, dtype=float), (9,))
+    prior_prec = np.where(np.isfinite(pf), 1.0 / (pf * lim) ** 2, 0.0)
 
-    if start is not None:
-        theta = np.asarray(start, dtype=float).copy()
+    if isinstance(start, str):
+        if start not in ("linear", "certificate"):
+            raise ValueError(f"start must be linear, certificate or a vector, got {start!r}")
+        theta = theta_c.copy()
+        if start == "linear":
+            lin = _linear_start(theta_c, v, mu)
+            if np.all(np.isfinite(lin)) and np.max(np.abs(lin[3:])) <= MAX_SHAPE:
+                theta = theta_c + lin
     else:
-        theta = theta_c + _linear_start(theta_c, v, mu)
+        theta = np.asarray(start, dtype=float).copy()
 
     def cost(th: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         r, jac, w = _residuals_and_jacobian(th, v, mu)
@@ -196,6 +207,9 @@ def exact_fit(
             except np.linalg.LinAlgError:
                 step = -np.linalg.lstsq(a, grad, rcond=None)[0]
             cand = theta + step
+            if np.max(np.abs(cand[3:] - theta_c[3:])) > MAX_SHAPE:
+                lam *= 10.0
+                continue
             c1, r1, j1, s1 = cost(cand)
             if np.isfinite(c1) and c1 <= c0:
                 theta, c0, r, jac, sig2 = cand, c1, r1, j1, s1
@@ -214,21 +228,24 @@ def exact_fit(
     except np.linalg.LinAlgError:
         cov = np.linalg.pinv(hess)
     chi2 = float(np.sum(r * r * wgt))
-    dof = k - 9
-    if dof > 0:
+    # effective number of parameters the data determine: trace of the resolution matrix
+    dof = k - float(np.trace(cov @ info))
+    if dof > 0.5 and scale_by_residual:
         # real data scatter more than the white noise of the means: Birge ratio
         cov = cov * max(1.0, chi2 / dof)
     null = ~np.isfinite(np.diag(cov))
-    if not np.isfinite(prior_factor):
+    if not np.all(np.isfinite(pf)):
         # without a prior, directions with no information have no meaningful estimate
         ev, evec = np.linalg.eigh(info * np.outer(lim, lim))
         weak = ev < ev[-1] * 1e-12 if ev[-1] > 0 else np.ones(9, dtype=bool)
         null |= np.sum(evec[:, weak] ** 2, axis=1) > 1e-3
     rms = float(np.sqrt(np.mean(r * r))) if k else float("nan")
-    return _finish(
+    fit = _finish(
         triad, method, m0, theta - theta_c, cov, null, determined_std_ratio,
         _scaled_condition(info, lim), k, rms,
     )
+    fit.dof = dof
+    return fit
 
 
 def _linear_start(theta_c: np.ndarray, v: np.ndarray, mu: np.ndarray) -> np.ndarray:
@@ -286,21 +303,23 @@ def corrected_normalised(
     ).T
 
 
-def samples_normal_equations(
+def sample_rows(
     triad: TriadModel,
     raw: np.ndarray,
     magnitude: np.ndarray,
     m0: float,
     noise_var: np.ndarray | None = None,
     weight_floor: float = 1e-3,
-) -> NormalEquations:
-    """Normal equations (moving-base variant) from raw samples (N, 3) and magnitudes (N,).
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-sample rows (h (N, 9), z (N,), w (N,)) of the moving-base variant.
 
-    ``magnitude`` in input units per sample, independent of the triad (another
-    sensor, a known trajectory); ``noise_var`` (3,) per-sample variance of the
-    corrected output in units of m0^2, subtracted from the squares (note §3).
-    Weights 1 / (mu^2 + weight_floor): each sample counts by the relative
-    precision of its normalised F0.
+    ``raw`` (N, 3) outputs; ``magnitude`` (N,) the input magnitude per sample in
+    input units, independent of the triad (another sensor, a known
+    trajectory); ``noise_var`` (3,) per-sample variance of the corrected output
+    in units of m0^2, subtracted from the squares (note §3). z = 1/2 (|y|^2 -
+    mu^2) with y in units of m0: dividing by mu^2 gives F0 against regressors
+    ``y_j / mu^2`` for the constant B / S (note §6). Weights 1 / (mu^2 +
+    weight_floor): every sample counts by the relative precision of its F0.
     """
     y = corrected_normalised(triad, raw, m0)
     mu = np.asarray(magnitude, dtype=float) / m0
@@ -311,8 +330,19 @@ def samples_normal_equations(
         h[:, 3:6] -= nv
         z -= 0.5 * float(np.sum(nv))
     w = 1.0 / (mu * mu + weight_floor)
+    return h, z, w
+
+
+def samples_normal_equations(
+    triad: TriadModel,
+    raw: np.ndarray,
+    magnitude: np.ndarray,
+    m0: float,
+    noise_var: np.ndarray | None = None,
+) -> NormalEquations:
+    """Normal equations of the moving-base variant over samples (see :func:`sample_rows`)."""
     ne = NormalEquations()
-    ne.add(h, z, w)
+    ne.add(*sample_rows(triad, raw, magnitude, m0, noise_var))
     return ne
 
 
@@ -410,6 +440,7 @@ __all__ = [
     "linear_fit",
     "NormalEquations",
     "samples_normal_equations",
+    "sample_rows",
     "interval_normal_equations",
     "normal_equation_fit",
     "corrected_normalised",

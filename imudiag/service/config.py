@@ -305,7 +305,19 @@ def default_config() -> DaemonConfig:
     return load_config(bundled_config_path())
 
 
-def merge_cli(config: DaemonConfig, args: Mapping[str, Any]) -> DaemonConfig:
+#: Field name -> option of ``imudiag run`` where the two differ (named in errors).
+CLI_OPTIONS = {
+    "status_rate_hz": "--status-rate",
+    "nmea_rate_hz": "--nmea-rate",
+    "no_data_timeout_s": "--no-data-timeout",
+}
+
+
+def merge_cli(
+    config: DaemonConfig,
+    args: Mapping[str, Any],
+    option_names: Mapping[str, str] | None = None,
+) -> DaemonConfig:
     """Apply command-line options over ``config``; ``None`` means "not given".
 
     Keys are :class:`DaemonConfig` field names (``source``, ``certificate``,
@@ -314,12 +326,14 @@ def merge_cli(config: DaemonConfig, args: Mapping[str, Any]) -> DaemonConfig:
     standard output and anything else the NMEA serial URL; when given, the
     sinks are exactly those listed. Other keys (argparse's ``func``,
     ``command``, ``config``) are ignored. Values get the same checks as the
-    file, reported as ``command line: --option: reason``.
+    file, reported as ``command line: --option: reason``, the option named by
+    ``option_names`` (default :data:`CLI_OPTIONS`) or ``--field-name``.
     """
     source = "command line"
+    names = CLI_OPTIONS if option_names is None else option_names
 
     def option(name: str) -> str:
-        return "--" + name.replace("_", "-")
+        return names.get(name) or "--" + name.replace("_", "-")
 
     changes: dict[str, Any] = {}
     for name, value in args.items():
@@ -363,6 +377,7 @@ def _status_sinks(value: Any, source: str) -> dict[str, Any]:
 
 __all__ = [
     "BUNDLED_CONFIG_NAME",
+    "CLI_OPTIONS",
     "ConfigError",
     "DaemonConfig",
     "SCHEMA",

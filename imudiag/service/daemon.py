@@ -44,6 +44,11 @@ class DaemonSettings:
     status_period_s: float = 1.0  #: steady status cadence, s
     no_data_timeout_s: float = 2.0  #: no valid frame for this long -> state no_data, s
     read_timeout_s: float = 0.05  #: longest wait for data in one loop turn, s
+    #: after a read that brought samples, wait this long before reading again, s: the
+    #: kernel buffers what arrives meanwhile, so the per-turn cost is paid once per
+    #: interval instead of once per frame (CPU share), at the price of up to this much
+    #: added latency (docs/benchmarks.md measures the trade-off)
+    read_interval_s: float = 0.0
     reconnect_min_s: float = 0.5  #: first reconnect back-off, s
     reconnect_max_s: float = 10.0  #: longest reconnect back-off, s
     degraded_hold_s: float = 10.0  #: transport errors keep the state degraded this long, s
@@ -187,6 +192,12 @@ class Daemon:
         }
         if self.diagnoser is not None:
             status["diagnosis"] = self.diagnoser.verdicts()
+        links = [s for s in self.sinks if hasattr(s, "dropped") and hasattr(s, "written")]
+        if links:  # the serial NMEA link: sentences written and dropped (slow receiver)
+            status["status_link"] = {
+                "written": sum(int(s.written) for s in links),
+                "dropped": sum(int(s.dropped) for s in links),
+            }
         if self.notes:
             status["notes"] = list(self.notes)
         return status
@@ -221,6 +232,7 @@ class Daemon:
                     self._emit(self.clock(), force=True)
                     break
                 now = self.clock()
+                read_done = time.monotonic()
                 if len(block):
                     self._last_data_wall = now
                     self.watchdog.frames_arrived(now)
@@ -229,6 +241,10 @@ class Daemon:
                         self.diagnoser.update(block)
                 self.watchdog.tick(now)
                 self._emit(now)
+                if len(block) and self.settings.read_interval_s > 0:
+                    pause = read_done + self.settings.read_interval_s - time.monotonic()
+                    if pause > 0:
+                        time.sleep(pause)
         finally:
             self.notifier.stopping()
             self.source.close()

@@ -9,8 +9,10 @@ half of it), ``RELOADING=1`` / ``STOPPING=1`` around a reload and at shutdown.
 The watchdog is ours only if ``WATCHDOG_PID`` is unset or equals our pid.
 
 Without ``NOTIFY_SOCKET`` (run by hand, under the bench) every call is a no-op.
-A notification never raises: a vanished socket is logged once and ignored, so
-telling the supervisor can never stop the sampling.
+A notification never raises nor blocks (the socket is non-blocking): a vanished
+socket or a full receive queue is logged once, counted in ``failures`` and
+ignored, so telling the supervisor can never stall the sampling; a watchdog
+ping that could not be sent is retried on the next tick.
 
 :class:`WatchdogGate` pings the watchdog only while valid frames arrive, so a
 daemon whose samples stop flowing is restarted by systemd.
@@ -111,7 +113,9 @@ class Notifier:
         with self._lock:
             try:
                 if self._sock is None:
-                    self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)  # non-inheritable
+                    # non-inheritable; non-blocking: a full receiver queue must not stall us
+                    self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+                    self._sock.setblocking(False)
                 self._sock.sendto(data, _socket_address(self.socket_name))
             except OSError as exc:
                 if self.failures == 0:

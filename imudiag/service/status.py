@@ -3,7 +3,8 @@
 Keys required by the contract: ``t`` (sample time, s), ``state`` (ok,
 degraded, fault, no_data), ``faults`` (triad, sensor where it can be told,
 cause), ``counters`` (the receiver counters). Added keys: ``link``,
-``static``, ``f0``, ``diagnosis``, ``certificate``, ``adc_errors``, ``notes``.
+``static``, ``f0``, ``diagnosis``, ``certificate``, ``adc_errors``, ``notes``,
+``status_link`` (NMEA sentences ``written`` and ``dropped`` when a serial link is set).
 """
 
 from __future__ import annotations

@@ -5,6 +5,8 @@ Scenarios (parameters as ``key=value``; times s, angles deg, rates deg/s):
 ``static`` (the default; endless)
     The board still in ``n`` (4) attitudes, the first level, held ``dwell`` (20) s each,
     slow ``turn`` (4) s turns between, repeating.
+``still`` (endless)
+    One attitude, ``roll`` ``pitch`` ``yaw`` (0 0 0) deg: for noise statistics.
 ``multiposition`` (finite: first_dwell + (n-1)(turn+dwell) s; endless with ``loop=1``)
     ``n`` (12) well-spread attitudes, ``dwell`` (3) s, ``turn`` (1.5) s, ``first_dwell`` (dwell).
 ``turntable`` (endless)
@@ -53,12 +55,14 @@ from .trajectories import (
     VehicleRun,
     multi_position_motion,
     static_cycle_motion,
+    still_motion,
     turntable_motion,
 )
 
-SCENARIOS = ("static", "multiposition", "turntable", "vehicle")
+SCENARIOS = ("static", "still", "multiposition", "turntable", "vehicle")
 _PARAMS: dict[str, tuple[str, ...]] = {
     "static": ("n", "dwell", "turn", "latitude"),
+    "still": ("roll", "pitch", "yaw", "latitude"),
     "multiposition": ("n", "dwell", "turn", "first_dwell", "loop", "latitude"),
     "turntable": ("turn_rate", "axis", "ramp", "latitude"),
     "vehicle": ("still", "accel", "speed", "cruise", "turn", "turn_deg", "final", "latitude"),
@@ -114,6 +118,9 @@ def scenario_motion(name: str, seed: int = 0, params: Mapping[str, str] | None =
     if sc == "static":
         return static_cycle_motion(int(num("n", 4)), num("dwell", 20.0), num("turn", 4.0), seed,
                                    latitude_deg=lat)
+    if sc == "still":
+        return still_motion(attitude_rpy_deg=(num("roll", 0.0), num("pitch", 0.0),
+                                              num("yaw", 0.0)), latitude_deg=lat)
     if sc == "multiposition":
         first = num("first_dwell", -1.0)
         return multi_position_motion(

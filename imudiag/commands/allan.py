@@ -1,0 +1,165 @@
+"""``imudiag allan LOG [--json OUT]``: Allan deviation, PSD and noise identification of a log.
+
+Per sensor (gx gy gz ax ay az): the overlapping Allan deviation, the IEEE 952
+readings (white noise N, bias instability B, random walk K; see
+:mod:`imudiag.noise_stats` for units and conventions) and the Welch PSD with its
+white-noise level. Meaningful on a still recording (motion shows up as noise).
+The samples are taken as uniformly spaced; gaps in ``t`` are counted and reported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from typing import Any
+
+import numpy as np
+
+from ..errors import BadInput
+from ..logs import LogError, open_log
+from ..noise_stats import identify_noise, overlapping_allan, welch_psd
+
+SENSORS = ("gx", "gy", "gz", "ax", "ay", "az")
+FORMAT = "imudiag-allan/1"
+UNITS = {
+    "tau": "s",
+    "adev": "output units",
+    "white_noise": "output units/sqrt(Hz) (IEEE 952 N, sigma at tau = 1 s)",
+    "density_one_sided": "output units/sqrt(Hz) (sqrt(2) N, the certificate's noise.density)",
+    "bias_instability": "output units (Allan minimum / 0.664)",
+    "random_walk": "output units/sqrt(s) (the certificate's noise.bias_random_walk)",
+    "psd": "output units^2/Hz, one-sided",
+}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``allan`` subcommand."""
+    p = sub.add_parser(
+        "allan",
+        help="Allan deviation, PSD and noise identification of a sample log",
+        description="Overlapping Allan deviation and Welch PSD of each sensor of a log, and "
+        "the white noise, bias instability and random walk read from the Allan curve "
+        "(IEEE Std 952). Use a still recording.",
+    )
+    p.add_argument("log", metavar="LOG", help="sample log (.csv, .csv.gz, .npz, .bin)")
+    p.add_argument("--json", metavar="OUT", help="write the report as JSON ('-' for stdout)")
+    p.add_argument("--sensors", default=",".join(SENSORS),
+                   help="comma-separated sensors (default all six)")
+    p.add_argument("--start", type=float, metavar="S", help="ignore samples before t = S s")
+    p.add_argument("--stop", type=float, metavar="S", help="ignore samples after t = S s")
+    p.add_argument("--rate", type=float, metavar="HZ",
+                   help="sample rate (default: the log's sample_rate, else from t)")
+    p.add_argument("--points-per-decade", type=int, default=10, metavar="K",
+                   help="tau values per decade (default 10)")
+    p.add_argument("--psd-segment", type=int, default=4096, metavar="N",
+                   help="samples per Welch segment (default 4096, at most N/8)")
+    p.set_defaults(func=run)
+
+
+def _collect(path: str, start: float | None, stop: float | None
+             ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """t (N,) and outputs (N, 6) of the log within [start, stop]."""
+    ts: list[np.ndarray] = []
+    us: list[np.ndarray] = []
+    with open_log(path) as reader:
+        for block in reader:
+            keep = np.ones(len(block), dtype=bool)
+            if start is not None:
+                keep &= block.t >= start
+            if stop is not None:
+                keep &= block.t <= stop
+            ts.append(block.t[keep])
+            us.append(np.hstack([block.gyro[keep], block.accel[keep]]))
+        meta = dict(reader.meta)
+    t = np.concatenate(ts) if ts else np.zeros(0)
+    u = np.concatenate(us) if us else np.zeros((0, 6))
+    return t, u, meta
+
+
+def analyse(t: np.ndarray, u: np.ndarray, rate_hz: float, sensors: list[str],
+            points_per_decade: int = 10, psd_segment: int = 4096) -> dict[str, Any]:
+    """The per-sensor report for samples ``u`` (N, 6) at ``rate_hz``."""
+    out: dict[str, Any] = {}
+    n = u.shape[0]
+    nperseg = int(min(psd_segment, max(16, 1 << int(math.log2(max(n // 8, 16))))))
+    for name in sensors:
+        y = u[:, SENSORS.index(name)]
+        allan = overlapping_allan(y, rate_hz, points_per_decade=points_per_decade)
+        terms = identify_noise(allan)
+        psd = welch_psd(y, rate_hz, nperseg)
+        band = (psd.frequency >= 0.1 * rate_hz) & (psd.frequency <= 0.4 * rate_hz)
+        white_psd = math.sqrt(float(np.mean(psd.density[band]))) if np.any(band) else None
+        out[name] = {
+            **terms.as_dict(),
+            "psd_white_density": white_psd,
+            "allan": {"tau": allan.tau.tolist(), "adev": allan.adev.tolist(),
+                      "error": allan.error.tolist()},
+            "psd": {"frequency": psd.frequency.tolist(), "density": psd.density.tolist(),
+                    "segments": psd.segments},
+        }
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    """Analyse the log; returns the exit code."""
+    sensors = [s.strip() for s in args.sensors.split(",") if s.strip()]
+    for s in sensors:
+        if s not in SENSORS:
+            raise BadInput(f"--sensors: unknown sensor {s!r}; expected {' '.join(SENSORS)}")
+    if args.points_per_decade < 1 or args.psd_segment < 16:
+        raise BadInput("--points-per-decade must be >= 1 and --psd-segment >= 16")
+    t, u, meta = _collect(args.log, args.start, args.stop)
+    if t.shape[0] < 16:
+        raise LogError(args.log, f"{t.shape[0]} samples in the selected range; need at least 16")
+    dt = np.diff(t)
+    median_dt = float(np.median(dt))
+    rate = args.rate
+    if rate is None:
+        try:
+            rate = float(meta.get("sample_rate", 0.0)) or 1.0 / median_dt
+        except (TypeError, ValueError):
+            raise LogError(args.log, f"metadata sample_rate is not a number: "
+                           f"{meta.get('sample_rate')!r}") from None
+    if not (rate > 0 and math.isfinite(rate)):
+        raise BadInput(f"--rate: must be > 0 Hz, got {rate}")
+    gaps = int(np.count_nonzero(dt > 1.5 / rate))
+    report = {
+        "format": FORMAT,
+        "log": args.log,
+        "samples": int(t.shape[0]),
+        "rate_hz": rate,
+        "duration_s": float(t[-1] - t[0]),
+        "gaps": gaps,
+        "units": UNITS,
+        "sensors": analyse(t, u, rate, sensors, args.points_per_decade, args.psd_segment),
+    }
+    # the table goes to stderr when the JSON report takes stdout
+    _print_table(report, sys.stderr if args.json == "-" else sys.stdout)
+    if args.json:
+        text = json.dumps(report, indent=1)
+        if args.json == "-":
+            sys.stdout.write(text + "\n")
+        else:
+            with open(args.json, "w", encoding="utf-8") as fh:
+                fh.write(text + "\n")
+    return 0
+
+
+def _fmt(v: float | None) -> str:
+    return "-" if v is None else f"{v:.4g}"
+
+
+def _print_table(report: dict[str, Any], out: Any) -> None:
+    print(f"{report['log']}: {report['samples']} samples at {report['rate_hz']:g} Hz, "
+          f"{report['duration_s']:.1f} s, {report['gaps']} gaps", file=out)
+    print("sensor  N [u/rtHz]  density [u/rtHz]  PSD white [u/rtHz]  B [u] (tau s)  "
+          "K [u/rts]", file=out)
+    for name, r in report["sensors"].items():
+        b = f"{_fmt(r['bias_instability'])} ({r['bias_instability_tau']:.3g})"
+        if not r["bias_floor"]:
+            b = "<=" + b
+        print(f"{name:6s}  {_fmt(r['white_noise']):>11s}  {_fmt(r['density_one_sided']):>16s}  "
+              f"{_fmt(r['psd_white_density']):>18s}  {b:>13s}  {_fmt(r['random_walk'])}",
+              file=out)

@@ -1,0 +1,117 @@
+"""``imudiag calibrate LOG --like CERT --out CERT2``: scalar calibration from a
+multi-position session (spec/reports.md).
+
+Estimates biases, scale-factor errors and misalignment of both triads from
+the quasi-static intervals of the log (and the rotations between them for
+MEMS gyros), takes scale factors, units and limits from ``--like`` and writes a
+certificate. The misalignment gauge is documented in
+:mod:`imudiag.diagnosis.calibrate`. Prints the |a| spread over the intervals
+before and after, and what the session could not determine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ..certificate import load
+from ..diagnosis.calibrate import calibrate
+from ..diagnosis.inputs import MagnitudeTable, check_units, log_rate_hz
+from ..diagnosis.intervals import IntervalCollector
+from ..diagnosis.scalar_fit import NormalEquations, sample_rows
+from ..errors import BadInput
+from ..logs import open_log
+from .diagnose import add_common_arguments, make_config, write_json
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``calibrate`` subcommand."""
+    p = sub.add_parser(
+        "calibrate",
+        help="scalar calibration of both triads from a multi-position log",
+        description="Scalar calibration from a multi-position session: biases, scale-factor "
+        "errors and misalignment of both triads; scale factors, units and limits from --like.",
+    )
+    add_common_arguments(p)
+    p.add_argument("--like", required=True, metavar="CERT",
+                   help="certificate giving scale factors, units, limits and starting values")
+    p.add_argument("--out", required=True, metavar="CERT2", help="certificate to write")
+    p.add_argument("--json", metavar="OUT",
+                   help="write a calibration summary as JSON ('-' for stdout)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Calibrate from the log and write the certificate."""
+    like = load(args.like)
+    cfg = make_config(args)
+    table = MagnitudeTable(args.magnitude) if args.magnitude else None
+    if cfg.method == "moving-base" and table is None:
+        raise BadInput("--method moving-base: calibration needs independent magnitudes "
+                       "(--magnitude FILE); the triad's own magnitude cannot calibrate it")
+    if table is not None and cfg.method != "moving-base":
+        raise BadInput("--magnitude: only the moving-base method uses independent magnitudes")
+    collector = None
+    intervals = []
+    moving: dict[str, tuple[NormalEquations, float]] = {}
+    rate = None
+    with open_log(args.log, block_size=args.block_size) as reader:
+        for block in reader:
+            if collector is None:
+                check_units(args.log, reader.meta, like)
+                rate = args.rate or log_rate_hz(reader.meta, block, like)
+                collector = IntervalCollector(
+                    like, rate, detector_window_s=cfg.detector_window_s,
+                    min_interval_s=cfg.min_interval_s, max_interval_s=cfg.max_interval_s,
+                    trim_s=cfg.trim_s, max_motion_s=cfg.max_motion_s,
+                )
+                if table is not None:
+                    moving = {
+                        "accel": (NormalEquations(), like.gravity / like.accel.unit_to_si),
+                        "gyro": (NormalEquations(), 1.0 / like.gyro.unit_to_si),
+                    }
+            intervals.extend(collector.update(block))
+            if table is not None:
+                mags = table.at(block.t)
+                for triad, (ne, m0) in moving.items():
+                    if triad in mags:
+                        tri = like.triad(triad)
+                        sigma = collector.detector.noise_sigma(triad)
+                        nv = None if sigma is None else (sigma / (tri.scale_factor * m0)) ** 2
+                        ne.add(*sample_rows(tri, block.triad(triad),
+                                            mags[triad] / tri.unit_to_si, m0, nv))
+    assert collector is not None
+    intervals.extend(collector.flush())
+    if not intervals:
+        raise BadInput(f"{args.log}: no quasi-static interval found (the unit never stood "
+                       "still long enough): nothing to calibrate from")
+    moving = {k: v for k, v in moving.items() if v[0].n > 0}
+    try:
+        result = calibrate(intervals, like, cfg.method, rate, moving or None, cfg,
+                           source=str(args.log))
+    except ValueError as exc:
+        raise BadInput(f"{args.log}: {exc}") from None
+    try:
+        result.certificate.save(args.out)
+    except OSError as exc:
+        raise BadInput(f"{args.out}: cannot write: {exc.strerror or exc}") from None
+    summary = result.summary()
+    summary["log"] = str(args.log)
+    summary["like"] = str(args.like)
+    summary["out"] = str(args.out)
+    if args.json:
+        write_json(summary, args.json)
+    out = sys.stderr if args.json == "-" else sys.stdout
+    b, a = result.accel_spread_before, result.accel_spread_after
+    print(f"{result.intervals} quasi-static intervals, {result.attitudes} attitudes, "
+          f"{result.rotations} rotations; wrote {args.out}", file=out)
+    print(f"|a|/g - 1 over the intervals: rms {b['rms']:.3e} -> {a['rms']:.3e}, "
+          f"peak-to-peak {b['peak_to_peak']:.3e} -> {a['peak_to_peak']:.3e}", file=out)
+    if result.rotation_rms_before_deg is not None:
+        print(f"gravity direction after integrated rotations, rms: "
+              f"{result.rotation_rms_before_deg:.3f} -> {result.rotation_rms_after_deg:.3f} deg",
+              file=out)
+    for u in result.undetermined:
+        print(f"  undetermined (kept from --like) {u['triad']} {u['sensor']} {u['cause']}: "
+              f"{u['reason']}", file=out)
+    return 0

@@ -1,0 +1,145 @@
+"""``imudiag simulate SCENARIO --duration S --seed N --out LOG``: a simulated session to a log.
+
+Scenarios, effects and faults are described in :mod:`imudiag.sim.scenarios`;
+the log format follows the file name (``.csv``, ``.csv.gz``, ``.npz``, ``.bin``).
+The session is simulated and written in chunks, so long sessions stream.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+from ..certificate import load, load_default
+from ..errors import BadInput
+from ..logs import log_format, open_writer
+from ..sim.effects import Effects
+from ..sim.faults import Fault
+from ..sim.scenarios import (
+    SCENARIOS,
+    canonical_scenario,
+    describe,
+    parse_effects,
+    parse_faults,
+    scenario_motion,
+)
+from ..sim.simulator import Simulator, true_certificate
+
+CHUNK_S = 30.0  #: seconds simulated per written block
+_BIN_META_LIMIT = 249  #: bytes of JSON a device-info frame holds
+
+EPILOG = """\
+effects (--effect, applied in order to the 'board' preset):
+  board | none | all | noise:SCALE | quantize | saturation:LOW:HIGH
+  bias_drift:S:K (u/sqrt(s))   bias_instability:S:SIGMA:TAU (u, s)
+  temperature:START:WARMUP:TAU[:RAMP] (degC, degC, s, degC/s)
+  temperature_bias:S:C (u/degC)   temperature_scale:S:C (1/degC)
+  g_sensitivity:GS:KX:KY:KZ (u per accel input unit)   scale_nonlinearity:S:Q (u/input^2)
+  bias_step:S:T:SIZE (s, u)   periodic_disturbance:S:AMP:FREQ (u, Hz)
+  adc_error:P   drop:P   jitter:SECONDS
+  (S a sensor gx gy gz ax ay az, GS a gyro; u = output units, counts on the bundled board)
+faults (--fault kind:sensor:t_s[:value]):
+  bias (u), scale_factor (u per input unit), misalignment (pair ax/ay ax/az ay/az, rad),
+  stuck [value], noise (sigma multiplier), dead [value]; e.g. bias:ax:30:150
+scenario parameters (--param key=value):
+  static: n dwell turn latitude      still: roll pitch yaw latitude
+  multiposition: n dwell turn first_dwell latitude
+  turntable: turn_rate axis ramp latitude
+  vehicle: still accel speed cruise turn turn_deg final latitude
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``simulate`` subcommand."""
+    p = sub.add_parser(
+        "simulate",
+        help="simulate an IMU session and write a sample log",
+        description="Simulate the board along a scenario with the certificate's model, "
+        "effects and faults, and write a sample log (.csv, .csv.gz, .npz, .bin).",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("scenario", metavar="SCENARIO",
+                   help=f"one of {', '.join(SCENARIOS)} (or default = static)")
+    p.add_argument("--out", required=True, metavar="LOG", help="log to write")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="seconds to simulate (required for the endless static, still, turntable)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--rate", type=float, metavar="HZ",
+                   help="sample rate, Hz (default: the certificate's sample_rate)")
+    p.add_argument("--certificate", help="certificate YAML (default: the bundled one)")
+    p.add_argument("--effect", action="append", default=[], metavar="SPEC",
+                   help="an effect (repeatable; see below)")
+    p.add_argument("--fault", action="append", default=[], metavar="KIND:SENSOR:T[:VALUE]",
+                   help="a fault (repeatable)")
+    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                   help="a scenario parameter (repeatable)")
+    p.add_argument("--true-certificate", metavar="CERT",
+                   help="also write the true model at the end (faults and effects applied)")
+    p.set_defaults(func=run)
+
+
+def _meta(args: argparse.Namespace, rate: float, device: str, scenario: str,
+          effects: Effects, faults: list[Fault]) -> dict:
+    meta: dict = {
+        "sample_rate": int(rate) if float(rate).is_integer() else rate,
+        "device": device,
+        "source": f"imudiag simulate {scenario} seed={args.seed}",
+        "faults": ",".join(f.to_text() for f in faults),
+        "effects": ",".join(describe(effects)),
+    }
+    if log_format(args.out) == ".bin":
+        for key in ("effects", "faults"):  # a device-info frame holds 249 bytes of JSON
+            if len(json.dumps(meta, separators=(",", ":")).encode()) > _BIN_META_LIMIT:
+                del meta[key]
+    return meta
+
+
+def run(args: argparse.Namespace) -> int:
+    """Simulate and write the log; returns the exit code."""
+    log_format(args.out)  # an unknown format fails before any work
+    cert = load(args.certificate) if args.certificate else load_default()
+    try:
+        scenario = canonical_scenario(args.scenario)
+        params = {}
+        for item in args.param:
+            key, sep, value = item.partition("=")
+            if not sep:
+                raise ValueError(f"--param {item!r}: expected KEY=VALUE")
+            params[key.strip()] = value.strip()
+        motion = scenario_motion(scenario, args.seed, params)
+        effects = parse_effects(args.effect)
+        faults = parse_faults(args.fault)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    rate = float(args.rate) if args.rate is not None else float(cert.sample_rate)
+    if not (rate > 0 and math.isfinite(rate)):
+        raise BadInput(f"--rate: must be > 0 Hz, got {args.rate}")
+    total = motion.n_samples(rate)
+    if args.duration is not None:
+        if not (args.duration > 0 and math.isfinite(args.duration)):
+            raise BadInput(f"--duration: must be > 0 s, got {args.duration}")
+        want = int(round(args.duration * rate))
+        total = want if total is None else min(total, want)
+    elif total is None:
+        raise BadInput(f"--duration: required for the endless scenario {scenario!r}")
+
+    device = str(cert.device.get("model", "simulated IMU"))
+    meta = _meta(args, rate, device, scenario, effects, faults)
+    sim = Simulator(cert, effects, faults, args.seed, meta=dict(meta))
+    chunk = max(1, int(round(CHUNK_S * rate)))
+    written = 0
+    with open_writer(args.out, meta=meta) as writer:
+        done = 0
+        while done < total:
+            n = min(chunk, total - done)
+            writer.write(sim.step(motion.sample(rate, done, n)))
+            done += n
+        written = writer.samples_written
+    if args.true_certificate:
+        t_end = (total - 1) / rate if total else 0.0
+        true_certificate(cert, effects, faults, t_end).save(args.true_certificate)
+    print(f"{args.out}: {written} samples, {total / rate:g} s at {rate:g} Hz, "
+          f"scenario {scenario}, seed {args.seed}")
+    return 0

@@ -1,0 +1,393 @@
+"""Scalar calibration from a multi-position session: the method the diagnosis rests on.
+
+From all quasi-static intervals of a log (one window, no sliding):
+
+- accelerometers: biases and the symmetric part of N from |f| = g (the exact
+  fit, or the paper's linear one, or the moving-base normal equations with
+  independent magnitudes);
+- gyros: biases at rest, and the shape of N plus the rotation of the gyro
+  frame against the accelerometer frame from the rotations between
+  intervals (navigation-grade gyros: the Earth-rate scalar fit instead).
+
+Scale factors S, units, limits, the temperature and other extended blocks
+come from the ``like`` certificate; the noise density is measured on the
+intervals. Parameters the session cannot determine keep the ``like`` value
+and are listed as undetermined.
+
+Misalignment gauge (only N N^T is observable for a scalar fit): the
+accelerometer N is written symmetric, N = P, i.e. each observable difference
+split equally, ``D_xz = d1/2, D_yz = -d1/2`` and so on (see :mod:`.gauge`: exact
+to all orders, and the frame it defines is the orthonormal frame nearest to the
+accelerometer axes). The gyro N is P_g R where R is the gyro frame's measured
+rotation against that accelerometer frame, so gyro-integrated rotations agree
+with gravity directions measured by the accelerometers.
+"""
+
+from __future__ import annotations
+
+import copy
+import datetime as _dt
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..certificate import Certificate, Noise, TriadModel
+from .config import DiagnosisConfig
+from .gauge import n_symmetric, p_matrix, shape_of_triad, small_rotation
+from .gyro_fit import (
+    RotationPair,
+    _predict,
+    earth_rate_observable,
+    rest_bias,
+    rotation_fit,
+)
+from .intervals import QuasiStaticInterval
+from .params import TriadFit, certificate_vector, limit_vector, sensor_of
+from .scalar_fit import NormalEquations, exact_fit, linear_fit, normal_equation_fit
+from .window import count_rotations, distinct_attitudes, rotation_pairs
+
+#: Prior standard deviation (in limits) of the calibration fits: practically none.
+CALIBRATION_PRIOR = 1e4
+#: Prior standard deviation (in limits) that pins a parameter the session cannot determine.
+PINNED_PRIOR = 1e-6
+
+
+def _pinned_fit(fit_once: Callable[[np.ndarray, bool], TriadFit]) -> TriadFit:
+    """Fit, pinning at the ``like`` value the parameters the session cannot determine.
+
+    ``fit_once(prior_factor (9,), probe)`` fits with those prior widths (in
+    limits); with ``probe`` it only linearises at the ``like`` certificate.
+    Without a prior, a parameter the session cannot see makes the others'
+    covariance explode through their correlation, and the fit wanders off along
+    the unobserved direction. So: first, from the linearisation at ``like``,
+    pin the worst parameter (largest std / limit) until the rest are
+    determined; then fit, and pin more if the converged fit still leaves some
+    undetermined. Pinned parameters are reported as undetermined with the
+    reason of the first probe.
+    """
+    pinned = np.zeros(9, dtype=bool)
+
+    def prior(p: np.ndarray) -> np.ndarray:
+        return np.where(p, PINNED_PRIOR, CALIBRATION_PRIOR)
+
+    def pin_worst(fit: TriadFit) -> bool:
+        und = ~fit.determined & ~pinned
+        if not und.any():
+            return False
+        pinned[int(np.argmax(np.where(und, fit.std / fit.limit, -np.inf)))] = True
+        return True
+
+    first = fit_once(prior(pinned), True)
+    probe = first
+    while pin_worst(probe):
+        probe = fit_once(prior(pinned), True)
+    fit = fit_once(prior(pinned), False)
+    while pin_worst(fit):
+        fit = fit_once(prior(pinned), False)
+    for i in np.flatnonzero(pinned):
+        fit.determined[i] = False
+        fit.std[i] = np.inf
+        why = first.reasons[i] or fit.reasons[i] or "correlated with parameters it cannot see"
+        fit.reasons[i] = f"not determined by the session ({why}): kept from --like"
+    return fit
+
+
+@dataclass
+class CalibrationResult:
+    """A calibrated certificate and how well the session determined it."""
+
+    certificate: Certificate
+    method: str
+    intervals: int
+    attitudes: int
+    rotations: int
+    accel: TriadFit
+    gyro: TriadFit
+    accel_spread_before: dict[str, float]
+    accel_spread_after: dict[str, float]
+    rotation_rms_before_deg: float | None = None
+    rotation_rms_after_deg: float | None = None
+    undetermined: list[dict] = field(default_factory=list)
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready summary of the calibration."""
+        return {
+            "format": "imudiag-calibration/1",
+            "method": self.method,
+            "intervals": self.intervals,
+            "attitudes": self.attitudes,
+            "rotations": self.rotations,
+            "accel_norm_spread": {
+                "before": self.accel_spread_before,
+                "after": self.accel_spread_after,
+            },
+            "rotation_residual_rms_deg": {
+                "before": self.rotation_rms_before_deg,
+                "after": self.rotation_rms_after_deg,
+            },
+            "accel": self.accel.to_json(),
+            "gyro": self.gyro.to_json(),
+            "undetermined": self.undetermined,
+        }
+
+
+def fields_from_n(n: np.ndarray, scale_factor: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
+    """Certificate fields (E (3,) output per input unit, misalignment dict rad) of a general N."""
+    e = (np.diag(n) - 1.0) * scale_factor
+    mis = {
+        "xz": float(n[0, 1]),
+        "xy": float(-n[0, 2]),
+        "yz": float(-n[1, 0]),
+        "yx": float(n[1, 2]),
+        "zy": float(n[2, 0]),
+        "zx": float(-n[2, 1]),
+    }
+    return e, mis
+
+
+def accel_norm_spread(
+    accel: TriadModel, intervals: list[QuasiStaticInterval], gravity: float
+) -> dict[str, float]:
+    """Spread of |f| / g - 1 over the interval means with ``accel``'s correction (dimensionless)."""
+    means = np.array([iv.accel_mean for iv in intervals])
+    r = np.linalg.norm(accel.inverse_si(means), axis=1) / gravity - 1.0
+    return {
+        "rms": float(np.sqrt(np.mean(r * r))),
+        "std": float(np.std(r)),
+        "peak_to_peak": float(np.ptp(r)),
+        "max_abs": float(np.max(np.abs(r))),
+    }
+
+
+def _rotation_rms_deg(gyro: TriadModel, pairs: list[RotationPair]) -> float | None:
+    if not pairs:
+        return None
+    from .gyro_fit import _stack_pairs
+
+    stack = _stack_pairs(gyro, pairs)
+    up0 = np.array([p.up0 for p in pairs])
+    up1 = np.array([p.up1 for p in pairs])
+    pred = _predict(stack, np.linalg.inv(gyro.n_matrix())[None], up0)[0]
+    r = np.linalg.norm(up1 - pred, axis=1)
+    return float(math.degrees(float(np.sqrt(np.mean(r * r)))))
+
+
+def _noise_density(
+    triad: TriadModel, intervals: list[QuasiStaticInterval], rate_hz: float
+) -> np.ndarray:
+    """White-noise density (3,) output units/sqrt(Hz) from the interval sample variances."""
+    var = np.median(np.array([np.diag(iv.cov(triad.name)) for iv in intervals]), axis=0)
+    return np.sqrt(var) / math.sqrt(rate_hz / 2.0)
+
+
+def _undetermined(fit: TriadFit) -> list[dict]:
+    return [
+        {"triad": fit.triad, "sensor": sensor_of(fit.triad, i),
+         "cause": ("bias", "scale_factor", "misalignment")[i // 3], "reason": fit.reasons[i]}
+        for i in range(9)
+        if not fit.determined[i]
+    ]
+
+
+def calibrate(
+    intervals: list[QuasiStaticInterval],
+    like: Certificate,
+    method: str = "exact",
+    rate_hz: float | None = None,
+    moving: dict[str, tuple[NormalEquations, float]] | None = None,
+    config: DiagnosisConfig | None = None,
+    source: str = "",
+) -> CalibrationResult:
+    """Calibrate from ``intervals`` (time order); returns the new certificate and figures.
+
+    ``method``: exact | linear | moving-base (``moving`` then holds each triad's
+    normal equations and reference magnitude m0 in input units).
+    """
+    cfg = config or DiagnosisConfig()
+    rate = float(rate_hz or like.sample_rate)
+    if not intervals:
+        raise ValueError("no quasi-static interval in the session: nothing to calibrate from")
+    ratio = cfg.determined_std_ratio
+    acc_like = like.accel
+    g_in = like.gravity / acc_like.unit_to_si
+    means = np.array([iv.accel_mean for iv in intervals])
+    mvar = np.array([iv.mean_var("accel") for iv in intervals])
+    covs = np.array([iv.accel_cov for iv in intervals])
+    counts = np.array([iv.n for iv in intervals], dtype=float)
+
+    # -- accelerometers
+    if method == "moving-base":
+        if not moving or "accel" not in moving:
+            raise ValueError("the moving-base calibration needs independent accel magnitudes")
+        ne, m0 = moving["accel"]
+        acc_fit = normal_equation_fit(acc_like, ne, m0, "moving-base", ratio)
+    elif method == "linear":
+        acc_fit = linear_fit(acc_like, means, covs, counts, g_in, ratio)
+    else:
+        acc_fit = _pinned_fit(
+            lambda pf, probe: exact_fit(
+                acc_like, means, mvar, g_in, prior_factor=pf, determined_std_ratio=ratio,
+                max_iter=0 if probe else 100, start="certificate" if probe else "linear",
+                scale_by_residual=not probe,
+            )
+        )
+    new = like.copy()
+    new.sample_rate = rate
+    acc = new.accel
+    shape_c, _ = shape_of_triad(acc_like)
+    dev = acc_fit.estimate - certificate_vector(acc_like)
+    acc_shape = shape_c + np.concatenate([dev[3:6] / acc_like.scale_factor, dev[6:9]])
+    acc.bias = acc_fit.estimate[:3].copy()
+    acc.scale_factor_error, acc.misalignment = n_symmetric(acc_like, acc_shape)
+    acc.noise = _with_density(acc_like.noise, _noise_density(acc_like, intervals, rate))
+
+    # -- gyros
+    gyr_like = like.gyro
+    gmeans = np.array([iv.gyro_mean for iv in intervals])
+    gmvar = np.array([iv.mean_var("gyro") for iv in intervals])
+    gcovs = np.array([iv.gyro_cov for iv in intervals])
+    w_in = like.earth_rate / gyr_like.unit_to_si
+    pairs = rotation_pairs(like, acc, intervals)
+    rot_before = _rotation_rms_deg(gyr_like, pairs)
+    rotations = count_rotations(pairs, cfg.attitude_separation_deg)
+    gyr = new.gyro
+    mode = cfg.gyro_mode
+    if mode == "auto":
+        mode = "earth-rate" if earth_rate_observable(like) else "rotation"
+    if method == "moving-base" and moving and "gyro" in moving:
+        ne, m0 = moving["gyro"]
+        gyr_fit = normal_equation_fit(gyr_like, ne, m0, "moving-base", ratio)
+        g_shape_c, g_q = shape_of_triad(gyr_like)
+        gdev = gyr_fit.estimate - certificate_vector(gyr_like)
+        g_shape = g_shape_c + np.concatenate([gdev[3:6] / gyr_like.scale_factor, gdev[6:9]])
+        gyr.bias = gyr_fit.estimate[:3].copy()
+        gyr.scale_factor_error, gyr.misalignment = fields_from_n(
+            p_matrix(g_shape) @ g_q, gyr_like.scale_factor
+        )
+    elif mode == "earth-rate":
+        if method == "linear":
+            gyr_fit = linear_fit(gyr_like, gmeans, gcovs, counts, w_in, ratio)
+        else:
+            gyr_fit = _pinned_fit(
+                lambda pf, probe: exact_fit(
+                    gyr_like, gmeans, gmvar, w_in, prior_factor=pf, determined_std_ratio=ratio,
+                    max_iter=0 if probe else 100, method="exact-earth-rate",
+                    start="certificate" if probe else "linear", scale_by_residual=not probe,
+                )
+            )
+        g_shape_c, g_q = shape_of_triad(gyr_like)
+        gdev = gyr_fit.estimate - certificate_vector(gyr_like)
+        g_shape = g_shape_c + np.concatenate([gdev[3:6] / gyr_like.scale_factor, gdev[6:9]])
+        gyr.bias = gyr_fit.estimate[:3].copy()
+        gyr.scale_factor_error, gyr.misalignment = fields_from_n(
+            p_matrix(g_shape) @ g_q, gyr_like.scale_factor
+        )
+    else:
+        n_holder: dict[str, np.ndarray] = {}
+
+        def once(pf: np.ndarray, probe: bool) -> TriadFit:
+            fit, n_holder["n"] = _gyro_rest_rotation(
+                like, gyr_like, intervals, pairs, cfg, pf, probe
+            )
+            return fit
+
+        gyr_fit = _pinned_fit(once)
+        n_g = n_holder["n"]
+        gyr.bias = gyr_fit.estimate[:3].copy()
+        gyr.scale_factor_error, gyr.misalignment = fields_from_n(n_g, gyr_like.scale_factor)
+    gyr.noise = _with_density(gyr_like.noise, _noise_density(gyr_like, intervals, rate))
+
+    device = dict(like.device)
+    device["calibrated"] = _dt.date.today().isoformat()
+    device["calibration"] = (
+        f"imudiag calibrate --method {method}"
+        + (f" from {source}" if source else "")
+        + f": {len(intervals)} quasi-static intervals, "
+        f"{distinct_attitudes(np.array([iv.up for iv in intervals]), cfg.attitude_separation_deg)}"
+        f" attitudes, {rotations} rotations"
+    )
+    new.device = device
+    new.source = None
+    rot_after = _rotation_rms_deg(gyr, pairs)
+    return CalibrationResult(
+        certificate=new,
+        method=method,
+        intervals=len(intervals),
+        attitudes=distinct_attitudes(
+            np.array([iv.up for iv in intervals]), cfg.attitude_separation_deg
+        ),
+        rotations=rotations,
+        accel=acc_fit,
+        gyro=gyr_fit,
+        accel_spread_before=accel_norm_spread(acc_like, intervals, like.gravity),
+        accel_spread_after=accel_norm_spread(acc, intervals, like.gravity),
+        rotation_rms_before_deg=rot_before,
+        rotation_rms_after_deg=rot_after,
+        undetermined=_undetermined(acc_fit) + _undetermined(gyr_fit),
+    )
+
+
+def _with_density(noise: Noise | None, density: np.ndarray) -> Noise:
+    out = copy.deepcopy(noise) if noise is not None else Noise()
+    out.density = np.asarray(density, dtype=float)
+    return out
+
+
+def _gyro_rest_rotation(
+    like: Certificate,
+    gyr_like: TriadModel,
+    intervals: list[QuasiStaticInterval],
+    pairs: list[RotationPair],
+    cfg: DiagnosisConfig,
+    prior_factor: np.ndarray,
+    probe: bool = False,
+) -> tuple[TriadFit, np.ndarray]:
+    """MEMS gyro calibration: rest bias, then shape and frame from the rotations.
+
+    ``prior_factor`` (9,): prior std in limits per parameter (the bias entries unused).
+    """
+    ratio = cfg.determined_std_ratio
+    gmeans = np.array([iv.gyro_mean for iv in intervals])
+    gmvar = np.array([iv.mean_var("gyro") for iv in intervals])
+    counts = np.array([iv.n for iv in intervals], dtype=float)
+    bias, bias_std = rest_bias(gyr_like, gmeans, gmvar, counts, like.earth_rate)
+    cert = certificate_vector(gyr_like)
+    limit = limit_vector(gyr_like)
+    est = cert.copy()
+    std = np.full(9, np.inf)
+    est[:3], std[:3] = bias, bias_std
+    shape_c, q_c = shape_of_triad(gyr_like)
+    n_g = gyr_like.n_matrix()
+    reasons = [""] * 9
+    extra: dict = {}
+    moving = count_rotations(pairs, cfg.attitude_separation_deg) > 0
+    if moving:
+        sample_var = np.median(np.array([np.diag(iv.gyro_cov) for iv in intervals]), axis=0)
+        rot = rotation_fit(
+            gyr_like, pairs, sample_var, like.earth_rate, prior_factor=prior_factor[3:],
+            fit_frame=True, max_iter=0 if probe else 30, scale_by_residual=not probe,
+        )
+        scale = np.concatenate([gyr_like.scale_factor, np.ones(3)])
+        est[3:] = cert[3:] + rot.deviation * scale
+        std[3:] = np.sqrt(np.maximum(np.diag(rot.cov), 0.0)) * scale
+        n_g = p_matrix(shape_c + rot.deviation) @ small_rotation(rot.frame) @ q_c
+        extra = {"frame_rad": [float(v) for v in rot.frame], "rotation_rms_rad": rot.rms}
+    determined = std <= ratio * limit
+    for i in range(9):
+        if not determined[i]:
+            reasons[i] = (
+                "no rotation between static poses" if i >= 3 and not moving
+                else f"std {std[i]:.3g} above {ratio:g} x limit {limit[i]:.3g}"
+            )
+    fit = TriadFit(
+        triad="gyro", method="rest+rotation", estimate=est, std=std, certificate=cert,
+        limit=limit, determined=determined, reasons=reasons, points=len(intervals),
+        extra=extra,
+    )
+    return fit, n_g
+
+
+__all__ = ["CalibrationResult", "calibrate", "accel_norm_spread", "fields_from_n"]

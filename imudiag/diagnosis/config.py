@@ -1,0 +1,66 @@
+"""Settings of the window diagnosis (all times in seconds)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any
+
+METHODS = ("exact", "linear", "moving-base")
+GYRO_MODES = ("auto", "earth-rate", "rotation")
+
+
+@dataclass
+class DiagnosisConfig:
+    """How windows are formed, fitted and judged.
+
+    method: ``exact`` (quasi-static intervals, exact model, the default),
+    ``linear`` (the paper's literal linearised solution on the same intervals),
+    ``moving-base`` (every sample, with a per-sample magnitude, note §6).
+    """
+
+    method: str = "exact"
+    gyro_mode: str = "auto"  #: auto | earth-rate | rotation
+    # quasi-static intervals
+    detector_window_s: float = 0.5  #: s, trailing window of the static detector
+    min_interval_s: float = 1.0  #: s, shorter still runs are not used
+    max_interval_s: float = 30.0  #: s, longer still runs are split
+    trim_s: float = 0.25  #: s, dropped at the end of each still run
+    max_motion_s: float = 20.0  #: s, longer motions are not integrated
+    # windows
+    window_intervals: int = 24  #: intervals per window (the most recent)
+    window_max_s: float = 900.0  #: s, intervals older than this leave the window
+    min_intervals: int = 2  #: a window is fitted once it has this many intervals
+    attitude_separation_deg: float = 10.0  #: deg, distinct attitudes
+    # moving-base windows (time based)
+    moving_window_s: float = 60.0  #: s
+    moving_step_s: float = 10.0  #: s
+    # statistics and predicates
+    prior_factor: float = 10.0  #: prior std at the certificate, in limits
+    determined_std_ratio: float = 0.5  #: determined when std <= ratio x limit
+    k_sigma: float = 4.0  #: a fault deviates by more than k_sigma std (and the limit)
+    min_dof: float = 3.0  #: effective degrees of freedom a fit needs to be judged
+    persist: int = 2  #: consecutive windows a deviation must persist
+    max_windows_kept: int = 10000  #: windows kept for the report
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.gyro_mode not in GYRO_MODES:
+            raise ValueError(
+                f"gyro_mode must be one of {', '.join(GYRO_MODES)}, got {self.gyro_mode!r}"
+            )
+        if self.persist < 1 or self.window_intervals < 1 or self.min_intervals < 1:
+            raise ValueError("persist, window_intervals and min_intervals must be >= 1")
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any] | None) -> DiagnosisConfig:
+        """Build from a mapping; unknown keys raise ValueError naming the key."""
+        d = dict(d or {})
+        names = {f.name for f in fields(cls)}
+        for k in d:
+            if k not in names:
+                raise ValueError(f"diagnosis.{k}: unknown key")
+        return cls(**d)
+
+
+__all__ = ["DiagnosisConfig", "METHODS", "GYRO_MODES"]

@@ -1,0 +1,129 @@
+"""Checks and side inputs of the diagnosis commands: log units, sample rate, magnitudes.
+
+- :func:`check_units`: a log whose ``# units:`` metadata (``gyro=deg/s
+  accel=m/s^2``) disagrees with the certificate's ``output_unit`` is rejected,
+  naming both.
+- :func:`log_rate_hz`: the sample rate from the log's ``sample_rate`` metadata,
+  else from its time stamps, else the certificate's.
+- :class:`MagnitudeTable`: independent magnitudes for the moving-base variant,
+  a CSV ``t,accel,gyro`` (s, m/s^2, rad/s; either magnitude column may be
+  missing), interpolated onto sample times.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..certificate import Certificate
+from ..errors import BadInput
+from ..samples import SampleBlock
+
+_UNIT_ITEM = re.compile(r"(gyro|accel)\s*=\s*(\S+)")
+
+
+def parse_units(text: Any) -> dict[str, str]:
+    """``{"gyro": unit, "accel": unit}`` from a ``units`` metadata value (either may be absent)."""
+    if isinstance(text, dict):
+        return {k: str(v) for k, v in text.items() if k in ("gyro", "accel")}
+    return {m.group(1): m.group(2).strip(",;") for m in _UNIT_ITEM.finditer(str(text))}
+
+
+def _norm_unit(u: str) -> str:
+    u = u.strip().lower().replace(" ", "")
+    return {"counts": "count", "m/s2": "m/s^2", "m/s**2": "m/s^2", "dps": "deg/s"}.get(u, u)
+
+
+def check_units(log_path: str, meta: dict[str, Any], cert: Certificate) -> None:
+    """Raise BadInput when the log's stated output units differ from the certificate's."""
+    if "units" not in meta:
+        return
+    units = parse_units(meta["units"])
+    for triad, unit in units.items():
+        cu = cert.triad(triad).output_unit
+        if _norm_unit(unit) != _norm_unit(cu):
+            src = cert.source or "the certificate"
+            raise BadInput(
+                f"{log_path}: units: the log's {triad} outputs are in {unit!r} but "
+                f"{src}: {triad}.output_unit is {cu!r}; they must match"
+            )
+
+
+def log_rate_hz(meta: dict[str, Any], first: SampleBlock | None, cert: Certificate) -> float:
+    """Sample rate (Hz): log metadata, else the median time step of the first block, else cert."""
+    if "sample_rate" in meta:
+        try:
+            rate = float(meta["sample_rate"])
+            if rate > 0 and np.isfinite(rate):
+                return rate
+        except (TypeError, ValueError):
+            pass
+    if first is not None and len(first) > 2:
+        dt = float(np.median(np.diff(first.t)))
+        if dt > 0:
+            return 1.0 / dt
+    return float(cert.sample_rate)
+
+
+class MagnitudeTable:
+    """Independent input magnitudes over time (the moving-base variant's |a| and |w|)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = str(path)
+        try:
+            with open(path, encoding="utf-8") as fh:
+                lines = fh.read().splitlines()
+        except OSError as exc:
+            raise BadInput(f"{path}: cannot read: {exc.strerror or exc}") from None
+        header_line = None
+        rows: list[list[float]] = []
+        for no, line in enumerate(lines, start=1):
+            s = line.strip()
+            if not s or s.startswith("#"):
+                continue
+            fields = [f.strip() for f in s.split(",")]
+            if header_line is None:
+                header_line = no
+                self.columns = fields
+                if "t" not in fields or not ({"accel", "gyro"} & set(fields)):
+                    raise BadInput(
+                        f"{path}:{no}: header must name t and at least one of accel, gyro"
+                    )
+                continue
+            if len(fields) != len(self.columns):
+                raise BadInput(
+                    f"{path}:{no}: expected {len(self.columns)} fields, got {len(fields)}"
+                )
+            try:
+                vals = [float(f) for f in fields]
+            except ValueError:
+                raise BadInput(f"{path}:{no}: not a number in {s!r}") from None
+            if not all(np.isfinite(vals)):
+                raise BadInput(f"{path}:{no}: non-finite value")
+            rows.append(vals)
+        if header_line is None or not rows:
+            raise BadInput(f"{path}: no magnitudes")
+        data = np.array(rows)
+        self.t = data[:, self.columns.index("t")]
+        if np.any(np.diff(self.t) <= 0):
+            bad = int(np.flatnonzero(np.diff(self.t) <= 0)[0])
+            raise BadInput(f"{path}: t not strictly increasing at data row {bad + 2}")
+        self.values = {
+            k: data[:, self.columns.index(k)] for k in ("accel", "gyro") if k in self.columns
+        }
+
+    def at(self, t: np.ndarray) -> dict[str, np.ndarray]:
+        """Magnitudes (SI) at times ``t`` (s), linearly interpolated."""
+        return {k: np.interp(t, self.t, v) for k, v in self.values.items()}
+
+
+def write_magnitudes(path: str | Path, t: np.ndarray, accel: np.ndarray, gyro: np.ndarray) -> None:
+    """Write a magnitude table (t s, accel m/s^2, gyro rad/s) for the moving-base variant."""
+    data = np.column_stack([t, accel, gyro])
+    np.savetxt(path, data, delimiter=",", header="t,accel,gyro", comments="", fmt="%.9g")
+
+
+__all__ = ["check_units", "parse_units", "log_rate_hz", "MagnitudeTable", "write_magnitudes"]

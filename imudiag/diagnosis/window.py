@@ -1,0 +1,354 @@
+"""One window of the diagnosis: both triads' 9 parameters from a run of quasi-static intervals.
+
+Accelerometers: the exact scalar fit (|f| = g) over the interval means.
+Gyros: for navigation-grade units (Earth rate observable per the certificate)
+the same fit with |w| = Earth rate; otherwise the bias at rest and the shape
+from the rotations between consecutive intervals, with the gravity directions
+taken from this window's accelerometer estimate (so an accelerometer fault
+does not leak into the gyro estimate). ``method="linear"`` runs the paper's
+literal linearised solution on both triads instead (eq. 8 for the gyros,
+whatever their grade), for comparison.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..certificate import Certificate, TriadModel
+from .config import DiagnosisConfig
+from .gauge import p_matrix, shape_of_triad
+from .gyro_fit import (
+    MAX_STEP_DEG,
+    RotationPair,
+    earth_rate_observable,
+    rest_bias,
+    rotation_fit,
+)
+from .intervals import QuasiStaticInterval
+from .params import TriadFit, certificate_vector, limit_vector
+from .scalar_fit import exact_fit, linear_fit
+
+
+@dataclass
+class WindowResult:
+    """Estimates of one window, with what the window was made of."""
+
+    index: int  #: running number
+    t_start: float  #: s, start of the first interval
+    t_end: float  #: s, end of the last interval (the time the window was diagnosed)
+    intervals: int
+    attitudes: int  #: distinct attitudes (specific-force directions apart by the separation)
+    rotations: int  #: usable rotations between consecutive intervals (gyro fit)
+    accel: TriadFit
+    gyro: TriadFit
+    method: str
+    candidates: list[dict] = field(default_factory=list)  #: predicates beyond their limits
+
+    def fit(self, triad: str) -> TriadFit:
+        """The fit of ``gyro`` or ``accel``."""
+        return self.gyro if triad == "gyro" else self.accel
+
+    def to_json(self) -> dict:
+        """The window as listed in the diagnosis report's ``windows``."""
+        return {
+            "index": self.index,
+            "t_start": round(self.t_start, 6),
+            "t_end": round(self.t_end, 6),
+            "method": self.method,
+            "intervals": self.intervals,
+            "attitudes": self.attitudes,
+            "rotations": self.rotations,
+            "accel": self.accel.to_json(),
+            "gyro": self.gyro.to_json(),
+            "candidates": self.candidates,
+        }
+
+
+def distinct_attitudes(up: np.ndarray, separation_deg: float) -> int:
+    """Number of directions (K, 3) at least ``separation_deg`` apart (greedy clustering)."""
+    cos_sep = math.cos(math.radians(separation_deg))
+    centres: list[np.ndarray] = []
+    for u in np.asarray(up, dtype=float).reshape(-1, 3):
+        if not np.all(np.isfinite(u)) or not np.any(u):
+            continue
+        if not centres or np.max(np.array(centres) @ u) < cos_sep:
+            centres.append(u)
+    return len(centres)
+
+
+def model_with(triad: TriadModel, estimate: np.ndarray) -> TriadModel:
+    """A copy of ``triad`` with B, E, d of ``estimate`` (certificate units, (9,)).
+
+    The shape comes from the estimate's deviations; the certificate's
+    unobservable rotation Q of N = P Q is kept.
+    """
+    import copy
+
+    shape_c, q = shape_of_triad(triad)
+    dev = np.asarray(estimate, dtype=float) - certificate_vector(triad)
+    shape = shape_c + np.concatenate([dev[3:6] / triad.scale_factor, dev[6:9]])
+    n = p_matrix(shape) @ q
+    out = copy.deepcopy(triad)
+    out.bias = np.asarray(estimate[:3], dtype=float).copy()
+    out.scale_factor_error = (np.diag(n) - 1.0) * triad.scale_factor
+    out.misalignment = {
+        "xz": float(n[0, 1]),
+        "xy": float(-n[0, 2]),
+        "yz": float(-n[1, 0]),
+        "yx": float(n[1, 2]),
+        "zy": float(n[2, 0]),
+        "zx": float(-n[2, 1]),
+    }
+    return out
+
+
+def _stack(intervals: list[QuasiStaticInterval], triad: str) -> tuple[np.ndarray, ...]:
+    means = np.array([iv.mean(triad) for iv in intervals])
+    mvar = np.array([iv.mean_var(triad) for iv in intervals])
+    covs = np.array([iv.cov(triad) for iv in intervals])
+    counts = np.array([iv.n for iv in intervals], dtype=float)
+    return means, mvar, covs, counts
+
+
+def _temperature_corrected(triad: TriadModel, means: np.ndarray, temps: list) -> np.ndarray:
+    """Remove the certificate's temperature bias from interval means (output units)."""
+    if triad.temperature is None or any(t is None for t in temps):
+        return means
+    dt = np.array(temps, dtype=float)[:, None] - triad.temperature.reference
+    return means - triad.temperature.bias_coefficient * dt
+
+
+def _with_reason(fit: TriadFit, idx: range, extra: str) -> None:
+    for i in idx:
+        if not fit.determined[i]:
+            fit.reasons[i] = f"{fit.reasons[i]}; {extra}" if fit.reasons[i] else extra
+
+
+def accel_window_fit(
+    cert: Certificate, intervals: list[QuasiStaticInterval], config: DiagnosisConfig,
+    method: str, attitudes: int,
+) -> TriadFit:
+    """The accelerometer fit of one window."""
+    tri = cert.accel
+    means, mvar, covs, counts = _stack(intervals, "accel")
+    means = _temperature_corrected(tri, means, [iv.temp for iv in intervals])
+    g_in = cert.gravity / tri.unit_to_si
+    if method == "linear":
+        fit = linear_fit(tri, means, covs, counts, g_in, config.determined_std_ratio)
+    else:
+        fit = exact_fit(
+            tri, means, mvar, g_in, prior_factor=config.prior_factor,
+            determined_std_ratio=config.determined_std_ratio,
+        )
+    if method != "linear":
+        fit.require_redundancy(fit.dof, config.min_dof, range(9), f"{len(intervals)} intervals")
+    _with_reason(
+        fit, range(9),
+        f"{attitudes} distinct attitude(s) in the window (at least 9 well-spread needed)",
+    )
+    return fit
+
+
+#: Smallest rotation (path length, deg) of a motion the rotation fit uses.
+MIN_ROTATION_DEG = 5.0
+
+
+def clipped(raw: np.ndarray, rest: np.ndarray, sigma: np.ndarray, min_repeat: int = 3) -> bool:
+    """Whether a gyro channel sat at its extreme value (clipping: the range was exceeded).
+
+    ``raw`` (M, 3) outputs of a motion, ``rest`` (3,) the rest output, ``sigma``
+    (3,) the per-sample noise (output units). Clipped when a channel's largest
+    or smallest value, far from rest (over 20 sigma), occurs ``min_repeat``
+    times or more: a noisy signal does not repeat its extreme exactly.
+    """
+    for extreme in (raw.max(axis=0), raw.min(axis=0)):
+        hits = np.sum(raw == extreme, axis=0)
+        if np.any((hits >= min_repeat) & (np.abs(extreme - rest) > 20.0 * sigma)):
+            return True
+    return False
+
+
+def rotation_pairs(
+    cert: Certificate, accel: TriadModel, intervals: list[QuasiStaticInterval]
+) -> list[RotationPair]:
+    """Usable motions between consecutive intervals of the window, as rotation-fit input.
+
+    A motion is skipped when it turned less than ``MIN_ROTATION_DEG`` (it says
+    nothing about scale or misalignment), when the stream broke inside it, when it was longer
+    than the collector keeps, when a sample was flagged saturated, when a gyro
+    channel clipped, or when it turned faster than ``MAX_STEP_DEG`` per sample
+    (the gyro integral of so coarse a sampling cannot be trusted).
+    """
+    pairs: list[RotationPair] = []
+    g_in = cert.gravity / accel.unit_to_si
+    gyro = cert.gyro
+    max_step = math.radians(MAX_STEP_DEG)
+    min_path = math.radians(MIN_ROTATION_DEG)
+    for prev, cur in zip(intervals[:-1], intervals[1:], strict=True):
+        seg = cur.before
+        if seg is None or not seg.usable or cur.index != prev.index + 1 or seg.t.shape[0] < 2:
+            continue
+        rate = (seg.gyro - prev.gyro_mean) / gyro.scale_factor * gyro.unit_to_si
+        steps = np.linalg.norm(rate[:-1], axis=1) * np.diff(seg.t)
+        if np.max(steps) > max_step or np.sum(steps) < min_path:
+            continue
+        sigma = np.sqrt(np.maximum(np.diag(prev.gyro_cov), 1e-30))
+        if clipped(seg.gyro, prev.gyro_mean, sigma):
+            continue
+        f = accel.inverse(np.array([prev.accel_mean, cur.accel_mean]))
+        nf = np.linalg.norm(f, axis=1)
+        if not np.all(nf > 0):
+            continue
+        dir_var = float(
+            np.mean((prev.mean_var("accel") + cur.mean_var("accel")) / 2.0 / accel.scale_factor**2)
+        ) / g_in**2
+        pairs.append(
+            RotationPair(
+                t=seg.t,
+                raw=seg.gyro,
+                bias=0.5 * (prev.gyro_mean + cur.gyro_mean),
+                up0=f[0] / nf[0],
+                up1=f[1] / nf[1],
+                dir_var=dir_var,
+                bias_var=0.25 * (prev.mean_var("gyro") + cur.mean_var("gyro")),
+            )
+        )
+    return pairs
+
+
+def count_rotations(pairs: list[RotationPair], separation_deg: float) -> int:
+    """Motions that turned the gravity direction by more than ``separation_deg``."""
+    c = math.cos(math.radians(separation_deg))
+    return int(sum(1 for p in pairs if np.dot(p.up0, p.up1) < c))
+
+
+def gyro_window_fit(
+    cert: Certificate,
+    intervals: list[QuasiStaticInterval],
+    config: DiagnosisConfig,
+    method: str,
+    accel_model: TriadModel,
+    attitudes: int,
+) -> tuple[TriadFit, int]:
+    """The gyro fit of one window and the number of rotations it used."""
+    tri = cert.gyro
+    means, mvar, covs, counts = _stack(intervals, "gyro")
+    means = _temperature_corrected(tri, means, [iv.temp for iv in intervals])
+    w_in = cert.earth_rate / tri.unit_to_si
+    mode = config.gyro_mode
+    if mode == "auto":
+        mode = "earth-rate" if earth_rate_observable(cert) else "rotation"
+    if method == "linear":
+        fit = linear_fit(tri, means, covs, counts, w_in, config.determined_std_ratio)
+        _with_reason(fit, range(9), f"{attitudes} distinct attitude(s); |w| = Earth rate (eq. 8)")
+        return fit, 0
+    if mode == "earth-rate":
+        fit = exact_fit(
+            tri, means, mvar, w_in, prior_factor=config.prior_factor,
+            determined_std_ratio=config.determined_std_ratio, method="exact-earth-rate",
+        )
+        fit.require_redundancy(fit.dof, config.min_dof, range(9), f"{len(intervals)} intervals")
+        _with_reason(
+            fit, range(9),
+            f"{attitudes} distinct attitude(s) in the window (at least 9 well-spread needed)",
+        )
+        return fit, 0
+
+    cert_vec = certificate_vector(tri)
+    limit = limit_vector(tri)
+    bias, bias_std = rest_bias(tri, means, mvar, counts, cert.earth_rate)
+    est = cert_vec.copy()
+    std = np.full(9, np.inf)
+    est[:3] = bias
+    std[:3] = bias_std
+    pairs = rotation_pairs(cert, accel_model, intervals)
+    rotations = count_rotations(pairs, config.attitude_separation_deg)
+    cond = float("inf")
+    rms = float("nan")
+    extra: dict = {}
+    rot_dof = float("nan")
+    if rotations:
+        sample_var = np.mean([np.diag(iv.gyro_cov) for iv in intervals], axis=0)
+        rot = rotation_fit(
+            tri, pairs, sample_var, cert.earth_rate, prior_factor=config.prior_factor,
+            fit_frame=True,
+        )
+        scale = np.concatenate([tri.scale_factor, np.ones(3)])
+        est[3:] = cert_vec[3:] + rot.deviation * scale
+        std[3:] = np.sqrt(np.maximum(np.diag(rot.cov), 0.0)) * scale
+        lim_int = limit[3:] / scale
+        m = rot.info * np.outer(lim_int, lim_int)
+        ev = np.linalg.eigvalsh(m)
+        cond = float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
+        rms = rot.rms
+        rot_dof = rot.dof
+        extra = {"rotation_rms_rad": rot.rms, "frame_rad": [float(v) for v in rot.frame]}
+    determined = std <= config.determined_std_ratio * limit
+    reasons = []
+    for i in range(9):
+        if determined[i]:
+            reasons.append("")
+        elif i < 3:
+            reasons.append(
+                f"std {std[i]:.3g} above {config.determined_std_ratio:g} x limit {limit[i]:.3g}"
+            )
+        elif not rotations:
+            reasons.append("no rotation between static poses")
+        else:
+            reasons.append(
+                f"std {std[i]:.3g} above {config.determined_std_ratio:g} x limit {limit[i]:.3g}; "
+                f"{rotations} rotation(s) between static poses in the window"
+            )
+    fit = TriadFit(
+        triad="gyro",
+        method="rest+rotation",
+        estimate=est,
+        std=std,
+        certificate=cert_vec,
+        limit=limit,
+        determined=determined,
+        reasons=reasons,
+        condition=cond,
+        points=len(intervals),
+        rms_residual=rms,
+        extra=extra,
+        dof=rot_dof,
+    )
+    if rotations:
+        fit.require_redundancy(rot_dof, config.min_dof, range(3, 9), f"{len(pairs)} motions")
+    return fit, rotations
+
+
+def diagnose_window(
+    cert: Certificate,
+    intervals: list[QuasiStaticInterval],
+    config: DiagnosisConfig,
+    index: int = 0,
+) -> WindowResult:
+    """Both triads' fits over ``intervals`` (in time order) with ``config.method``."""
+    method = config.method
+    if not intervals:
+        raise ValueError("a window needs at least one interval")
+    attitudes = distinct_attitudes(
+        np.array([iv.up for iv in intervals]), config.attitude_separation_deg
+    )
+    acc = accel_window_fit(cert, intervals, config, method, attitudes)
+    accel_model = model_with(cert.accel, acc.estimate)
+    gyr, rotations = gyro_window_fit(cert, intervals, config, method, accel_model, attitudes)
+    return WindowResult(
+        index=index,
+        t_start=intervals[0].t_start,
+        t_end=intervals[-1].t_end,
+        intervals=len(intervals),
+        attitudes=attitudes,
+        rotations=rotations,
+        accel=acc,
+        gyro=gyr,
+        method=method,
+    )
+
+
+__all__ = ["WindowResult", "diagnose_window", "distinct_attitudes", "model_with", "rotation_pairs"]
