@@ -107,14 +107,14 @@ class Monitor:
         self._static_tail = np.zeros(0, dtype=bool)
 
     def _gyro_mode(self, gyro: TriadModel, rate_hz: float) -> str:
-        """``earth_rate`` when per-sample F0 against Earth rate is meaningful, else ``rest_rate``."""
+        """``earth_rate`` if per-sample F0 on Earth rate is meaningful, else ``rest_rate``."""
         sigma = gyro.noise_sigma(rate_hz)
         if sigma is None:
             return "rest_rate"
         sigma_si = float(np.max(sigma / gyro.scale_factor)) * gyro.unit_to_si
         sigma_f0 = sigma_si / self.certificate.earth_rate
-        limit = gyro.limits.f0
-        return "earth_rate" if sigma_f0 < self.config.earth_rate_noise_ratio * limit else "rest_rate"
+        observable = sigma_f0 < self.config.earth_rate_noise_ratio * gyro.limits.f0
+        return "earth_rate" if observable else "rest_rate"
 
     # -- results ----------------------------------------------------------
 

@@ -182,3 +182,46 @@ def test_daemon_speaks_sd_notify_and_pings_watchdog_only_while_frames_flow(board
         if proc.poll() is None:
             proc.kill()
         sock.close()
+
+
+def test_daemon_writes_nmea_status_to_a_serial_link(board_pty):
+    import os
+    import select
+
+    from imudiag.service.nmea import decode_sentence, split_sentences
+
+    pair, _writer = board_pty
+    with PtyPair() as link:  # the status link: the daemon writes the slave, we read the master
+        d = DaemonProcess(
+            ["--source", f"serial://{pair.slave_path}", "--no-diagnosis",
+             "--status", "-", "--status", f"serial://{link.slave_path}?baud=115200"]
+        )
+        try:
+            buf, sentences = b"", []
+            deadline = time.monotonic() + 20
+            while len([s for s in sentences if s["type"] == "health"]) < 3:
+                assert time.monotonic() < deadline, f"no NMEA health sentences: {sentences}"
+                r, _, _ = select.select([link.master_fd], [], [], 0.2)
+                if r:
+                    buf += os.read(link.master_fd, 4096)
+                    lines, buf = split_sentences(buf)
+                    sentences += [decode_sentence(x) for x in lines]  # checksums verified
+            assert {"health", "counters"} <= {s["type"] for s in sentences}
+            health = [s for s in sentences if s["type"] == "health"]
+            assert health[0]["state"] in ("ok", "no_data")
+            # the board's az fault (t = 4 s) reaches the serial link too, as a fault sentence
+            deadline = time.monotonic() + 20
+            while not any(s["type"] == "fault" for s in sentences):
+                assert time.monotonic() < deadline, "no NMEA fault sentence"
+                r, _, _ = select.select([link.master_fd], [], [], 0.2)
+                if r:
+                    buf += os.read(link.master_fd, 4096)
+                    lines, buf = split_sentences(buf)
+                    sentences += [decode_sentence(x) for x in lines]
+            fault = next(s for s in sentences if s["type"] == "fault")
+            assert (fault["triad"], fault["cause"]) == ("accel", "f0")
+            d.wait_for(lambda s: s["t"] is not None)  # stdout JSON goes on alongside
+            assert d.stop() == 0
+        finally:
+            if d.proc.poll() is None:
+                d.proc.kill()

@@ -52,9 +52,9 @@ class DaemonConfig:
     stuck_samples: int = 50  #: identical consecutive raw outputs meaning "stuck", samples
     no_data_timeout_s: float = 1.0  #: no valid frame for this long -> state no_data, s
     reconnect_min_s: float = 0.2  #: first reconnect back-off, s
-    reconnect_max_s: float = 5.0  #: longest reconnect back-off, s
+    reconnect_max_s: float = 4.0  #: longest reconnect back-off, s (< WatchdogSec / 2)
     diagnosis_window_intervals: int = 12  #: quasi-static intervals per fit window
-    diagnosis_period_s: float = 10.0  #: sample time between window fits, s
+    diagnosis_window_max_s: float = 900.0  #: intervals older than this leave the window, s
     diagnosis_persist_windows: int = 2  #: consecutive windows before a fault is reported
     static_window_s: float = 0.5  #: quasi-static detector window, s
     log_level: str = "info"  #: debug | info | warning | error | critical
@@ -156,7 +156,7 @@ SCHEMA: dict[tuple[str, ...], tuple[str, Check]] = {
     ("reconnect", "min_s"): ("reconnect_min_s", _number(0.0, 3600.0)),
     ("reconnect", "max_s"): ("reconnect_max_s", _number(0.0, 3600.0)),
     ("diagnosis", "window_intervals"): ("diagnosis_window_intervals", _integer(9, 10_000)),
-    ("diagnosis", "period_s"): ("diagnosis_period_s", _number(0.0, 86_400.0)),
+    ("diagnosis", "window_max_s"): ("diagnosis_window_max_s", _number(0.0, 86_400.0)),
     ("diagnosis", "persist_windows"): ("diagnosis_persist_windows", _integer(1, 1000)),
     ("diagnosis", "static_window_s"): ("static_window_s", _number(0.0, 60.0)),
     ("log_level",): ("log_level", _log_level),
@@ -251,31 +251,34 @@ def from_dict(doc: Any, source: str = "(config)", base: DaemonConfig | None = No
             path = Path(source).resolve().parent / path
         changes["certificate"] = str(path)
     config = base.replace(origin=source, **changes)
-    _check_consistency(config, lambda name: (source, _FIELD_KEY[name]))
+    _check_consistency(config, lambda fields: (source, _FIELD_KEY[fields[0]]))
     return config
 
 
-def _check_consistency(config: DaemonConfig, where: Callable[[str], tuple[str, str]]) -> None:
+def _check_consistency(
+    config: DaemonConfig, where: Callable[[tuple[str, ...]], tuple[str, str]]
+) -> None:
     """Rules linking several keys, and the certificate file's existence.
 
-    ``where(field)`` gives the (source, key) to name when ``field`` is at fault.
+    ``where(fields)`` gives the (source, key) to name for a rule involving
+    ``fields`` (the first is the one reported unless another came from elsewhere).
     """
 
-    def fail(name: str, reason: str) -> ConfigError:
-        return ConfigError(*where(name), reason)
+    def fail(fields: tuple[str, ...], reason: str) -> ConfigError:
+        return ConfigError(*where(fields), reason)
 
     if config.f0_persistence_k > config.f0_persistence_n:
         raise fail(
-            "f0_persistence_k",
+            ("f0_persistence_k", "f0_persistence_n"),
             f"k = {config.f0_persistence_k} exceeds f0_persistence_n = {config.f0_persistence_n}",
         )
     if config.reconnect_max_s < config.reconnect_min_s:
         raise fail(
-            "reconnect_max_s",
+            ("reconnect_max_s", "reconnect_min_s"),
             f"{config.reconnect_max_s:g} s is below reconnect min_s = {config.reconnect_min_s:g} s",
         )
     if config.certificate is not None and not Path(config.certificate).is_file():
-        raise fail("certificate", f"no such certificate file: {config.certificate}")
+        raise fail(("certificate",), f"no such certificate file: {config.certificate}")
 
 
 def loads_config(text: str, source: str = "(config)") -> DaemonConfig:
@@ -348,10 +351,12 @@ def merge_cli(
         changes["certificate"] = str(Path(changes["certificate"]).expanduser())
     merged = config.replace(**changes)
 
-    def where(name: str) -> tuple[str, str]:
-        if name in changes:
-            return source, option(name)
-        return str(config.origin or "(config)"), _FIELD_KEY[name]
+    def where(fields: tuple[str, ...]) -> tuple[str, str]:
+        """Blame the command line when it set one of ``fields``, else the file."""
+        given = [f for f in fields if f in changes]
+        if given:
+            return source, option(given[0])
+        return str(config.origin or "(config)"), _FIELD_KEY[fields[0]]
 
     _check_consistency(merged, where)
     return merged
@@ -368,8 +373,9 @@ def _status_sinks(value: Any, source: str) -> dict[str, Any]:
         if item.strip() == "-":
             stdout = True
         elif serial is not None:
-            raise ConfigError(source, "--status", f"only one serial status link, got {serial!r} "
-                              f"and {item!r}")
+            raise ConfigError(
+                source, "--status", f"only one serial status link, got {serial!r} and {item!r}"
+            )
         else:
             serial = item.strip()
     return {"status_stdout": stdout, "status_serial": serial}

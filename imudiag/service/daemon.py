@@ -28,7 +28,11 @@ log = logging.getLogger("imudiag.daemon")
 
 
 class StatusSink(Protocol):
-    """Anything that takes status dicts (stdout JSON lines, serial NMEA)."""
+    """Anything that takes status dicts (stdout JSON lines, serial NMEA).
+
+    A sink with a true ``self_paced`` attribute gets every status the loop
+    builds and keeps its own cadence; the others get the scheduled lines.
+    """
 
     def publish(self, status: dict[str, Any]) -> None: ...
 
@@ -106,7 +110,7 @@ class Daemon:
             return None
         from ..diagnosis import StreamingDiagnoser
 
-        return StreamingDiagnoser(cert, **self.settings.diagnosis_options)
+        return StreamingDiagnoser(cert, dict(self.settings.diagnosis_options))
 
     def install_signal_handlers(self) -> None:
         """SIGTERM/SIGINT stop, SIGHUP reloads the certificate (main thread only)."""
@@ -127,12 +131,14 @@ class Daemon:
     def reload_certificate(self) -> bool:
         """Re-read the certificate; keep the old one if the new one is bad. True if replaced."""
         path = self.settings.certificate_path or str(certmod.default_certificate_path())
+        self.notifier.reloading()
         try:
             new = certmod.load(path)
         except CertificateError as exc:
             msg = f"certificate reload failed, keeping the previous one: {exc}"
             log.error(msg)
             self.notes = [msg]
+            self.notifier.ready()
             return False
         self.certificate = new
         self.monitor.set_certificate(new)
@@ -141,6 +147,7 @@ class Daemon:
         self.reloads += 1
         self.notes = []
         log.info("certificate reloaded from %s", path)
+        self.notifier.ready()
         return True
 
     # -- status -----------------------------------------------------------
@@ -191,7 +198,8 @@ class Daemon:
             },
         }
         if self.diagnoser is not None:
-            status["diagnosis"] = self.diagnoser.verdicts()
+            verdict = self.diagnoser.verdict()
+            status["diagnosis"] = {name: verdict[name] for name in ("accel", "gyro")}
         links = [s for s in self.sinks if hasattr(s, "dropped") and hasattr(s, "written")]
         if links:  # the serial NMEA link: sentences written and dropped (slow receiver)
             status["status_link"] = {
@@ -204,7 +212,8 @@ class Daemon:
 
     def _publish(self, status: dict[str, Any]) -> None:
         for sink in self.sinks:
-            sink.publish(status)
+            if not getattr(sink, "self_paced", False):
+                sink.publish(status)
         self.statuses += 1
         self.notifier.status(
             f"{status['state']}; t={status['t']}; faults={len(status['faults'])}; "
@@ -256,6 +265,9 @@ class Daemon:
         status = self.status(now)
         if self.schedule.due(status, now) or force:
             self._publish(status)
+        for sink in self.sinks:
+            if getattr(sink, "self_paced", False):
+                sink.publish(status)  # paces itself (NMEA rate) and never blocks
 
 
 def settings_from_config(config: DaemonConfig) -> DaemonSettings:
@@ -275,8 +287,9 @@ def settings_from_config(config: DaemonConfig) -> DaemonSettings:
         reconnect_max_s=config.reconnect_max_s,
         diagnosis_options={
             "window_intervals": config.diagnosis_window_intervals,
-            "period_s": config.diagnosis_period_s,
-            "persist_windows": config.diagnosis_persist_windows,
+            "window_max_s": config.diagnosis_window_max_s,
+            "persist": config.diagnosis_persist_windows,
+            "detector_window_s": config.static_window_s,
         },
         monitor=monitor,
     )

@@ -75,7 +75,8 @@ def setup_logging(
     journal: bool | None = None,
     environ: Mapping[str, str] | None = None,
 ) -> logging.Handler:
-    """Send the ``imudiag`` loggers to ``stream`` (default stderr) at ``level``.
+    """Log to ``stream`` (default stderr): ``imudiag.*`` from ``level``, other libraries
+    from WARNING (or ``level`` if higher), through one handler on the root logger.
 
     ``journal`` forces the journald format on or off; ``None`` decides from
     ``JOURNAL_STREAM``. Calling it again (a reload) replaces the previous
@@ -92,12 +93,15 @@ def setup_logging(
     handler = logging.StreamHandler(stream)
     handler.setFormatter(JournalFormatter() if journal else ConsoleFormatter())
     handler._imudiag = True  # type: ignore[attr-defined]  # marks ours for replacement
-    logger = logging.getLogger("imudiag")
-    for old in [h for h in logger.handlers if getattr(h, "_imudiag", False)]:
-        logger.removeHandler(old)
-    logger.addHandler(handler)
-    logger.setLevel(level)
-    logger.propagate = False
+    root = logging.getLogger()
+    for old in [h for h in root.handlers if getattr(h, "_imudiag", False)]:
+        root.removeHandler(old)
+    root.addHandler(handler)
+    # other libraries (pyserial, pyusb, ...) speak from WARNING up; ours from ``level``
+    root.setLevel(max(level, logging.WARNING))
+    ours = logging.getLogger("imudiag")
+    ours.setLevel(level)
+    ours.propagate = True
     return handler
 
 

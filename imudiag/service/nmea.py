@@ -151,8 +151,7 @@ def counters_sentence(status: Mapping[str, Any]) -> str:
     """The ``$PIMDC`` counters sentence (each counter modulo 10^9)."""
     counters = status.get("counters") or {}
     values = [
-        "" if counters.get(k) is None else int(counters[k]) % COUNTER_MODULUS
-        for k in COUNTER_KEYS
+        "" if counters.get(k) is None else int(counters[k]) % COUNTER_MODULUS for k in COUNTER_KEYS
     ]
     return sentence(COUNTERS, [_time_field(status.get("t")), *values])
 

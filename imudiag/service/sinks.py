@@ -5,10 +5,10 @@ from __future__ import annotations
 import sys
 from typing import Any
 
+from ..errors import BadInput
 from .config import DaemonConfig
 from .nmea import SerialStatusSink, StatusLinkError
 from .status import JsonLinesSink
-from ..errors import BadInput
 
 
 def make_sinks(config: DaemonConfig) -> list[Any]:
@@ -28,4 +28,6 @@ def make_sinks(config: DaemonConfig) -> list[Any]:
             )
         except (StatusLinkError, ValueError) as exc:
             raise BadInput(f"status.serial {config.status_serial!r}: {exc}") from None
+    for sink in sinks[1:] if config.status_stdout else sinks:
+        sink.self_paced = True  # the NMEA sink rate-limits itself and reacts to changes
     return sinks

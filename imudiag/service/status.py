@@ -47,6 +47,8 @@ class StatusSchedule:
     period_s: float = 1.0
     _last_t: float | None = None
     _last_wall: float | None = None
+    _last_written_t: float | None = None  #: t of the last line written (for any reason)
+    _prev_t: float | None = None  #: t at the previous call
     _last_signature: tuple[Any, ...] | None = field(default=None)
 
     def due(self, status: dict[str, Any], wall_s: float) -> bool:
@@ -56,10 +58,14 @@ class StatusSchedule:
         changed = signature != self._last_signature
         by_sample = t is not None and (self._last_t is None or t - self._last_t >= self.period_s)
         by_wall = self._last_wall is None or wall_s - self._last_wall >= self.period_s
-        sample_stalled = t is None or t == self._last_t
+        # no new sample since the previous call or the last line written (a stall may
+        # begin between two sample-time periods: the steady lines must go on all the same)
+        sample_stalled = t is None or t == self._prev_t or t == self._last_written_t
+        self._prev_t = t
         if changed or by_sample or (by_wall and sample_stalled):
             self._last_signature = signature
             self._last_wall = wall_s
+            self._last_written_t = t
             if by_sample:
                 self._last_t = t
             return True
