@@ -1,0 +1,116 @@
+"""The per-sample monitor on simulated sessions: F0, rest-rate, stuck, saturation, blocking."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imudiag.certificate import load_default
+from imudiag.monitor import Monitor, MonitorConfig
+from imudiag.samples import FLAG_ACCEL_SATURATED, SampleBlock
+from imudiag.sim import Effects, Fault, multi_position, simulate, still
+
+CERT = load_default()
+
+
+def _feed(monitor: Monitor, block: SampleBlock, sizes: list[int]) -> None:
+    start = 0
+    for size in sizes:
+        monitor.update(block.slice(start, start + size))
+        start += size
+    monitor.update(block.slice(start, len(block)))
+
+
+def _session(faults=(), seed: int = 1, duration_s: float = 20.0) -> SampleBlock:
+    traj = still(duration_s, rate_hz=CERT.sample_rate, attitude_rpy_deg=(10.0, -20.0, 30.0))
+    return simulate(CERT, traj, seed=seed, faults=faults).samples
+
+
+def test_clean_still_session_raises_nothing():
+    m = Monitor(CERT)
+    _feed(m, _session(), [1000, 7, 300])
+    assert m.f0_checked["accel"] > 3000 and m.f0_failed["accel"] == 0
+    assert m.f0_checked["gyro"] > 3000 and m.f0_failed["gyro"] == 0
+    assert m.check_mode("gyro") == "rest_rate"  # MEMS gyro: Earth rate is not observable
+    assert m.active_faults == []
+
+
+@pytest.mark.parametrize("sensor", ["ax", "ay", "az"])
+def test_gross_accel_bias_fails_f0_after_its_time(sensor):
+    m = Monitor(CERT)
+    _feed(m, _session([Fault("bias", sensor, 8.0, 2000.0)]), [513] * 10)
+    faults = [f for f in m.active_faults if f["cause"] == "f0"]
+    assert [f["triad"] for f in faults] == ["accel"]
+    # the step itself looks like motion to the 0.5 s detector window, then 20 of 50 fail
+    assert 8.0 <= faults[0]["t_first"] < 9.0
+
+
+def test_gyro_bias_fault_fails_rest_rate_check_and_names_the_axis():
+    m = Monitor(CERT)
+    _feed(m, _session([Fault("bias", "gy", 5.0, 200.0)]), [400] * 5)  # 3 deg/s at 65.5 count/(deg/s)
+    faults = [f for f in m.active_faults if f["cause"] == "f0"]
+    assert faults == [{"triad": "gyro", "cause": "f0", "sensor": "gy", "t_first": faults[0]["t_first"]}]
+    assert 5.0 <= faults[0]["t_first"] < 7.0
+
+
+def test_results_do_not_depend_on_block_sizes():
+    block = _session([Fault("bias", "ax", 6.0, 300.0)], seed=4)
+    runs = []
+    for sizes in ([len(block)], [1] * 300 + [997, 3, 50], [64] * 40):
+        m = Monitor(CERT)
+        _feed(m, block, sizes)
+        runs.append((m.f0_checked, m.f0_failed, m.active_faults))
+    assert runs[0] == runs[1] == runs[2]
+
+
+def test_accel_f0_not_applicable_while_moving():
+    traj = multi_position(n_attitudes=6, dwell_s=2.0, turn_s=2.0, rate_hz=CERT.sample_rate, seed=2)
+    block = simulate(CERT, traj, seed=2).samples
+    m = Monitor(CERT)
+    m.update(block)
+    moving = int(np.count_nonzero(~traj.static))
+    assert m.f0_checked["accel"] <= len(block) - moving  # no check during the turns
+    assert m.f0_failed["accel"] == 0 and m.active_faults == []
+
+
+def test_stuck_channel_is_named():
+    block = _session([Fault("stuck", "gz", 3.0, None)])
+    m = Monitor(CERT, MonitorConfig(stuck_samples=50))
+    _feed(m, block, [256] * 8)
+    stuck = [f for f in m.active_faults if f["cause"] == "stuck"]
+    assert stuck == [{"triad": "gyro", "sensor": "gz", "cause": "stuck"}]
+
+
+def test_saturation_flags_persist_into_a_fault():
+    block = _session(duration_s=5.0)
+    flags = np.zeros(len(block), dtype=np.uint16)
+    flags[600:] |= FLAG_ACCEL_SATURATED
+    block.flags = flags
+    m = Monitor(CERT)
+    m.update(block)
+    sat = [f for f in m.active_faults if f["cause"] == "saturation"]
+    assert len(sat) == 1 and sat[0]["triad"] == "accel"
+    assert sat[0]["t_first"] == pytest.approx(block.t[600 + 19])  # 20 of the last 50 samples
+
+
+def test_temperature_block_of_the_certificate_is_applied():
+    """With a temperature-dependent bias the monitor is clean only with the extended certificate."""
+    from imudiag.certificate import Temperature
+    from imudiag.sim import TemperatureProfile
+
+    cert_t = CERT.copy()
+    cert_t.accel.temperature = Temperature(
+        reference=25.0, bias_coefficient=np.array([0.0, 0.0, 25.0]), scale_coefficient=np.zeros(3)
+    )
+    traj = still(40.0, rate_hz=CERT.sample_rate)
+    eff = Effects(
+        temperature=TemperatureProfile(start_c=25.0, warmup_c=20.0, warmup_tau_s=10.0),
+        temperature_bias={"az": 25.0},  # counts per degC
+    )
+    block = simulate(CERT, traj, seed=3, effects=eff).samples
+    plain, extended = Monitor(CERT), Monitor(cert_t)
+    plain.update(block)
+    extended.update(block)
+    assert any(f["cause"] == "f0" for f in plain.active_faults)  # 500 counts of bias drift
+    assert extended.active_faults == [] and extended.f0_failed["accel"] == 0
+
