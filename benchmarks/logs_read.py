@@ -2,7 +2,8 @@
 
 Writes simulated raw ADC counts (float64, shortest round-trip text, like
 ``imudiag simulate`` output) to a temporary directory, then times one full
-streaming read per format on one core. Run: ``.venv/bin/python benchmarks/logs_read.py [N]``.
+streaming read per format on one core (CPU time, and wall time).
+Run: ``.venv/bin/python benchmarks/logs_read.py [N]``.
 """
 
 from __future__ import annotations
@@ -39,17 +40,17 @@ def main() -> None:
                 for start in range(0, n, 65536):
                     w.write(block.slice(start, start + 65536))
             t_write = time.perf_counter() - t0
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             count = 0
             with open_log(path) as reader:
                 for b in reader:
                     count += len(b)
-            t_read = time.perf_counter() - t0
+            t_read, c_read = time.perf_counter() - t0, time.process_time() - c0
             assert count == n
             size = os.path.getsize(path) / 1e6
             print(
-                f"{ext:8s} {size:7.1f} MB  read {count / t_read:10,.0f} samples/s  "
-                f"write {n / t_write:10,.0f} samples/s"
+                f"{ext:8s} {size:7.1f} MB  read {count / c_read:12,.0f} samples/s CPU "
+                f"({count / t_read:12,.0f} wall)  write {n / t_write:11,.0f} samples/s wall"
             )
 
 

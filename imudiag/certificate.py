@@ -65,7 +65,10 @@ class CertificateError(ValueError):
 def _finite(value: Any, key: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise CertificateError(key, f"expected a number, got {value!r}")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:  # an integer beyond the float range (found by fuzz/)
+        raise CertificateError(key, "not a finite number: integer beyond the float range") from None
     if not math.isfinite(value):
         raise CertificateError(key, f"not a finite number: {value!r}")
     return value

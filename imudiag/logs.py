@@ -29,6 +29,7 @@ import gzip
 import io
 import itertools
 import json
+import lzma
 import os
 import re
 import shutil
@@ -65,6 +66,9 @@ DEFAULT_BLOCK_SIZE = 65536  #: samples per block
 
 _META_KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_.\-]*")
 _INT_LIMITS = {"seq": (0, 2**63 - 1), "flags": (0, 0xFFFF)}
+#: What zipfile and its decompressors raise on a damaged archive (found by fuzz/).
+_ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError,
+               ValueError, OSError, lzma.LZMAError)
 
 
 def log_format(path: str | Path) -> str:
@@ -222,6 +226,8 @@ class CsvReader(LogReader):
         offset = 0
         for lineno, raw in enumerate(self._guard(iter(fh)), start=1):
             offset += len(raw)
+            if lineno == 1:
+                raw = raw.removeprefix(b"\xef\xbb\xbf")  # a UTF-8 byte-order mark
             try:
                 line = raw.decode("utf-8").rstrip("\r\n")
             except UnicodeDecodeError:
@@ -394,13 +400,19 @@ class NpzReader(LogReader):
                     )
             if "meta" in members:
                 self.meta = self._read_meta(zf, members["meta"])
+        except LogError:
+            raise
+        except _ZIP_ERRORS as exc:
+            raise LogError(self.path, f"corrupt zip data: {exc}") from None
         finally:
             self._release(zf)
 
     def _zip(self) -> zipfile.ZipFile:
         try:
             return self._open(zipfile.ZipFile, self.path)
-        except zipfile.BadZipFile as exc:
+        except LogError:
+            raise
+        except _ZIP_ERRORS as exc:
             raise LogError(self.path, f"not an NPZ (zip) file: {exc}") from None
 
     def _header(self, fp: IO[bytes], name: str) -> tuple[tuple[int, ...], np.dtype]:
@@ -457,7 +469,9 @@ class NpzReader(LogReader):
                 last_t = float(cols["t"][-1])
                 start += n
                 yield _make_block(cols, self.meta)
-        except (zipfile.BadZipFile, zlib.error, EOFError) as exc:
+        except LogError:
+            raise
+        except _ZIP_ERRORS as exc:
             raise LogError(self.path, f"corrupt zip data: {exc}") from None
         finally:
             self._release(zf)

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_imudiag
 
 from imudiag.logs import LogError, open_log, open_writer, read_log, write_log
 from imudiag.samples import SampleBlock
@@ -156,6 +155,12 @@ def test_csv_columns_any_order_unknown_columns_comments_crlf(tmp_path: Path) -> 
     np.testing.assert_array_equal(block.accel, [[4, 5, 6], [4.5, 5.5, 6.5], [-4, -5, -6]])
     np.testing.assert_array_equal(block.temp, [20.5, 21, 22])
     assert block.seq is None and block.flags is None
+
+
+def test_csv_with_byte_order_mark(tmp_path: Path) -> None:
+    path = tmp_path / "bom.csv"
+    path.write_bytes(b"\xef\xbb\xbf" + HEADER.encode() + b"\n0,1,2,3,4,5,6\n")
+    assert len(read_log(path)) == 1
 
 
 def test_writer_refuses_what_readers_reject(tmp_path: Path) -> None:
@@ -417,12 +422,12 @@ def test_reader_iterates_again_from_the_start(tmp_path: Path) -> None:
 # the convert command (real subprocess)
 
 
-def test_convert_chain_round_trips(tmp_path: Path, real_data_dir: Path) -> None:
+def test_convert_chain_round_trips(tmp_path: Path, real_data_dir: Path, imudiag_cli) -> None:
     src = real_data_dir / "imucal-ferraris" / "session.csv.gz"
     original = read_log(src)
     steps = [src, tmp_path / "a.npz", tmp_path / "b.csv", tmp_path / "c.csv.gz"]
     for a, b in zip(steps, steps[1:], strict=False):
-        proc = run_imudiag("convert", str(a), str(b), "--block-size", "4096")
+        proc = imudiag_cli("convert", str(a), str(b), "--block-size", "4096")
         assert proc.returncode == 0, proc.stderr
         assert f"{len(original)} samples" in proc.stdout
     back = read_log(steps[-1])
@@ -430,18 +435,18 @@ def test_convert_chain_round_trips(tmp_path: Path, real_data_dir: Path) -> None:
     assert back.meta == original.meta and "x_rot" in back.meta["sections"]
 
 
-def test_convert_to_bin_and_back(tmp_path: Path, real_data_dir: Path) -> None:
+def test_convert_to_bin_and_back(tmp_path: Path, real_data_dir: Path, imudiag_cli) -> None:
     sections = real_data_dir / "imucal-ferraris" / "session.csv.gz"
-    proc = run_imudiag("convert", str(sections), str(tmp_path / "r.bin"))
+    proc = imudiag_cli("convert", str(sections), str(tmp_path / "r.bin"))
     assert proc.returncode == 2 and "device-info frame holds 249" in proc.stderr
     assert not (tmp_path / "r.bin").exists()
-    proc = run_imudiag("convert", "--no-meta", str(sections), str(tmp_path / "r.bin"))
+    proc = imudiag_cli("convert", "--no-meta", str(sections), str(tmp_path / "r.bin"))
     assert proc.returncode == 0, proc.stderr
     assert open_log(tmp_path / "r.bin").meta == {}
     src = real_data_dir / "mpu6050" / "rot90x.csv.gz"
-    proc = run_imudiag("convert", str(src), str(tmp_path / "r.bin"))
+    proc = imudiag_cli("convert", str(src), str(tmp_path / "r.bin"))
     assert proc.returncode == 0, proc.stderr
-    proc = run_imudiag("convert", str(tmp_path / "r.bin"), str(tmp_path / "r.csv"))
+    proc = imudiag_cli("convert", str(tmp_path / "r.bin"), str(tmp_path / "r.csv"))
     assert proc.returncode == 0, proc.stderr
     original, back = read_log(src), read_log(tmp_path / "r.csv")
     assert back.meta == original.meta  # carried by the device-info frame
@@ -450,18 +455,18 @@ def test_convert_to_bin_and_back(tmp_path: Path, real_data_dir: Path) -> None:
     np.testing.assert_allclose(back.t, original.t, rtol=0, atol=0.5e-6)
 
 
-def test_convert_bad_input_exit_2_names_file_and_line(tmp_path: Path) -> None:
+def test_convert_bad_input_exit_2_names_file_and_line(tmp_path: Path, imudiag_cli) -> None:
     rows = [f"{i * 0.01:.2f},1,2,3,4,5,6" for i in range(5000)]
     rows[4321] = "43.21,1,2,3,4,5"
     bad = write_csv(tmp_path / "bad.csv", HEADER + "\n" + "\n".join(rows) + "\n")
     out = tmp_path / "out.npz"
-    proc = run_imudiag("convert", "--block-size", "1000", str(bad), str(out))
+    proc = imudiag_cli("convert", "--block-size", "1000", str(bad), str(out))
     assert proc.returncode == 2
     assert f"{bad}:4323: ragged row: 6 fields, header has 7" in proc.stderr
     assert not out.exists() and not Path(str(out) + ".part").exists()
-    proc = run_imudiag("convert", str(tmp_path / "nope.csv"), str(out))
+    proc = imudiag_cli("convert", str(tmp_path / "nope.csv"), str(out))
     assert proc.returncode == 2 and "nope.csv: cannot read" in proc.stderr
-    proc = run_imudiag("convert", str(bad), str(tmp_path / "out.xlsx"))
+    proc = imudiag_cli("convert", str(bad), str(tmp_path / "out.xlsx"))
     assert proc.returncode == 2 and "unknown log format" in proc.stderr
 
 
