@@ -27,9 +27,9 @@ from imudiag.sim.scenarios import parse_effects, scenario_motion
 from .daemon_process import DaemonProcess, StatusRecord
 from .evaluate import Evaluation
 from .feeder import BoardFeeder
-from .scenario import FORMAT, BenchScenario
+from .scenario import BenchScenario
 
-REPORT_FORMAT = FORMAT
+REPORT_FORMAT = "imudiag-bench/1"
 
 
 class BenchError(RuntimeError):
@@ -37,20 +37,21 @@ class BenchError(RuntimeError):
 
 
 def diagnosis_available() -> bool:
-    """True once the daemon can run the live window diagnosis: the
-    :class:`imudiag.diagnosis.StreamingDiagnoser` exists, takes the daemon's options and
-    offers ``faults`` and ``verdicts()``. Probed the way the daemon builds it."""
-    try:
-        from imudiag.diagnosis import StreamingDiagnoser
-    except ImportError:
-        return False
-    from imudiag.service.config import default_config
-    from imudiag.service.daemon import settings_from_config
+    """True when the daemon can run the live window diagnosis: its own factory
+    (``Daemon._make_diagnoser`` with the default settings) builds a diagnoser that
+    offers ``faults`` and ``verdicts()``."""
+    from types import SimpleNamespace
 
-    options = settings_from_config(default_config()).diagnosis_options
+    from imudiag.service.config import default_config
+    from imudiag.service.daemon import Daemon, settings_from_config
+
+    settings = settings_from_config(default_config())
+    settings.diagnosis = True
     try:
-        diagnoser = StreamingDiagnoser(certmod.load_default(), **options)
-    except (TypeError, ValueError):
+        diagnoser = Daemon._make_diagnoser(
+            SimpleNamespace(settings=settings), certmod.load_default()  # type: ignore[arg-type]
+        )
+    except (ImportError, TypeError, ValueError, AttributeError):
         return False
     return hasattr(diagnoser, "faults") and callable(getattr(diagnoser, "verdicts", None))
 
@@ -205,15 +206,20 @@ def _play(scenario: BenchScenario, feeder: BoardFeeder, daemon: DaemonProcess) -
         i.outage_s or 0.0 for i in scenario.transport_injections
     ) + 30.0
     feeder.start(DaemonHost(daemon))
-    if not feeder.join(wall_budget):
-        raise BenchError(f"the board did not finish within {wall_budget:.0f} s")
+    deadline = time.monotonic() + wall_budget
+    while not feeder.join(0.2):
+        if daemon.proc.poll() is not None:
+            feeder.stop()
+            raise BenchError(f"the daemon exited with status {daemon.proc.returncode} "
+                             f"during the run; stderr: {daemon.stderr_tail()}")
+        if time.monotonic() > deadline:
+            raise BenchError(f"the board did not finish within {wall_budget:.0f} s")
     if feeder.error is not None:
         raise BenchError(f"board feeder: {feeder.error}; daemon exit status "
                          f"{daemon.proc.poll()}; stderr: {daemon.stderr_tail()}")
     t_last = feeder.t_end_s
-    done = daemon.wait_record(
-        lambda r: r.status.get("t") is not None and r.status["t"] >= t_last - 1e-6
-        and r.status["counters"]["bytes"] >= feeder.bytes_sent,
+    done = daemon.wait_record(  # the last sample is the last frame sent
+        lambda r: r.status.get("t") is not None and r.status["t"] >= t_last - 1e-6,
         timeout_s=15.0, since=0,
     )
     if done is None:

@@ -2,7 +2,7 @@
 
 A scenario file (docs/bench.md has the full reference)::
 
-    format: imudiag-bench/1
+    format: imudiag-bench-scenario/1
     name: sensor-faults
     motion: static                 # imudiag.sim scenario: static, multiposition, ...
     motion_params: {dwell: 20}     # its parameters
@@ -47,7 +47,7 @@ from imudiag.sim.faults import KINDS as SENSOR_KINDS
 from imudiag.sim.faults import Fault
 from imudiag.sim.scenarios import canonical_scenario, parse_effects, scenario_params
 
-FORMAT = "imudiag-bench/1"
+FORMAT = "imudiag-bench-scenario/1"
 COUNTER_KINDS = ("garbage", "crc", "lost", "duplicate")  #: checked by exact counter increments
 OUTAGE_KINDS = ("unplug", "stall")  #: no samples for a while: checked by state no_data
 TRANSPORT_KINDS = (*COUNTER_KINDS, *OUTAGE_KINDS)

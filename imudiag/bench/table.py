@@ -101,7 +101,9 @@ def format_table(report: dict[str, Any]) -> str:
     )
     for p in report["daemon"]["problems"]:
         lines.append(f"daemon: {p}")
-    lines.append("verdict: " + ("PASS" if report["passed"] else "FAIL"))
+    pending = report["summary"].get("pending", 0)
+    lines.append("verdict: " + ("PASS" if report["passed"] else "FAIL")
+                 + (f" ({pending} pending the window diagnosis)" if pending else ""))
     return "\n".join(lines)
 
 
