@@ -12,7 +12,11 @@ Every sample of both triads is corrected with the certificate. The checks
   limit plus ``k_sigma`` standard deviations of that mean, per axis;
 - k-of-n persistence before a triad is declared failed;
 - stuck outputs (a channel repeating the same raw value for ``stuck_samples``
-  samples where its noise makes that impossible) and saturation flags.
+  samples where its noise makes that impossible) and saturation flags;
+- excess noise: per channel, the white-noise sigma estimated from second
+  differences over ``noise_window_s`` (var(d2 U) = 6 sigma^2 for white noise;
+  smooth motion contributes almost nothing at the sample rate) beyond
+  ``noise_ratio`` times the certificate's sigma, in motion or at rest.
 
 All of it is vectorised per block; state carries across blocks.
 """
@@ -45,6 +49,8 @@ class MonitorConfig:
     gyro_window_s: float = 1.0  #: averaging window of the MEMS rest-rate check, s
     k_sigma: float = 5.0  #: standard deviations of margin in the gyro rest-rate check
     ring_capacity: int = 4096  #: samples kept in the ring buffer of recent samples
+    noise_window_s: float = 1.0  #: window of the white-noise estimate, s
+    noise_ratio: float = 3.0  #: estimated / certificate noise sigma that counts as excess noise
     earth_rate_noise_ratio: float = 0.2  #: per-sample Earth-rate F0 needs sigma_f0 < ratio*limit
 
 
@@ -61,6 +67,10 @@ class TriadState:
     stuck_run: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=np.int64))
     stuck_last: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     stuck_active: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=bool))
+    noise: list[Persistence] = field(default_factory=list)  #: per axis, excess noise
+    noise_tail: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  #: last raw samples
+    noise_sq_tail: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  #: last d2^2
+    noise_ratio_last: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
 
 
 class Monitor:
@@ -100,6 +110,7 @@ class Monitor:
             st = TriadState()
             st.persistence = Persistence(cfg.persistence_k, cfg.persistence_n)
             st.saturation = Persistence(cfg.persistence_k, cfg.persistence_n)
+            st.noise = [Persistence(cfg.persistence_k, cfg.persistence_n) for _ in range(3)]
             self.state[name] = st
         self.gyro_mode = self._gyro_mode(certificate.gyro, rate)
         self._gyro_window = max(1, int(round(cfg.gyro_window_s * rate)))
@@ -146,6 +157,12 @@ class Monitor:
                 out.append(fault)
             for axis in np.flatnonzero(st.stuck_active):
                 out.append({"triad": name, "sensor": SENSOR_NAMES[name][axis], "cause": "stuck"})
+            for axis, p in enumerate(st.noise):
+                if p.active:
+                    out.append(
+                        {"triad": name, "sensor": SENSOR_NAMES[name][axis], "cause": "noise",
+                         "t_first": p.t_first}
+                    )
             if st.saturation is not None and st.saturation.active:
                 out.append(
                     {"triad": name, "cause": "saturation", "t_first": st.saturation.t_first}
@@ -199,6 +216,7 @@ class Monitor:
             self._gyro_rest_rate(gyro_si, static, ok_g, block.t)
 
         self._stuck(block)
+        self._noise(block)
 
     def _record(self, name: str, values: np.ndarray, t: np.ndarray) -> None:
         st = self.state[name]
@@ -277,3 +295,36 @@ class Monitor:
             st.stuck_run = run[-1].astype(np.int64)
             st.stuck_last = raw[-1].copy()
             st.stuck_active = enabled & (st.stuck_run >= cfg.stuck_samples - 1)
+
+    def _noise(self, block: SampleBlock) -> None:
+        """Excess white noise per channel from second differences, carried across blocks."""
+        w = max(4, int(round(self.config.noise_window_s * self.rate_hz)))
+        for name in TRIADS:
+            st = self.state[name]
+            triad = self.certificate.triad(name)
+            sigma = triad.noise_sigma(self.rate_hz)
+            if sigma is None:
+                continue
+            if triad.output_unit == "count":  # whole counts add q^2/12 of quantisation noise
+                sigma = np.sqrt(sigma**2 + 1.0 / 12.0)
+            raw = np.concatenate([st.noise_tail, block.triad(name)])
+            st.noise_tail = raw[-2:]
+            if raw.shape[0] < 3:
+                continue
+            d2sq = np.diff(raw, n=2, axis=0) ** 2
+            t = block.t[block.t.shape[0] - d2sq.shape[0] :]
+            seq = np.concatenate([st.noise_sq_tail, d2sq])
+            st.noise_sq_tail = seq[-(w - 1) :]
+            c = np.concatenate([np.zeros((1, 3)), np.cumsum(seq, axis=0)])
+            k0 = seq.shape[0] - d2sq.shape[0]
+            idx = np.arange(k0, seq.shape[0])
+            lo = idx + 1 - w
+            full = lo >= 0
+            if not np.any(full):
+                continue
+            idx, lo, t = idx[full], lo[full], t[full]
+            var = (c[idx + 1] - c[lo]) / (6.0 * w)
+            ratio = np.sqrt(var) / sigma
+            st.noise_ratio_last = ratio[-1]
+            for axis in range(3):
+                st.noise[axis].update(ratio[:, axis] > self.config.noise_ratio, t)

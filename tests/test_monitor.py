@@ -115,3 +115,21 @@ def test_temperature_block_of_the_certificate_is_applied():
     assert any(f["cause"] == "f0" for f in plain.active_faults)  # 500 counts of bias drift
     assert extended.active_faults == [] and extended.f0_failed["accel"] == 0
 
+
+
+def test_noise_increase_is_named_even_when_it_hides_the_rest():
+    block = _session([Fault("noise", "ay", 6.0, 5.0)], duration_s=12.0)
+    m = Monitor(CERT)
+    _feed(m, block, [333] * 7)
+    noise = [f for f in m.active_faults if f["cause"] == "noise"]
+    assert [(f["triad"], f["sensor"]) for f in noise] == [("accel", "ay")]
+    assert 6.0 <= noise[0]["t_first"] < 7.0
+
+
+def test_noise_check_is_quiet_through_turns():
+    traj = multi_position(n_attitudes=8, dwell_s=2.0, turn_s=1.5, rate_hz=CERT.sample_rate, seed=5)
+    eff = Effects(quantize=True)
+    m = Monitor(CERT)
+    m.update(simulate(CERT, traj, seed=5, effects=eff).samples)
+    assert [f for f in m.active_faults if f["cause"] == "noise"] == []
+    assert np.all(m.state["gyro"].noise_ratio_last < 1.5)
