@@ -47,6 +47,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="consecutive windows a fault must persist (default 2)")
     p.add_argument("--k-sigma", type=float, metavar="K",
                    help="a fault deviates by more than K std as well as the limit (default 4)")
+    p.add_argument("--min-dof", type=float, metavar="N",
+                   help="redundant observations a window's fit needs to be judged (default 3)")
     p.set_defaults(func=run)
 
 
@@ -75,7 +77,8 @@ def make_config(args: argparse.Namespace, **extra: Any) -> DiagnosisConfig:
     """The diagnosis configuration from command-line options."""
     d: dict[str, Any] = {"method": args.method, "gyro_mode": args.gyro_mode}
     for opt, key in (("window_intervals", "window_intervals"), ("persist", "persist"),
-                     ("k_sigma", "k_sigma"), ("min_interval", "min_interval_s")):
+                     ("k_sigma", "k_sigma"), ("min_interval", "min_interval_s"),
+                     ("min_dof", "min_dof")):
         v = getattr(args, opt, None)
         if v is not None:
             d[key] = v

@@ -223,9 +223,10 @@ def calibrate(
         if not moving or "accel" not in moving:
             raise ValueError("the moving-base calibration needs independent accel magnitudes")
         ne, m0 = moving["accel"]
-        acc_fit = normal_equation_fit(acc_like, ne, m0, "moving-base", ratio)
+        acc_fit = normal_equation_fit(acc_like, ne, m0, "moving-base", ratio,
+                                      prior_factor=CALIBRATION_PRIOR)
     elif method == "linear":
-        acc_fit = linear_fit(acc_like, means, covs, counts, g_in, ratio)
+        acc_fit = linear_fit(acc_like, means, covs, counts, g_in, ratio, CALIBRATION_PRIOR)
     else:
         acc_fit = _pinned_fit(
             lambda pf, probe: exact_fit(
@@ -259,7 +260,8 @@ def calibrate(
         mode = "earth-rate" if earth_rate_observable(like) else "rotation"
     if method == "moving-base" and moving and "gyro" in moving:
         ne, m0 = moving["gyro"]
-        gyr_fit = normal_equation_fit(gyr_like, ne, m0, "moving-base", ratio)
+        gyr_fit = normal_equation_fit(gyr_like, ne, m0, "moving-base", ratio,
+                                      prior_factor=CALIBRATION_PRIOR)
         g_shape_c, g_q = shape_of_triad(gyr_like)
         gdev = gyr_fit.estimate - certificate_vector(gyr_like)
         g_shape = g_shape_c + np.concatenate([gdev[3:6] / gyr_like.scale_factor, gdev[6:9]])
@@ -269,7 +271,7 @@ def calibrate(
         )
     elif mode == "earth-rate":
         if method == "linear":
-            gyr_fit = linear_fit(gyr_like, gmeans, gcovs, counts, w_in, ratio)
+            gyr_fit = linear_fit(gyr_like, gmeans, gcovs, counts, w_in, ratio, CALIBRATION_PRIOR)
         else:
             gyr_fit = _pinned_fit(
                 lambda pf, probe: exact_fit(

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..certificate import Certificate, TriadModel
-from .gauge import p_matrix, shape_of_triad, small_rotation
+from .gauge import p_matrix, shape_of_triad
 from .params import limit_vector
 
 #: Floor of the direction residual (rad): integration and modelling resolution.
@@ -196,7 +196,7 @@ def _block_increments(inc: np.ndarray, block_rad: float) -> np.ndarray:
 
 
 def _stack_pairs(
-    gyro: TriadModel, pairs: list[RotationPair], block_deg: float = 0.5
+    gyro: TriadModel, pairs: list[RotationPair], block_deg: float = 1.0
 ) -> dict[str, np.ndarray]:
     """Rotation increments of every motion before N^-1 (trapezoid rule, rad), padded.
 
@@ -275,8 +275,7 @@ def rotation_fit(
         """N^-1 (P, 3, 3) for parameter sets x (P, npar) (deviations from the certificate)."""
         p = p_matrix(shape_c + x[:, :6])
         if fit_frame:
-            r = np.array([small_rotation(v) for v in x[:, 6:9]])
-            n = p @ r @ q_c
+            n = p @ quat_matrix(rotvec_quat(x[:, 6:9])) @ q_c
         else:
             n = p @ q_c
         return np.linalg.inv(n)
@@ -309,7 +308,8 @@ def rotation_fit(
                 continue
             r1, j1, c1 = evaluate(cand)
             if np.isfinite(c1) and c1 <= cost:
-                done = cost - c1 <= 1e-10 * max(cost, 1.0)
+                # a chi^2 change far below 1 is statistically nothing
+                done = cost - c1 <= max(1e-3, 1e-9 * cost)
                 x, res, jac, cost = cand, r1, j1, c1
                 lam = max(lam / 10.0, 1e-12)
                 accepted = True

@@ -48,6 +48,18 @@ def _regressors(y: np.ndarray) -> np.ndarray:
     )
 
 
+def _regressor_jacobian(y: np.ndarray) -> np.ndarray:
+    """d h / d y (N, 9, 3) of the 9 regressors at corrected outputs y (N, 3)."""
+    n = y.shape[0]
+    jac = np.zeros((n, 9, 3))
+    jac[:, 0, 0] = jac[:, 1, 1] = jac[:, 2, 2] = 1.0
+    jac[:, 3, 0], jac[:, 4, 1], jac[:, 5, 2] = 2 * y[:, 0], 2 * y[:, 1], 2 * y[:, 2]
+    jac[:, 6, 0], jac[:, 6, 1] = y[:, 1], y[:, 0]
+    jac[:, 7, 0], jac[:, 7, 2] = y[:, 2], y[:, 0]
+    jac[:, 8, 1], jac[:, 8, 2] = y[:, 2], y[:, 1]
+    return jac
+
+
 def _internal_limits(triad: TriadModel, m0: float) -> np.ndarray:
     return limit_vector(triad) / internal_scale(triad, m0)
 
@@ -185,53 +197,62 @@ def exact_fit(
     else:
         theta = np.asarray(start, dtype=float).copy()
 
-    def cost(th: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    def cost(
+        th: np.ndarray, extra: float
+    ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         r, jac, w = _residuals_and_jacobian(th, v, mu)
-        sig2 = np.einsum("kj,kj->k", w * w, var_v) + RESIDUAL_FLOOR**2
+        sig2 = np.einsum("kj,kj->k", w * w, var_v) + RESIDUAL_FLOOR**2 + extra
         c = float(np.sum(r * r / sig2) + np.sum(prior_prec * (th - theta_c) ** 2))
         return c, r, jac, sig2
 
-    c0, r, jac, sig2 = cost(theta)
-    lam = 1e-6
-    for _ in range(max_iter):
+    def gauss_newton(
+        theta: np.ndarray, extra: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        c0, r, jac, sig2 = cost(theta, extra)
+        lam = 1e-6
+        for _ in range(max_iter):
+            wgt = 1.0 / sig2
+            hess = jac.T @ (jac * wgt[:, None]) + np.diag(prior_prec)
+            grad = jac.T @ (r * wgt) + prior_prec * (theta - theta_c)
+            c_before = c0
+            accepted = False
+            for _try in range(16):
+                a = hess + lam * np.diag(np.maximum(np.diag(hess), 1e-30))
+                step = -np.linalg.lstsq(a, grad, rcond=None)[0]
+                cand = theta + step
+                if np.max(np.abs(cand[3:] - theta_c[3:])) > MAX_SHAPE:
+                    lam *= 10.0
+                    continue
+                c1, r1, j1, s1 = cost(cand, extra)
+                if np.isfinite(c1) and c1 <= c0:
+                    theta, c0, r, jac, sig2 = cand, c1, r1, j1, s1
+                    lam = max(lam / 10.0, 1e-12)
+                    accepted = True
+                    break
+                lam *= 10.0
+            if not accepted or (c_before - c0) <= max(1e-3, 1e-9 * c0):
+                break
+        return theta, r, jac, sig2
+
+    # Real data scatter more than the white noise of the means (bias wander,
+    # temperature, placement): estimate that excess variance, common to every
+    # mean, by the method of moments (chi^2 = dof) and refit with it, so the
+    # prior keeps its intended weight against the data.
+    extra = 0.0
+    for _outer in range(4 if scale_by_residual else 1):
+        theta_fit, r, jac, sig2 = gauss_newton(theta.copy(), extra)
         wgt = 1.0 / sig2
         info = jac.T @ (jac * wgt[:, None])
-        grad = jac.T @ (r * wgt) + prior_prec * (theta - theta_c)
         hess = info + np.diag(prior_prec)
-        c_before = c0
-        accepted = False
-        for _try in range(8):
-            a = hess + lam * np.diag(np.maximum(np.diag(hess), 1e-30))
-            try:
-                step = -np.linalg.solve(a, grad)
-            except np.linalg.LinAlgError:
-                step = -np.linalg.lstsq(a, grad, rcond=None)[0]
-            cand = theta + step
-            if np.max(np.abs(cand[3:] - theta_c[3:])) > MAX_SHAPE:
-                lam *= 10.0
-                continue
-            c1, r1, j1, s1 = cost(cand)
-            if np.isfinite(c1) and c1 <= c0:
-                theta, c0, r, jac, sig2 = cand, c1, r1, j1, s1
-                lam = max(lam / 10.0, 1e-12)
-                accepted = True
-                break
-            lam *= 10.0
-        if not accepted or (c_before - c0) <= 1e-10 * max(c0, 1.0):
-            break
-
-    wgt = 1.0 / sig2
-    info = jac.T @ (jac * wgt[:, None])
-    hess = info + np.diag(prior_prec)
-    try:
-        cov = np.linalg.inv(hess)
-    except np.linalg.LinAlgError:
         cov = np.linalg.pinv(hess)
-    chi2 = float(np.sum(r * r * wgt))
-    # effective number of parameters the data determine: trace of the resolution matrix
-    dof = k - float(np.trace(cov @ info))
+        chi2 = float(np.sum(r * r * wgt))
+        dof = k - float(np.trace(cov @ info))
+        if not scale_by_residual or dof < 1.0 or chi2 <= 1.5 * dof:
+            break
+        extra = _excess_variance(r, sig2 - extra, dof)
+    theta = theta_fit
     if dof > 0.5 and scale_by_residual:
-        # real data scatter more than the white noise of the means: Birge ratio
+        # what the excess variance did not absorb: Birge ratio
         cov = cov * max(1.0, chi2 / dof)
     null = ~np.isfinite(np.diag(cov))
     if not np.all(np.isfinite(pf)):
@@ -246,6 +267,18 @@ def exact_fit(
     )
     fit.dof = dof
     return fit
+
+
+def _excess_variance(r: np.ndarray, sig2: np.ndarray, dof: float) -> float:
+    """Variance e added to every point that makes sum r^2 / (sig2 + e) equal ``dof``."""
+    lo, hi = 0.0, float(np.max(r * r)) * len(r) + 1e-300
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        if np.sum(r * r / (sig2 + mid)) > dof:
+            lo = mid
+        else:
+            hi = mid
+    return hi
 
 
 def _linear_start(theta_c: np.ndarray, v: np.ndarray, mu: np.ndarray) -> np.ndarray:
@@ -276,13 +309,32 @@ class NormalEquations:
         self.zz = 0.0
         self.n = 0
 
-    def add(self, h: np.ndarray, z: np.ndarray, w: np.ndarray) -> None:
-        """Add samples: regressors h (N, 9), targets z (N,), weights w (N,)."""
+    def add(
+        self,
+        h: np.ndarray,
+        z: np.ndarray,
+        w: np.ndarray,
+        y: np.ndarray | None = None,
+        noise_var: np.ndarray | None = None,
+    ) -> None:
+        """Add samples: regressors h (N, 9), targets z (N,), weights w (N,).
+
+        With the samples' corrected outputs ``y`` (N, 3) and their white-noise
+        variance ``noise_var`` (3,), the errors-in-variables terms are removed:
+        noise in the regressors correlates with noise in z and, summed over
+        many samples, poses as information in directions the motion does not
+        excite (corrected least squares, first order in the noise).
+        """
         hw = h * w[:, None]
         self.a += hw.T @ h
         self.b += hw.T @ z
         self.zz += float(np.sum(w * z * z))
         self.n += int(h.shape[0])
+        if y is not None and noise_var is not None and h.shape[0]:
+            jac = _regressor_jacobian(y)  # (N, 9, 3)
+            jv = jac * np.asarray(noise_var, dtype=float)  # J V
+            self.a -= np.einsum("n,nia,nja->ij", w, jv, jac)
+            self.b -= np.einsum("n,nia,na->i", w, jv, y)
 
     def __iadd__(self, other: NormalEquations) -> NormalEquations:
         self.a += other.a
@@ -309,28 +361,31 @@ def sample_rows(
     magnitude: np.ndarray,
     m0: float,
     noise_var: np.ndarray | None = None,
-    weight_floor: float = 1e-3,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-sample rows (h (N, 9), z (N,), w (N,)) of the moving-base variant.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Per-sample rows (h (N, 9), z (N,), w (N,), y (N, 3), noise_var) of the moving-base
+    variant, the arguments of :meth:`NormalEquations.add`.
 
     ``raw`` (N, 3) outputs; ``magnitude`` (N,) the input magnitude per sample in
     input units, independent of the triad (another sensor, a known
     trajectory); ``noise_var`` (3,) per-sample variance of the corrected output
     in units of m0^2, subtracted from the squares (note §3). z = 1/2 (|y|^2 -
     mu^2) with y in units of m0: dividing by mu^2 gives F0 against regressors
-    ``y_j / mu^2`` for the constant B / S (note §6). Weights 1 / (mu^2 +
-    weight_floor): every sample counts by the relative precision of its F0.
+    ``y_j / mu^2`` for the constant B / S (note §6). Weights: the inverse
+    variance of z from the white noise, ``1 / (mu^2 s + s^2)`` with s the mean
+    noise variance (1e-6 when unknown), so the normal equations are in chi^2 units.
     """
     y = corrected_normalised(triad, raw, m0)
     mu = np.asarray(magnitude, dtype=float) / m0
     h = _regressors(y)
     z = 0.5 * (np.einsum("ij,ij->i", y, y) - mu * mu)
+    s2 = 1e-6
     if noise_var is not None:
         nv = np.asarray(noise_var, dtype=float)
         h[:, 3:6] -= nv
         z -= 0.5 * float(np.sum(nv))
-    w = 1.0 / (mu * mu + weight_floor)
-    return h, z, w
+        s2 = max(float(np.mean(nv)), 1e-30)
+    w = 1.0 / (mu * mu * s2 + s2 * s2)
+    return h, z, w, y, None if noise_var is None else np.asarray(noise_var, dtype=float)
 
 
 def samples_normal_equations(
@@ -359,6 +414,7 @@ def interval_normal_equations(
     Every sample of interval i enters with F0 of the noisy sample, i.e. the
     regressors and target are averages of squares (mean^2 + variance), not
     squares of averages: what a literal per-sample implementation computes.
+    Each sample is weighted by the inverse variance of its F0 (chi^2 units).
     """
     means = np.asarray(means, dtype=float).reshape(-1, 3)
     k = means.shape[0]
@@ -376,11 +432,13 @@ def interval_normal_equations(
     ) / mu2
     z = 0.5 * (np.trace(m2, axis1=1, axis2=2) / mu2[:, 0] - 1.0)
     n = np.asarray(counts, dtype=float)
-    ne = NormalEquations()
-    ne.add(h, z, n)
-    # per-sample scatter of F0 about the interval mean adds to the residual sum
+    # variance of one sample's F0 about its interval mean
     f0_var = np.einsum("ki,kij,kj->k", y, cy, y) / mu2[:, 0] ** 2
-    ne.zz += float(np.sum(n * f0_var))
+    f0_var = np.maximum(f0_var, RESIDUAL_FLOOR**2)
+    ne = NormalEquations()
+    ne.add(h, z, n / f0_var)
+    # the per-sample scatter of F0 about the interval mean adds to the residual sum
+    ne.zz += float(np.sum(n))
     ne.n = int(n.sum())
     return ne
 
@@ -392,8 +450,11 @@ def normal_equation_fit(
     method: str,
     determined_std_ratio: float = 0.5,
     points: int | None = None,
+    prior_factor: float = 10.0,
 ) -> TriadFit:
-    """Ordinary least squares from normal equations; covariance scaled by the residual."""
+    """Least squares from normal equations in chi^2 units, with the same weak prior at the
+    certificate as the exact fit (``prior_factor`` limits), covariance scaled by
+    chi^2 / dof when above 1."""
     lim = _internal_limits(triad, m0)
     if ne.n <= 9 or not np.any(ne.a):
         from .params import undetermined_fit
@@ -401,21 +462,25 @@ def normal_equation_fit(
         return undetermined_fit(triad, method, "too few samples for the 9-parameter fit")
     d = lim
     a_s = ne.a * np.outer(d, d)
-    ev, evec = np.linalg.eigh(a_s)
-    top = ev[-1] if ev[-1] > 0 else 1.0
-    keep = ev > top * 1e-10
-    inv_s = (evec[:, keep] / ev[keep]) @ evec[:, keep].T
+    # the errors-in-variables correction can leave small negative eigenvalues where
+    # the data carry no information: no information is zero, not negative
+    ev, evec = np.linalg.eigh(0.5 * (a_s + a_s.T))
+    a_s = (evec * np.maximum(ev, 0.0)) @ evec.T
+    hess = a_s + np.eye(9) / prior_factor**2
+    inv_s = np.linalg.pinv(hess)
     delta = d * (inv_s @ (ne.b * d))
-    chi2 = ne.zz - 2.0 * float(delta @ ne.b) + float(delta @ ne.a @ delta)
-    dof = ne.n - 9
-    sigma2 = max(chi2, 0.0) / dof
-    cov = np.outer(d, d) * inv_s * sigma2
-    null = np.sum(evec[:, ~keep] ** 2, axis=1) > 1e-3
-    cond = float(top / ev[0]) if ev[0] > 0 else float("inf")
-    return _finish(
-        triad, method, m0, delta, cov, null, determined_std_ratio, cond,
-        int(points if points is not None else ne.n), float(np.sqrt(sigma2)),
+    chi2 = ne.zz - 2.0 * float(delta @ ne.b) + float((delta / d) @ a_s @ (delta / d))
+    dof = ne.n - float(np.trace(inv_s @ a_s))
+    ratio = max(chi2, 0.0) / dof if dof > 0.5 else 1.0
+    cov = np.outer(d, d) * inv_s * max(1.0, ratio)
+    ev = np.linalg.eigvalsh(a_s)
+    cond = float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
+    fit = _finish(
+        triad, method, m0, delta, cov, np.zeros(9, dtype=bool), determined_std_ratio, cond,
+        int(points if points is not None else ne.n), float(np.sqrt(max(ratio, 0.0))),
     )
+    fit.dof = dof
+    return fit
 
 
 def linear_fit(
@@ -425,13 +490,15 @@ def linear_fit(
     counts: np.ndarray,
     magnitude: float | np.ndarray,
     determined_std_ratio: float = 0.5,
+    prior_factor: float = 10.0,
 ) -> TriadFit:
     """The paper's literal linearised least squares over the samples of the intervals."""
     mag = np.asarray(magnitude, dtype=float)
     m0 = float(np.median(mag)) if mag.ndim else float(mag)
     ne = interval_normal_equations(triad, means, covs, counts, magnitude, m0)
     return normal_equation_fit(
-        triad, ne, m0, "linear", determined_std_ratio, points=len(np.atleast_2d(means))
+        triad, ne, m0, "linear", determined_std_ratio, points=len(np.atleast_2d(means)),
+        prior_factor=prior_factor,
     )
 
 

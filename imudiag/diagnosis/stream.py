@@ -176,8 +176,8 @@ class StreamingDiagnoser:
             if self._chunk_ne is None:
                 self._chunk_ne = {t: NormalEquations() for t in TRIADS}
             for t in TRIADS:
-                h, z, w = ne_blocks[t]
-                self._chunk_ne[t].add(h[s0:s1], z[s0:s1], w[s0:s1])
+                h, z, w, y, nv = ne_blocks[t]
+                self._chunk_ne[t].add(h[s0:s1], z[s0:s1], w[s0:s1], y[s0:s1], nv)
         return out
 
     def _moving_m0(self, triad: str) -> float:
@@ -187,7 +187,7 @@ class StreamingDiagnoser:
 
     def _moving_equations(
         self, triad: str, block: SampleBlock, magnitude: dict[str, np.ndarray] | None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         tri = self.certificate.triad(triad)
         m0 = self._moving_m0(triad)
         raw = block.triad(triad)
@@ -200,7 +200,11 @@ class StreamingDiagnoser:
             mag = _moving_average(np.linalg.norm(y, axis=1), n_avg) * m0
         sigma = self.collector.detector.noise_sigma(triad)
         nv = None if sigma is None else (sigma / (tri.scale_factor * m0)) ** 2
-        return sample_rows(tri, raw, mag, m0, nv)
+        h, z, w, y, nv_out = sample_rows(tri, raw, mag, m0, nv)
+        if magnitude is None or triad not in magnitude:
+            # the errors-in-variables correction assumes a magnitude free of the triad's noise
+            nv_out = None
+        return h, z, w, y, nv_out
 
     def _moving_window(self, last_id: int) -> WindowResult:
         cfg = self.config
@@ -218,7 +222,7 @@ class StreamingDiagnoser:
                 tot += ne[triad]
             fits[triad] = normal_equation_fit(
                 self.certificate.triad(triad), tot, self._moving_m0(triad), "moving-base",
-                cfg.determined_std_ratio,
+                cfg.determined_std_ratio, prior_factor=cfg.prior_factor,
             )
         ups = np.array([u for _, u in self._recent_up]) if self._recent_up else np.zeros((0, 3))
         res = WindowResult(

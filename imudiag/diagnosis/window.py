@@ -137,7 +137,8 @@ def accel_window_fit(
     means = _temperature_corrected(tri, means, [iv.temp for iv in intervals])
     g_in = cert.gravity / tri.unit_to_si
     if method == "linear":
-        fit = linear_fit(tri, means, covs, counts, g_in, config.determined_std_ratio)
+        fit = linear_fit(tri, means, covs, counts, g_in, config.determined_std_ratio,
+                         config.prior_factor)
     else:
         fit = exact_fit(
             tri, means, mvar, g_in, prior_factor=config.prior_factor,
@@ -242,7 +243,8 @@ def gyro_window_fit(
     if mode == "auto":
         mode = "earth-rate" if earth_rate_observable(cert) else "rotation"
     if method == "linear":
-        fit = linear_fit(tri, means, covs, counts, w_in, config.determined_std_ratio)
+        fit = linear_fit(tri, means, covs, counts, w_in, config.determined_std_ratio,
+                         config.prior_factor)
         _with_reason(fit, range(9), f"{attitudes} distinct attitude(s); |w| = Earth rate (eq. 8)")
         return fit, 0
     if mode == "earth-rate":
