@@ -15,7 +15,8 @@ Every sample of both triads is corrected with the certificate. The checks
   samples where its noise makes that impossible) and saturation flags;
 - excess noise: per channel, the white-noise sigma estimated from second
   differences over ``noise_window_s`` (var(d2 U) = 6 sigma^2 for white noise;
-  smooth motion contributes almost nothing at the sample rate) beyond
+  smooth motion contributes almost nothing at the sample rate; squares are
+  winsorised at 6 sigma of d2 so a step is not taken for noise) beyond
   ``noise_ratio`` times the certificate's sigma, in motion or at rest.
 
 All of it is vectorised per block; state carries across blocks.
@@ -311,7 +312,9 @@ class Monitor:
             st.noise_tail = raw[-2:]
             if raw.shape[0] < 3:
                 continue
-            d2sq = np.diff(raw, n=2, axis=0) ** 2
+            # winsorised at 6 sigma of d2: a step (a bias fault, a bump) is not noise
+            clip = 36.0 * 6.0 * sigma**2
+            d2sq = np.minimum(np.diff(raw, n=2, axis=0) ** 2, clip)
             t = block.t[block.t.shape[0] - d2sq.shape[0] :]
             seq = np.concatenate([st.noise_sq_tail, d2sq])
             st.noise_sq_tail = seq[-(w - 1) :]

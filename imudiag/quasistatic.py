@@ -9,10 +9,17 @@ trailing window of ``window_s`` seconds that ends at it shows
   chi-square variable, below its mean plus ``k_sigma`` standard deviations,
   and at most ``variance_factor`` times the noise), the stance detector of
   pedestrian navigation applied to both triads;
-- a gyro window mean within the bias band of the certificate: ``|mean_j - B_j|``
-  at most ``bias_margin`` times the bias limit plus the Earth-rate output plus
-  ``k_sigma`` standard deviations of the window mean (a slow constant rotation
-  about the vertical leaves the variances untouched);
+- a gyro window mean whose component about the vertical (the gravity direction
+  of the accelerometer window mean, corrected with the certificate) stays within
+  the bias band: at most ``bias_margin`` times the largest bias limit plus Earth
+  rate plus ``k_sigma`` standard deviations of the window mean, in input units.
+  A slow constant rotation about the vertical leaves both variances untouched,
+  and this is the only rotation the accelerometers cannot see; a rotation about
+  a horizontal axis turns gravity in the body and shows in the accelerometer
+  variance. Restricting the band to the vertical keeps a gross bias fault of a
+  gyro axis that is not vertical "still", so it can be diagnosed, instead of
+  hiding every later check (a bias on the vertical axis is truly
+  indistinguishable from a slow yaw rotation for a MEMS gyro);
 - no saturation or ADC-error flag in the window.
 
 Per-sample noise ``sigma = density * sqrt(rate / 2)`` (output units) comes
@@ -33,7 +40,7 @@ import math
 
 import numpy as np
 
-from .certificate import Certificate, TriadModel
+from .certificate import Certificate
 from .samples import FLAG_ACCEL_SATURATED, FLAG_ADC_ERROR, FLAG_GYRO_SATURATED, SampleBlock
 
 #: Flag bits that make a sample unusable for the static check.
@@ -142,14 +149,20 @@ class QuasiStaticDetector:
 
     # -- detection -----------------------------------------------------------
 
-    def _mean_band(self, triad: TriadModel, sigma2: np.ndarray) -> np.ndarray:
-        """Allowed |window mean - B| per gyro axis, output units."""
-        earth = self.certificate.earth_rate / triad.unit_to_si * triad.scale_factor
-        return (
-            float(self.bias_margin) * triad.limits.bias
-            + earth
-            + self.k_sigma * np.sqrt(sigma2 / self.window)
+    def _vertical_rate_ok(self, mean: np.ndarray, sigma2: np.ndarray) -> np.ndarray:
+        """Window means (M, 6) whose gyro rate about the vertical is within the band (M,)."""
+        cert = self.certificate
+        g, a = cert.gyro, cert.accel
+        rate = g.inverse(mean[:, 0:3])  # gyro input units
+        down = a.inverse(mean[:, 3:6])
+        norm = np.sqrt(np.einsum("ij,ij->i", down, down))
+        vertical = np.einsum("ij,ij->i", rate, down) / np.where(norm > 0, norm, 1.0)
+        band = (
+            float(self.bias_margin) * float(np.max(g.limits.bias / g.scale_factor))
+            + cert.earth_rate / g.unit_to_si
+            + self.k_sigma * float(np.max(np.sqrt(sigma2 / self.window) / g.scale_factor))
         )
+        return np.abs(vertical) <= band
 
     def update(self, block: SampleBlock) -> np.ndarray:
         """Static flags (N,) bool for the samples of ``block``, in order."""
@@ -185,9 +198,7 @@ class QuasiStaticDetector:
                 ref = np.maximum(sigma2, self._gyro_floor_var) if name == "gyro" else sigma2
                 ok &= np.sum(v / ref, axis=1) <= self.variance_ratio_limit
                 if name == "gyro" and self.bias_margin is not None:
-                    triad = self.certificate.gyro
-                    band = self._mean_band(triad, sigma2)
-                    ok &= np.all(np.abs(mean[:, 0:3] - triad.bias) <= band, axis=1)
+                    ok &= self._vertical_rate_ok(mean, sigma2)
             # row i of the window arrays ends at concat index i + w - 1
             first_end = w - 1
             start_in_concat = m - n

@@ -133,3 +133,14 @@ def test_noise_check_is_quiet_through_turns():
     m.update(simulate(CERT, traj, seed=5, effects=eff).samples)
     assert [f for f in m.active_faults if f["cause"] == "noise"] == []
     assert np.all(m.state["gyro"].noise_ratio_last < 1.5)
+
+
+def test_gross_gyro_bias_on_a_horizontal_axis_does_not_hide_later_faults():
+    """A 6 deg/s gx bias (12 limits) with x horizontal: still seen as still, and named."""
+    block = _session([Fault("bias", "gx", 4.0, 400.0), Fault("bias", "az", 10.0, 800.0)])
+    m = Monitor(CERT)
+    _feed(m, block, [500] * 7)
+    found = {(f["triad"], f.get("sensor"), f["cause"]) for f in m.active_faults}
+    assert ("gyro", "gx", "f0") in found
+    assert ("accel", None, "f0") in found
+    assert not any(f["cause"] == "noise" for f in m.active_faults)  # steps are not noise

@@ -53,7 +53,7 @@ class DaemonConfig:
     no_data_timeout_s: float = 1.0  #: no valid frame for this long -> state no_data, s
     reconnect_min_s: float = 0.2  #: first reconnect back-off, s
     reconnect_max_s: float = 4.0  #: longest reconnect back-off, s (< WatchdogSec / 2)
-    diagnosis_window_intervals: int = 12  #: quasi-static intervals per fit window
+    diagnosis_window_intervals: int = 24  #: quasi-static intervals per fit window
     diagnosis_window_max_s: float = 900.0  #: intervals older than this leave the window, s
     diagnosis_persist_windows: int = 2  #: consecutive windows before a fault is reported
     static_window_s: float = 0.5  #: quasi-static detector window, s
