@@ -39,7 +39,7 @@ class BenchError(RuntimeError):
 def diagnosis_available() -> bool:
     """True when the daemon can run the live window diagnosis: its own factory
     (``Daemon._make_diagnoser`` with the default settings) builds a diagnoser that
-    offers ``faults`` and ``verdicts()``."""
+    offers ``faults`` and ``verdict()``."""
     from types import SimpleNamespace
 
     from imudiag.service.config import default_config
@@ -53,7 +53,7 @@ def diagnosis_available() -> bool:
         )
     except (ImportError, TypeError, ValueError, AttributeError):
         return False
-    return hasattr(diagnoser, "faults") and callable(getattr(diagnoser, "verdicts", None))
+    return hasattr(diagnoser, "faults") and callable(getattr(diagnoser, "verdict", None))
 
 
 class DaemonHost:
