@@ -39,7 +39,7 @@ class ConfigError(BadInput):
 class DaemonConfig:
     """Settings of ``imudiag run``; the defaults equal ``config/imudiag.yaml``."""
 
-    source: str = "sim://"  #: sample source URL (drivers registry)
+    source: str = "sim://multiposition?loop=1"  #: sample source URL (drivers registry)
     certificate: str | None = None  #: certificate file; None = the bundled one
     status_stdout: bool = True  #: JSON status lines on standard output
     status_serial: str | None = None  #: NMEA status link URL; None = none
