@@ -6,7 +6,8 @@ padding. :func:`unpack_reports` turns many reports into the frame byte stream
 at once; the bytes then go through the wire Decoder like any other transport.
 hidapi hands over one report per call, so reading is one call per report; the
 unpacking and decoding are vectorised over everything read in one
-:meth:`HidSource.read`. The protocol defines no HID output report, so host
+:meth:`HidSource.read` (``counters.bytes`` counts the frame bytes carried, not report
+bytes). The protocol defines no HID output report, so host
 commands are not sent over HID (a board must work without them).
 """
 

@@ -75,16 +75,18 @@ class ReconnectingSource(Source):
     def open(self) -> None:
         """Try to open now; on failure stay ``"reconnecting"`` and retry on later reads."""
         self._opened = True
-        self._try_open(time.monotonic())
+        if self.state != CONNECTED:
+            self._try_open(time.monotonic())
 
     def _try_open(self, now: float) -> bool:
         try:
             self.inner.open()
         except SourceError as e:
             self.last_error = str(e)
+            if self.attempts:
+                self._backoff_s = min(self._backoff_s * 2.0, self.max_backoff_s)
             self.attempts += 1
             self._next_attempt = now + self._backoff_s
-            self._backoff_s = min(self._backoff_s * 2.0, self.max_backoff_s)
             return False
         if self._ever_connected:
             self.reconnects += 1
@@ -106,7 +108,8 @@ class ReconnectingSource(Source):
         if not self._opened:
             raise SourceError(f"{self.url.url}: read on a source that is not open")
         deadline = time.monotonic() + timeout_s
-        if self.state == RECONNECTING:
+        remaining = timeout_s  # the same value each turn while connected: a serial port
+        if self.state == RECONNECTING:  # is not reconfigured (tcsetattr) on every read
             now = time.monotonic()
             if now < self._next_attempt:
                 time.sleep(max(0.0, min(self._next_attempt, deadline) - now))
@@ -114,8 +117,9 @@ class ReconnectingSource(Source):
                     return SampleBlock.empty()
             if not self._try_open(time.monotonic()):
                 return SampleBlock.empty()
+            remaining = max(0.0, deadline - time.monotonic())
         try:
-            return self.inner.read(max(0.0, deadline - time.monotonic()))
+            return self.inner.read(remaining)
         except SourceError as e:
             self._lost(e, time.monotonic())
             return SampleBlock.empty()

@@ -13,6 +13,7 @@ or a dropped socket raises SourceError.
 
 from __future__ import annotations
 
+import select
 from typing import Any
 
 import serial
@@ -50,6 +51,7 @@ class SerialSource(ByteSource):
         self.exclusive: bool | None = None if excl is None else bool(excl)
         self._port: serial.SerialBase | None = None
         self._timeout: float | None = None
+        self._fd: int | None = None
 
     def _open_transport(self) -> None:
         kwargs: dict[str, Any] = {"baudrate": self.baud, "timeout": 0.1}
@@ -60,11 +62,24 @@ class SerialSource(ByteSource):
         except (serial.SerialException, OSError, ValueError) as e:
             raise SourceError(f"{self.url.url}: cannot open {self.port_url}: {e}") from e
         self._timeout = 0.1
+        self._fd = None
+        if self.url.scheme == "serial" and hasattr(self._port, "fd"):
+            # a POSIX port: wait with select, read non-blocking, so the port is
+            # never reconfigured (tcsetattr) for a new timeout
+            self._port.timeout = 0
+            self._timeout = 0
+            self._fd = self._port.fileno()
 
     def _read_bytes(self, timeout_s: float) -> bytes:
         port = self._port
         assert port is not None
         try:
+            if self._fd is not None:
+                ready, _, _ = select.select([self._fd], [], [], max(0.0, timeout_s))
+                if not ready:
+                    return b""
+                # at least one byte: a hung-up port then raises instead of returning b""
+                return port.read(min(max(1, port.in_waiting), _MAX_READ))
             if self._timeout != timeout_s:
                 port.timeout = timeout_s
                 self._timeout = timeout_s
@@ -109,3 +124,18 @@ class LoopSource(SerialSource):
 @register("socket")
 class SocketSource(SerialSource):
     """pyserial's ``socket://HOST:PORT``: a raw TCP byte stream."""
+
+    def _read_bytes(self, timeout_s: float) -> bytes:
+        # the socket handler's in_waiting is only 0 or 1: after the first byte,
+        # take whatever has arrived with a non-blocking read (cheap for sockets)
+        port = self._port
+        assert port is not None
+        try:
+            port.timeout = timeout_s
+            first = port.read(1)
+            if not first:
+                return b""
+            port.timeout = 0
+            return first + port.read(_MAX_READ)
+        except (serial.SerialException, OSError) as e:
+            raise SourceError(f"{self.url.url}: connection gone: {e}") from e

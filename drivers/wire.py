@@ -417,6 +417,39 @@ class Decoder:
             else:
                 self.info_errors += 1
 
+    def _timeline_steady(
+        self, seq16: np.ndarray, time32: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The common case in a few passes: every seq +1 and time_us moving forward.
+
+        Wrapping differences come for free in uint16/uint32 arithmetic. Returns
+        None (nothing changed) when the general rules are needed.
+        """
+        k = seq16.shape[0]
+        seq_d = np.empty(k, np.uint16)
+        seq_d[0] = (int(seq16[0]) - self._last_seq) % SEQ_MODULUS
+        np.subtract(seq16[1:], seq16[:-1], out=seq_d[1:])
+        if not (seq_d == 1).all():
+            return None
+        dt = np.empty(k, np.uint32)
+        dt[0] = (int(time32[0]) - self._last_time) % TIME_MODULUS
+        np.subtract(time32[1:], time32[:-1], out=dt[1:])
+        if (dt >= TIME_MODULUS // 2).any():  # time went backwards: general rules
+            return None
+        t_abs = np.cumsum(dt, dtype=np.int64)
+        t_abs += self._time_abs
+        seq_abs = np.arange(self._seq_abs + 1, self._seq_abs + 1 + k, dtype=np.int64)
+        self._last_seq = int(seq16[-1])
+        self._last_time = int(time32[-1])
+        self._seq_abs = int(seq_abs[-1])
+        self._time_abs = int(t_abs[-1])
+        last_dt = int(dt[-1])
+        if last_dt > 0:
+            self._last_dt_us = last_dt
+        elif dt.any():
+            self._last_dt_us = int(dt[np.flatnonzero(dt)[-1]])
+        return np.ones(k, bool), seq_abs, t_abs
+
     def _timeline(
         self, seq16: np.ndarray, time32: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -429,6 +462,17 @@ class Decoder:
         k = seq16.shape[0]
         if k == 0:
             return np.zeros(0, bool), np.zeros(0, np.int64), np.zeros(0, np.int64)
+        first_ever = self._last_seq is None
+        if first_ever:  # as if preceded by seq-1 at the same time: t starts at time_us
+            self._last_seq = (int(seq16[0]) - 1) % SEQ_MODULUS
+            self._last_time = int(time32[0])
+            self._seq_abs = int(seq16[0]) - 1
+            self._time_abs = int(time32[0])
+        fast = self._timeline_steady(seq16, time32)
+        if fast is not None:
+            return fast
+        if first_ever:
+            self._last_seq = None
         s = seq16.astype(np.int64)
         tm = time32.astype(np.int64)
         first = self._last_seq is None

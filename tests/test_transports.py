@@ -47,20 +47,25 @@ def test_schemes_registered():
 def test_loop_round_trip_and_ignored_commands():
     data, raw = board_bytes(500, seq_start=3)
     with open_source("loop://") as src:
-        src.write_bytes(data)
-        out = read_all(src, 500)
+        blocks = []
+        for piece in chunked(data, 4000):  # pyserial's loop buffer holds 4096 bytes
+            src.write_bytes(piece)
+            blocks.append(src.read(0.05))
+        out = SampleBlock.concat(blocks)
         np.testing.assert_array_equal(out.gyro, raw[:, :3])
         np.testing.assert_array_equal(out.accel, raw[:, 3:])
         np.testing.assert_allclose(out.temp, 30.25)
         # a loopback is a board that ignores commands: they come back as garbage
         src.write_command("INFO")
-        src.write_bytes(data[:400])
+        src.write_bytes(data[-40:])  # the last frame again
+        more, _ = board_bytes(10, seq_start=503, seed=9)
+        src.write_bytes(more)
         out2 = read_all(src, 10)
-    assert len(out2) == 10
+    assert len(out2) == 10 and out2.seq[0] == 503
     c = src.counters
     assert c.skipped_bytes == len(b"INFO\n")
-    assert c.duplicates == 10  # the repeated first ten frames
-    assert c.frames == 500
+    assert c.duplicates == 1
+    assert (c.frames, c.lost, c.crc_errors) == (510, 0, 0)
 
 
 def test_socket_stream_and_disconnect():
@@ -70,8 +75,9 @@ def test_socket_stream_and_disconnect():
 
     def serve():
         conn, _ = server.accept()
+        time.sleep(0.1)  # pyserial's open() discards whatever arrived before it finished
         with conn:
-            conn.sendall(encode_info(0, 0, INFO))
+            conn.sendall(encode_info(65535, 0, INFO))  # seq wraps to the first sample's 0
             for piece in chunked(data, 777):
                 conn.sendall(piece)
                 time.sleep(0.002)
@@ -114,9 +120,9 @@ def write_capture(path, n: int = 1200) -> np.ndarray:
     with open(path, "wb") as fh:
         fh.write(b"\x00\x01garbage")
         fh.write(encode_info(64999, 0, INFO))
-        fh.write(data[: 40 * 600])
-        fh.write(data[40 * 601 :])  # one frame lost
-    return np.delete(raw, 600, axis=0)
+        fh.write(data[: 40 * (n // 2)])
+        fh.write(data[40 * (n // 2 + 1) :])  # one frame lost
+    return np.delete(raw, n // 2, axis=0)
 
 
 def test_replay_bin_as_fast_as_possible(tmp_path):
@@ -215,12 +221,18 @@ def test_reconnect_after_unplug_and_replug(tmp_path):
         # replug: a new pty under the same name, the board carrying on
         frames_before = src.counters.frames
         second = PtyPair(link=link)
+        for _ in range(50):
+            if src.state == "connected":
+                break
+            src.read(0.02)
+        assert src.state == "connected"
+        assert src.reconnects == 1
+        # (the board starts after the port is open: pyserial's open flushes the input)
         data2, raw2 = board_bytes(300, seq_start=5000, seed=6)
         w2 = BoardWriter(second, chunked(data2, 40 * 5), rate_hz=200.0)
         w2.start()
         after = read_all(src, 300)
-        assert src.state == "connected"
-        assert src.reconnects == 1
+        assert len(after) == 300
         np.testing.assert_array_equal(after.gyro[-len(raw2) :], raw2[-len(after) :, :3])
         # counters survived: everything before plus after, and the gap in seq is lost
         assert src.counters.frames == frames_before + len(after)
@@ -242,12 +254,16 @@ def test_reconnect_starts_before_device_and_backs_off(tmp_path):
         src.read(0.01)
         backoffs.append(src.backoff_s)
     assert backoffs[-1] == pytest.approx(0.04)
-    assert sorted(set(backoffs)) == pytest.approx([0.02, 0.04])  # doubled, capped
+    assert 0.02 in backoffs and set(backoffs) <= {0.01, 0.02, 0.04}  # doubled, capped
     with PtyPair(link=link) as pair:
+        for _ in range(50):
+            if src.state == "connected":
+                break
+            src.read(0.02)
+        assert src.state == "connected" and src.reconnects == 0  # a first connect
         data, raw = board_bytes(50, seed=7)
         pair.write(data)
         out = read_all(src, 50, timeout_s=3.0)
-        assert src.state == "connected" and src.reconnects == 0
         np.testing.assert_array_equal(out.accel, raw[:, 3:])
     src.close()
     with pytest.raises(ValueError, match="back-off"):
