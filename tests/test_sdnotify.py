@@ -98,6 +98,21 @@ def test_watchdog_interval_is_half_of_watchdog_usec(notify_socket: NotifySocket)
     assert notify_socket.recv() == "WATCHDOG=1"
 
 
+def test_full_receive_queue_never_blocks(notify_socket: NotifySocket) -> None:
+    """Nobody reads the notify socket: sends fail fast, a ping is retried on the next tick."""
+    n = Notifier.from_env(notify_socket.env(WATCHDOG_USEC=str(WATCHDOG_USEC)))
+    sent = [n.status(f"line {i}") for i in range(200)]  # far beyond any datagram queue
+    assert sent[0] and not sent[-1]
+    assert n.failures == sent.count(False) > 0
+    gate = WatchdogGate(n)
+    gate.frames_arrived(0.0)
+    assert not gate.tick(0.0) and gate.pings == 0 and not gate.starved  # not sent, kept due
+    queued = notify_socket.drain()
+    assert len(queued) == n.sent and queued[0] == "STATUS=line 0"
+    assert gate.tick(0.125) and gate.pings == 1  # retried as soon as there is room
+    assert notify_socket.recv() == "WATCHDOG=1"
+
+
 @pytest.mark.parametrize("usec", ["", "0", "ten", "-5"])
 def test_bad_or_zero_watchdog_usec_disables_watchdog(usec: str, notify_socket: NotifySocket):
     n = Notifier.from_env(notify_socket.env(WATCHDOG_USEC=usec))
@@ -106,8 +121,14 @@ def test_bad_or_zero_watchdog_usec_disables_watchdog(usec: str, notify_socket: N
     assert notify_socket.drain() == []
 
 
-def _run_clock(gate: WatchdogGate, t_end_s: float, step_s: float, frames) -> list[float]:
-    """Tick the gate on a simulated clock; ``frames(t)`` says whether frames arrived."""
+def _run_clock(
+    gate: WatchdogGate, t_end_s: float, step_s: float, frames, sock: NotifySocket | None = None
+) -> list[float]:
+    """Tick the gate on a simulated clock; ``frames(t)`` says whether frames arrived.
+
+    With ``sock``, every datagram is read as it arrives (as systemd does) and
+    must be exactly one WATCHDOG=1 per reported ping.
+    """
     pings = []
     n_steps = round(t_end_s / step_s)
     for i in range(n_steps + 1):
@@ -116,15 +137,16 @@ def _run_clock(gate: WatchdogGate, t_end_s: float, step_s: float, frames) -> lis
             gate.frames_arrived(t)
         if gate.tick(t):
             pings.append(t)
+        if sock is not None:
+            got = sock.drain()
+            assert got == (["WATCHDOG=1"] if pings and pings[-1] == t else []), (t, got)
     return pings
 
 
 def test_watchdog_cadence_while_frames_flow(notify_socket: NotifySocket) -> None:
     n = Notifier.from_env(notify_socket.env(WATCHDOG_USEC=str(WATCHDOG_USEC)))
     gate = WatchdogGate(n)
-    pings = _run_clock(gate, 60.0, 0.125, lambda t: True)  # binary-exact clock steps
-    received = notify_socket.drain()
-    assert received == ["WATCHDOG=1"] * len(pings)
+    pings = _run_clock(gate, 60.0, 0.125, lambda t: True, notify_socket)  # binary-exact steps
     assert gate.pings == len(pings)
     assert pings == [5.0 * k for k in range(13)]  # t = 0, 5, ..., 60 s: half of 10 s
 
@@ -133,8 +155,7 @@ def test_watchdog_cadence_with_slow_frames(notify_socket: NotifySocket) -> None:
     """Frames every 7 s: each ping follows fresh frames, gaps stay under the 10 s timeout."""
     n = Notifier.from_env(notify_socket.env(WATCHDOG_USEC=str(WATCHDOG_USEC)))
     gate = WatchdogGate(n)
-    pings = _run_clock(gate, 30.0, 0.0625, lambda t: t % 7.0 == 0.0)
-    assert len(notify_socket.drain()) == len(pings)
+    pings = _run_clock(gate, 30.0, 0.0625, lambda t: t % 7.0 == 0.0, notify_socket)
     assert pings == [0.0, 7.0, 14.0, 21.0, 28.0]
 
 
@@ -146,8 +167,7 @@ def test_no_pings_while_starved(notify_socket: NotifySocket) -> None:
     def frames(t: float) -> bool:
         return t < 20.0 or t >= 50.0
 
-    pings = _run_clock(gate, 70.0, 0.125, frames)
-    assert len(notify_socket.drain()) == len(pings)
+    pings = _run_clock(gate, 70.0, 0.125, frames, notify_socket)
     # the ping at 20 s vouches for the frames of 15..19.875 s; then nothing until they resume
     assert pings == [0.0, 5.0, 10.0, 15.0, 20.0, 50.0, 55.0, 60.0, 65.0, 70.0]
     assert gate.last_frames_s == 70.0
@@ -157,25 +177,24 @@ def test_starved_from_the_start(notify_socket: NotifySocket) -> None:
     n = Notifier.from_env(notify_socket.env(WATCHDOG_USEC=str(WATCHDOG_USEC)))
     gate = WatchdogGate(n)
     assert gate.enabled and gate.starved
-    assert _run_clock(gate, 40.0, 0.1, lambda t: False) == []
-    assert notify_socket.drain() == []
+    assert _run_clock(gate, 40.0, 0.125, lambda t: False, notify_socket) == []
 
 
 def test_watchdog_pid_mismatch_means_no_pings(notify_socket: NotifySocket) -> None:
     other = os.getpid() + 1
-    n = Notifier.from_env(notify_socket.env(WATCHDOG_USEC=str(WATCHDOG_USEC),
-                                            WATCHDOG_PID=str(other)))
+    env = notify_socket.env(WATCHDOG_USEC=str(WATCHDOG_USEC), WATCHDOG_PID=str(other))
+    n = Notifier.from_env(env)
     assert n.enabled and not n.watchdog_enabled
     gate = WatchdogGate(n)
     assert not gate.enabled
-    assert _run_clock(gate, 30.0, 0.1, lambda t: True) == []
+    assert _run_clock(gate, 30.0, 0.125, lambda t: True, notify_socket) == []
     assert n.ready()  # the other notifications still go out
     assert notify_socket.drain() == ["READY=1"]
 
 
 def test_watchdog_pid_match_means_pings(notify_socket: NotifySocket) -> None:
-    n = Notifier.from_env(notify_socket.env(WATCHDOG_USEC=str(WATCHDOG_USEC),
-                                            WATCHDOG_PID=str(os.getpid())))
+    env = notify_socket.env(WATCHDOG_USEC=str(WATCHDOG_USEC), WATCHDOG_PID=str(os.getpid()))
+    n = Notifier.from_env(env)
     assert n.watchdog_enabled
     assert n.watchdog()
     assert notify_socket.recv() == "WATCHDOG=1"
@@ -202,8 +221,9 @@ def test_real_process_reads_its_environment(notify_socket: NotifySocket, pid_mod
     env.update(notify_socket.env(WATCHDOG_USEC="5000000"))
     if pid_mode == "parent":
         env["WATCHDOG_PID"] = str(os.getpid())  # the watchdog belongs to someone else
-    proc = subprocess.run([sys.executable, "-c", _CHILD], env=env, capture_output=True,
-                          timeout=30, check=False)
+    proc = subprocess.run(
+        [sys.executable, "-c", _CHILD], env=env, capture_output=True, timeout=30, check=False
+    )
     assert proc.returncode == 0, proc.stderr.decode()
     got = notify_socket.drain()
     assert got[0] == f"READY=1\nSTATUS=child {int(proc.stdout)}"
