@@ -36,8 +36,16 @@ def f0_raw(
     accel_input: np.ndarray | None = None,
 ) -> np.ndarray:
     """F0 of raw outputs (N, 3) against ``magnitude_si`` (scalar or (N,), SI units)."""
-    x = corrected_si(triad, raw, temp_c=temp_c, accel_input=accel_input)
     mag = np.asarray(magnitude_si, dtype=float)
+    linear = triad.nonlinearity is None and (triad.temperature is None or temp_c is None) and (
+        triad.g_sensitivity is None or accel_input is None
+    )
+    if linear and mag.ndim == 0:
+        # one matrix folds N^-1, 1/S, the unit and the magnitude: a single pass over U
+        m = np.linalg.inv(triad.n_matrix()) / triad.scale_factor * (triad.unit_to_si / mag)
+        u = (np.asarray(raw, dtype=float) - triad.bias) @ m.T
+        return f0(u)
+    x = corrected_si(triad, raw, temp_c=temp_c, accel_input=accel_input)
     if mag.ndim:
         mag = mag[:, None]
     return f0(x / mag)
