@@ -36,6 +36,7 @@ from .quasistatic import QuasiStaticDetector
 from .ringbuffer import SampleRing
 from .samples import FLAG_ACCEL_SATURATED, FLAG_ADC_ERROR, FLAG_GYRO_SATURATED, SampleBlock
 from .scalar import f0
+from .trailing import TrailingSum
 
 
 @dataclass
@@ -70,7 +71,7 @@ class TriadState:
     stuck_active: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=bool))
     noise: list[Persistence] = field(default_factory=list)  #: per axis, excess noise
     noise_tail: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  #: last raw samples
-    noise_sq_tail: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  #: last d2^2
+    noise_sum: TrailingSum | None = None  #: trailing sum of squared second differences
     noise_ratio_last: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
 
 
@@ -93,8 +94,6 @@ class Monitor:
         self.t_last: float | None = None  #: sample time of the last sample, s
         self.static = False  #: the last sample was quasi-static
         self.state: dict[str, TriadState] = {}
-        self._gyro_tail = np.zeros((0, 3))
-        self._static_tail = np.zeros(0, dtype=bool)
         self.set_certificate(certificate)
 
     # -- configuration ----------------------------------------------------
@@ -115,8 +114,11 @@ class Monitor:
             self.state[name] = st
         self.gyro_mode = self._gyro_mode(certificate.gyro, rate)
         self._gyro_window = max(1, int(round(cfg.gyro_window_s * rate)))
-        self._gyro_tail = np.zeros((0, 3))
-        self._static_tail = np.zeros(0, dtype=bool)
+        self._gyro_sum = TrailingSum(self._gyro_window, 3)
+        self._static_sum = TrailingSum(self._gyro_window)
+        noise_w = max(4, int(round(cfg.noise_window_s * rate)))
+        for st in self.state.values():
+            st.noise_sum = TrailingSum(noise_w, 3)
 
     def _gyro_mode(self, gyro: TriadModel, rate_hz: float) -> str:
         """``earth_rate`` if per-sample F0 on Earth rate is meaningful, else ``rest_rate``."""
@@ -237,19 +239,10 @@ class Monitor:
         cert = self.certificate
         gyro = cert.gyro
         w = self._gyro_window
-        seq = np.concatenate([self._gyro_tail, gyro_si])
-        st_seq = np.concatenate([self._static_tail, static])
-        c = np.concatenate([np.zeros((1, 3)), np.cumsum(seq, axis=0)])
-        cs = np.concatenate([[0], np.cumsum(st_seq, dtype=np.int64)])
-        k0 = len(self._gyro_tail)
-        idx = np.arange(k0, len(seq))
-        lo = np.maximum(idx + 1 - w, 0)
-        counts = (idx + 1 - lo).astype(float)
-        mean = (c[idx + 1] - c[lo]) / counts[:, None]
-        full_static = (cs[idx + 1] - cs[lo]) == w  # the whole averaging window was still
-        usable = ok & full_static & (counts == w)
-        self._gyro_tail = seq[-(w - 1) :] if w > 1 else np.zeros((0, 3))
-        self._static_tail = st_seq[-(w - 1) :] if w > 1 else np.zeros(0, dtype=bool)
+        sums, counts = self._gyro_sum.update(gyro_si)
+        still, _ = self._static_sum.update(static.astype(float))
+        mean = sums / counts[:, None]
+        usable = ok & (counts == w) & (still == w)  # the whole averaging window was still
 
         bias_lim_si = gyro.limits.bias / gyro.scale_factor * gyro.unit_to_si
         sigma = gyro.noise_sigma(self.rate_hz)
@@ -299,7 +292,6 @@ class Monitor:
 
     def _noise(self, block: SampleBlock) -> None:
         """Excess white noise per channel from second differences, carried across blocks."""
-        w = max(4, int(round(self.config.noise_window_s * self.rate_hz)))
         for name in TRIADS:
             st = self.state[name]
             triad = self.certificate.triad(name)
@@ -316,17 +308,12 @@ class Monitor:
             clip = 36.0 * 6.0 * sigma**2
             d2sq = np.minimum(np.diff(raw, n=2, axis=0) ** 2, clip)
             t = block.t[block.t.shape[0] - d2sq.shape[0] :]
-            seq = np.concatenate([st.noise_sq_tail, d2sq])
-            st.noise_sq_tail = seq[-(w - 1) :]
-            c = np.concatenate([np.zeros((1, 3)), np.cumsum(seq, axis=0)])
-            k0 = seq.shape[0] - d2sq.shape[0]
-            idx = np.arange(k0, seq.shape[0])
-            lo = idx + 1 - w
-            full = lo >= 0
+            sums, counts = st.noise_sum.update(d2sq)
+            full = counts == st.noise_sum.window
             if not np.any(full):
                 continue
-            idx, lo, t = idx[full], lo[full], t[full]
-            var = (c[idx + 1] - c[lo]) / (6.0 * w)
+            var = sums[full] / (6.0 * st.noise_sum.window)
+            t = t[full]
             ratio = np.sqrt(var) / sigma
             st.noise_ratio_last = ratio[-1]
             for axis in range(3):

@@ -69,3 +69,20 @@ def test_ring_keeps_last_samples_in_order():
     # a block larger than the ring keeps only its tail
     ring.push(SampleBlock(t=np.arange(100, 125.0), gyro=np.zeros((25, 3)), accel=np.zeros((25, 3))))
     np.testing.assert_array_equal(ring.latest()[:, 0], np.arange(115, 125.0))
+
+
+def test_trailing_sum_matches_direct_windows_under_any_blocking():
+    from imudiag.trailing import TrailingSum
+
+    rng = np.random.default_rng(7)
+    x = rng.normal(size=(500, 3))
+    w = 37
+    direct = np.array([x[max(0, i - w + 1) : i + 1].sum(axis=0) for i in range(len(x))])
+    ts = TrailingSum(w, 3)
+    got, counts = [], []
+    for a, b in [(0, 1), (1, 20), (20, 21), (21, 300), (300, 500)]:
+        s, c = ts.update(x[a:b])
+        got.append(s)
+        counts.append(c)
+    np.testing.assert_allclose(np.concatenate(got), direct, atol=1e-12)
+    np.testing.assert_array_equal(np.concatenate(counts), np.minimum(np.arange(1, 501), w))
