@@ -10,9 +10,11 @@ filter is linear, so running it on y and on every regressor column at once
 gives innovations ``nu`` whose whitened values ``nu / sqrt(S)`` turn the
 correlated problem into ordinary least squares (the GLS of the random-walk
 covariance): any subset of regressors is then fitted, tested and cross-
-validated from the same innovations. A batch of random-walk coefficients is
-filtered together for profile likelihoods. The loop runs over chunks (a few
-per second of data), vectorised across columns and the batch.
+validated from the same innovations, or from their cross products summed over
+row groups (:func:`filter_products`, memory independent of the series length).
+A batch of random-walk coefficients is filtered together for profile
+likelihoods. The loop runs over chunks (a few per second of data), vectorised
+across columns and the batch.
 """
 
 from __future__ import annotations
@@ -81,39 +83,137 @@ def run_filter(t: np.ndarray, H: np.ndarray, R: np.ndarray, Z: np.ndarray, q: np
         P -= gain[:, :, None] * ph[:, None, :]
         nu[:, i] = innov
         S[:, i] = s
-        valid[:, i] = hph < DIFFUSE_FRACTION * float(np.dot(h * h, p0))
+        valid[:, i] = hph <= DIFFUSE_FRACTION * float(np.dot(h * h, p0))
     return Innovations(nu=nu, S=S, valid=valid)
 
 
-def orthonormal_basis(a: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
-    """Orthonormal basis (m, r) of the column space of ``a`` (m, p), numerically rank r."""
-    if a.shape[1] == 0:
-        return np.zeros((a.shape[0], 0))
-    u, s, _vt = np.linalg.svd(a, full_matrices=False)
-    if s.shape[0] == 0 or s[0] == 0:
-        return np.zeros((a.shape[0], 0))
-    return u[:, s > rtol * s[0]]
+# ---------------------------------------------------------------------------
+# cross products: the same filter, keeping only sums over rows (memory independent of n)
 
 
-def profile_loglik(inn: Innovations, cols: list[int] | np.ndarray, mask: np.ndarray | None = None
-                   ) -> np.ndarray:
-    """Log-likelihood (B,) of column 0 (y) with regressors ``cols`` concentrated out, per batch
-    member, over the chunks in ``mask`` (n,) (default: valid for every member). Compare
-    likelihoods of different runs only over the same ``mask``."""
-    cols = list(cols)
-    b = inn.nu.shape[0]
-    out = np.empty(b)
-    common = np.all(inn.valid, axis=0) if mask is None else (mask & np.isfinite(inn.S).all(0))
-    rows = np.flatnonzero(common)
-    for k in range(b):  # a few tens of grid points
-        s = inn.S[k, rows]
-        w = inn.nu[k, rows] / np.sqrt(s)[:, None]
-        y = w[:, 0]
-        if cols:
-            q = orthonormal_basis(w[:, cols])
-            y = y - q @ (q.T @ y)
-        out[k] = -0.5 * (float(np.sum(np.log(s))) + float(y @ y))
+@dataclass
+class Products:
+    """Sums over row groups of products of whitened innovations ``w = nu / sqrt(S)``.
+
+    head (B, G, h, h): among the head columns (y and the model's regressors);
+    cross (B, G, c, h): candidate columns against the head; diag (B, G, c): candidate
+    squares; block (B, G, k, k): among the first k candidate columns; log_s (B, G): sum of
+    log S; rows (G,): rows summed. B batch members, G row groups.
+    """
+
+    head: np.ndarray
+    cross: np.ndarray
+    diag: np.ndarray
+    block: np.ndarray
+    log_s: np.ndarray
+    rows: np.ndarray
+
+
+def filter_products(t: np.ndarray, H: np.ndarray, R: np.ndarray, head: np.ndarray,
+                    q: np.ndarray, groups: np.ndarray, use: np.ndarray | None = None,
+                    p0: np.ndarray | None = None, cand: np.ndarray | None = None,
+                    step_axis: np.ndarray | None = None, step_at: np.ndarray | None = None,
+                    block_k: int = 0, buffer_rows: int = 64) -> Products:
+    """Run the random-walk filter on the head columns and candidate columns and return the
+    cross products of their whitened innovations over the row ``groups`` (G, n) bool.
+
+    Candidate columns are ``cand`` (n, c1) followed by bias steps generated row by row
+    (never stored): step m is ``H[i, step_axis[m]]`` for rows ``i >= step_at[m]``.
+    The loop runs over rows (chunks); everything inside is vectorised.
+    """
+    n, d = H.shape
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    b = q.shape[0]
+    if use is None:
+        use = np.ones(n, dtype=bool)
+    if p0 is None:
+        hh = np.maximum(np.sum(H * H, axis=1), 1e-300)
+        p0 = np.full(d, 1e6 * float(np.median(R / hh)))
+    c1 = 0 if cand is None else cand.shape[1]
+    steps = 0 if step_axis is None else step_axis.shape[0]
+    hw = head.shape[1]
+    cw = c1 + steps
+    width = hw + cw
+    g = groups.shape[0]
+    out = Products(
+        head=np.zeros((b, g, hw, hw)), cross=np.zeros((b, g, cw, hw)), diag=np.zeros((b, g, cw)),
+        block=np.zeros((b, g, block_k, block_k)), log_s=np.zeros((b, g)),
+        rows=groups.sum(axis=1).astype(float),
+    )
+    x = np.zeros((b, d, width))
+    P = np.broadcast_to(np.diag(p0), (b, d, d)).copy()
+    diag_idx = np.arange(d)
+    buf = np.zeros((b, buffer_rows, width))
+    buf_groups = np.zeros((buffer_rows, g), dtype=bool)
+    filled = 0
+
+    def flush(k: int) -> None:
+        w = buf[:, :k]
+        for gi in range(g):
+            sel = buf_groups[:k, gi]
+            if not np.any(sel):
+                continue
+            ws = w[:, sel]
+            wh, wc = ws[:, :, :hw], ws[:, :, hw:]
+            out.head[:, gi] += np.einsum("bri,brj->bij", wh, wh)
+            if cw:
+                out.cross[:, gi] += np.einsum("bri,brj->bij", wc, wh)
+                out.diag[:, gi] += np.einsum("bri,bri->bi", wc, wc)
+            if block_k:
+                wk = wc[:, :, :block_k]
+                out.block[:, gi] += np.einsum("bri,brj->bij", wk, wk)
+
+    row = np.empty(width)
+    t_prev = float(t[0]) if n else 0.0
+    for i in range(n):  # one step per chunk (not per sample)
+        dt = float(t[i]) - t_prev
+        t_prev = float(t[i])
+        if dt > 0:
+            P[:, diag_idx, diag_idx] += q * dt
+        if not use[i]:
+            continue
+        h = H[i]
+        row[:hw] = head[i]
+        if c1:
+            row[hw:hw + c1] = cand[i]  # type: ignore[index]
+        if steps:
+            row[hw + c1:] = H[i, step_axis] * (i >= step_at)  # type: ignore[index]
+        ph = P @ h
+        s = ph @ h + R[i]
+        innov = row[None, :] - np.einsum("d,bdc->bc", h, x)
+        gain = ph / s[:, None]
+        x += gain[:, :, None] * innov[:, None, :]
+        P -= gain[:, :, None] * ph[:, None, :]
+        in_groups = groups[:, i]
+        if np.any(in_groups):
+            out.log_s[:, in_groups] += np.log(s)[:, None]
+            buf[:, filled] = innov / np.sqrt(s)[:, None]
+            buf_groups[filled] = in_groups
+            filled += 1
+            if filled == buffer_rows:
+                flush(filled)
+                filled = 0
+    if filled:
+        flush(filled)
     return out
 
 
-__all__ = ["DIFFUSE_FRACTION", "Innovations", "orthonormal_basis", "profile_loglik", "run_filter"]
+def pinv_sym(a: np.ndarray, rtol: float = 1e-10) -> tuple[np.ndarray, int]:
+    """Pseudo-inverse of a symmetric positive semi-definite matrix and its numerical rank."""
+    if a.shape[0] == 0:
+        return a.copy(), 0
+    vals, vecs = np.linalg.eigh(a)
+    top = float(np.max(vals)) if vals.size else 0.0
+    keep = vals > rtol * max(top, 1e-300)
+    inv = (vecs[:, keep] / vals[keep]) @ vecs[:, keep].T
+    return inv, int(np.count_nonzero(keep))
+
+
+__all__ = [
+    "DIFFUSE_FRACTION",
+    "Innovations",
+    "Products",
+    "filter_products",
+    "pinv_sym",
+    "run_filter",
+]

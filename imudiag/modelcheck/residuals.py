@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..certificate import Certificate, TriadModel
+from ..certificate import Certificate, Temperature, TriadModel
 from .config import ModelCheckConfig
 from .stats import chi2_ratio_quantile
 from .summaries import SUB_BLOCKS, Session
@@ -51,10 +51,15 @@ class Candidate:
     name: str  #: catalogue name (spec/reports.md)
     triad: str
     sensor: str
-    columns: np.ndarray  #: (C, k) regressors; coefficients are the effect value
+    #: (C, k) regressors, coefficients are the effect value; None for a bias step, whose
+    #: column ``H[:, axis] * (i >= boundary)`` is built where needed
+    columns: np.ndarray | None
     unit: str
     extra: dict = field(default_factory=dict)  #: e.g. {"boundary": i} for steps
     trials: float = 1.0  #: positions scanned for the same hypothesis (Bonferroni)
+    #: smallest norm of the value that can be told from a known confounder (g-sensitivity:
+    #: the projection of Earth rate, whose direction needs the unknown heading)
+    min_norm: float = 0.0
 
 
 @dataclass
@@ -81,13 +86,16 @@ class Channel:
     k_cert: np.ndarray = field(default_factory=lambda: np.zeros(1))  #: (d,) output/sqrt(s)
     y_unit: str = ""
     drift_ok: np.ndarray = field(default_factory=lambda: np.ones(1, dtype=bool))  #: (d,)
+    #: (C,) fold key: rows with the same key stay together in the two-fold split
+    group: np.ndarray | None = None
+
+    def folds(self) -> list[np.ndarray]:
+        """The two folds (bool masks): alternate chunks (or alternate groups)."""
+        key = np.arange(len(self)) if self.group is None else self.group
+        return [key % 2 == 0, key % 2 == 1]
 
     def __len__(self) -> int:
         return int(self.y.shape[0])
-
-    def bias_columns(self) -> np.ndarray:
-        """(C, d) columns of a constant output offset of each state sensor."""
-        return self.H
 
 
 def temperature_reference(triad: TriadModel, config: ModelCheckConfig) -> float:
@@ -152,32 +160,109 @@ def accel_nuisance_columns(triad: TriadModel, u: np.ndarray, temp: np.ndarray | 
     return np.stack(cols, axis=1), names
 
 
+def with_effects(tri: TriadModel, effects: list[tuple[str, int, int | None]],
+                  values: np.ndarray, reference: float) -> TriadModel:
+    """``tri`` with temperature / nonlinearity effects of the given values added."""
+    out = copy.deepcopy(tri)
+    for (name, j, _b), v in zip(effects, values, strict=True):
+        if name in ("temperature_bias", "temperature_scale"):
+            if out.temperature is None:
+                out.temperature = Temperature(reference=reference)
+            key = "bias_coefficient" if name == "temperature_bias" else "scale_coefficient"
+            arr = getattr(out.temperature, key).copy()
+            arr[j] += v
+            setattr(out.temperature, key, arr)
+        elif name == "scale_nonlinearity":
+            q = np.zeros(3) if out.nonlinearity is None else out.nonlinearity.copy()
+            q[j] += v
+            out.nonlinearity = q
+    return out
+
+
+def _effect_columns(tri: TriadModel, u: np.ndarray, temp: np.ndarray | None,
+                    grad: np.ndarray, effects: list[tuple[str, int, int | None]],
+                    reference: float) -> np.ndarray:
+    """Columns (C, k) of the effects on the norm residual at the current model."""
+    nx = tri.inverse(u, temp_c=temp) @ tri.n_matrix().T
+    d_t = (temp - reference) if temp is not None else np.zeros(u.shape[0])
+    idx = np.arange(u.shape[0])
+    cols = []
+    for name, j, b in effects:
+        if name == "temperature_bias":
+            cols.append(grad[:, j] * d_t)
+        elif name == "temperature_scale":
+            cols.append(grad[:, j] * tri.scale_factor[j] * nx[:, j] * d_t)
+        elif name == "scale_nonlinearity":
+            cols.append(grad[:, j] * nx[:, j] ** 2)
+        else:  # bias_step at chunk boundary b
+            cols.append(grad[:, j] * (idx >= (b or 0)))
+    return np.stack(cols, axis=1) if cols else np.zeros((u.shape[0], 0))
+
+
+def accel_effect_specs(selected: list) -> list[tuple[str, int, int | None]]:
+    """(name, axis, step boundary) of the selected effects of an accelerometer channel."""
+    return [(s.candidate.name, SENSORS["accel"].index(s.candidate.sensor),
+             s.candidate.extra.get("boundary")) for s in selected]
+
+
 def refit_accel(certificate: Certificate, session: Session, sigma2: np.ndarray,
-                iterations: int = 3) -> TriadModel:
+                effects: list[tuple[str, int, int | None]] | None = None,
+                reference: float = 25.0, iterations: int = 6,
+                mask: np.ndarray | None = None) -> tuple[TriadModel, np.ndarray]:
     """The accelerometer model with biases, scale-factor errors and symmetric misalignment
-    re-estimated on the session's chunks (Gauss-Newton on the norm residual, weak prior
-    of 10 limits at the certificate: directions the attitudes do not determine stay put)."""
+    re-estimated on the session's chunks (Gauss-Newton on the exact norm residual, weak
+    prior of 10 limits at the certificate: directions the attitudes do not determine stay
+    put), jointly with the values of ``effects`` ((name, axis, step boundary) tuples) when
+    given; only the chunks in ``mask`` when given. Returns the model *without* the effects,
+    and the effects' values."""
     tri = copy.deepcopy(certificate.accel)
+    effects = list(effects or [])
+    values = np.zeros(len(effects))
     c = session.chunks
     if len(c) < 3:
-        return tri
+        return tri, values
     temp = c.temp if session.has_temp else None
     g_in = certificate.gravity / tri.unit_to_si
     var_mean = sigma2[3:] / c.n[:, None]
     lim = np.concatenate([tri.limits.bias, tri.limits.scale_factor_error,
                           tri.limits.misalignment])
-    prior = 1.0 / (10.0 * lim) ** 2
-    total = np.zeros(9)
+    # solved in units of the prior's standard deviation (10 limits; effects: unit column
+    # RMS), so that directions the attitudes do not determine are shared as the prior says
+    prior = np.concatenate([np.ones(9), np.zeros(len(effects))])
+    total = np.zeros(9 + len(effects))
+    idx = np.arange(len(c))
     for _ in range(iterations):
-        _x, norm, grad = norm_and_gradient(tri, c.accel, temp)
+        u = c.accel.copy()
+        for (name, j, b), v in zip(effects, values, strict=True):
+            if name == "bias_step":
+                u[idx >= (b or 0), j] -= v
+        model = with_effects(tri, effects, values, reference)
+        _x, norm, grad = norm_and_gradient(model, u, temp)
         y = norm - g_in
         r = np.sum(grad**2 * var_mean, axis=1) + (1e-7 * g_in) ** 2
-        cols, _names = accel_nuisance_columns(tri, c.accel, temp, grad)
-        a = np.concatenate([grad, cols], axis=1)  # bias columns: d|x|/dU_j
+        cols, _names = accel_nuisance_columns(model, u, temp, grad)
+        a = np.concatenate([grad, cols, _effect_columns(model, u, temp, grad, effects,
+                                                        reference)], axis=1)
         w = 1.0 / r
-        info = a.T @ (a * w[:, None]) + np.diag(prior)
-        rhs = a.T @ (-y * w) - prior * total
-        step = np.linalg.solve(info, rhs)
+        if mask is not None:
+            w = np.where(mask, w, 0.0)
+        eff_rms = np.sqrt(np.mean(a[:, 9:] ** 2, axis=0)) if effects else np.zeros(0)
+        scale = np.concatenate([10.0 * lim, 1.0 / np.maximum(eff_rms, 1e-300)])
+        a_s = a * scale[None, :]
+        # the columns are the residual's response to a missing output (or effect): solve for
+        # the missing part and move the model by it; only directions the data determine to
+        # 1e-3 of the best are moved (near-collinear columns, e.g. bias against scale in one
+        # attitude, would otherwise fit noise with huge opposite values)
+        sw = np.sqrt(w)
+        u_, sv, vt = np.linalg.svd(a_s * sw[:, None], full_matrices=False)
+        keep = sv > 1e-3 * sv[0] if sv.shape[0] and sv[0] > 0 else np.zeros(0, dtype=bool)
+        u_, sv, vt = u_[:, keep], sv[keep], vt[keep]
+        z_now = total / scale
+        # ridge in the kept subspace: (S^2 + P) dz = S U^T (w^1/2 y) - P z_now, P from the prior
+        p_sub = vt @ (prior[:, None] * vt.T)
+        lhs = np.diag(sv**2) + p_sub
+        rhs = sv * (u_.T @ (y * sw)) - vt @ (prior * z_now)
+        step = (vt.T @ np.linalg.solve(lhs, rhs)) * scale
         total = total + step
         tri.bias = tri.bias + step[:3]
         tri.scale_factor_error = tri.scale_factor_error + step[3:6]
@@ -186,9 +271,10 @@ def refit_accel(certificate: Certificate, session: Session, sigma2: np.ndarray,
             for key, (row, col, sign) in _N_ENTRY.items():
                 if (row, col) in ((j, k), (k, j)):
                     tri.misalignment[key] += sign * step[6 + p]
-        if np.all(np.abs(step) <= 1e-9 * np.maximum(lim, 1e-12)):
+        values = values + step[9:]
+        if np.all(np.abs(step[:9]) <= 1e-9 * np.maximum(lim, 1e-12)):
             break
-    return tri
+    return tri, values
 
 
 def chunk_accel_input(accel: TriadModel, session: Session) -> np.ndarray:
@@ -218,23 +304,19 @@ def distinct_attitudes(up: np.ndarray, separation_deg: float = 10.0) -> int:
     return len(kept)
 
 
-def _step_candidates(triad: str, sensor: str, h: np.ndarray, unit: str, config: ModelCheckConfig,
-                     run: np.ndarray) -> list[Candidate]:
-    """Bias-step regressors at chunk boundaries (at least two chunks each side)."""
-    n = h.shape[0]
+def _step_candidates(triad: str, sensor: str, axis: int, n: int, unit: str,
+                     config: ModelCheckConfig) -> list[Candidate]:
+    """Bias-step hypotheses at chunk boundaries (at least two chunks each side); their
+    regressors ``H[:, axis] * (i >= boundary)`` are generated by the filter, not stored."""
     positions = np.arange(2, n - 1)
     if positions.shape[0] == 0:
         return []
     stride = max(1, int(math.ceil(positions.shape[0] / config.max_step_candidates)))
-    scan = positions[::stride]
     trials = float(positions.shape[0])
-    out = []
-    idx = np.arange(n)
-    for i in scan.tolist():
-        col = h * (idx >= i)
-        out.append(Candidate("bias_step", triad, sensor, col[:, None], unit,
-                             extra={"boundary": i, "stride": stride}, trials=trials))
-    return out
+    return [Candidate("bias_step", triad, sensor, None, unit,
+                      extra={"boundary": int(i), "stride": stride, "axis": axis},
+                      trials=trials)
+            for i in positions[::stride].tolist()]
 
 
 def build_channels(certificate: Certificate, session: Session, config: ModelCheckConfig,
@@ -281,13 +363,17 @@ def build_channels(certificate: Certificate, session: Session, config: ModelChec
         else:
             ch.untestable.append({"name": "temperature_bias", "triad": "gyro", "sensor": sensor,
                                   "reason": temp_reason})
-        if n_att >= 3:
+        if n_att >= 4:
+            # Earth rate projects on a gyro axis by up to S * Omega as the attitude changes
+            # (heading unknown): a g-sensitivity must move the bias by more than 3 times that
+            g_in = certificate.gravity / accel.unit_to_si
             ch.candidates.append(Candidate("g_sensitivity", "gyro", sensor, a_in.copy(),
-                                           f"{g_out}/({acc_in_unit})"))
+                                           f"{g_out}/({acc_in_unit})",
+                                           min_norm=3.0 * float(earth_out[j]) / g_in))
         else:
             ch.untestable.append({"name": "g_sensitivity", "triad": "gyro", "sensor": sensor,
-                                  "reason": f"{n_att} distinct attitude(s): needs 3 or more"})
-        ch.candidates += _step_candidates("gyro", sensor, np.ones(len(c)), g_out, config, c.run)
+                                  "reason": f"{n_att} distinct attitude(s): needs 4 or more"})
+        ch.candidates += _step_candidates("gyro", sensor, 0, len(c), g_out, config)
         out.append(ch)
 
     # -- accelerometer norm -------------------------------------------------------------------
@@ -328,15 +414,15 @@ def build_channels(certificate: Certificate, session: Session, config: ModelChec
             for name in ("temperature_bias", "temperature_scale"):
                 ch.untestable.append({"name": name, "triad": "accel", "sensor": sensor,
                                       "reason": temp_reason})
-        if n_att >= 3:
+        if n_att >= 4:
             ch.candidates.append(Candidate("scale_nonlinearity", "accel", sensor,
                                            (h * nx[:, j] ** 2)[:, None],
                                            f"{a_out}/({accel.input_unit})^2"))
         else:
             ch.untestable.append({"name": "scale_nonlinearity", "triad": "accel",
                                   "sensor": sensor,
-                                  "reason": f"{n_att} distinct attitude(s): needs 3 or more"})
-        ch.candidates += _step_candidates("accel", sensor, h, a_out, config, c.run)
+                                  "reason": f"{n_att} distinct attitude(s): needs 4 or more"})
+        ch.candidates += _step_candidates("accel", sensor, j, len(c), a_out, config)
     out.append(ch)
     return out
 
@@ -345,6 +431,7 @@ __all__ = [
     "Candidate",
     "Channel",
     "SENSORS",
+    "accel_effect_specs",
     "accel_nuisance_columns",
     "build_channels",
     "chunk_accel_input",
@@ -354,4 +441,5 @@ __all__ = [
     "run_up",
     "temperature_reference",
     "white_variance",
+    "with_effects",
 ]

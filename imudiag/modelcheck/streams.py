@@ -26,7 +26,11 @@ import numpy as np
 
 from ..certificate import TriadModel
 from ..samples import SampleBlock
+from .rotations import MotionCollector
 from .summaries import Chunks
+
+#: bin edges of the F0 histograms (dimensionless): fine near 0, +-1 overall
+F0_EDGES = np.concatenate([-np.geomspace(1.0, 1e-5, 200), [0.0], np.geomspace(1e-5, 1.0, 200)])
 
 #: model prediction per sample: (t, temp|None, chunk index) -> (n, 6) raw outputs
 Predictor = Callable[[np.ndarray, np.ndarray | None, np.ndarray], np.ndarray]
@@ -94,8 +98,18 @@ class F0Check:
     steps: list[tuple[int, float, float]] = field(default_factory=list)  #: (column, t, size)
     checked: int = 0
     failed: int = 0
-    values: list[np.ndarray] = field(default_factory=list)  #: subsample kept for quantiles
-    keep: int = 0
+    #: histogram of F0 over ``F0_EDGES`` (dimensionless; outside them: the end bins)
+    hist: np.ndarray = field(default_factory=lambda: np.zeros(F0_EDGES.shape[0] - 1))
+    total: float = 0.0  #: sum of F0
+    total_sq: float = 0.0  #: sum of F0^2
+
+    def quantile(self, p: float) -> float:
+        """Approximate quantile of F0 from the histogram (bin centre)."""
+        cum = np.cumsum(self.hist)
+        if cum[-1] <= 0:
+            return math.nan
+        k = int(np.searchsorted(cum, p * cum[-1]))
+        return float(0.5 * (F0_EDGES[k] + F0_EDGES[k + 1]))
 
 
 @dataclass
@@ -137,8 +151,10 @@ class SegmentStats:
         if n == 0:
             return
         self.samples += n
-        np.add.at(self.chunk_sum, chunk, u)
-        np.add.at(self.chunk_n, chunk, 1.0)
+        # chunk indices are non-decreasing within a segment: sum runs of equal index
+        uniq, first = np.unique(chunk, return_index=True)
+        self.chunk_sum[uniq] += np.add.reduceat(u, first, axis=0)
+        self.chunk_n[uniq] += np.diff(np.concatenate([first, [n]]))
         if n >= 2:
             d = np.diff(u, axis=0)
             self.sigma_sq_sum += np.sum(d * d, axis=0) / 2.0
@@ -199,10 +215,10 @@ class SegmentStats:
         f0 = 0.5 * (np.sum(x * x, axis=1) / self.gravity_in**2 - 1.0)
         chk.checked += int(f0.shape[0])
         chk.failed += int(np.count_nonzero(np.abs(f0) > self.f0_limit))
-        if chk.keep < 200_000:
-            stride = max(1, f0.shape[0] // 2000)
-            chk.values.append(f0[::stride])
-            chk.keep += chk.values[-1].shape[0]
+        clipped = np.clip(f0, F0_EDGES[0], F0_EDGES[-1] - 1e-12)
+        chk.hist += np.histogram(clipped, bins=F0_EDGES)[0]
+        chk.total += float(np.sum(f0))
+        chk.total_sq += float(np.sum(f0 * f0))
 
     # -- results ----------------------------------------------------------------------
 
@@ -244,8 +260,9 @@ class SegmentStats:
 
 
 def stream_measured(blocks: Iterable[SampleBlock], chunks: Chunks, segments: Segments,
-                    stats: SegmentStats) -> None:
-    """Feed the quasi-static samples of a measured log, one segment at a time."""
+                    stats: SegmentStats, motion: MotionCollector | None = None) -> None:
+    """Feed the quasi-static samples of a measured log, one segment at a time (and every
+    block to ``motion``, a :class:`~.rotations.MotionCollector`, when given)."""
     buf: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]] = []
     current = -1
 
@@ -264,6 +281,8 @@ def stream_measured(blocks: Iterable[SampleBlock], chunks: Chunks, segments: Seg
     for block in blocks:
         if len(block) == 0:
             continue
+        if motion is not None:
+            motion.add(block.t, block.gyro, block.accel, block.temp)
         t = block.t
         idx = np.searchsorted(chunks.t_start, t, side="right") - 1
         inside = (idx >= 0) & (t <= chunks.t_end[np.maximum(idx, 0)])
@@ -283,6 +302,8 @@ def stream_measured(blocks: Iterable[SampleBlock], chunks: Chunks, segments: Seg
             r = rows[s0:s1]
             buf.append((t[r], u[r], None if block.temp is None else block.temp[r], idx[r]))
     flush()
+    if motion is not None:
+        motion.finish()
 
 
 __all__ = [

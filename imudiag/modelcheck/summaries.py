@@ -13,6 +13,7 @@ broken at time gaps.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -21,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..certificate import Certificate
+from ..certificate import Certificate, Noise
 from ..logs import open_log
 from ..quasistatic import BAD_FLAGS, QuasiStaticDetector
 from ..samples import SampleBlock
@@ -38,8 +39,12 @@ SUB_BLOCKS = 8
 _ROW = 31
 
 
-def block_source(log: str | Path | SampleBlock | BlockSource, block_size: int = 65536
-                 ) -> tuple[BlockSource, dict[str, Any]]:
+#: samples per block read from a log: the working set of every pass scales with it
+DEFAULT_BLOCK_SIZE = 8192
+
+
+def block_source(log: str | Path | SampleBlock | BlockSource,
+                 block_size: int = DEFAULT_BLOCK_SIZE) -> tuple[BlockSource, dict[str, Any]]:
     """A re-startable block source and the log's metadata, from a path, a block or a callable."""
     if isinstance(log, SampleBlock):
         whole = log
@@ -117,6 +122,7 @@ class Session:
     has_temp: bool  #: the log has a temperature column
     quantum: np.ndarray  #: (6,) output step of each sensor (0: not quantised)
     meta: dict[str, Any] = field(default_factory=dict)
+    chunk_s: float = 1.0  #: s, the chunk length used
 
     @property
     def duration_s(self) -> float:
@@ -145,8 +151,11 @@ class ChunkCollector:
     """Streaming first pass: feed blocks, then :meth:`finish` returns the :class:`Session`."""
 
     def __init__(self, certificate: Certificate, config: ModelCheckConfig | None = None,
-                 meta: dict[str, Any] | None = None) -> None:
+                 meta: dict[str, Any] | None = None, rate_hz: float | None = None,
+                 detection_sigma: np.ndarray | None = None) -> None:
         self.certificate = certificate
+        self._rate_given = rate_hz
+        self._detection_sigma = detection_sigma
         self.config = config or ModelCheckConfig()
         self.meta = dict(meta or {})
         self.rate_hz: float | None = None
@@ -169,11 +178,19 @@ class ChunkCollector:
 
     def _start(self, block: SampleBlock) -> None:
         cfg = self.config
-        self.rate_hz = _estimate_rate(block.t, self.meta or block.meta,
-                                      self.certificate.sample_rate)
+        self.rate_hz = self._rate_given or _estimate_rate(block.t, self.meta or block.meta,
+                                                          self.certificate.sample_rate)
+        # the detector must not trust the noise figures being checked: it uses the noise
+        # measured by :func:`detection_noise` (or estimates it itself, block-dependently)
+        blind = copy.deepcopy(self.certificate)
+        for k, tri in enumerate((blind.gyro, blind.accel)):
+            tri.noise = None
+            if self._detection_sigma is not None:
+                sig = np.asarray(self._detection_sigma[3 * k:3 * k + 3], dtype=float)
+                if np.all(sig > 0) and np.all(np.isfinite(sig)):
+                    tri.noise = Noise(density=sig / math.sqrt(self.rate_hz / 2.0))
         self.detector = QuasiStaticDetector(
-            self.certificate, self.rate_hz, window_s=cfg.detector_window_s,
-            k_sigma=cfg.detector_k_sigma,
+            blind, self.rate_hz, window_s=cfg.detector_window_s, k_sigma=cfg.detector_k_sigma,
         )
         self.chunk_n = max(4, int(round(cfg.chunk_s * self.rate_hz)))
         self.min_chunk_n = max(4, int(round(cfg.min_chunk_s * self.rate_hz)))
@@ -199,7 +216,7 @@ class ChunkCollector:
         row[25:31] = sub.var(axis=0, ddof=1) * m
         self._rows.append(row)
         self.static_samples += n
-        if self._q_count < 200_000:
+        if self._q_count < 20_000:  # enough changes to see the output step
             d = np.abs(np.diff(rows[:, 1:7], axis=0))
             self._q_diffs.append(d)
             self._q_count += d.shape[0]
@@ -335,17 +352,84 @@ class ChunkCollector:
             static_samples=self.static_samples, t_first=self.t_first,
             t_last=float(self._last_t if self._last_t is not None else self.t_first),
             has_temp=self.has_temp and c > 0 and bool(np.all(np.isfinite(chunks.temp))),
-            quantum=self._quantum(), meta=self.meta,
+            quantum=self._quantum(), meta=self.meta, chunk_s=self.config.chunk_s,
         )
+
+
+def session_rate(source: BlockSource, meta: dict[str, Any], fallback: float) -> float:
+    """Sample rate (Hz) from the median time step of the first 1000 samples."""
+    got: list[np.ndarray] = []
+    n = 0
+    for block in source():
+        got.append(block.t)
+        n += len(block)
+        if n >= 1000:
+            break
+    t = np.concatenate(got) if got else np.zeros(0)
+    return _estimate_rate(t[:1000], meta, fallback)
+
+
+def detection_noise(source: BlockSource, rate_hz: float, window_s: float,
+                    max_windows: int = 200_000) -> tuple[np.ndarray, int]:
+    """Per-sample noise (6,) output units for the quasi-static detector, from the data.
+
+    The variance of every sensor in fixed, non-overlapping windows of ``window_s`` (aligned
+    on the sample index, so independent of block boundaries); the 5 % quantile over the
+    windows, divided by that quantile of chi2(W-1)/(W-1), is the noise of the quietest
+    stretches (the unit still). At most ``max_windows`` windows are kept (evenly thinned).
+    """
+    from .stats import chi2_ratio_quantile
+
+    w = max(3, int(round(window_s * rate_hz)))
+    carry = np.zeros((0, 6))
+    parts: list[np.ndarray] = []
+    kept = 0
+    stride = 1
+    total = 0
+    for block in source():
+        total += len(block)
+        x = np.concatenate([carry, np.concatenate([block.gyro, block.accel], axis=1)])
+        m = x.shape[0] // w
+        if m:
+            v = x[: m * w].reshape(m, w, 6).var(axis=1, ddof=1)
+            parts.append(v[::stride])
+            kept += parts[-1].shape[0]
+            if kept > max_windows:
+                stride *= 2
+                parts = [np.concatenate(parts)[::2]]
+                kept = parts[0].shape[0]
+        carry = x[m * w:]
+    if not parts:
+        return np.full(6, np.nan), total
+    v = np.concatenate(parts)
+    ratio = chi2_ratio_quantile(w - 1, -1.6448536269514729)
+    return np.sqrt(np.quantile(v, 0.05, axis=0) / ratio), total
 
 
 def collect(source: BlockSource, certificate: Certificate,
             config: ModelCheckConfig | None = None, meta: dict[str, Any] | None = None) -> Session:
-    """Run the first pass over ``source``."""
-    col = ChunkCollector(certificate, config, meta)
+    """Run the first pass over ``source`` (after a look at its rate and noise)."""
+    cfg = copy.copy(config or ModelCheckConfig())
+    meta = dict(meta or {})
+    rate = session_rate(source, meta, certificate.sample_rate)
+    sigma, total = detection_noise(source, rate, cfg.detector_window_s)
+    # long sessions: longer chunks, so the number of chunks (memory, time) stays bounded
+    cfg.chunk_s = max(cfg.chunk_s, total / rate / max(cfg.max_chunks, 1))
+    cfg.min_chunk_s = max(cfg.min_chunk_s, 0.5 * cfg.chunk_s)
+    col = ChunkCollector(certificate, cfg, meta, rate_hz=rate, detection_sigma=sigma)
     for block in source():
         col.update(block)
     return col.finish()
 
 
-__all__ = ["BlockSource", "ChunkCollector", "Chunks", "Session", "block_source", "collect"]
+__all__ = [
+    "BlockSource",
+    "ChunkCollector",
+    "DEFAULT_BLOCK_SIZE",
+    "Chunks",
+    "Session",
+    "block_source",
+    "collect",
+    "detection_noise",
+    "session_rate",
+]

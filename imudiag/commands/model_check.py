@@ -1,0 +1,90 @@
+"""``imudiag model-check LOG --certificate CERT --json OUT``: what the certificate's model
+gets wrong on a recorded session, the named cause, the extended model and its gain
+(spec/reports.md)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ..certificate import load
+from ..errors import BadInput
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``model-check`` subcommand."""
+    p = subparsers.add_parser(
+        "model-check",
+        help="compare a recorded session with a simulation of the certificate's model, "
+             "name what it misses, extend the model and measure the gain",
+        description=(
+            "Simulate the recorded session with the certificate's model (the quasi-static "
+            "parts: measured gravity direction, zero rate), compare with the measurement, "
+            "test every effect of the catalogue (bias_drift, temperature_bias, "
+            "temperature_scale, g_sensitivity, scale_nonlinearity, bias_step, "
+            "periodic_disturbance), report the significant ones that also improve the fit "
+            "of held-out data, and the gain of the extended model."
+        ),
+    )
+    p.add_argument("log", metavar="LOG", help="sample log (.csv, .csv.gz, .npz, .bin)")
+    p.add_argument("--certificate", required=True, metavar="CERT",
+                   help="calibration certificate (YAML)")
+    p.add_argument("--json", default="-", metavar="OUT",
+                   help="report file, '-' for standard output (default)")
+    p.add_argument("--extended-certificate", metavar="FILE",
+                   help="write the certificate with the fitted extended-model blocks")
+    p.add_argument("--plots", metavar="DIR", help="write PNG figures (needs matplotlib)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulations (default 0)")
+    p.add_argument("--chunk", type=float, default=None, metavar="S",
+                   help="length of the quasi-static chunks, s (default 1)")
+    p.add_argument("--z-min", type=float, default=None, metavar="Z",
+                   help="significance an effect needs (default 5)")
+    p.add_argument("--block-size", type=int, default=None, metavar="N",
+                   help="samples per block read from the log (default 8192)")
+    p.set_defaults(func=run, _parser=p)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the model check; returns the exit code."""
+    from ..modelcheck import ModelCheckConfig, model_check
+    from ..modelcheck import report as report_mod
+
+    cfg = ModelCheckConfig()
+    if args.chunk is not None:
+        if not args.chunk > 0.05:
+            raise BadInput(f"--chunk: must be > 0.05 s, got {args.chunk}")
+        cfg.chunk_s = args.chunk
+        cfg.min_chunk_s = min(cfg.min_chunk_s, args.chunk / 2)
+    if args.z_min is not None:
+        if not args.z_min > 0:
+            raise BadInput(f"--z-min: must be > 0, got {args.z_min}")
+        cfg.z_min = args.z_min
+    if args.block_size is not None and args.block_size < 64:
+        raise BadInput(f"--block-size: must be >= 64, got {args.block_size}")
+    if args.plots:
+        from ..modelcheck.plots import available
+
+        if not available():
+            raise BadInput("--plots: matplotlib is not installed (pip install matplotlib)")
+    cert = load(args.certificate)
+    try:
+        kw = {"block_size": args.block_size} if args.block_size else {}
+        result = model_check(args.log, cert, seed=args.seed, config=cfg, **kw)
+    except ValueError as exc:
+        if type(exc).__name__ in ("LogError", "CertificateError"):
+            raise
+        raise BadInput(f"{args.log}: {exc}") from None
+    report_mod.write(result.report, args.json)
+    if args.extended_certificate:
+        result.extended.save(args.extended_certificate)
+    if args.plots:
+        from ..modelcheck.plots import write_plots
+
+        write_plots(result, args.plots)
+    if args.json != "-":
+        for line in report_mod.summary(result.report):
+            print(line)
+    else:
+        for line in report_mod.summary(result.report):
+            print(line, file=sys.stderr)
+    return 0

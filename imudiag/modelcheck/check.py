@@ -1,0 +1,547 @@
+"""The model check of a recorded session against a certificate (spec/reports.md).
+
+1. First pass (:mod:`.summaries`): quasi-static chunks, streamed.
+2. Residuals of the chunk means against the certificate's model
+   (:mod:`.residuals`), and for every catalogue effect a test with a
+   significance and a held-out gain (:mod:`.detectors`).
+3. Second pass (:mod:`.streams`): full-rate Allan deviation, spectrum and F0 of
+   the quasi-static samples; spectral lines (:mod:`.spectral`).
+4. Simulation of the session with the certificate's model and with the
+   extended one (:mod:`.simulate`), compared with the measurement.
+5. The extended certificate and the held-out metrics (:mod:`.extend`).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..certificate import Certificate, TriadModel
+from ..samples import SampleBlock
+from .config import ModelCheckConfig
+from .detectors import ChannelResult, analyse_channel, k_on_rows
+from .extend import (
+    Effect,
+    accel_folds,
+    allan_misfit,
+    collect_effects,
+    extended_certificate,
+    f0_checks,
+    f0_rate,
+    predictor,
+    ratio,
+    residual_rms,
+    rotation_rms,
+)
+from .residuals import (
+    SENSORS,
+    Channel,
+    accel_effect_specs,
+    build_channels,
+    chunk_accel_input,
+    distinct_attitudes,
+    norm_and_gradient,
+    refit_accel,
+    run_up,
+    temperature_reference,
+    white_variance,
+    with_effects,
+)
+from .rotations import (
+    MIN_TURNS,
+    MotionCollector,
+    motion_windows,
+    reduce_motion,
+    rotation_channel,
+    usable_pairs,
+)
+from .simulate import NoiseModel, simulate_session
+from .spectral import Line, find_lines
+from .streams import F0Check, Segments, SegmentStats, allan_m_grid, make_segments, stream_measured
+from .summaries import DEFAULT_BLOCK_SIZE, BlockSource, Session, block_source, collect
+
+FORMAT = "imudiag-model-check/1"
+ALL_SENSORS = SENSORS["gyro"] + SENSORS["accel"]
+CATALOGUE = ("bias_drift", "temperature_bias", "temperature_scale", "g_sensitivity",
+             "scale_nonlinearity", "bias_step", "periodic_disturbance")
+
+
+@dataclass
+class ModelCheckResult:
+    """The report and what produced it."""
+
+    report: dict[str, Any]
+    effects: list[Effect]
+    extended: Certificate
+    session: Session
+    channels: list[ChannelResult] = field(default_factory=list)
+    measured: SegmentStats | None = None
+    simulated: dict[str, list[SegmentStats]] = field(default_factory=dict)
+    lines: list[Line] = field(default_factory=list)
+
+
+def _chunk_residual(certificate: Certificate, accel: TriadModel, means: np.ndarray,
+                    temp: np.ndarray | None, a_in: np.ndarray) -> np.ndarray:
+    """(C, 4) residuals gx gy gz (output units) and accel norm (input units) of chunk means."""
+    gyro = certificate.gyro
+    pred = gyro.forward(np.zeros((means.shape[0], 3)), temp_c=temp,
+                        accel_input=a_in if gyro.g_sensitivity is not None else None)
+    g_in = certificate.gravity / accel.unit_to_si
+    _x, norm, _g = norm_and_gradient(accel, means[:, 3:6], temp)
+    return np.concatenate([means[:, :3] - pred, (norm - g_in)[:, None]], axis=1)
+
+
+def _stats(session: Session, config: ModelCheckConfig, segments: Segments,
+           predictors: dict, checks: list[F0Check], cert: Certificate) -> SegmentStats:
+    longest = int(segments.n.max()) if len(segments) else 0
+    rate = session.rate_hz
+    nper = 0
+    if len(segments):
+        typical = int(np.median(segments.n))
+        nper = 1 << int(math.floor(math.log2(max(min(typical, config.psd_max_segment), 1))))
+        if nper < config.psd_min_segment:
+            nper = 0
+    return SegmentStats(
+        m=allan_m_grid(longest, config.allan_points_per_decade), rate_hz=rate, nperseg=nper,
+        n_chunks=len(session.chunks), predictors=predictors, f0_checks=checks,
+        gravity_in=cert.gravity / cert.accel.unit_to_si, f0_limit=cert.accel.limits.f0,
+    )
+
+
+def _f0_summary(check: F0Check | None) -> dict[str, Any] | None:
+    if check is None or check.checked == 0:
+        return None
+    n = check.checked
+    mean = check.total / n
+    return {
+        "samples": n,
+        "false_alarm_rate": check.failed / n,
+        "mean": mean, "std": math.sqrt(max(check.total_sq / n - mean * mean, 0.0)),
+        "p01": check.quantile(0.01), "p99": check.quantile(0.99),
+    }
+
+
+def _round(x: Any, digits: int = 6) -> Any:
+    """Round floats in nested structures to ``digits`` significant digits (JSON size)."""
+    if isinstance(x, float):
+        if not math.isfinite(x):
+            return None
+        return float(f"{x:.{digits}g}")
+    if isinstance(x, dict):
+        return {k: _round(v, digits) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_round(v, digits) for v in x]
+    if isinstance(x, np.generic):
+        return _round(x.item(), digits)
+    if isinstance(x, np.ndarray):
+        return _round(x.tolist(), digits)
+    return x
+
+
+def _empty_metrics() -> dict[str, Any]:
+    return {"residual_rms": {"gyro": None, "accel": None},
+            "f0_false_alarm_rate": {"gyro": None, "accel": None},
+            "allan_misfit": {"gyro": None, "accel": None}}
+
+
+def model_check(
+    log: str | Path | SampleBlock | BlockSource,
+    certificate: Certificate,
+    seed: int = 0,
+    config: ModelCheckConfig | None = None,
+    block_size: int = DEFAULT_BLOCK_SIZE,
+) -> ModelCheckResult:
+    """Run the model check of ``log`` (a path, a block, or a re-startable block source);
+    a log is read ``block_size`` samples at a time (three passes)."""
+    cfg = config or ModelCheckConfig()
+    source, meta = block_source(log, block_size)
+    session = collect(source, certificate, cfg, meta)
+    c = session.chunks
+    out_units = {"gyro": certificate.gyro.output_unit, "accel": certificate.accel.output_unit}
+    in_units = {"gyro": certificate.gyro.input_unit, "accel": certificate.accel.input_unit}
+    base_report: dict[str, Any] = {
+        "format": FORMAT,
+        "log": str(log) if isinstance(log, (str, Path)) else None,
+        "certificate": certificate.source,
+        "samples": session.samples,
+        "duration_s": session.duration_s,
+        "sample_rate": session.rate_hz,
+    }
+    if len(c) < 6:
+        report = dict(base_report)
+        report.update({
+            "quasi_static": {"samples": session.static_samples, "chunks": len(c),
+                             "runs": int(len(session.runs)),
+                             "s": round(session.static_samples / session.rate_hz, 3)},
+            "effects": [], "baseline": _empty_metrics(), "extended": _empty_metrics(),
+            "gain": _empty_metrics(),
+            "untestable": [{"name": n, "triad": t, "sensor": s,
+                            "reason": "too little quasi-static data (needs a few seconds still)"}
+                           for n in CATALOGUE for t in ("gyro", "accel") for s in SENSORS[t]
+                           if not (n == "g_sensitivity" and t == "accel")],
+        })
+        return ModelCheckResult(report=_round(report), effects=[], extended=certificate,
+                                session=session)
+
+    # -- residuals and chunk-level tests ----------------------------------------------------
+    sigma2 = white_variance(session)
+    accel_w, _v = refit_accel(certificate, session, sigma2)
+    channels = build_channels(certificate, session, cfg, accel_w, sigma2)
+    results = [analyse_channel(ch, cfg) for ch in channels]
+    temp = c.temp if session.has_temp else None
+    results, accel_w = _refine_accel(results, certificate, accel_w, session, cfg, sigma2)
+    a_in = chunk_accel_input(accel_w, session)
+    half_y: dict[str, np.ndarray] = {}
+    halves = []
+    for k in range(2):
+        means = np.concatenate([c.gyro_half[:, k], c.accel_half[:, k]], axis=1)
+        halves.append(_chunk_residual(certificate, accel_w, means, temp, a_in))
+    for j, s in enumerate(SENSORS["gyro"]):
+        half_y[s] = np.stack([halves[0][:, j], halves[1][:, j]], axis=1)
+    half_y["accel"] = np.stack([halves[0][:, 3], halves[1][:, 3]], axis=1)
+    det_effects = collect_effects(results, [], c.t_start, c.t_end, c.run, half_y, out_units)
+
+    # -- models ------------------------------------------------------------------------------------
+    refs = {n: temperature_reference(certificate.triad(n), cfg) for n in ("gyro", "accel")}
+    ups = run_up(accel_w, session)
+    g_in = certificate.gravity / certificate.accel.unit_to_si
+    chunk_input = np.array([ups[int(r)] for r in c.run]) * g_in
+    steps = [(e.sensor, float(e.extra["t"]), float(e.value))  # type: ignore[arg-type]
+             for e in det_effects if e.name == "bias_step"]
+    ext_det = extended_certificate(certificate, det_effects, None, refs)
+    ext_accel_w = extended_certificate(
+        _with_accel(certificate, accel_w), det_effects, None, refs).accel
+    predictors = {
+        "baseline": predictor(certificate.gyro, accel_w, chunk_input, []),
+        "extended": predictor(ext_det.gyro, ext_accel_w, chunk_input, steps),
+    }
+    accel_res = next((r for r in results if r.channel.triad == "accel"), None)
+    folds = {}
+    if accel_res is not None and len(accel_res.channel) >= 4:
+        folds = {name: accel_folds(certificate, session, sigma2, accel_res, refs["accel"], ext)
+                 for name, ext in (("baseline", False), ("extended", True))}
+    checks = f0_checks(folds)
+    checks.append(F0Check(name="certificate", model=certificate.accel, parity=None))
+    t_half = float(np.median(c.t_mid))
+    max_seg = int(cfg.max_segment_s * session.rate_hz)
+    segments = make_segments(c, t_half, max_seg)
+
+    # -- second pass over the measurement --------------------------------------------------------
+    measured = _stats(session, cfg, segments, predictors, checks, certificate)
+    g_named = ext_det.gyro.g_sensitivity  # the certificate's and the named, or None
+    motion = MotionCollector(
+        motion_windows(c, cfg.max_motion_s),
+        reduce=lambda w: reduce_motion(w, certificate, accel_w, c, g_named, sigma2,
+                                       refs["gyro"], 3.0 / session.rate_hz))
+    stream_measured(source(), c, segments, measured, motion)
+
+    # -- gyro scale effects from the rotations between still runs ---------------------------
+    t_span = float(np.nanmax(c.temp) - np.nanmin(c.temp)) if session.has_temp else 0.0
+    pairs = motion.pairs
+    rot_ch = rotation_channel(pairs, certificate, cfg, session.has_temp, t_span, refs["gyro"])
+    rot_res = analyse_channel(rot_ch, cfg) if rot_ch is not None else None
+    if rot_res is not None:
+        results.append(rot_res)
+        det_effects += collect_effects([rot_res], [], c.t_start, c.t_end, c.run, half_y,
+                                       out_units)
+    sigma_meas = measured.sample_sigma()
+    density_meas = sigma_meas / math.sqrt(session.rate_hz / 2.0)
+    cert_density = np.concatenate([
+        _density(certificate.triad(n)) for n in ("gyro", "accel")])
+    density_model = np.where(np.isfinite(cert_density), cert_density, density_meas)
+
+    # -- spectral lines: fitted on the first half, confirmed on the second -----------------------
+    lines, line_tests = find_lines(measured.psd("baseline", 0), measured.psd("baseline", 1),
+                                   measured.nperseg, session.rate_hz, cfg.z_min, cfg.max_lines,
+                                   cfg.z_heldout)
+    if measured.nperseg == 0 or not measured.psd("baseline", 1)[2]:
+        psd_untestable = "still stretches too short or too few for a spectrum on both halves"
+    else:
+        psd_untestable = ""
+    effects = det_effects + collect_effects([], lines, c.t_start, c.t_end, c.run, half_y,
+                                            out_units)
+
+    # -- noise models: certificate's, and extended (walk and lines fitted on the first half) ---
+    walk_cert = np.concatenate([_walk(certificate.triad(n)) for n in ("gyro", "accel")])
+    walk_first = walk_cert.copy()
+    first = c.t_mid < t_half
+    for res in results:
+        for d in res.drift:
+            e = next((x for x in effects if x.name == "bias_drift" and x.sensor == d.sensor),
+                     None)
+            if e is None:
+                continue
+            j = list(res.channel.sensors).index(d.sensor)
+            walk_first[ALL_SENSORS.index(d.sensor)] = max(k_on_rows(res, j, first),
+                                                          walk_cert[ALL_SENSORS.index(d.sensor)])
+    noise_base = NoiseModel(density=density_model, walk=walk_cert)
+    noise_ext = NoiseModel(density=density_model, walk=walk_first, lines=lines, steps=steps)
+
+    # -- simulations (common random numbers: the same seeds for both models) ------------------
+    sims: dict[str, list[SegmentStats]] = {"baseline": [], "extended": []}
+    for r in range(max(cfg.replicas, 1)):
+        s_base = _stats(session, cfg, segments, {"baseline": predictors["baseline"]},
+                        [F0Check(name="certificate", model=certificate.accel, parity=None)],
+                        certificate)
+        simulate_session(certificate, noise_base, session, segments, chunk_input, s_base,
+                         seed=seed * 1000 + r)
+        sims["baseline"].append(s_base)
+        if not effects:  # the extended model is the certificate's
+            continue
+        s_ext = _stats(session, cfg, segments, {"extended": predictors["extended"]}, [],
+                       certificate)
+        simulate_session(_with_accel(ext_det, ext_accel_w), noise_ext, session, segments,
+                         chunk_input, s_ext, seed=seed * 1000 + r)
+        sims["extended"].append(s_ext)
+
+    # -- metrics -----------------------------------------------------------------------------------
+    base_m = {
+        "residual_rms": residual_rms(results, False, folds.get("baseline")),
+        "rotation_rms": {"gyro": rotation_rms(rot_res, extended=False), "accel": None},
+        "f0_false_alarm_rate": {"gyro": None, "accel": f0_rate(checks, "baseline")},
+        "allan_misfit": allan_misfit(measured, sims["baseline"], "baseline"),
+    }
+    ext_m = {
+        "residual_rms": residual_rms(results, True, folds.get("extended")),
+        "rotation_rms": {"gyro": rotation_rms(rot_res, extended=True), "accel": None},
+        "f0_false_alarm_rate": {"gyro": None, "accel": f0_rate(checks, "extended")},
+        "allan_misfit": allan_misfit(measured, sims["extended"], "extended"),
+    }
+    if not effects:  # nothing named: the extended model is the baseline, gain 1
+        ext_m = copy.deepcopy(base_m)
+    gain = {k: {t: ratio(ext_m[k][t], base_m[k][t]) for t in ("gyro", "accel")}
+            for k in base_m}
+    units = {"residual_rms": {"gyro": in_units["gyro"], "accel": in_units["accel"]},
+             "f0_false_alarm_rate": "fraction of held-out quasi-static samples (gyro: "
+                                    "none, F0 needs gyros that resolve Earth rate)",
+             "allan_misfit": "RMS z of log Allan deviation (about 1: explained)",
+             "rotation_rms": "rad: gravity direction after a turn, predicted from the gyros "
+                             "against measured, held out"}
+
+    # -- extended certificate -------------------------------------------------------------------
+    extended = extended_certificate(certificate, effects,
+                                    None if np.all(np.isfinite(cert_density)) else density_meas,
+                                    refs)
+
+    # -- comparison: measurement against the simulation of the certificate's model -------------
+    comparison = _comparison(certificate, accel_w, session, measured, sims, a_in, temp,
+                             density_meas, cert_density)
+
+    untestable = [u for res in results for u in res.channel.untestable]
+    if rot_ch is None:
+        n_big = sum(p.angle_deg >= cfg.min_rotation_deg for p in pairs)
+        n_ok = sum(p.angle_deg >= cfg.min_rotation_deg
+                   for p in usable_pairs(pairs, cfg.max_turn_misfit_rad))
+        reason = (f"{n_big} rotation(s) of {cfg.min_rotation_deg:g} deg or more between still "
+                  f"runs: needs {MIN_TURNS} (at rest a gyro's input is zero)")
+        if n_big >= MIN_TURNS:
+            reason = (f"only {n_ok} of {n_big} turns agree with the gyros within "
+                      f"{cfg.max_turn_misfit_rad:g} rad after a linear recalibration "
+                      f"(saturation, gaps, or errors beyond a linear model): needs {MIN_TURNS}")
+        for s in ("gx", "gy", "gz"):
+            for name in ("temperature_scale", "scale_nonlinearity"):
+                untestable.append({"name": name, "triad": "gyro", "sensor": s,
+                                   "reason": reason})
+    if psd_untestable:
+        untestable += [{"name": "periodic_disturbance", "triad": t, "sensor": s,
+                        "reason": psd_untestable}
+                       for t in ("gyro", "accel") for s in SENSORS[t]]
+    tested = [dict(t, triad=res.channel.triad) for res in results for t in res.tested]
+    tested += [{"name": "bias_drift", "triad": res.channel.triad, "sensor": d.sensor,
+                "significance": d.significance, "heldout": d.heldout, "value": d.value,
+                "certificate": d.certificate} for res in results for d in res.drift]
+    tested += [dict(t, triad="gyro" if t["sensor"].startswith("g") else "accel")
+               for t in line_tests]
+    report = dict(base_report)
+    report.update({
+        "quasi_static": {
+            "samples": session.static_samples,
+            "chunks": len(c),
+            "runs": int(len(session.runs)),
+            "attitudes": distinct_attitudes(np.array(list(ups.values()))),
+            "temperature": ([float(np.nanmin(c.temp)), float(np.nanmax(c.temp))]
+                            if session.has_temp else None),
+            "turns": {"between_runs": len(pairs),
+                      "used": (len(rot_ch) // 2) if rot_ch is not None else 0},
+        },
+        "effects": [e.as_dict() for e in sorted(effects, key=lambda e: -e.significance)],
+        "baseline": base_m,
+        "extended": ext_m,
+        "gain": gain,
+        "units": units,
+        "evaluation": {
+            "chunk_s": session.chunk_s,
+            "deterministic": "two folds of alternate quasi-static chunks: fit on one, score "
+                             "the other; both models re-fit the certificate's own biases "
+                             "(and accelerometer scale and misalignment) on the fitting fold",
+            "noise": f"fitted on quasi-static data before t = {t_half:.3f} s, scored after",
+            "z_min": cfg.z_min,
+            "significance": "one-sided standard-normal equivalent of the p-value",
+        },
+        "comparison": comparison,
+        "tested": sorted(tested, key=lambda d: -float(d.get("significance", 0.0))),
+        "untestable": untestable,
+    })
+    return ModelCheckResult(report=_round(report), effects=effects, extended=extended,
+                            session=session, channels=results, measured=measured,
+                            simulated=sims, lines=lines)
+
+
+def _refine_accel(results: list[ChannelResult], certificate: Certificate, accel: TriadModel,
+                  session: Session, cfg: ModelCheckConfig, sigma2: np.ndarray, rounds: int = 3
+                  ) -> tuple[list[ChannelResult], TriadModel]:
+    """Gauss-Newton on the accelerometer channel: the norm is not linear in large effects
+    and nuisance changes (1 % of g changes |f| by 5e-5 g at second order), so the
+    accelerometer's own parameters are re-fitted together with the effects found, the
+    channel is rebuilt at that point, the effects' linear trace is replaced by the exact
+    one, and the channel is analysed again until the selection is stable."""
+    k = next((i for i, r in enumerate(results) if r.channel.triad == "accel"), None)
+    if k is None:
+        return results, accel
+    res = results[k]
+    c = session.chunks
+    temp = c.temp if session.has_temp else None
+    g_in = certificate.gravity / accel.unit_to_si
+    ref = temperature_reference(certificate.accel, cfg)
+    for _ in range(rounds):
+        specs = accel_effect_specs(res.selected)
+        if not specs:
+            break
+        accel, values = refit_accel(certificate, session, sigma2, specs, ref)
+        ch = next(x for x in build_channels(certificate, session, cfg, accel, sigma2)
+                  if x.triad == "accel")
+        # exact trace of the effects at their fitted values in place of the linear one
+        u = c.accel.copy()
+        idx = np.arange(len(c))
+        for (name, j, b), v in zip(specs, values, strict=True):
+            if name == "bias_step":
+                u[idx >= (b or 0), j] -= v
+        ext = with_effects(accel, specs, values, ref)
+        y_ext = np.linalg.norm(ext.inverse(u, temp_c=temp), axis=1) - g_in
+        lin = np.zeros(len(c))
+        for (name, j, b), v in zip(specs, values, strict=True):
+            col = _column_of(ch, name, SENSORS["accel"][j], b)
+            if col is not None:
+                lin += col * v
+        ch.y = y_ext + lin
+        new = analyse_channel(ch, cfg)
+        same = accel_effect_specs(new.selected) == specs
+        res = new
+        if same:
+            break
+    results = list(results)
+    results[k] = res
+    return results, accel
+
+
+def _column_of(ch: Channel, name: str, sensor: str, boundary: int | None) -> np.ndarray | None:
+    """The regressor (C,) of a single-column effect on ``sensor`` (a step at ``boundary``)."""
+    j = list(ch.sensors).index(sensor)
+    if name == "bias_step":
+        return ch.H[:, j] * (np.arange(len(ch)) >= (boundary or 0))
+    for cand in ch.candidates:
+        if cand.name == name and cand.sensor == sensor and cand.columns is not None:
+            return cand.columns[:, 0]
+    return None
+
+
+def _with_accel(cert: Certificate, accel: TriadModel) -> Certificate:
+    out = copy.deepcopy(cert)
+    out.accel = copy.deepcopy(accel)
+    return out
+
+
+def _density(tri: TriadModel) -> np.ndarray:
+    if tri.noise is None or tri.noise.density is None:
+        return np.full(3, np.nan)
+    return np.asarray(tri.noise.density, dtype=float)
+
+
+def _walk(tri: TriadModel) -> np.ndarray:
+    if tri.noise is None or tri.noise.bias_random_walk is None:
+        return np.zeros(3)
+    return np.asarray(tri.noise.bias_random_walk, dtype=float)
+
+
+def _comparison(certificate: Certificate, accel_w: TriadModel, session: Session,
+                measured: SegmentStats, sims: dict[str, list[SegmentStats]], a_in: np.ndarray,
+                temp: np.ndarray | None, density_meas: np.ndarray, cert_density: np.ndarray
+                ) -> dict[str, Any]:
+    c = session.chunks
+    meas_means = np.concatenate([c.gyro, c.accel], axis=1)
+    r_meas = _chunk_residual(certificate, accel_w, meas_means, temp, a_in)
+    r_cert = _chunk_residual(certificate, certificate.accel, meas_means, temp, a_in)
+    sim0 = sims["baseline"][0] if sims["baseline"] else None
+    out: dict[str, Any] = {}
+    labels = ["gx", "gy", "gz", "accel_norm"]
+    unit = [certificate.gyro.output_unit] * 3 + [certificate.accel.input_unit]
+    res: dict[str, Any] = {}
+    r_sim = None
+    if sim0 is not None:
+        sm = sim0.chunk_means()
+        ok = np.all(np.isfinite(sm), axis=1)
+        r_sim = _chunk_residual(certificate, certificate.accel, sm[ok],
+                                None if temp is None else temp[ok], a_in[ok])
+
+    def rms(v: np.ndarray, centre: bool) -> float:
+        v = v - np.mean(v) if centre else v
+        return float(np.sqrt(np.mean(v * v)))
+
+    for j, lab in enumerate(labels):
+        gyro = j < 3  # a gyro's rest offset is nuisance: centre it; the norm is not centred
+        entry = {"unit": unit[j],
+                 "measured_rms": rms(r_meas[:, j], gyro),
+                 "measured_rms_certificate_as_is": rms(r_cert[:, j], False)}
+        if r_sim is not None:
+            entry["simulated_rms"] = rms(r_sim[:, j], gyro)
+        res[lab] = entry
+    out["chunk_residuals"] = res
+    noise = {}
+    sim_density = (sim0.sample_sigma() / math.sqrt(session.rate_hz / 2.0)
+                   if sim0 is not None else np.full(6, np.nan))
+    for j, s in enumerate(ALL_SENSORS):
+        noise[s] = {"certificate": None if not np.isfinite(cert_density[j]) else
+                    float(cert_density[j]),
+                    "measured": float(density_meas[j]), "simulated": float(sim_density[j])}
+    out["noise_density"] = noise
+    tau, adev_m, ind = measured.allan("baseline")
+    allan: dict[str, Any] = {"tau": tau.tolist(), "independent_terms": ind.tolist()}
+    if sims["baseline"]:
+        avar = np.mean(np.stack([s.allan("baseline")[1] ** 2 for s in sims["baseline"]]), 0)
+        for j, s in enumerate(ALL_SENSORS):
+            allan[s] = {"measured": adev_m[:, j].tolist(),
+                        "simulated": np.sqrt(avar[:, j]).tolist()}
+    out["allan"] = allan
+    f0: dict[str, Any] = {}
+    chk_m = next((x for x in measured.f0_checks if x.name == "certificate"), None)
+    chk_s = next((x for x in sim0.f0_checks if x.name == "certificate"), None) if sim0 else None
+    f0["accel"] = {"measured": _f0_summary(chk_m), "simulated": _f0_summary(chk_s),
+                   "limit": certificate.accel.limits.f0}
+    out["f0"] = f0
+    spec: dict[str, Any] = {}
+    for half in (0, 1):
+        f, p, k = measured.psd("baseline", half)
+        if k == 0:
+            continue
+        floor = np.median(p[1:], axis=0)
+        sim_floor = None
+        if sim0 is not None:
+            _fs, ps, ks = sim0.psd("baseline", half)
+            if ks:
+                sim_floor = np.median(ps[1:], axis=0)
+        spec[f"half{half}"] = {
+            s: {"measured_floor": float(floor[j]),
+                "simulated_floor": None if sim_floor is None else float(sim_floor[j])}
+            for j, s in enumerate(ALL_SENSORS)}
+        spec[f"half{half}"]["segments"] = k
+        spec[f"half{half}"]["resolution_hz"] = float(f[1] - f[0])
+    out["psd"] = spec
+    return out
+
+
+__all__ = ["CATALOGUE", "FORMAT", "ModelCheckResult", "model_check"]
