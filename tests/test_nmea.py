@@ -351,9 +351,10 @@ def test_blocked_pty_consumer_never_blocks_publish(pty_pair) -> None:
             worst = max(worst, time.perf_counter() - start)
         total = time.perf_counter() - t0
         assert sink.cycles == n_cycles
-        # each call formats five sentences and queues them; the writer is stuck
-        assert worst < 0.1, f"publish took {worst * 1e3:.1f} ms"
-        assert total < 2.0
+        # each call formats five sentences and queues them; the writer is stuck. A publish
+        # that waited for the port would take at least the 0.5 s write timeout.
+        assert worst < 0.5, f"publish took {worst * 1e3:.1f} ms: it waited for the port"
+        assert total < 0.5 * n_cycles / 10  # far from one write timeout per call
         assert sink.dropped > 0
         assert sink.written < n_cycles * 5
     finally:
@@ -371,7 +372,8 @@ def test_blocked_pty_consumer_never_blocks_publish(pty_pair) -> None:
             good += 1
         except NmeaError:
             pass  # a sentence cut short by a write timeout: the receiver resyncs
-    assert good >= sink.written - 2 and good > 100
+    # every sentence counted as written reached the pty intact (but a cut last one)
+    assert sink.written > 0 and good >= sink.written - 2
 
 
 def test_blocked_loop_consumer_counts_drops() -> None:
