@@ -495,6 +495,9 @@ def loads(text: str, source: str | None = None) -> Certificate:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "(document)"
         raise CertificateError(where, f"not valid YAML: {exc}", source) from None
+    except (ValueError, OverflowError, RecursionError) as exc:
+        # a value YAML cannot build, e.g. the date 2026-13-01 (found by fuzz/)
+        raise CertificateError("(document)", f"not valid YAML: {exc}", source) from None
     return from_dict(doc, source=source)
 
 

@@ -34,6 +34,7 @@ import os
 import re
 import shutil
 import tempfile
+import tokenize
 import zipfile
 import zlib
 from collections.abc import Iterator
@@ -294,15 +295,16 @@ class CsvReader(LogReader):
     ) -> dict[str, np.ndarray] | None:
         """Validated columns of a chunk of lines starting at file line ``first_line``."""
         text = b"".join(lines)
-        if b"\r" in text:
-            text = text.replace(b"\r\n", b"\n")
         if not text.endswith(b"\n"):
             text += b"\n"
+        if b"\r" in text:  # after the final newline: a last line "\r" is empty (fuzz/)
+            text = text.replace(b"\r\n", b"\n")
         buf = np.frombuffer(text, dtype=np.uint8)
         ends = np.flatnonzero(buf == 10)  # one per line
         starts = np.r_[0, ends[:-1] + 1]
         linenos: np.ndarray | None = None  # file line of each data row, if not consecutive
-        if np.any((buf[starts] == 35) | (buf[starts] == 10)):  # comment or empty lines
+        # comment or empty lines (a line of only "\r"s is empty too: found by fuzz/)
+        if np.any((buf[starts] == 35) | (buf[starts] == 10) | (buf[starts] == 13)):
             keep = [
                 (first_line + i, ln.rstrip(b"\r\n") + b"\n")
                 for i, ln in enumerate(lines)
@@ -421,7 +423,7 @@ class NpzReader(LogReader):
             major, minor = fmt.read_magic(fp)
             reader = {1: fmt.read_array_header_1_0, 2: fmt.read_array_header_2_0}[major]
             shape, fortran, dtype = reader(fp)
-        except (ValueError, KeyError) as exc:
+        except (ValueError, KeyError, SyntaxError, tokenize.TokenError) as exc:  # fuzz/
             reason = f"array {name!r}: not a readable .npy header: {exc}"
             raise LogError(self.path, reason) from None
         if len(shape) != 1:

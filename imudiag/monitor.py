@@ -8,7 +8,9 @@ Every sample of both triads is corrected with the certificate. The checks
 - gyro F0 against Earth rate where the certificate's noise makes Earth rate
   observable per sample (navigation-grade gyros); for MEMS gyros the rest-rate
   check instead: while quasi-static the certificate-corrected rate averaged
-  over ``gyro_window_s`` must not exceed Earth rate by more than the bias
+  over ``gyro_window_s`` (ending one detector window back, with everything
+  since still: the detector's trailing window is late at the start of a
+  turn) must not exceed Earth rate by more than the bias
   limit plus ``k_sigma`` standard deviations of that mean, per axis;
 - k-of-n persistence before a triad is declared failed;
 - stuck outputs (a channel repeating the same raw value for ``stuck_samples``
@@ -114,8 +116,15 @@ class Monitor:
             self.state[name] = st
         self.gyro_mode = self._gyro_mode(certificate.gyro, rate)
         self._gyro_window = max(1, int(round(cfg.gyro_window_s * rate)))
-        self._gyro_sum = TrailingSum(self._gyro_window, 3)
-        self._static_sum = TrailingSum(self._gyro_window)
+        # the detector's window is trailing: the first samples of a turn still look
+        # static. The rest-rate mean is therefore taken over a window that ends
+        # ``lag`` samples (one detector window) back, and used only if the samples
+        # after it are static too.
+        self._gyro_lag = max(1, int(round(cfg.static_window_s * rate)))
+        span = self._gyro_window + self._gyro_lag
+        self._gyro_sum = TrailingSum(span, 3)
+        self._gyro_recent = TrailingSum(self._gyro_lag, 3)
+        self._static_sum = TrailingSum(span)
         noise_w = max(4, int(round(cfg.noise_window_s * rate)))
         for st in self.state.values():
             st.noise_sum = TrailingSum(noise_w, 3)
@@ -238,11 +247,13 @@ class Monitor:
         """MEMS rest-rate check: moving mean of the corrected rate over a static window."""
         cert = self.certificate
         gyro = cert.gyro
-        w = self._gyro_window
+        w, lag = self._gyro_window, self._gyro_lag
         sums, counts = self._gyro_sum.update(gyro_si)
+        recent, _ = self._gyro_recent.update(gyro_si)
         still, _ = self._static_sum.update(static.astype(float))
-        mean = sums / counts[:, None]
-        usable = ok & (counts == w) & (still == w)  # the whole averaging window was still
+        mean = (sums - recent) / w  # the w samples that end lag samples back
+        # the averaging window and the lag after it were all still
+        usable = ok & (counts == w + lag) & (still == w + lag)
 
         bias_lim_si = gyro.limits.bias / gyro.scale_factor * gyro.unit_to_si
         sigma = gyro.noise_sigma(self.rate_hz)

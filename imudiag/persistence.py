@@ -34,6 +34,13 @@ class Persistence:
         failed = np.asarray(failed, dtype=bool)
         if failed.size == 0:
             return self.active
+        if not self.active and not failed.any() and not self._tail.any():
+            # nothing failed within the window: the state cannot change (the common case,
+            # taken by every check on every daemon turn; the general path costs ~10x more)
+            keep = min(self._tail.size + failed.size, self.n - 1)
+            if keep != self._tail.size:
+                self._tail = np.zeros(keep, dtype=bool)
+            return False
         seq = np.concatenate([self._tail, failed])
         c = np.concatenate([[0], np.cumsum(seq, dtype=np.int64)])
         idx = np.arange(len(self._tail), len(seq))  # positions of the new checks

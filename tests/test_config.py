@@ -112,7 +112,7 @@ BAD_CONFIGS = [
     ("status: {serial: 5}\n", "status.serial", "non-empty string"),
     ("status: {nmea_queue: 0}\n", "status.nmea_queue", "out of range [1, 100000]"),
     ("monitor: {f0_persistence_k: 2.5}\n", "monitor.f0_persistence_k", "expected an integer"),
-    ("monitor: {f0_persistence_k: 6}\n", "monitor.f0_persistence_k", "exceeds f0_persistence_n"),
+    ("monitor: {f0_persistence_k: 60}\n", "monitor.f0_persistence_k", "exceeds f0_persistence_n"),
     ("monitor: {stuck_samples: 1}\n", "monitor.stuck_samples", "out of range [2,"),
     ("monitor: {no_data_timeout_s: 0}\n", "monitor.no_data_timeout_s", "out of range"),
     ("reconnect: {min_s: 2, max_s: 1}\n", "reconnect.max_s", "below reconnect min_s"),

@@ -47,8 +47,8 @@ class DaemonConfig:
     nmea_rate_hz: float = 1.0  #: NMEA status cycles per second, Hz
     nmea_queue: int = 64  #: sentences buffered for the serial writer
     nmea_write_timeout_s: float = 0.5  #: write timeout of one sentence, s
-    f0_persistence_k: int = 3  #: F0 fails when k of the last n checked samples fail ...
-    f0_persistence_n: int = 5  #: ... of n samples
+    f0_persistence_k: int = 20  #: F0 fails when k of the last n checked samples fail ...
+    f0_persistence_n: int = 50  #: ... of n samples
     stuck_samples: int = 50  #: identical consecutive raw outputs meaning "stuck", samples
     no_data_timeout_s: float = 1.0  #: no valid frame for this long -> state no_data, s
     reconnect_min_s: float = 0.2  #: first reconnect back-off, s

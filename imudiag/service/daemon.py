@@ -20,6 +20,7 @@ from ..certificate import Certificate, CertificateError
 from ..drivers.base import EndOfStream, SourceError
 from ..drivers.reconnect import ReconnectingSource
 from ..monitor import Monitor, MonitorConfig
+from ..samples import SampleBlock
 from .config import DaemonConfig
 from .sdnotify import Notifier, WatchdogGate
 from .status import StatusSchedule, merge_faults
@@ -53,8 +54,12 @@ class DaemonSettings:
     #: after a read that brought samples, wait this long before reading again, s: the
     #: kernel buffers what arrives meanwhile, so the per-turn cost is paid once per
     #: interval instead of once per frame (CPU share), at the price of up to this much
-    #: added latency (docs/benchmarks.md measures the trade-off)
-    read_interval_s: float = 0.0
+    #: added latency (docs/benchmarks.md measures the trade-off); no wait while the
+    #: source delivers faster than real time
+    read_interval_s: float = 0.005
+    #: sample time, s, gathered before the window diagnosis is fed: it needs no low
+    #: latency (a window every few seconds) and costs per call, not per sample
+    diagnosis_batch_s: float = 0.5
     reconnect_min_s: float = 0.5  #: first reconnect back-off, s
     reconnect_max_s: float = 10.0  #: longest reconnect back-off, s
     degraded_hold_s: float = 10.0  #: transport errors keep the state degraded this long, s
@@ -85,6 +90,7 @@ class Daemon:
         self.certificate = self._load_certificate()
         self.monitor = Monitor(self.certificate, settings.monitor)
         self.diagnoser = self._make_diagnoser(self.certificate)
+        self._diag_blocks: list[SampleBlock] = []  # gathered for the diagnoser
         self.source = ReconnectingSource(
             settings.source_url,
             certificate=self.certificate,
@@ -149,6 +155,7 @@ class Daemon:
         self.monitor.set_certificate(new)
         if self.diagnoser is not None:
             self.diagnoser = self._make_diagnoser(new)
+            self._diag_blocks = []  # gathered under the old certificate
         self.reloads += 1
         self.notes = []
         log.info("certificate reloaded from %s", path)
@@ -243,6 +250,7 @@ class Daemon:
                 try:
                     block = self.source.read(self.settings.read_timeout_s)
                 except EndOfStream:
+                    self._feed_diagnoser(None)
                     self._emit(self.clock(), force=True)
                     break
                 now = self.clock()
@@ -251,12 +259,14 @@ class Daemon:
                     self._last_data_wall = now
                     self.watchdog.frames_arrived(now)
                     self.monitor.update(block)
-                    if self.diagnoser is not None:
-                        self.diagnoser.update(block)
+                    self._feed_diagnoser(block)
                 self.watchdog.tick(now)
                 self._emit(now)
-                if len(block) and self.settings.read_interval_s > 0:
-                    pause = read_done + self.settings.read_interval_s - time.monotonic()
+                interval = self.settings.read_interval_s
+                # a block of more than twice what arrives in one interval means the source
+                # is ahead of real time (a replay at full speed, a backlog): no pause
+                if 0 < len(block) < 2.0 * self.monitor.rate_hz * interval:
+                    pause = read_done + interval - time.monotonic()
                     if pause > 0:
                         time.sleep(pause)
         finally:
@@ -265,6 +275,20 @@ class Daemon:
             for sink in self.sinks:
                 sink.close()
         return 0
+
+    def _feed_diagnoser(self, block: SampleBlock | None) -> None:
+        """Gather ``block``; feed the diagnoser once ``diagnosis_batch_s`` of samples are
+        gathered (``None``: feed what is gathered now, at the end of a stream)."""
+        if self.diagnoser is None:
+            return
+        if block is not None:
+            self._diag_blocks.append(block)
+        pending = self._diag_blocks
+        if not pending:
+            return
+        if block is None or pending[-1].t[-1] - pending[0].t[0] >= self.settings.diagnosis_batch_s:
+            self._diag_blocks = []
+            self.diagnoser.update(pending[0] if len(pending) == 1 else SampleBlock.concat(pending))
 
     def _emit(self, now: float, force: bool = False) -> None:
         status = self.status(now)
