@@ -40,6 +40,8 @@ class DaemonConfig:
     """Settings of ``imudiag run``; the defaults equal ``config/imudiag.yaml``."""
 
     source: str = "sim://multiposition?loop=1"  #: sample source URL (drivers registry)
+    #: pause after a read that brought samples, s: CPU share against verdict latency
+    read_interval_s: float = 0.005
     certificate: str | None = None  #: certificate file; None = the bundled one
     status_stdout: bool = True  #: JSON status lines on standard output
     status_serial: str | None = None  #: NMEA status link URL; None = none
@@ -142,6 +144,7 @@ def _log_level(value: Any, fail: Callable[[str], Exception]) -> str:
 #: YAML key path -> (DaemonConfig field, check). The order is the file's.
 SCHEMA: dict[tuple[str, ...], tuple[str, Check]] = {
     ("source",): ("source", _source_url),
+    ("read_interval_s",): ("read_interval_s", _number(0.0, 0.1, lo_open=False)),
     ("certificate",): ("certificate", _optional(_text)),
     ("status", "stdout"): ("status_stdout", _boolean),
     ("status", "serial"): ("status_serial", _optional(_text)),

@@ -309,6 +309,7 @@ def settings_from_config(config: DaemonConfig) -> DaemonSettings:
     )
     return DaemonSettings(
         source_url=config.source,
+        read_interval_s=config.read_interval_s,
         certificate_path=config.certificate,
         status_period_s=1.0 / config.status_rate_hz,
         no_data_timeout_s=config.no_data_timeout_s,
