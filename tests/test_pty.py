@@ -12,7 +12,7 @@ from imudiag.drivers import SourceError, open_source
 from imudiag.drivers.pty import BoardWriter, PtyPair, chunked
 from imudiag.drivers.wire import encode_samples
 
-from imudiag.samples import SampleBlock
+from tests.helpers import read_samples
 
 
 def frames(n: int, seq_start: int = 0, seed: int = 0) -> tuple[bytes, np.ndarray]:
@@ -21,14 +21,6 @@ def frames(n: int, seq_start: int = 0, seed: int = 0) -> tuple[bytes, np.ndarray
     return encode_samples(seq_start, 5000 * (seq_start + np.arange(n)), raw), raw
 
 
-def read_until(src, n: int, timeout_s: float = 5.0) -> SampleBlock:
-    blocks, got = [], 0
-    end = time.monotonic() + timeout_s
-    while got < n and time.monotonic() < end:
-        b = src.read(0.05)
-        blocks.append(b)
-        got += len(b)
-    return SampleBlock.concat(blocks)
 
 
 def test_pyserial_reads_pty_fed_in_real_time():
@@ -58,7 +50,7 @@ def test_serial_url_decodes_pty_stream_and_sends_commands():
             writer.start()
             src.write_command("START")
             src.write_command("RATE 200")
-            out = read_until(src, 400)
+            out = read_samples(src, 400)
             # the board sees the commands (this one ignores them and keeps streaming)
             assert pair.read_commands(timeout_s=1.0) == ["START", "RATE 200"]
             with pytest.raises(ValueError, match="unknown device command"):
@@ -78,7 +70,7 @@ def test_closing_master_is_an_unplug():
         src.open()
         writer = BoardWriter(pair, chunked(data, 40 * 4), rate_hz=100.0)
         writer.start()
-        assert len(read_until(src, 20)) >= 20
+        assert len(read_samples(src, 20)) >= 20
         path = pair.slave_path
         pair.close_master()  # stops the writer, then hangs up
         assert not writer.is_alive()
@@ -108,7 +100,7 @@ def test_replug_through_a_symlink(tmp_path):
         data, raw = frames(50, seed=2)
         with open_source(f"serial://{link}") as src:
             second.write(data)
-            out = read_until(src, 50)
+            out = read_samples(src, 50)
         np.testing.assert_array_equal(out.accel, raw[:, 3:])
     finally:
         second.close()

@@ -14,6 +14,7 @@ from imudiag.drivers.reconnect import ReconnectingSource
 from imudiag.drivers.wire import encode_info, encode_samples
 
 from imudiag.samples import SampleBlock
+from tests.helpers import read_samples
 
 INFO = {"model": "ADXRS300/ADXL202", "serial": "0042", "fw": "1.4", "rate_hz": 200}
 
@@ -25,14 +26,6 @@ def board_bytes(n: int, seq_start: int = 0, seed: int = 0) -> tuple[bytes, np.nd
     return encode_samples(seq_start, t, raw, np.full(n, 30.25)), raw
 
 
-def read_all(src, n: int, timeout_s: float = 5.0) -> SampleBlock:
-    blocks, got = [], 0
-    end = time.monotonic() + timeout_s
-    while got < n and time.monotonic() < end:
-        b = src.read(0.05)
-        blocks.append(b)
-        got += len(b)
-    return SampleBlock.concat(blocks)
 
 
 def test_schemes_registered():
@@ -60,7 +53,7 @@ def test_loop_round_trip_and_ignored_commands():
         src.write_bytes(data[-40:])  # the last frame again
         more, _ = board_bytes(10, seq_start=503, seed=9)
         src.write_bytes(more)
-        out2 = read_all(src, 10)
+        out2 = read_samples(src, 10)
     assert len(out2) == 10 and out2.seq[0] == 503
     c = src.counters
     assert c.skipped_bytes == len(b"INFO\n")
@@ -89,7 +82,7 @@ def test_socket_stream_and_disconnect():
     src = open_source(f"socket://127.0.0.1:{port}")
     src.open()
     try:
-        out = read_all(src, 1000)
+        out = read_samples(src, 1000)
         assert len(out) == 1000
         assert src.device_info == INFO
         np.testing.assert_array_equal(out.gyro, raw[:, :3])
@@ -205,7 +198,7 @@ def test_reconnect_after_unplug_and_replug(tmp_path):
         src.open()
         assert src.state == "connected"
         w1.start()
-        before = read_all(src, 100)
+        before = read_samples(src, 100)
         assert len(before) >= 100
         first.close_master()  # unplug mid-stream
         states = {src.state}
@@ -231,7 +224,7 @@ def test_reconnect_after_unplug_and_replug(tmp_path):
         data2, raw2 = board_bytes(300, seq_start=5000, seed=6)
         w2 = BoardWriter(second, chunked(data2, 40 * 5), rate_hz=200.0)
         w2.start()
-        after = read_all(src, 300)
+        after = read_samples(src, 300)
         assert len(after) == 300
         np.testing.assert_array_equal(after.gyro[-len(raw2) :], raw2[-len(after) :, :3])
         # counters survived: everything before plus after, and the gap in seq is lost
@@ -263,7 +256,7 @@ def test_reconnect_starts_before_device_and_backs_off(tmp_path):
         assert src.state == "connected" and src.reconnects == 0  # a first connect
         data, raw = board_bytes(50, seed=7)
         pair.write(data)
-        out = read_all(src, 50, timeout_s=3.0)
+        out = read_samples(src, 50, timeout_s=3.0)
         np.testing.assert_array_equal(out.accel, raw[:, 3:])
     src.close()
     with pytest.raises(ValueError, match="back-off"):

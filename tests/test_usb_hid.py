@@ -24,7 +24,7 @@ from imudiag.drivers.hid import HID_REPORT_SIZE, pack_reports, unpack_reports
 from imudiag.drivers.reconnect import ReconnectingSource
 from imudiag.drivers.wire import Decoder, encode_info, encode_samples
 
-from imudiag.samples import SampleBlock
+from tests.helpers import read_samples
 
 VID, PID = 0x0483, 0x5740
 EP_IN, EP_OUT = 0x81, 0x01
@@ -160,14 +160,6 @@ class EmulatedBoardBackend(usb.backend.IBackend):
         return len(data)
 
 
-def read_all(src, n: int, timeout_s: float = 3.0) -> SampleBlock:
-    blocks, got = [], 0
-    end = time.monotonic() + timeout_s
-    while got < n and time.monotonic() < end:
-        b = src.read(0.02)
-        blocks.append(b)
-        got += len(b)
-    return SampleBlock.concat(blocks)
 
 
 # -- usb:// -------------------------------------------------------------------------
@@ -180,7 +172,7 @@ def test_usb_reads_bulk_in_through_pyusb_core():
     src = open_source(f"usb://{VID:04x}:{PID:04x}?serial=0001", backend=board)
     with src:
         assert board.configuration == 1 and board.claimed == {0}
-        out = read_all(src, 2000)
+        out = read_samples(src, 2000, timeout_s=3.0)
         src.write_command("INFO")
         src.write_command("RATE 100")
     np.testing.assert_array_equal(out.gyro, raw[:, :3])
@@ -209,7 +201,7 @@ def test_usb_unplug_and_replug_with_reconnect():
         f"usb://{VID:04x}:{PID:04x}", min_backoff_s=0.01, max_backoff_s=0.05, backend=board
     )
     src.open()
-    first = read_all(src, 300)
+    first = read_samples(src, 300, timeout_s=3.0)
     np.testing.assert_array_equal(first.accel, raw1[:, 3:])
     board.plugged = False  # unplug
     src.read(0.02)
@@ -220,7 +212,7 @@ def test_usb_unplug_and_replug_with_reconnect():
     board.plugged = True  # replug; the board carries on at seq 310
     data2, raw2 = board_bytes(200, seq_start=310, seed=2)
     board.send(data2)
-    second = read_all(src, 200)
+    second = read_samples(src, 200, timeout_s=3.0)
     assert src.state == "connected" and src.reconnects == 1
     np.testing.assert_array_equal(second.accel, raw2[:, 3:])
     assert src.counters.frames == 500 and src.counters.lost == 10
@@ -310,7 +302,7 @@ def test_hid_source_reads_a_uhid_virtual_device():  # pragma: no cover - needs /
                 report = pack_reports([data[i : i + 40]])
                 os.write(fd, struct.pack("<IH4096s", UHID_INPUT2, 64, report).ljust(
                     UHID_EVENT_SIZE, b"\0"))  # fmt: skip
-            out = read_all(src, 100)
+            out = read_samples(src, 100, timeout_s=3.0)
         np.testing.assert_array_equal(out.gyro, raw[:, :3])
     finally:
         os.write(fd, struct.pack("<I", UHID_DESTROY).ljust(UHID_EVENT_SIZE, b"\0"))

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..certificate import Certificate, TriadModel
+from ..diagnosis.gyro_fit import ordered_product, quat_matrix, rotvec_quat
 from .config import ModelCheckConfig
 from .residuals import Candidate, Channel
 from .summaries import Chunks
@@ -40,48 +41,6 @@ _N_NUIS = 9
 #: two direction components per turn, and two folds to fit and score)
 MIN_TURNS = 12
 _OFF = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
-
-
-# ---------------------------------------------------------------------------
-# quaternions (w, x, y, z), Hamilton product
-
-
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
-                     aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
-
-
-def _rotvec_quat(theta: np.ndarray) -> np.ndarray:
-    a = np.linalg.norm(theta, axis=-1)
-    k = np.where(a > 1e-8, np.sin(0.5 * a) / np.where(a > 1e-8, a, 1.0), 0.5 - a * a / 48.0)
-    return np.concatenate([np.cos(0.5 * a)[..., None], theta * k[..., None]], axis=-1)
-
-
-def _product(q: np.ndarray) -> np.ndarray:
-    """q_0 q_1 ... q_{L-1} along axis -2, by pairwise reduction (no loop over samples)."""
-    length = q.shape[-2]
-    size = 1 << max(0, (length - 1).bit_length())
-    if size != length:
-        pad = np.zeros(q.shape[:-2] + (size - length, 4))
-        pad[..., 0] = 1.0
-        q = np.concatenate([q, pad], axis=-2)
-    while q.shape[-2] > 1:
-        q = _qmul(q[..., 0::2, :], q[..., 1::2, :])
-    return q[..., 0, :]
-
-
-def _matrix(q: np.ndarray) -> np.ndarray:
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], axis=-2)
 
 
 # ---------------------------------------------------------------------------
@@ -133,7 +92,7 @@ def _predict(omega_in: np.ndarray, to_si: float, dt: np.ndarray, up0: np.ndarray
     """End directions (P, 3) for rate sets (P, m, 3) in input units."""
     w = omega_in * to_si
     theta = 0.5 * (w[:, 1:] + w[:, :-1]) * dt[None, :, None]
-    c = _matrix(_product(_rotvec_quat(theta)))  # body at the end -> body at the start
+    c = quat_matrix(ordered_product(rotvec_quat(theta)))  # body at the end -> body at the start
     return np.einsum("pji,j->pi", c, up0)
 
 

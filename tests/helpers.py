@@ -1,0 +1,20 @@
+"""Helpers shared by the transport tests."""
+
+from __future__ import annotations
+
+import time
+
+from imudiag.drivers.base import Source
+
+from imudiag.samples import SampleBlock
+
+
+def read_samples(src: Source, n: int, timeout_s: float = 5.0) -> SampleBlock:
+    """Read from ``src`` until ``n`` samples arrived or ``timeout_s`` seconds passed."""
+    blocks, got = [], 0
+    end = time.monotonic() + timeout_s
+    while got < n and time.monotonic() < end:
+        b = src.read(0.05)
+        blocks.append(b)
+        got += len(b)
+    return SampleBlock.concat(blocks)
