@@ -18,7 +18,7 @@ Every sample of both triads is corrected with the certificate. The checks
 - excess noise: per channel, the white-noise sigma estimated from second
   differences over ``noise_window_s`` (var(d2 U) = 6 sigma^2 for white noise;
   smooth motion contributes almost nothing at the sample rate; squares are
-  winsorised at 6 sigma of d2 so a step is not taken for noise) beyond
+  winsorised at 10 sigma of d2 so a step is not taken for noise) beyond
   ``noise_ratio`` times the certificate's sigma, in motion or at rest.
 
 All of it is vectorised per block; state carries across blocks.
@@ -54,7 +54,7 @@ class MonitorConfig:
     k_sigma: float = 5.0  #: standard deviations of margin in the gyro rest-rate check
     ring_capacity: int = 4096  #: samples kept in the ring buffer of recent samples
     noise_window_s: float = 1.0  #: window of the white-noise estimate, s
-    noise_ratio: float = 3.0  #: estimated / certificate noise sigma that counts as excess noise
+    noise_ratio: float = 2.0  #: estimated / certificate noise sigma that counts as excess noise
     earth_rate_noise_ratio: float = 0.2  #: per-sample Earth-rate F0 needs sigma_f0 < ratio*limit
 
 
@@ -315,8 +315,9 @@ class Monitor:
             st.noise_tail = raw[-2:]
             if raw.shape[0] < 3:
                 continue
-            # winsorised at 6 sigma of d2: a step (a bias fault, a bump) is not noise
-            clip = 36.0 * 6.0 * sigma**2
+            # winsorised at 10 sigma of d2: a step (a bias fault, a bump) is not noise,
+            # and noise 2.5 times the certificate's is hardly clipped (4 of its sigma)
+            clip = 100.0 * 6.0 * sigma**2
             d2sq = np.minimum(np.diff(raw, n=2, axis=0) ** 2, clip)
             t = block.t[block.t.shape[0] - d2sq.shape[0] :]
             sums, counts = st.noise_sum.update(d2sq)

@@ -39,7 +39,7 @@ from imudiag.sim.board import SimulatedBoard
 from imudiag.sim.scenarios import scenario_motion
 
 HAS_DIAGNOSIS = diagnosis_available()
-MONITOR_SCENARIOS = ("sensor-faults", "attitude-faults", "accel-scale")
+MONITOR_SCENARIOS = ("sensor-faults", "attitude-faults", "accel-scale", "masking-faults", "noise")
 
 
 def _by_number(report: dict) -> dict[int, dict]:
@@ -176,7 +176,7 @@ def test_near_limit_faults_need_the_window_diagnosis() -> None:
     assert report["false_alarms"] == [] and report["passed"] is True
 
 
-@pytest.mark.parametrize("name", ["near-limits", "noise"])
+@pytest.mark.parametrize("name", ["near-limits"])
 def test_diagnosis_only_scenarios_mark_every_expectation(name: str) -> None:
     """Diagnosis-dependent expectations are marked, not silently passed or failed."""
     scenario = load_bundled(name)
@@ -187,7 +187,7 @@ def test_diagnosis_only_scenarios_mark_every_expectation(name: str) -> None:
 
 def test_bundled_scenarios_load_and_are_package_data() -> None:
     names = bundled_names()
-    assert set(names) >= {*MONITOR_SCENARIOS, "transport", "near-limits", "noise"}
+    assert set(names) >= {*MONITOR_SCENARIOS, "transport", "near-limits"}
     kinds = set()
     for name in names:
         scenario = load_bundled(name)
