@@ -10,7 +10,10 @@ change of the measured gravity direction.
 
 Runs of static samples shorter than ``min_interval_s`` are treated as motion;
 the last ``trim_s`` of every run are dropped (the trailing detector window
-reacts to the start of a motion a few samples late); runs longer than
+reacts to the start of a motion a few samples late); the gyro integral of a
+motion reaches ``motion_margin_s`` into the still intervals on both sides (a
+smooth turn begins and ends below the detector's threshold, and those parts
+must be integrated: still samples only add their noise); runs longer than
 ``max_interval_s`` are split so that a unit standing still for hours still
 produces intervals, with bounded memory.
 """
@@ -121,6 +124,7 @@ class IntervalCollector:
         min_interval_s: float = 1.0,
         max_interval_s: float = 30.0,
         trim_s: float = 0.25,
+        motion_margin_s: float = 0.75,
         max_motion_s: float = 20.0,
         max_time_step_s: float | None = None,
         detector_options: dict | None = None,
@@ -133,6 +137,7 @@ class IntervalCollector:
         self.min_n = max(3, int(round(min_interval_s * self.rate_hz)))
         self.max_n = max(self.min_n + 1, int(round(max_interval_s * self.rate_hz)))
         self.trim_n = max(0, int(round(trim_s * self.rate_hz)))
+        self.margin_n = max(0, int(round(motion_margin_s * self.rate_hz)))
         self.max_motion_n = int(round(max_motion_s * self.rate_hz))
         self.max_time_step_s = (
             max_time_step_s if max_time_step_s is not None else 3.0 / self.rate_hz
@@ -182,7 +187,8 @@ class IntervalCollector:
         before = None
         if self._have_interval:
             if self._gap_usable:
-                seg = np.concatenate(self._gap + [rows[:1]])
+                # ... and ends motion_margin_s into this interval
+                seg = np.concatenate(self._gap + [rows[: self.margin_n + 1]])
                 before = MotionSegment(t=seg[:, _T].copy(), gyro=seg[:, _G].copy())
             else:
                 before = MotionSegment(
@@ -211,8 +217,9 @@ class IntervalCollector:
         )
         self._count += 1
         self._have_interval = True
-        self._gap = [rows[-1:]]
-        self._gap_n = 1
+        lead = rows[-min(n, self.margin_n + 1):]  # the motion's integral starts here
+        self._gap = [lead]
+        self._gap_n = lead.shape[0]
         self._gap_usable = True
         self._gap_reason = ""
         return iv

@@ -70,6 +70,7 @@ class StreamingDiagnoser:
             min_interval_s=cfg.min_interval_s,
             max_interval_s=cfg.max_interval_s,
             trim_s=cfg.trim_s,
+            motion_margin_s=cfg.motion_margin_s,
             max_motion_s=cfg.max_motion_s,
         )
         self.tracker = PredicateTracker(cfg.k_sigma, cfg.persist)
