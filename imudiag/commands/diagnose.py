@@ -82,6 +82,8 @@ def make_config(args: argparse.Namespace, **extra: Any) -> DiagnosisConfig:
         v = getattr(args, opt, None)
         if v is not None:
             d[key] = v
+    if getattr(args, "no_windows", False):
+        d["max_windows_kept"] = 16  # not listed: keep only what the predicates need
     d.update(extra)
     try:
         return DiagnosisConfig.from_dict(d)
