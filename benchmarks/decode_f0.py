@@ -71,18 +71,21 @@ def product_pass(data: bytes, chunk: int, cert: Certificate) -> tuple[int, float
     return n, sa / n, sg / n
 
 
+def floor_frames(chunk: bytes) -> int:
+    """The floor over one chunk of whole frames: frombuffer structured + table CRC + norm of
+    both triads; returns the good frames."""
+    frames = np.frombuffer(chunk, FRAME_DTYPE)
+    rows = frames.view(np.uint8).reshape(-1, SAMPLE_FRAME_SIZE)
+    ok = crc16_rows(rows[:, 2:38]) == frames["crc"]
+    raw = frames["raw"][ok].astype(np.float64)
+    np.sqrt(np.einsum("ij,ij->i", raw[:, :3], raw[:, :3]))
+    np.sqrt(np.einsum("ij,ij->i", raw[:, 3:], raw[:, 3:]))
+    return int(np.count_nonzero(ok))
+
+
 def floor_pass(data: bytes, chunk: int) -> int:
-    """The floor: frombuffer structured + table CRC + norm of both triads; good frames."""
-    good = 0
-    for i in range(0, len(data), chunk):
-        frames = np.frombuffer(data[i : i + chunk], FRAME_DTYPE)
-        rows = frames.view(np.uint8).reshape(-1, SAMPLE_FRAME_SIZE)
-        ok = crc16_rows(rows[:, 2:38]) == frames["crc"]
-        raw = frames["raw"][ok].astype(np.float64)
-        np.sqrt(np.einsum("ij,ij->i", raw[:, :3], raw[:, :3]))
-        np.sqrt(np.einsum("ij,ij->i", raw[:, 3:], raw[:, 3:]))
-        good += int(np.count_nonzero(ok))
-    return good
+    """The floor over ``data`` in chunks of ``chunk`` bytes; good frames."""
+    return sum(floor_frames(data[i : i + chunk]) for i in range(0, len(data), chunk))
 
 
 def best_of(repeat: int, fn: Callable[[], object]) -> tuple[float, object]:

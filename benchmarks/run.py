@@ -34,8 +34,7 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
-from imudiag.drivers.crc import crc16_rows  # noqa: E402
-from imudiag.drivers.wire import FRAME_DTYPE, SAMPLE_FRAME_SIZE, Decoder, encode_samples  # noqa: E402
+from imudiag.drivers.wire import SAMPLE_FRAME_SIZE, Decoder, encode_samples  # noqa: E402
 
 from imudiag.certificate import Certificate, default_certificate_path, load_default  # noqa: E402
 from imudiag.logs import open_log, open_writer  # noqa: E402
@@ -46,6 +45,7 @@ from imudiag.sim.effects import Effects  # noqa: E402
 from imudiag.sim.scenarios import scenario_motion  # noqa: E402
 from imudiag.sim.simulator import Simulator  # noqa: E402
 
+from .decode_f0 import best_of, floor_frames  # noqa: E402
 from .procstat import cpu_count  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -57,17 +57,6 @@ TARGET_FLOOR_RATIO = 2.0  #: decode + F0 time / floor time at most
 TARGET_DAEMON_CPU_PERCENT = 1.0  #: % of one core at 1 kHz
 TARGET_P99_MS = 10.0  #: ms, frame written -> F0 verdict
 TARGET_RSS_GROWTH_MB = 5.0  #: MB, resident growth over the accelerated replay
-
-
-def best_of(repeat: int, fn: Callable[[], int]) -> tuple[float, int]:
-    """Shortest wall time (s) of ``repeat`` runs of ``fn`` and its result."""
-    best = float("inf")
-    result = 0
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        result = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, result
 
 
 # -- decode + CRC + F0 ------------------------------------------------------------
@@ -96,13 +85,7 @@ def floor_pass(path: Path, chunk_bytes: int) -> int:
     good = 0
     with open(path, "rb") as fh:
         while chunk := fh.read(chunk_bytes):
-            frames = np.frombuffer(chunk, FRAME_DTYPE)
-            rows = frames.view(np.uint8).reshape(-1, SAMPLE_FRAME_SIZE)
-            ok = crc16_rows(rows[:, 2:38]) == frames["crc"]
-            raw = frames["raw"][ok].astype(np.float64)
-            np.sqrt(np.einsum("ij,ij->i", raw[:, :3], raw[:, :3]))
-            np.sqrt(np.einsum("ij,ij->i", raw[:, 3:], raw[:, 3:]))
-            good += int(np.count_nonzero(ok))
+            good += floor_frames(chunk)
     return good
 
 

@@ -369,26 +369,20 @@ def fit_gauss_markov(
     ok = allan.independent >= min_terms
     tau, var = allan.tau[ok], allan.adev[ok] ** 2
     w = np.sqrt(allan.independent[ok].astype(float)) / var
-    best = (math.inf, 0.0, 1.0, 0.0)
+    def trial(tc: float) -> tuple[float, float, float, float]:
+        """(cost, B, tau_c, white) of the fit at correlation time ``tc`` s."""
+        cols = [_markov_shape(tau / tc)]
+        if with_white:
+            cols.append(1.0 / tau)
+        a = np.stack(cols, 1)
+        coef = _nnls_small(a * w[:, None], var * w)
+        cost = float(np.sum(((a @ coef) - var) ** 2 * w**2))
+        return cost, math.sqrt(coef[0]), float(tc), math.sqrt(coef[1]) if with_white else 0.0
+
     grid = np.logspace(math.log10(tau.min() / 10.0), math.log10(tau.max() * 10.0), 161)
-    for tc in grid:  # one small fit per trial correlation time
-        cols = [_markov_shape(tau / tc)]
-        if with_white:
-            cols.append(1.0 / tau)
-        a = np.stack(cols, 1)
-        coef = _nnls_small(a * w[:, None], var * w)
-        cost = float(np.sum(((a @ coef) - var) ** 2 * w**2))
-        if cost < best[0]:
-            best = (cost, math.sqrt(coef[0]), float(tc), math.sqrt(coef[1]) if with_white else 0.0)
+    # one small fit per trial; the sentinel stays if no fit has a finite cost
+    best = min([(math.inf, 0.0, 1.0, 0.0), *(trial(tc) for tc in grid)], key=lambda r: r[0])
     # refine the correlation time around the best grid point
-    lo, hi = best[2] / 1.06, best[2] * 1.06
-    for tc in np.geomspace(lo, hi, 41):
-        cols = [_markov_shape(tau / tc)]
-        if with_white:
-            cols.append(1.0 / tau)
-        a = np.stack(cols, 1)
-        coef = _nnls_small(a * w[:, None], var * w)
-        cost = float(np.sum(((a @ coef) - var) ** 2 * w**2))
-        if cost < best[0]:
-            best = (cost, math.sqrt(coef[0]), float(tc), math.sqrt(coef[1]) if with_white else 0.0)
+    refine = np.geomspace(best[2] / 1.06, best[2] * 1.06, 41)
+    best = min([best, *(trial(tc) for tc in refine)], key=lambda r: r[0])
     return best[1], best[2], best[3]

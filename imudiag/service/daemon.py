@@ -110,8 +110,7 @@ class Daemon:
     # -- setup ------------------------------------------------------------
 
     def _load_certificate(self) -> Certificate:
-        path = self.settings.certificate_path
-        return certmod.load(path) if path else certmod.load_default()
+        return certmod.load(certificate_path_or_default(self.settings.certificate_path))
 
     def _make_diagnoser(self, cert: Certificate) -> Any:
         if not self.settings.diagnosis:
@@ -141,7 +140,7 @@ class Daemon:
 
     def reload_certificate(self) -> bool:
         """Re-read the certificate; keep the old one if the new one is bad. True if replaced."""
-        path = self.settings.certificate_path or str(certmod.default_certificate_path())
+        path = certificate_path_or_default(self.settings.certificate_path)
         self.notifier.reloading()
         try:
             new = certmod.load(path)
