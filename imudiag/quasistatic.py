@@ -90,6 +90,10 @@ class QuasiStaticDetector:
     where the gyro noise is lower: a hand-held or vibrating unit is still enough
     for the scalar checks when its rate jitters by a fraction of a degree per
     second (a motion that matters also moves the accelerometers or the gyro mean).
+    ``certificate_noise``: use the certificate's noise density; when False (or
+    when the certificate has none) the noise is estimated from the data, from
+    the quietest windows seen so far: a data sheet's figure is often wrong by a
+    factor 1.5-3, and a figure too low leaves no window still.
     """
 
     def __init__(
@@ -101,6 +105,7 @@ class QuasiStaticDetector:
         variance_factor: float = 2.0,
         bias_margin: float | None = 8.0,
         gyro_floor_si: float = math.radians(0.5),
+        certificate_noise: bool = True,
     ) -> None:
         self.certificate = certificate
         self.rate_hz = float(rate_hz if rate_hz else certificate.sample_rate)
@@ -119,15 +124,15 @@ class QuasiStaticDetector:
             1.0 + self.k_sigma * math.sqrt(2.0 / dof), self.variance_factor
         )
         self._noise_var: dict[str, np.ndarray | None] = {}
-        self._noise_from_certificate: dict[str, bool] = {}
+        self._noise_fixed: dict[str, bool] = {}
         for name in ("gyro", "accel"):
-            sigma = certificate.triad(name).noise_sigma(self.rate_hz)
+            sigma = certificate.triad(name).noise_sigma(self.rate_hz) if certificate_noise else None
             if sigma is not None and np.all(sigma > 0):
                 self._noise_var[name] = np.asarray(sigma, dtype=float) ** 2
-                self._noise_from_certificate[name] = True
+                self._noise_fixed[name] = True
             else:
                 self._noise_var[name] = None
-                self._noise_from_certificate[name] = False
+                self._noise_fixed[name] = False
         self._tail = np.zeros((0, 6))
         self._tail_bad = np.zeros(0, dtype=bool)
 
@@ -139,7 +144,7 @@ class QuasiStaticDetector:
         return None if v is None else np.sqrt(v)
 
     def _update_noise_estimate(self, triad: str, var: np.ndarray) -> None:
-        if self._noise_from_certificate[triad] or var.shape[0] < 10:
+        if self._noise_fixed[triad] or var.shape[0] < 10:
             return
         ratio = _chi2_quantile_ratio(self.window - 1, _Z_NOISE_QUANTILE)
         est = np.quantile(var, _NOISE_QUANTILE, axis=0) / ratio
@@ -225,7 +230,7 @@ def static_mask(
 ) -> np.ndarray:
     """One-shot static flags (N,) bool for a whole block (see :class:`QuasiStaticDetector`)."""
     det = QuasiStaticDetector(certificate, rate_hz, window_s=window_s, **options)
-    if not det._noise_from_certificate["gyro"] or not det._noise_from_certificate["accel"]:
+    if not det._noise_fixed["gyro"] or not det._noise_fixed["accel"]:
         # estimate the noise from the whole block first, then decide
         det.update(block)
         det.reset()

@@ -22,6 +22,7 @@ from ..diagnosis.scalar_fit import NormalEquations, sample_rows
 from ..errors import BadInput
 from ..logs import open_log
 from .diagnose import add_common_arguments, make_config, write_json
+from .noise import noise_for_detector, noise_lines
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -51,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
                        "(--magnitude FILE); the triad's own magnitude cannot calibrate it")
     if table is not None and cfg.method != "moving-base":
         raise BadInput("--magnitude: only the moving-base method uses independent magnitudes")
+    certificate_noise, noise_report = noise_for_detector(args, like, args.rate)
     collector = None
     intervals = []
     moving: dict[str, tuple[NormalEquations, float]] = {}
@@ -64,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
                     like, rate, detector_window_s=cfg.detector_window_s,
                     min_interval_s=cfg.min_interval_s, max_interval_s=cfg.max_interval_s,
                     trim_s=cfg.trim_s, max_motion_s=cfg.max_motion_s,
+                    detector_options={"certificate_noise": certificate_noise},
                 )
                 if table is not None:
                     moving = {
@@ -99,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
     summary["log"] = str(args.log)
     summary["like"] = str(args.like)
     summary["out"] = str(args.out)
+    summary["noise"] = noise_report
     if args.json:
         write_json(summary, args.json)
     out = sys.stderr if args.json == "-" else sys.stdout
@@ -111,6 +115,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"gravity direction after integrated rotations, rms: "
               f"{result.rotation_rms_before_deg:.3f} -> {result.rotation_rms_after_deg:.3f} deg",
               file=out)
+    for line in noise_lines(noise_report):
+        print(line, file=out)
     for u in result.undetermined:
         print(f"  undetermined (kept from --like) {u['triad']} {u['sensor']} {u['cause']}: "
               f"{u['reason']}", file=out)

@@ -23,6 +23,7 @@ from ..diagnosis.inputs import MagnitudeTable, check_units, log_rate_hz
 from ..diagnosis.stream import StreamingDiagnoser
 from ..errors import BadInput
 from ..logs import open_log
+from .noise import add_noise_argument, noise_for_detector, noise_lines
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -71,6 +72,7 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
                    help="samples per block read (default 65536)")
     p.add_argument("--min-interval", type=float, metavar="S",
                    help="shortest still stretch used, s (default 1.0)")
+    add_noise_argument(p)
 
 
 def make_config(args: argparse.Namespace, **extra: Any) -> DiagnosisConfig:
@@ -143,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
         print("imudiag diagnose: warning: moving-base without --magnitude uses the magnitude "
               "estimated from the triad itself (the paper's eqs. 17-18), which cannot see "
               "faults", file=sys.stderr)
+    certificate_noise, noise_report = noise_for_detector(args, cert, args.rate)
     monitor = None
     diag = None
     with open_log(args.log, block_size=args.block_size) as reader:
@@ -151,7 +154,9 @@ def run(args: argparse.Namespace) -> int:
                 check_units(args.log, reader.meta, cert)
                 rate = args.rate or log_rate_hz(reader.meta, block, cert)
                 monitor = Monitor(cert, rate_hz=rate)
-                diag = StreamingDiagnoser(cert, cfg, rate_hz=rate)
+                diag = StreamingDiagnoser(
+                    cert, cfg, rate_hz=rate, certificate_noise=certificate_noise
+                )
             monitor.update(block)
             diag.update(block, table.at(block.t) if table is not None else None)
     assert diag is not None and monitor is not None  # an empty log raises LogError
@@ -164,9 +169,10 @@ def run(args: argparse.Namespace) -> int:
     report["log"] = str(args.log)
     report["certificate"] = cert.source or "(bundled)"
     report["sample_rate"] = diag.rate_hz
+    report["noise"] = noise_report
     if args.json:
         write_json(report, args.json)
     out = sys.stderr if args.json == "-" else sys.stdout
-    for line in summary_lines(report):
+    for line in summary_lines(report) + noise_lines(noise_report):
         print(line, file=out)
     return 0

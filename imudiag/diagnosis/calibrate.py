@@ -51,11 +51,16 @@ from .window import count_rotations, distinct_attitudes, rotation_pairs
 
 #: Prior standard deviation (in limits) of the calibration fits: practically none.
 CALIBRATION_PRIOR = 1e4
+#: Effective degrees of freedom a calibration fit keeps: at least one redundant observation
+#: (a fit with none reproduces its data exactly and reports a std that nothing checks).
+CALIBRATION_MIN_DOF = 1.0
 #: Prior standard deviation (in limits) that pins a parameter the session cannot determine.
 PINNED_PRIOR = 1e-6
 
 
-def _pinned_fit(fit_once: Callable[[np.ndarray, bool], TriadFit]) -> TriadFit:
+def _pinned_fit(
+    fit_once: Callable[[np.ndarray, bool], TriadFit], min_dof: float = 0.0
+) -> TriadFit:
     """Fit, pinning at the ``like`` value the parameters the session cannot determine.
 
     ``fit_once(prior_factor (9,), probe)`` fits with those prior widths (in
@@ -65,16 +70,33 @@ def _pinned_fit(fit_once: Callable[[np.ndarray, bool], TriadFit]) -> TriadFit:
     the unobserved direction. So: first, from the linearisation at ``like``,
     pin the worst parameter (largest std / limit) until the rest are
     determined; then fit, and pin more if the converged fit still leaves some
-    undetermined. Pinned parameters are reported as undetermined with the
-    reason of the first probe.
+    undetermined. A fit with fewer than ``min_dof`` effective degrees of
+    freedom has no redundancy to check its own standard deviations (6 intervals
+    for 9 parameters fit exactly and report a tiny std): its worst shape
+    parameter (scale factor or misalignment; a bias only when none is left) is
+    pinned too, until the redundancy is there. Pinned parameters are reported
+    as undetermined with the reason of the first probe.
     """
     pinned = np.zeros(9, dtype=bool)
+    dof_reason: dict[int, str] = {}
 
     def prior(p: np.ndarray) -> np.ndarray:
         return np.where(p, PINNED_PRIOR, CALIBRATION_PRIOR)
 
     def pin_worst(fit: TriadFit) -> bool:
         und = ~fit.determined & ~pinned
+        if not und.any() and np.isfinite(fit.dof) and fit.dof < min_dof - 1e-6:
+            und = ~pinned & (np.arange(9) >= 3)
+            if not und.any():
+                und = ~pinned
+            if not und.any():
+                return False
+            i = int(np.argmax(np.where(und, fit.std / fit.limit, -np.inf)))
+            dof_reason[i] = (
+                f"{fit.dof:.1f} degrees of freedom left, {min_dof:g} needed to check the fit"
+            )
+            pinned[i] = True
+            return True
         if not und.any():
             return False
         pinned[int(np.argmax(np.where(und, fit.std / fit.limit, -np.inf)))] = True
@@ -90,8 +112,15 @@ def _pinned_fit(fit_once: Callable[[np.ndarray, bool], TriadFit]) -> TriadFit:
     for i in np.flatnonzero(pinned):
         fit.determined[i] = False
         fit.std[i] = np.inf
-        why = first.reasons[i] or fit.reasons[i] or "correlated with parameters it cannot see"
+        fit.estimate[i] = fit.certificate[i]  # literally the --like value
+        why = (
+            dof_reason.get(i)
+            or first.reasons[i]
+            or fit.reasons[i]
+            or "correlated with parameters it cannot see"
+        )
         fit.reasons[i] = f"not determined by the session ({why}): kept from --like"
+    fit.extra["pinned"] = int(pinned.sum())
     return fit
 
 
@@ -233,7 +262,8 @@ def calibrate(
                 acc_like, means, mvar, g_in, prior_factor=pf, determined_std_ratio=ratio,
                 max_iter=0 if probe else 100, start="certificate" if probe else "linear",
                 scale_by_residual=not probe,
-            )
+            ),
+            CALIBRATION_MIN_DOF,
         )
     new = like.copy()
     new.sample_rate = rate
@@ -278,7 +308,8 @@ def calibrate(
                     gyr_like, gmeans, gmvar, w_in, prior_factor=pf, determined_std_ratio=ratio,
                     max_iter=0 if probe else 100, method="exact-earth-rate",
                     start="certificate" if probe else "linear", scale_by_residual=not probe,
-                )
+                ),
+                CALIBRATION_MIN_DOF,
             )
         g_shape_c, g_q = shape_of_triad(gyr_like)
         gdev = gyr_fit.estimate - certificate_vector(gyr_like)
@@ -296,8 +327,15 @@ def calibrate(
             )
             return fit
 
-        gyr_fit = _pinned_fit(once)
+        gyr_fit = _pinned_fit(once, CALIBRATION_MIN_DOF)
         n_g = n_holder["n"]
+        if gyr_fit.extra.get("frame_rad") is not None:
+            # N from the final estimates, so pinned parameters are literally the --like values
+            shape_c, q_c = shape_of_triad(gyr_like)
+            scale = np.concatenate([gyr_like.scale_factor, np.ones(3)])
+            dev = (gyr_fit.estimate[3:] - gyr_fit.certificate[3:]) / scale
+            frame = np.asarray(gyr_fit.extra["frame_rad"]) if gyr_fit.extra["frame_applied"] else 0
+            n_g = p_matrix(shape_c + dev) @ small_rotation(np.zeros(3) + frame) @ q_c
         gyr.bias = gyr_fit.estimate[:3].copy()
         gyr.scale_factor_error, gyr.misalignment = fields_from_n(n_g, gyr_like.scale_factor)
     gyr.noise = _with_density(gyr_like.noise, _noise_density(gyr_like, intervals, rate))
@@ -366,6 +404,7 @@ def _gyro_rest_rotation(
     reasons = [""] * 9
     extra: dict = {}
     moving = count_rotations(pairs, cfg.attitude_separation_deg) > 0
+    dof = float("nan")
     if moving:
         sample_var = np.median(np.array([np.diag(iv.gyro_cov) for iv in intervals]), axis=0)
         rot = rotation_fit(
@@ -375,8 +414,19 @@ def _gyro_rest_rotation(
         scale = np.concatenate([gyr_like.scale_factor, np.ones(3)])
         est[3:] = cert[3:] + rot.deviation * scale
         std[3:] = np.sqrt(np.maximum(np.diag(rot.cov), 0.0)) * scale
-        n_g = p_matrix(shape_c + rot.deviation) @ small_rotation(rot.frame) @ q_c
-        extra = {"frame_rad": [float(v) for v in rot.frame], "rotation_rms_rad": rot.rms}
+        frame_std = np.sqrt(np.maximum(np.diag(rot.frame_cov), 0.0))
+        # the frame rotation goes into N only where the rotations determine it as well as a
+        # misalignment must be (a rotation fitted from 2 turns would be written as 0.3 rad)
+        frame_ok = bool(np.all(frame_std <= ratio * gyr_like.limits.misalignment))
+        frame = rot.frame if frame_ok else np.zeros(3)
+        n_g = p_matrix(shape_c + rot.deviation) @ small_rotation(frame) @ q_c
+        extra = {
+            "frame_rad": [float(v) for v in rot.frame],
+            "frame_std_rad": [float(v) for v in frame_std],
+            "frame_applied": frame_ok,
+            "rotation_rms_rad": rot.rms,
+        }
+        dof = rot.dof
     determined = std <= ratio * limit
     for i in range(9):
         if not determined[i]:
@@ -387,7 +437,7 @@ def _gyro_rest_rotation(
     fit = TriadFit(
         triad="gyro", method="rest+rotation", estimate=est, std=std, certificate=cert,
         limit=limit, determined=determined, reasons=reasons, points=len(intervals),
-        extra=extra,
+        extra=extra, dof=dof,
     )
     return fit, n_g
 

@@ -179,6 +179,7 @@ class RotationFitResult:
     rms: float  #: rad
     max_angle_deg: float  #: largest rotation among the pairs
     dof: float = float("nan")  #: effective degrees of freedom
+    frame_cov: np.ndarray | None = None  #: (3, 3) covariance of ``frame``, rad^2 (fit_frame only)
 
 
 def _block_increments(inc: np.ndarray, block_rad: float) -> np.ndarray:
@@ -337,6 +338,7 @@ def rotation_fit(
         rms=float(np.sqrt(np.mean(res * res))),
         max_angle_deg=max(ang) if ang else 0.0,
         dof=dof,
+        frame_cov=cov[6:9, 6:9] if fit_frame else None,
     )
 
 

@@ -45,7 +45,9 @@ class StreamingDiagnoser:
 
     ``certificate``: what the estimates are compared with. ``config``: a
     :class:`DiagnosisConfig` or a mapping of its fields. ``rate_hz``: sample
-    rate (Hz), defaults to the certificate's.
+    rate (Hz), defaults to the certificate's. ``certificate_noise``: False makes
+    the quasi-static detector estimate the noise from the data instead of
+    trusting the certificate's figure.
     """
 
     def __init__(
@@ -53,12 +55,15 @@ class StreamingDiagnoser:
         certificate: Certificate,
         config: DiagnosisConfig | dict[str, Any] | None = None,
         rate_hz: float | None = None,
+        certificate_noise: bool = True,
     ) -> None:
         if not isinstance(config, DiagnosisConfig):
             config = DiagnosisConfig.from_dict(config)
         self.config = config
         self.rate_hz = float(rate_hz or certificate.sample_rate)
         self.certificate = certificate
+        #: whether the quasi-static detector trusts the certificate's noise density
+        self.certificate_noise = certificate_noise
         self._reset()
 
     def _reset(self) -> None:
@@ -72,6 +77,7 @@ class StreamingDiagnoser:
             trim_s=cfg.trim_s,
             motion_margin_s=cfg.motion_margin_s,
             max_motion_s=cfg.max_motion_s,
+            detector_options={"certificate_noise": self.certificate_noise},
         )
         self.tracker = PredicateTracker(cfg.k_sigma, cfg.persist)
         self._window: deque[QuasiStaticInterval] = deque()

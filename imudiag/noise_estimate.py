@@ -1,0 +1,171 @@
+"""The unit's white noise measured from its own data, robust to motion and steps.
+
+One figure per channel, used wherever a command needs the noise of a real unit
+(the quasi-static detector of ``calibrate`` and ``diagnose``, their reports and
+the certificate ``calibrate`` writes), beside the certificate's figure, which
+is a data-sheet value taken on trust and often wrong by a factor 1.5-3.
+
+Method (``"median-second-difference"``): the second difference
+``d[i] = x[i+1] - 2 x[i] + x[i-1]`` of white noise of standard deviation
+``sigma`` has standard deviation ``sqrt(6) sigma``; smooth motion (a turn, a
+drift, a slow tilt) contributes ``x'' dt^2``, which is tiny at IMU rates, and a
+step or a bump only touches a few differences, which a median ignores. So per
+chunk of ``chunk_s`` seconds ``sigma = 1.4826 MAD(d) / sqrt(6)``, and the
+figure of a channel is a low quantile of its chunk values (the quietest
+stretches, where nothing but noise moves the signal). For a signal quantised in
+steps ``q`` finer than its noise this is unbiased; where the noise is below one
+step the MAD can be 0, and the plain RMS of ``d`` is used (floored at the
+quantisation noise ``q / sqrt(12)`` when ``q`` is known).
+Density ``= sigma / sqrt(rate / 2)`` (white noise band up to Nyquist), the
+inverse of :meth:`imudiag.certificate.Triad.noise_sigma`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Name of the method, printed beside every measured figure.
+METHOD = "median-second-difference"
+
+#: Consistency constant of the MAD for a normal distribution.
+_MAD_TO_SIGMA = 1.482602218505602
+
+#: Measured / certificate noise ratio beyond which the certificate's noise is reported wrong.
+NOISE_MISMATCH_FACTOR = 1.5
+
+
+def second_difference_sigma(x: np.ndarray) -> np.ndarray:
+    """Robust per-column white-noise standard deviation of ``x`` (N, C), same units as ``x``.
+
+    NaN for a column with fewer than 5 finite rows.
+    """
+    x = np.asarray(x, dtype=float)
+    if x.ndim == 1:
+        x = x[:, None]
+    out = np.full(x.shape[1], np.nan)
+    if x.shape[0] < 5:
+        return out
+    d = x[2:] - 2.0 * x[1:-1] + x[:-2]
+    for c in range(x.shape[1]):
+        dc = d[:, c]
+        dc = dc[np.isfinite(dc)]
+        if dc.size < 3:
+            continue
+        dc = dc - np.median(dc)
+        mad = float(np.median(np.abs(dc)))
+        # a first robust scale (the MAD; the RMS where quantisation makes it 0) sets a
+        # 5-sigma clip; the RMS of what remains is the figure (continuous, unlike a
+        # median of quantised values)
+        s0 = _MAD_TO_SIGMA * mad if mad > 0 else float(np.sqrt(np.mean(dc * dc)))
+        kept = dc[np.abs(dc) <= 5.0 * s0] if s0 > 0 else dc
+        out[c] = float(np.sqrt(np.mean(kept * kept) / 6.0))
+    return out
+
+
+@dataclass
+class NoiseFigure:
+    """Measured white noise of one triad: per-sample sigma and density, output units."""
+
+    sigma: np.ndarray  #: (3,) per-sample standard deviation, output units
+    density: np.ndarray  #: (3,) density, output units / sqrt(Hz)
+    rate_hz: float  #: sample rate the figure was measured at (Hz)
+    chunks: int  #: chunks the figure was taken from
+    method: str = METHOD
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON form: density (output units/sqrt(Hz)), sigma (output units), method."""
+        return {
+            "density": [float(v) for v in self.density],
+            "sigma": [float(v) for v in self.sigma],
+            "rate_hz": float(self.rate_hz),
+            "chunks": int(self.chunks),
+            "method": self.method,
+        }
+
+
+class NoiseMeter:
+    """Streaming measurement of both triads' white noise, block by block.
+
+    ``rate_hz``: sample rate (Hz); ``chunk_s``: chunk length (s);
+    ``quantile``: which quantile of the chunk figures is the unit's noise (the
+    quietest chunks are noise only; 0.25 ignores up to three quarters of the
+    record in motion); ``quantum``: per-channel (6,) output quantisation step,
+    or None.
+    """
+
+    def __init__(
+        self,
+        rate_hz: float,
+        chunk_s: float = 1.0,
+        quantile: float = 0.25,
+        quantum: np.ndarray | None = None,
+    ) -> None:
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz!r}")
+        self.rate_hz = float(rate_hz)
+        self.chunk = max(8, int(round(chunk_s * self.rate_hz)))
+        self.quantile = float(quantile)
+        self.quantum = None if quantum is None else np.asarray(quantum, dtype=float)
+        self._buf = np.zeros((0, 6))
+        self._chunks: list[np.ndarray] = []
+
+    def update(self, gyro: np.ndarray, accel: np.ndarray, good: np.ndarray | None = None) -> None:
+        """Add samples (N, 3) of each triad, output units; ``good`` (N,) marks usable rows."""
+        x = np.concatenate([np.asarray(gyro, float), np.asarray(accel, float)], axis=1)
+        if good is not None:
+            x = np.where(np.asarray(good, bool)[:, None], x, np.nan)
+        buf = np.concatenate([self._buf, x]) if self._buf.size else x
+        n = buf.shape[0] // self.chunk
+        for k in range(n):
+            part = buf[k * self.chunk : (k + 1) * self.chunk]
+            if np.isfinite(part).all():
+                self._chunks.append(second_difference_sigma(part))
+        self._buf = buf[n * self.chunk :].copy()
+
+    def result(self) -> dict[str, NoiseFigure] | None:
+        """Measured noise per triad, or None when no complete clean chunk was seen."""
+        if not self._chunks:
+            return None
+        sig = np.nanquantile(np.vstack(self._chunks), self.quantile, axis=0)
+        if self.quantum is not None:
+            sig = np.maximum(sig, self.quantum / math.sqrt(12.0))
+        sig = np.where(np.isfinite(sig) & (sig > 0), sig, np.nan)
+        band = math.sqrt(self.rate_hz / 2.0)
+        out = {}
+        for k, name in enumerate(("gyro", "accel")):
+            s = sig[3 * k : 3 * k + 3]
+            out[name] = NoiseFigure(s, s / band, self.rate_hz, len(self._chunks))
+        return out
+
+
+def compare(measured: np.ndarray, certified: np.ndarray | None) -> dict[str, object]:
+    """Measured vs certificate density per axis: ratios and whether they disagree.
+
+    ``disagrees`` is True when any axis differs by more than
+    :data:`NOISE_MISMATCH_FACTOR` either way.
+    """
+    if certified is None:
+        return {"certificate": None, "ratio": None, "disagrees": None}
+    cert = np.asarray(certified, float)
+    ratio = np.asarray(measured, float) / np.where(cert > 0, cert, np.nan)
+    bad = (
+        ~np.isfinite(ratio) | (ratio > NOISE_MISMATCH_FACTOR) | (ratio < 1 / NOISE_MISMATCH_FACTOR)
+    )
+    return {
+        "certificate": [float(v) for v in cert],
+        "ratio": [float(v) for v in ratio],
+        "disagrees": bool(np.any(bad)),
+    }
+
+
+__all__ = [
+    "METHOD",
+    "NOISE_MISMATCH_FACTOR",
+    "NoiseFigure",
+    "NoiseMeter",
+    "compare",
+    "second_difference_sigma",
+]
