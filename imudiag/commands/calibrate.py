@@ -39,6 +39,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="CERT2", help="certificate to write")
     p.add_argument("--json", metavar="OUT",
                    help="write a calibration summary as JSON ('-' for stdout)")
+    p.add_argument("--force", action="store_true",
+                   help="write the certificate even when the held-out check says the "
+                   "calibration does not generalise (it then carries device.warning)")
     p.set_defaults(func=run)
 
 
@@ -94,6 +97,22 @@ def run(args: argparse.Namespace) -> int:
                            source=str(args.log))
     except ValueError as exc:
         raise BadInput(f"{args.log}: {exc}") from None
+    check = result.generalisation or {}
+    refused = check.get("generalises") is False
+    if refused:
+        result.certificate.device["warning"] = (
+            f"written with --force: the calibration does not generalise: {check['reason']}"
+        )
+    elif check.get("generalises") is None and check.get("reason"):
+        result.certificate.device["calibration_check"] = check["reason"]
+    if refused and not args.force:
+        print(f"imudiag calibrate: refused: {args.log}: {check['reason']}; nothing written "
+              f"(--force writes it with a warning)", file=sys.stderr)
+        if args.json:
+            summary = result.summary()
+            summary.update(log=str(args.log), like=str(args.like), out=None, refused=True)
+            write_json(summary, args.json)
+        return 1
     try:
         result.certificate.save(args.out)
     except OSError as exc:
@@ -103,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
     summary["like"] = str(args.like)
     summary["out"] = str(args.out)
     summary["noise"] = noise_report
+    summary["refused"] = False
     if args.json:
         write_json(summary, args.json)
     out = sys.stderr if args.json == "-" else sys.stdout
@@ -117,6 +137,14 @@ def run(args: argparse.Namespace) -> int:
               file=out)
     for line in noise_lines(noise_report):
         print(line, file=out)
+    if check.get("leave_one_out_rms") is not None:
+        print(f"held-out check: |a|/g - 1 rms {check['leave_one_out_rms']:.3e} leaving each of "
+              f"{check['held_out']} intervals out (in-sample {check['in_sample_rms']:.3e})",
+              file=out)
+    if refused:
+        print(f"WARNING: {result.certificate.device['warning']}", file=sys.stderr)
+    elif check.get("reason"):
+        print(f"  note: generalisation {check['reason']}", file=out)
     for u in result.undetermined:
         print(f"  undetermined (kept from --like) {u['triad']} {u['sensor']} {u['cause']}: "
               f"{u['reason']}", file=out)

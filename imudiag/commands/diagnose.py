@@ -135,6 +135,9 @@ def run(args: argparse.Namespace) -> int:
     from ..monitor import Monitor
 
     cert = load_certificate(args.certificate)
+    if cert.device.get("warning"):
+        print(f"imudiag diagnose: warning: {cert.source}: {cert.device['warning']}",
+              file=sys.stderr)
     cfg = make_config(args)
     table = MagnitudeTable(args.magnitude) if args.magnitude else None
     if table is not None and cfg.method != "moving-base":
@@ -168,6 +171,8 @@ def run(args: argparse.Namespace) -> int:
     report = diag.report(f0=f0, windows=not args.no_windows)
     report["log"] = str(args.log)
     report["certificate"] = cert.source or "(bundled)"
+    if cert.device.get("warning"):
+        report["certificate_warning"] = str(cert.device["warning"])
     report["sample_rate"] = diag.rate_hz
     report["noise"] = noise_report
     if args.json:

@@ -60,7 +60,7 @@ PINNED_PRIOR = 1e-6
 
 def _pinned_fit(
     fit_once: Callable[[np.ndarray, bool], TriadFit], min_dof: float = 0.0
-) -> TriadFit:
+) -> tuple[TriadFit, np.ndarray]:
     """Fit, pinning at the ``like`` value the parameters the session cannot determine.
 
     ``fit_once(prior_factor (9,), probe)`` fits with those prior widths (in
@@ -75,7 +75,8 @@ def _pinned_fit(
     for 9 parameters fit exactly and report a tiny std): its worst shape
     parameter (scale factor or misalignment; a bias only when none is left) is
     pinned too, until the redundancy is there. Pinned parameters are reported
-    as undetermined with the reason of the first probe.
+    as undetermined with the reason of the first probe. Returns the fit and the
+    prior widths (9,) it was made with.
     """
     pinned = np.zeros(9, dtype=bool)
     dof_reason: dict[int, str] = {}
@@ -121,7 +122,7 @@ def _pinned_fit(
         )
         fit.reasons[i] = f"not determined by the session ({why}): kept from --like"
     fit.extra["pinned"] = int(pinned.sum())
-    return fit
+    return fit, prior(pinned)
 
 
 @dataclass
@@ -140,6 +141,8 @@ class CalibrationResult:
     rotation_rms_before_deg: float | None = None
     rotation_rms_after_deg: float | None = None
     undetermined: list[dict] = field(default_factory=list)
+    #: accelerometer held-out check (:func:`_leave_one_out`), None where not run
+    generalisation: dict[str, Any] | None = None
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary of the calibration."""
@@ -160,6 +163,7 @@ class CalibrationResult:
             "accel": self.accel.to_json(),
             "gyro": self.gyro.to_json(),
             "undetermined": self.undetermined,
+            "generalisation": self.generalisation,
         }
 
 
@@ -257,7 +261,7 @@ def calibrate(
     elif method == "linear":
         acc_fit = linear_fit(acc_like, means, covs, counts, g_in, ratio, CALIBRATION_PRIOR)
     else:
-        acc_fit = _pinned_fit(
+        acc_fit, acc_prior = _pinned_fit(
             lambda pf, probe: exact_fit(
                 acc_like, means, mvar, g_in, prior_factor=pf, determined_std_ratio=ratio,
                 max_iter=0 if probe else 100, start="certificate" if probe else "linear",
@@ -265,6 +269,9 @@ def calibrate(
             ),
             CALIBRATION_MIN_DOF,
         )
+    generalisation = None
+    if method == "exact":
+        generalisation = _leave_one_out(acc_like, means, mvar, g_in, acc_fit, acc_prior, ratio)
     new = like.copy()
     new.sample_rate = rate
     acc = new.accel
@@ -303,7 +310,7 @@ def calibrate(
         if method == "linear":
             gyr_fit = linear_fit(gyr_like, gmeans, gcovs, counts, w_in, ratio, CALIBRATION_PRIOR)
         else:
-            gyr_fit = _pinned_fit(
+            gyr_fit, _ = _pinned_fit(
                 lambda pf, probe: exact_fit(
                     gyr_like, gmeans, gmvar, w_in, prior_factor=pf, determined_std_ratio=ratio,
                     max_iter=0 if probe else 100, method="exact-earth-rate",
@@ -327,7 +334,7 @@ def calibrate(
             )
             return fit
 
-        gyr_fit = _pinned_fit(once, CALIBRATION_MIN_DOF)
+        gyr_fit, _ = _pinned_fit(once, CALIBRATION_MIN_DOF)
         n_g = n_holder["n"]
         if gyr_fit.extra.get("frame_rad") is not None:
             # N from the final estimates, so pinned parameters are literally the --like values
@@ -367,7 +374,95 @@ def calibrate(
         rotation_rms_before_deg=rot_before,
         rotation_rms_after_deg=rot_after,
         undetermined=_undetermined(acc_fit) + _undetermined(gyr_fit),
+        generalisation=generalisation,
     )
+
+
+#: A calibration generalises when its leave-one-interval-out |a| residual is at most this
+#: many times its in-sample residual ...
+LOO_RATIO_LIMIT = 3.0
+
+
+def _leave_one_out(
+    like: TriadModel,
+    means: np.ndarray,
+    mvar: np.ndarray,
+    g_in: float,
+    fit: TriadFit,
+    prior: np.ndarray,
+    ratio: float,
+) -> dict[str, Any]:
+    """Leave-one-interval-out check of the accelerometer calibration (dimensionless |a|/g - 1).
+
+    Each interval is predicted by the fit to all the others (same pinned
+    parameters). The calibration generalises when the held-out RMS is below the
+    uncalibrated RMS (``like``) and at most :data:`LOO_RATIO_LIMIT` times the
+    in-sample RMS; a fit that only reproduces the holds it was made from (too
+    few holds, one outlier carrying a parameter) fails, with the reason.
+    """
+    k = means.shape[0]
+
+    def norm_err(triad: TriadModel, m: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(triad.inverse(m), axis=1) / g_in - 1.0
+
+    def model_of(f: TriadFit) -> TriadModel:
+        t = copy.deepcopy(like)
+        shape_c, _ = shape_of_triad(like)
+        dev = f.estimate - certificate_vector(like)
+        t.bias = f.estimate[:3].copy()
+        t.scale_factor_error, t.misalignment = n_symmetric(
+            like, shape_c + np.concatenate([dev[3:6] / like.scale_factor, dev[6:9]])
+        )
+        return t
+
+    inside = norm_err(model_of(fit), means)
+    before = norm_err(like, means)
+    free = prior != PINNED_PRIOR
+    held = np.full(k, np.nan)
+    essential = 0
+    if k >= 3:
+        for i in range(k):
+            keep = np.arange(k) != i
+            f = exact_fit(like, means[keep], mvar[keep], g_in, prior_factor=prior,
+                          determined_std_ratio=ratio, max_iter=100)
+            if np.any(free & ~f.determined):
+                essential += 1  # without it a free parameter is unseen: nothing to predict
+                continue
+            held[i] = norm_err(model_of(f), means[i : i + 1])[0]
+
+    def rms(r: np.ndarray) -> float:
+        return float(np.sqrt(np.nanmean(r * r)))
+
+    checked = int(np.isfinite(held).sum())
+    out: dict[str, Any] = {
+        "in_sample_rms": rms(inside),
+        "leave_one_out_rms": rms(held) if checked else None,
+        "uncalibrated_rms": rms(before),
+        "held_out": checked,
+        "essential": essential,
+        "ratio_limit": LOO_RATIO_LIMIT,
+        "generalises": None,
+        "reason": "",
+    }
+    loo = out["leave_one_out_rms"]
+    if checked < 3:
+        out["reason"] = (
+            f"not checked: {essential} of {k} intervals are essential (without any one of "
+            "them a parameter is unseen), too few redundant ones to hold out"
+        )
+    elif loo > out["uncalibrated_rms"]:
+        out.update(generalises=False, reason=(
+            f"held-out |a|/g - 1 rms {loo:.3g} is worse than without calibration "
+            f"({out['uncalibrated_rms']:.3g}): the fit does not predict holds it was not made from"))
+    elif loo > LOO_RATIO_LIMIT * max(out["in_sample_rms"], 1e-12):
+        out.update(generalises=False, reason=(
+            f"held-out |a|/g - 1 rms {loo:.3g} is {loo / out['in_sample_rms']:.1f}x the in-sample "
+            f"{out['in_sample_rms']:.3g} (limit {LOO_RATIO_LIMIT:g}x): the fit follows its own holds"))
+    else:
+        out["generalises"] = True
+    worst = int(np.nanargmax(np.abs(held))) if np.isfinite(held).any() else None
+    out["worst_interval"] = worst
+    return out
 
 
 def _with_density(noise: Noise | None, density: np.ndarray) -> Noise:
