@@ -14,12 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import run_imudiag
 
 from imudiag.certificate import load
 from imudiag.diagnosis.params import certificate_vector
 from imudiag.noise_estimate import METHOD, NoiseMeter, second_difference_sigma
-
-from conftest import run_imudiag
 
 DATA = Path(__file__).parent / "data"
 XSENS = DATA / "real" / "xsens-mti-multiposition" / "session.csv.gz"

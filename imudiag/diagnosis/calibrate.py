@@ -451,13 +451,19 @@ def _leave_one_out(
             "them a parameter is unseen), too few redundant ones to hold out"
         )
     elif loo > out["uncalibrated_rms"]:
-        out.update(generalises=False, reason=(
+        out["generalises"] = False
+        out["reason"] = (
             f"held-out |a|/g - 1 rms {loo:.3g} is worse than without calibration "
-            f"({out['uncalibrated_rms']:.3g}): the fit does not predict holds it was not made from"))
+            f"({out['uncalibrated_rms']:.3g}): the fit does not predict holds it was not "
+            "made from"
+        )
     elif loo > LOO_RATIO_LIMIT * max(out["in_sample_rms"], 1e-12):
-        out.update(generalises=False, reason=(
-            f"held-out |a|/g - 1 rms {loo:.3g} is {loo / out['in_sample_rms']:.1f}x the in-sample "
-            f"{out['in_sample_rms']:.3g} (limit {LOO_RATIO_LIMIT:g}x): the fit follows its own holds"))
+        out["generalises"] = False
+        out["reason"] = (
+            f"held-out |a|/g - 1 rms {loo:.3g} is {loo / out['in_sample_rms']:.1f}x the "
+            f"in-sample {out['in_sample_rms']:.3g} (limit {LOO_RATIO_LIMIT:g}x): the fit "
+            "follows its own holds"
+        )
     else:
         out["generalises"] = True
     worst = int(np.nanargmax(np.abs(held))) if np.isfinite(held).any() else None
