@@ -1,0 +1,346 @@
+"""Specific force per GNSS epoch, from GNSS velocities and from the IMU.
+
+GNSS side (navigation frame NED, no attitude needed). Between two GNSS
+velocities v_k, v_{k+1} at t_k, t_{k+1} (dt = t_{k+1} - t_k):
+
+    f_n = (v_{k+1} - v_k) / dt - g_n + (2 Omega_ie + omega_en) x v_mid
+
+is the mean specific force at the antenna over the epoch (exact for the
+first term when the velocities are instantaneous, Doppler-derived ones are);
+g_n = (0, 0, gamma(lat, h)) is WGS-84 normal gravity (:mod:`.earth`),
+evaluated with the Coriolis and transport terms at the epoch's mid point.
+
+Noise: with per-axis velocity standard deviations s_k (horizontal from gpsd's
+``eps``, vertical from ``epc``, both read as ``eps_sigmas``-sigma values),
+Cov(f_n) = (S_k + S_{k+1}) / dt^2 and the magnitude's standard deviation is
+sqrt(u^T Cov u) with u = f_n / |f_n| (first order). Consecutive epochs share a
+velocity, so their errors correlate at -1/2.
+
+IMU side (body frame): the mean specific force over the same epoch, shifted
+by the GNSS latency (the GNSS velocity labelled t describes the motion at
+IMU time t - latency). Each sample is rotated into the body frame at the
+epoch's mid time with the gyro-integrated rotation before averaging, so that
+|mean| matches the GNSS |mean f_n| in turns (without it the horizontal part
+shrinks by about (omega dt)^2 / 24). A lever arm l (body, m, from the IMU to
+the antenna) adds omega' x l + omega x (omega x l) to the IMU's specific force
+to give the antenna's.
+
+Quality gate (GNSS side only, so a sensor fault can never gate itself away):
+fix mode, speed accuracy, outages (gaps longer than ``max_gap_factor`` times
+the nominal period) and velocity outliers (a velocity that leaves the
+straight line through its neighbours by more than ``outlier_sigmas`` times the
+noise plus a jerk allowance).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .earth import coriolis_term, normal_gravity
+from .tpv import GnssTrack
+
+#: Reasons an epoch is not used, in the order they are tested.
+REASONS = ("mode", "no_velocity", "accuracy", "outage", "outlier", "imu_coverage")
+
+
+@dataclass
+class GateConfig:
+    """Quality gate and noise model of the GNSS side."""
+
+    min_mode: int = 3  #: 3D fix: the vertical velocity is needed
+    eps_sigmas: float = 2.0  #: gpsd eps/epc read as this many sigma
+    max_sigma_m_s: float = 0.5  #: m/s, largest per-axis velocity std accepted
+    default_sigma_h_m_s: float = 0.05  #: m/s, horizontal velocity std when eps is absent
+    default_sigma_v_m_s: float = 0.10  #: m/s, vertical velocity std when epc is absent
+    max_gap_factor: float = 1.6  #: an epoch longer than this times the period is an outage
+    outlier_sigmas: float = 5.0  #: outlier threshold in combined sigmas
+    jerk_allowance_m_s3: float = 3.0  #: m/s^3, jerk a smooth drive may have
+
+
+@dataclass
+class GnssEpochs:
+    """Specific force over consecutive GNSS epochs [t0, t1] (GNSS time tags), K of them.
+
+    f_n (K, 3) m/s^2 NED; mag (K,) m/s^2; sigma_mag (K,) m/s^2; gravity (K,)
+    m/s^2; speed (K,) m/s (mid); valid (K,) bool; reason (K,) str ("" when valid).
+    """
+
+    t0: np.ndarray
+    t1: np.ndarray
+    f_n: np.ndarray
+    mag: np.ndarray
+    sigma_mag: np.ndarray
+    gravity: np.ndarray
+    speed: np.ndarray
+    valid: np.ndarray
+    reason: np.ndarray
+    period_s: float = float("nan")
+    counts: dict = field(default_factory=dict)  #: reason -> epochs rejected
+
+    def __len__(self) -> int:
+        return int(self.t0.shape[0])
+
+    def select(self, mask: np.ndarray) -> GnssEpochs:
+        """The epochs where ``mask`` is true."""
+        return GnssEpochs(
+            self.t0[mask],
+            self.t1[mask],
+            self.f_n[mask],
+            self.mag[mask],
+            self.sigma_mag[mask],
+            self.gravity[mask],
+            self.speed[mask],
+            self.valid[mask],
+            self.reason[mask],
+            self.period_s,
+            dict(self.counts),
+        )
+
+
+def velocity_sigma(track: GnssTrack, gate: GateConfig) -> np.ndarray:
+    """Per-axis velocity standard deviations (K, 3), m/s, from eps/epc or the defaults."""
+    sh = np.where(np.isfinite(track.eps), track.eps / gate.eps_sigmas, gate.default_sigma_h_m_s)
+    sv = np.where(np.isfinite(track.epc), track.epc / gate.eps_sigmas, gate.default_sigma_v_m_s)
+    # gpsd eps is a speed error: read it as the std of each horizontal axis
+    return np.stack([sh, sh, sv], 1)
+
+
+def gnss_epochs(track: GnssTrack, gate: GateConfig | None = None, span: int = 1) -> GnssEpochs:
+    """Specific force over consecutive GNSS epochs, gated (module doc).
+
+    ``span``: GNSS periods per epoch (1: every pair of consecutive fixes). Longer
+    epochs divide the velocity noise's contribution to |f| by ``span``; an epoch is
+    rejected when any fix pair inside it is (the first reason is kept).
+    """
+    gate = gate or GateConfig()
+    span = max(1, int(span))
+    n = len(track)
+    k = max(n - 1, 0)
+    t = track.t
+    v = track.vel_ned
+    sig = velocity_sigma(track, gate)
+    period = track.period_s()
+    reason = np.full(k, "", dtype=object)
+
+    def mark(bad_point: np.ndarray, why: str) -> None:
+        bad_epoch = bad_point[:-1] | bad_point[1:]
+        reason[(reason == "") & bad_epoch] = why
+
+    mark(track.mode < gate.min_mode, "mode")
+    mark(~np.all(np.isfinite(v), axis=1), "no_velocity")
+    mark(np.max(sig, axis=1) > gate.max_sigma_m_s, "accuracy")
+    dt = np.diff(t) if n else np.zeros(0)
+    if k:
+        gap = dt > gate.max_gap_factor * period
+        reason[(reason == "") & gap] = "outage"
+    # velocity outliers: distance of v_k from the line through v_{k-1}, v_{k+1}
+    if n >= 3:
+        w = (t[1:-1] - t[:-2]) / (t[2:] - t[:-2])
+        pred = v[:-2] + (v[2:] - v[:-2]) * w[:, None]
+        r = np.linalg.norm(v[1:-1] - pred, axis=1)
+        span2 = t[2:] - t[:-2]
+        wc = w[:, None]
+        sr = np.sqrt(
+            np.sum(sig[1:-1] ** 2 + (1 - wc) ** 2 * sig[:-2] ** 2 + wc**2 * sig[2:] ** 2, axis=1)
+        )
+        allow = gate.jerk_allowance_m_s3 * span2**2 / 8.0
+        out = np.zeros(n, dtype=bool)
+        ok = np.isfinite(r)
+        exceed = np.zeros(n - 2, dtype=bool)
+        exceed[ok] = r[ok] > gate.outlier_sigmas * sr[ok] + allow[ok]
+        # a bad v_k also moves its neighbours' residuals (by half): flag the local maxima
+        rr = np.where(ok, r, -np.inf)
+        left = np.concatenate([[-np.inf], rr[:-1]])
+        right = np.concatenate([rr[1:], [-np.inf]])
+        out[1:-1] = exceed & (rr >= left) & (rr >= right)
+        mark(out, "outlier")
+
+    # epochs of ``span`` fix pairs: fixes s_idx .. e_idx
+    s_idx = np.arange(0, max(k - span + 1, 0), span)
+    e_idx = s_idx + span
+    if span > 1:
+        pair_reason = reason
+        reason = np.full(s_idx.shape[0], "", dtype=object)
+        for off in range(span):
+            r = pair_reason[s_idx + off]
+            reason[(reason == "") & (r != "")] = r[(reason == "") & (r != "")]
+    kk = s_idx.shape[0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        dte = t[e_idx] - t[s_idx] if kk else np.zeros(0)
+        safe_dt = np.where(dte > 0, dte, np.nan)
+        acc = (v[e_idx] - v[s_idx]) / safe_dt[:, None] if kk else np.zeros((0, 3))
+        cv = np.cumsum(np.vstack([np.zeros((1, 3)), v]), axis=0)
+        vm = (cv[e_idx + 1] - cv[s_idx]) / (span + 1) if kk else np.zeros((0, 3))
+        lat = 0.5 * (track.lat_deg[s_idx] + track.lat_deg[e_idx]) if kk else np.zeros(0)
+        alt = 0.5 * (track.alt_m[s_idx] + track.alt_m[e_idx]) if kk else np.zeros(0)
+        lat_c = np.where(np.isfinite(lat), lat, 45.0)
+        alt_c = np.where(np.isfinite(alt), alt, 0.0)
+        g = normal_gravity(lat_c, alt_c)
+        f_n = acc + coriolis_term(lat_c, alt_c, vm)
+        f_n[:, 2] -= g
+        mag = np.linalg.norm(f_n, axis=1)
+        u = f_n / mag[:, None]
+        cov_diag = (
+            (sig[e_idx] ** 2 + sig[s_idx] ** 2) / safe_dt[:, None] ** 2 if kk else np.zeros((0, 3))
+        )
+        sigma_mag = np.sqrt(np.sum(u * u * cov_diag, axis=1))
+    reason[(reason == "") & ~np.isfinite(mag)] = "no_velocity"
+    valid = reason == ""
+    counts = {r: int(np.sum(reason == r)) for r in REASONS if np.any(reason == r)}
+    return GnssEpochs(
+        t0=t[s_idx].copy(),
+        t1=t[e_idx].copy(),
+        f_n=f_n,
+        mag=mag,
+        sigma_mag=sigma_mag,
+        gravity=g,
+        speed=np.linalg.norm(vm, axis=1),
+        valid=valid,
+        reason=reason,
+        period_s=period * span,
+        counts=counts,
+    )
+
+
+@dataclass
+class ImuEpochs:
+    """The IMU over K epochs (IMU time [a, b) = GNSS [t0, t1] - latency).
+
+    mean_si (K, 3) m/s^2 body, rotated to the mid-epoch body frame and moved
+    to the antenna by the lever arm; mag (K,) m/s^2 its norm; sigma_mag (K,)
+    m/s^2 from the white noise of the samples; mean_raw (K, 3) output units
+    (plain means, if raw outputs were given); comp_si (K, 3) m/s^2 what the
+    rotation and the lever arm added to the plain SI mean; count (K,) samples;
+    covered (K,) bool: the samples span the epoch (no gap in the IMU stream).
+    """
+
+    mean_si: np.ndarray
+    mag: np.ndarray
+    sigma_mag: np.ndarray
+    comp_si: np.ndarray
+    count: np.ndarray
+    covered: np.ndarray
+    mean_raw: np.ndarray | None = None
+    gyro_mean: np.ndarray | None = None  #: (K, 3) rad/s
+
+
+def _rodrigues(theta: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Rotate vectors x (N, 3) by rotation vectors theta (N, 3), rad."""
+    ang = np.linalg.norm(theta, axis=1)
+    small = ang < 1e-12
+    k = np.where(small[:, None], 0.0, theta / np.where(small, 1.0, ang)[:, None])
+    c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]
+    kx = np.cross(k, x)
+    kd = np.sum(k * x, axis=1)[:, None]
+    return x * c + kx * s + k * kd * (1.0 - c)
+
+
+def imu_epochs(
+    t: np.ndarray,
+    accel_si: np.ndarray,
+    t0: np.ndarray,
+    t1: np.ndarray,
+    gyro_si: np.ndarray | None = None,
+    accel_raw: np.ndarray | None = None,
+    sigma_sample_si: np.ndarray | float = 0.0,
+    latency_s: float = 0.0,
+    lever_arm_m: np.ndarray | None = None,
+) -> ImuEpochs:
+    """Mean IMU specific force over the GNSS epochs [t0, t1] - ``latency_s`` (see module doc).
+
+    t (N,) s increasing; accel_si (N, 3) m/s^2 corrected; gyro_si (N, 3)
+    rad/s corrected (rotation compensation and lever arm need it);
+    sigma_sample_si (3,) or scalar m/s^2: white-noise std of one sample.
+    """
+    t = np.asarray(t, dtype=float)
+    f = np.asarray(accel_si, dtype=float)
+    a = np.asarray(t0, dtype=float) - latency_s
+    b = np.asarray(t1, dtype=float) - latency_s
+    kk = a.shape[0]
+    n = t.shape[0]
+    # sample i belongs to the epoch j with a_j <= t_i < b_j (epochs do not overlap)
+    j = np.searchsorted(a, t, side="right") - 1
+    inside = (j >= 0) & (j < kk)
+    inside[inside] &= t[inside] < b[j[inside]]
+    idx = np.where(inside, j, kk)  # bin kk collects the rest
+    count = np.bincount(idx, minlength=kk + 1)[:kk]
+    fc = f.copy()
+    gyro_mean = None
+    if gyro_si is not None and n > 1:
+        w = np.asarray(gyro_si, dtype=float)
+        dt = np.diff(t, append=t[-1] + (t[-1] - t[-2]))
+        big = np.cumsum(w * dt[:, None], axis=0) - w * dt[:, None]  # integral up to t_i
+        gsum = np.stack([np.bincount(idx, w[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            gyro_mean = gsum / count[:, None]
+        if lever_arm_m is not None and np.any(lever_arm_m):
+            lev = np.asarray(lever_arm_m, dtype=float)
+            wdot = np.gradient(w, t, axis=0)
+            fc = fc + np.cross(wdot, lev) + np.cross(w, np.cross(w, lev))
+        # rotation vector at the epoch's mid time (interpolated), per sample of the epoch
+        mid = 0.5 * (a + b)
+        big_mid = np.stack([np.interp(mid, t, big[:, c]) for c in range(3)], 1)
+        theta = np.zeros_like(big)
+        theta[inside] = big[inside] - big_mid[j[inside]]
+        # v_mid = R(mid <- t) v_t: rotation by the integral from mid to t
+        fc = _rodrigues(theta, fc)
+    sums = np.stack([np.bincount(idx, fc[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
+    plain = np.stack([np.bincount(idx, f[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = sums / count[:, None]
+        comp = (sums - plain) / count[:, None]
+        mag = np.linalg.norm(mean, axis=1)
+        u = mean / mag[:, None]
+        s2 = np.broadcast_to(np.asarray(sigma_sample_si, dtype=float) ** 2, (3,))
+        sigma_mag = np.sqrt(np.sum(u * u * s2, axis=1) / count)
+        mean_raw = None
+        if accel_raw is not None:
+            r = np.asarray(accel_raw, dtype=float)
+            rs = np.stack([np.bincount(idx, r[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
+            mean_raw = rs / count[:, None]
+    # covered: samples reach both ends of the epoch within 1.5 sample periods
+    if n > 1:
+        period = float(np.median(np.diff(t)))
+        first = np.full(kk, np.inf)
+        last = np.full(kk, -np.inf)
+        np.minimum.at(first, idx[inside], t[inside])
+        np.maximum.at(last, idx[inside], t[inside])
+        expected = (b - a) / period
+        covered = (
+            (first - a <= 1.5 * period)
+            & (b - last <= 1.5 * period)
+            & (count >= np.maximum(1, 0.9 * expected - 1))
+        )
+    else:
+        covered = np.zeros(kk, dtype=bool)
+    return ImuEpochs(
+        mean_si=mean,
+        mag=mag,
+        sigma_mag=sigma_mag,
+        comp_si=comp,
+        count=count,
+        covered=covered,
+        mean_raw=mean_raw,
+        gyro_mean=gyro_mean,
+    )
+
+
+def noise_floor(epochs: GnssEpochs) -> float:
+    """Median GNSS |f| standard deviation over valid epochs, m/s^2 (nan when none)."""
+    s = epochs.sigma_mag[epochs.valid]
+    return float(np.median(s)) if s.size else math.nan
+
+
+__all__ = [
+    "REASONS",
+    "GateConfig",
+    "GnssEpochs",
+    "ImuEpochs",
+    "gnss_epochs",
+    "imu_epochs",
+    "noise_floor",
+    "velocity_sigma",
+]
