@@ -65,6 +65,7 @@ class TriadState:
     checked: int = 0  #: samples on which the F0 check applied
     failed: int = 0  #: of those, samples beyond the limit
     last_f0: float = float("nan")  #: last checked value: F0, or the rest-rate ratio (gyro)
+    sum_f0_sq: float = 0.0  #: sum of the squared checked values (their RMS is the estimate)
     worst_axis: int | None = None  #: axis of the last gyro rest-rate failure
     persistence: Persistence | None = None
     saturation: Persistence | None = None
@@ -181,6 +182,38 @@ class Monitor:
                 )
         return out
 
+    def f0_faults(self) -> list[dict[str, Any]]:
+        """Persistent F0 failures ever raised over the stream, per triad (``diagnose``'s faults).
+
+        The same k-of-n persistence as the daemon's ``f0`` fault; ``estimate`` is
+        the RMS of the checked values (F0, dimensionless; the rest-rate ratio for a MEMS
+        gyro at rest), ``limit`` the certificate's F0 limit (1 for the ratio).
+        """
+        out: list[dict[str, Any]] = []
+        for name in TRIADS:
+            st = self.state[name]
+            p = st.persistence
+            if p is None or p.raised == 0:
+                continue
+            rest_rate = name == "gyro" and self.gyro_mode == "rest_rate"
+            sensor = None
+            if rest_rate and st.worst_axis is not None:
+                sensor = SENSOR_NAMES[name][st.worst_axis]
+            out.append({
+                "triad": name,
+                "sensor": sensor,
+                "cause": "f0",
+                "check": "rest_rate" if rest_rate else "f0",
+                "estimate": math.sqrt(st.sum_f0_sq / st.checked) if st.checked else float("nan"),
+                "certificate": 0.0,
+                "limit": 1.0 if rest_rate else float(self.certificate.triad(name).limits.f0),
+                "t_first": p.t_first_raised,
+                "raised": p.raised,
+                "failed": st.failed,
+                "checked": st.checked,
+            })
+        return out
+
     # -- the checks -------------------------------------------------------
 
     def update(self, block: SampleBlock) -> None:
@@ -236,6 +269,7 @@ class Monitor:
         failed = np.abs(values) > limit
         st.checked += int(values.size)
         st.failed += int(np.count_nonzero(failed))
+        st.sum_f0_sq += float(np.sum(values * values))
         if values.size:
             st.last_f0 = float(values[-1])
         assert st.persistence is not None
@@ -271,6 +305,7 @@ class Monitor:
         st = self.state["gyro"]
         st.checked += int(m.shape[0])
         st.failed += int(np.count_nonzero(failed))
+        st.sum_f0_sq += float(np.sum(values * values))
         if m.shape[0]:
             st.last_f0 = float(values[-1])
         if np.any(failed):

@@ -22,12 +22,16 @@ class Persistence:
         self._tail = np.zeros(0, dtype=bool)
         self.active = False
         self.t_first: float | None = None  #: sample time (s) the condition last became active
+        self.raised = 0  #: times the condition became active (even set and cleared in one block)
+        self.t_first_raised: float | None = None  #: sample time (s) it first became active
 
     def reset(self) -> None:
         """Forget all history."""
         self._tail = np.zeros(0, dtype=bool)
         self.active = False
         self.t_first = None
+        self.raised = 0
+        self.t_first_raised = None
 
     def update(self, failed: np.ndarray, t: np.ndarray) -> bool:
         """Feed check outcomes (True = failed) at sample times ``t`` (s); returns ``active``."""
@@ -47,6 +51,7 @@ class Persistence:
         count = c[idx + 1] - c[np.maximum(idx + 1 - self.n, 0)]
         sets = np.flatnonzero(count >= self.k)
         clears = np.flatnonzero(count <= self.k_clear)
+        self._count_raises(sets, clears, t)
         last_set = sets[-1] if sets.size else -1
         last_clear = clears[-1] if clears.size else -1
         if last_set > last_clear:
@@ -65,3 +70,18 @@ class Persistence:
             self.active = False
         self._tail = seq[-(self.n - 1) :] if self.n > 1 else np.zeros(0, dtype=bool)
         return self.active
+
+    def _count_raises(self, sets: np.ndarray, clears: np.ndarray, t: np.ndarray) -> None:
+        """Count inactive -> active transitions among this block's set/clear positions."""
+        if not sets.size:
+            return
+        pos = np.concatenate([sets, clears])
+        kind = np.concatenate([np.ones(sets.size, np.int8), -np.ones(clears.size, np.int8)])
+        order = np.argsort(pos, kind="stable")
+        pos, kind = pos[order], kind[order]
+        prev = np.concatenate([[1 if self.active else -1], kind[:-1]])
+        rises = np.flatnonzero((kind == 1) & (prev == -1))
+        if rises.size:
+            self.raised += int(rises.size)
+            if self.t_first_raised is None:
+                self.t_first_raised = float(t[pos[rises[0]]])

@@ -54,7 +54,12 @@ def test_report_shape_and_verdict(faulty_log, imudiag_cli, tmp_path):
         assert 0 <= rep["f0"][triad]["failed"] <= rep["f0"][triad]["checked"] <= rep["samples"]
     v = rep["verdict"]
     assert (v["accel"], v["gyro"]) == ("fault", "ok")
-    (f,) = v["faults"]
+    (f,) = [f for f in v["faults"] if f["cause"] != "f0"]
+    # the persistent F0 failure the daemon would raise too, explained by the named fault
+    for f0_fault in (f for f in v["faults"] if f["cause"] == "f0"):
+        assert f0_fault["triad"] == "accel"
+        assert f0_fault["explained_by"] == [{"sensor": "az", "cause": "scale_factor"}]
+        assert {"sensor", "estimate", "limit", "t_first", "raised"} <= set(f0_fault)
     assert {"triad", "sensor", "cause", "estimate", "certificate", "limit", "t_first"} <= set(f)
     assert (f["triad"], f["sensor"], f["cause"]) == ("accel", "az", "scale_factor")
     cert = load_default()

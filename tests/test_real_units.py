@@ -163,3 +163,32 @@ def test_short_session_pins_what_it_cannot_determine(tmp_path, imudiag_cli):
     assert summary["gyro"]["frame_applied"] is False
     assert np.max(np.abs(list(cert.gyro.misalignment.values()))) < 1e-9
     assert summary["generalisation"]["generalises"] is True
+
+
+def test_persistence_counts_a_fault_raised_and_cleared_inside_one_block():
+    from imudiag.persistence import Persistence
+
+    p = Persistence(3, 5)
+    failed = np.array([0, 1, 1, 1, 0, 0, 0, 0, 0, 0, 1, 1, 1, 0, 0, 0, 0, 0], dtype=bool)
+    t = np.arange(failed.size) * 0.01
+    p.update(failed, t)
+    assert p.raised == 2 and not p.active
+    assert p.t_first_raised == pytest.approx(0.03)
+
+
+def test_grossly_wrong_certificate_is_a_fault_in_diagnose_as_in_the_daemon(tmp_path):
+    """Issue 10: every F0 check failed, yet diagnose said undetermined; now an f0 fault."""
+    doc = yaml.safe_load(LIKE.read_text())
+    doc["accel"]["bias"] = [v + 300 for v in doc["accel"]["bias"]]  # 14 limits on each axis
+    bad = tmp_path / "gross.yaml"
+    bad.write_text(yaml.safe_dump(doc, sort_keys=False))
+    r = run_imudiag(
+        "diagnose", str(XSENS), "--certificate", str(bad), "--json", "-", "--no-windows"
+    )
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(r.stdout)
+    f0 = [f for f in rep["verdict"]["faults"] if f["cause"] == "f0"]
+    assert [f["triad"] for f in f0] == ["accel"]
+    assert rep["verdict"]["accel"] == "fault"
+    assert f0[0]["failed"] == rep["f0"]["accel"]["failed"] > 0.9 * rep["f0"]["accel"]["checked"]
+    assert f0[0]["estimate"] > f0[0]["limit"]

@@ -122,6 +122,12 @@ def summary_lines(report: dict) -> list[str]:
         lines.append(f"{triad}: {v[triad]} (F0 checked {f0.get('checked', 0)}, "
                      f"failed {f0.get('failed', 0)})")
     for f in v["faults"]:
+        if f["cause"] == "f0":
+            lines.append(f"  FAULT {f['triad']} {f['sensor'] or '(triad)'} f0: {f['failed']} of "
+                         f"{f['checked']} checks beyond the limit {f['limit']:.6g} (rms "
+                         f"{f['check']} {f['estimate']:.3g}), persistent from t = "
+                         f"{f['t_first']:.2f} s")
+            continue
         lines.append(f"  FAULT {f['triad']} {f['sensor']} {f['cause']}: estimate "
                      f"{f['estimate']:.6g}, certificate {f['certificate']:.6g}, limit "
                      f"{f['limit']:.6g}, first at t = {f['t_first']:.2f} s")
@@ -169,6 +175,17 @@ def run(args: argparse.Namespace) -> int:
         for t in ("accel", "gyro")
     }
     report = diag.report(f0=f0, windows=not args.no_windows)
+    # persistent F0 failures are faults, by the daemon's own k-of-n persistence
+    # (``explained_by``: the parameter faults the window diagnosis names on that triad)
+    verdict = report["verdict"]
+    named = list(verdict["faults"])
+    for fault in monitor.f0_faults():
+        fault["explained_by"] = [
+            {"sensor": f["sensor"], "cause": f["cause"]} for f in named
+            if f["triad"] == fault["triad"]
+        ]
+        verdict["faults"].append(fault)
+        verdict[fault["triad"]] = "fault"
     report["log"] = str(args.log)
     report["certificate"] = cert.source or "(bundled)"
     if cert.device.get("warning"):
