@@ -192,3 +192,42 @@ def test_grossly_wrong_certificate_is_a_fault_in_diagnose_as_in_the_daemon(tmp_p
     assert rep["verdict"]["accel"] == "fault"
     assert f0[0]["failed"] == rep["f0"]["accel"]["failed"] > 0.9 * rep["f0"]["accel"]["checked"]
     assert f0[0]["estimate"] > f0[0]["limit"]
+
+
+@pytest.mark.parametrize(
+    "recording, like",
+    [
+        ("xsens-mti-multiposition/session.csv.gz", "like-xsens.yaml"),
+        ("imucal-ferraris/session.csv.gz", "like-imucal.yaml"),
+    ],
+)
+def test_replay_with_the_calibrated_certificate_raises_no_noise_fault(tmp_path, recording, like):
+    """Issue 10 item 5: hand rotations and a hand on the unit are not excess noise."""
+    from imudiag.logs import open_log
+    from imudiag.monitor import Monitor
+
+    log = DATA / "real" / recording
+    cert_path = tmp_path / "cal.yaml"
+    r = run_imudiag(
+        "calibrate", str(log), "--like", str(DATA / "diagnosis" / like), "--out", str(cert_path)
+    )
+    assert r.returncode == 0, r.stderr
+    cert = load(cert_path)
+    ever = set()
+    with open_log(log, block_size=20) as reader:  # daemon-sized reads
+        m = None
+        for block in reader:
+            m = m or Monitor(cert, rate_hz=cert.sample_rate)
+            m.update(block)
+            ever |= {(f["triad"], f.get("sensor"), f["cause"]) for f in m.active_faults}
+    assert ever == set()
+    # a genuine noise increase on the same unit is still named
+    with open_log(log) as reader:
+        blocks = list(reader)
+    rng = np.random.default_rng(12)
+    m = Monitor(cert, rate_hz=cert.sample_rate)
+    sigma = cert.accel.noise_sigma(cert.sample_rate)
+    for block in blocks:
+        block.accel[:, 1] += rng.normal(size=len(block)) * 4 * sigma[1]
+        m.update(block)
+    assert m.state["accel"].noise[1].raised > 0
