@@ -20,8 +20,8 @@ Every sample of both triads is corrected with the certificate. The checks
   smooth motion contributes almost nothing at the sample rate; squares are
   winsorised at 10 sigma of d2 so a step is not taken for noise) beyond
   ``noise_ratio`` times the certificate's sigma, judged on windows where the
-  corrected rate stayed below ``noise_motion_gate`` (a hand turn's angular
-  acceleration puts far more into second differences than the noise does;
+  angular acceleration stayed below ``noise_motion_gate`` (a hand turn puts far
+  more into second differences than the noise does; a steady rate does not;
   vibration and translation are still judged).
 
 All of it is vectorised per block; state carries across blocks.
@@ -58,14 +58,17 @@ class MonitorConfig:
     ring_capacity: int = 4096  #: samples kept in the ring buffer of recent samples
     noise_window_s: float = 1.0  #: window of the white-noise estimate, s
     noise_ratio: float = 2.0  #: estimated / certificate noise sigma that counts as excess noise
-    #: the noise check judges only windows where the corrected rate stayed below this (rad/s):
-    #: a hand turn's angular acceleration puts far more into second differences than noise
-    noise_motion_gate: float = 0.1
+    #: the noise check judges only windows where the angular acceleration (rad/s^2, from the
+    #: change of the 0.1 s mean rate) stayed below this: a hand turn puts far more into
+    #: second differences than the noise; a steady rate (a gross bias, a turntable) does not
+    noise_motion_gate: float = 0.5
     noise_check_s: float = 0.1  #: the noise check runs every this many seconds of samples
     #: excess-noise checks among the last n that raise the fault: 3 s of excess within 4 s, so
     #: a burst of a second or two (a hand on the unit, a knock) is not a noise fault
     noise_persistence_k: int = 30
     noise_persistence_n: int = 40
+    #: noise beyond ``noise_gross_ratio`` times the certificate's is gross: 3 of 5 checks raise it
+    noise_gross_ratio: float = 3.0
     earth_rate_noise_ratio: float = 0.2  #: per-sample Earth-rate F0 needs sigma_f0 < ratio*limit
 
 
@@ -84,6 +87,7 @@ class TriadState:
     stuck_last: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     stuck_active: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=bool))
     noise: list[Persistence] = field(default_factory=list)  #: per axis, excess noise
+    noise_gross: list[Persistence] = field(default_factory=list)  #: per axis, gross noise
     noise_tail: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  #: last raw samples
     noise_d2sq: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  #: last window
     noise_ratio_last: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
@@ -127,6 +131,7 @@ class Monitor:
             st.noise = [
                 Persistence(cfg.noise_persistence_k, cfg.noise_persistence_n) for _ in range(3)
             ]
+            st.noise_gross = [Persistence(3, 5) for _ in range(3)]
             self.state[name] = st
         self.gyro_mode = self._gyro_mode(certificate.gyro, rate)
         self._gyro_window = max(1, int(round(cfg.gyro_window_s * rate)))
@@ -142,6 +147,9 @@ class Monitor:
         self._noise_w = max(4, int(round(cfg.noise_window_s * rate)))
         self._noise_step = max(1, int(round(cfg.noise_check_s * rate)))
         self._noise_motion = TrailingSum(self._noise_w + 2)  # turning samples among d2's inputs
+        self._accel_m = max(1, int(round(0.1 * rate)))  # angular acceleration: 0.1 s means
+        self._rate_2m = TrailingSum(2 * self._accel_m, 3)
+        self._rate_m = TrailingSum(self._accel_m, 3)
 
     def _gyro_mode(self, gyro: TriadModel, rate_hz: float) -> str:
         """``earth_rate`` if per-sample F0 on Earth rate is meaningful, else ``rest_rate``."""
@@ -183,11 +191,12 @@ class Monitor:
                 out.append(fault)
             for axis in np.flatnonzero(st.stuck_active):
                 out.append({"triad": name, "sensor": SENSOR_NAMES[name][axis], "cause": "stuck"})
-            for axis, p in enumerate(st.noise):
-                if p.active:
+            for axis, (p, gross) in enumerate(zip(st.noise, st.noise_gross, strict=True)):
+                firsts = [q.t_first for q in (p, gross) if q.active and q.t_first is not None]
+                if p.active or gross.active:
                     out.append(
                         {"triad": name, "sensor": SENSOR_NAMES[name][axis], "cause": "noise",
-                         "t_first": p.t_first}
+                         "t_first": min(firsts) if firsts else None}
                     )
             if st.saturation is not None and st.saturation.active:
                 out.append(
@@ -274,7 +283,12 @@ class Monitor:
             self._gyro_rest_rate(gyro_si, static, ok_g, block.t)
 
         self._stuck(block)
-        turning = np.linalg.norm(gyro_si, axis=1) > self.config.noise_motion_gate
+        # angular acceleration from the last 0.1 s mean rate minus the 0.1 s before it
+        m = self._accel_m
+        two, _ = self._rate_2m.update(gyro_si)
+        one, _ = self._rate_m.update(gyro_si)
+        alpha = np.linalg.norm(2.0 * one - two, axis=1) * (self.rate_hz / m) / m
+        turning = ~(alpha <= self.config.noise_motion_gate)  # NaN (ADC error) counts as turning
         turns, _ = self._noise_motion.update(turning.astype(float))
         self._noise(block, turns == 0)
 
@@ -359,8 +373,10 @@ class Monitor:
         (median of chi^2_1 = 0.4549; var(d2) = 6 sigma^2 for white noise): a
         burst over less than half the window (a hand grabbing the unit, a knock,
         a step) leaves the median alone, where a mean would call it noise.
-        ``calm`` (N,): the window ending at each sample saw no turn (rate below
-        ``noise_motion_gate``); only those windows are judged.
+        ``calm`` (N,): the window ending at each sample saw no turn (angular
+        acceleration below ``noise_motion_gate``); only those windows are judged. Excess noise (beyond
+        ``noise_ratio``) must persist 3 s; gross noise (beyond ``noise_gross_ratio``)
+        is raised after 3 of 5 checks.
         """
         w, step = self._noise_w, self._noise_step
         n = len(block)
@@ -392,3 +408,4 @@ class Monitor:
             t = block.t[ok]
             for axis in range(3):
                 st.noise[axis].update(ratio[:, axis] > self.config.noise_ratio, t)
+                st.noise_gross[axis].update(ratio[:, axis] > self.config.noise_gross_ratio, t)

@@ -123,8 +123,8 @@ def test_noise_increase_is_named_even_when_it_hides_the_rest():
     _feed(m, block, [333] * 7)
     noise = [f for f in m.active_faults if f["cause"] == "noise"]
     assert [(f["triad"], f["sensor"]) for f in noise] == [("accel", "ay")]
-    # named once the window's median sees it (0.5 s) and it persisted 30 of 40 checks (3 s)
-    assert 9.0 <= noise[0]["t_first"] < 10.0
+    # 5x is gross noise: named once the window's median sees it (0.5 s) and 3 of 5 checks
+    assert 6.0 <= noise[0]["t_first"] < 7.0
 
 
 def test_noise_check_is_quiet_through_turns():
