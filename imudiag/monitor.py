@@ -288,7 +288,7 @@ class Monitor:
         two, _ = self._rate_2m.update(gyro_si)
         one, _ = self._rate_m.update(gyro_si)
         alpha = np.linalg.norm(2.0 * one - two, axis=1) * (self.rate_hz / m) / m
-        turning = ~(alpha <= self.config.noise_motion_gate)  # NaN (ADC error) counts as turning
+        turning = ~(alpha <= self.config.noise_motion_gate)  # NaN (ADC error): turning
         turns, _ = self._noise_motion.update(turning.astype(float))
         self._noise(block, turns == 0)
 
