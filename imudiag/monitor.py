@@ -374,9 +374,9 @@ class Monitor:
         burst over less than half the window (a hand grabbing the unit, a knock,
         a step) leaves the median alone, where a mean would call it noise.
         ``calm`` (N,): the window ending at each sample saw no turn (angular
-        acceleration below ``noise_motion_gate``); only those windows are judged. Excess noise (beyond
-        ``noise_ratio``) must persist 3 s; gross noise (beyond ``noise_gross_ratio``)
-        is raised after 3 of 5 checks.
+        acceleration below ``noise_motion_gate``); only those windows are judged.
+        Excess noise (beyond ``noise_ratio``) must persist 3 s; gross noise
+        (beyond ``noise_gross_ratio``) is raised after 3 of 5 checks.
         """
         w, step = self._noise_w, self._noise_step
         n = len(block)
