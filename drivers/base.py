@@ -79,6 +79,9 @@ class Source(ABC):
     """
 
     scheme: ClassVar[str] = ""
+    #: query keys the scheme understands; :func:`open_source` refuses any other (a misspelt
+    #: ``?sped=0`` must not be ignored). None: the transport checks its own keys.
+    url_keys: ClassVar[tuple[str, ...] | None] = None
 
     def __init__(self, url: SourceURL, **options: Any) -> None:
         self.url = url
@@ -157,4 +160,12 @@ def open_source(url: str, **options: Any) -> Source:
     Common options: ``certificate`` (a Certificate, for ``sim://``).
     """
     parsed = parse_url(url)
-    return source_class(parsed.scheme)(parsed, **options)
+    cls = source_class(parsed.scheme)
+    if cls.url_keys is not None:
+        unknown = sorted(set(parsed.params) - set(cls.url_keys))
+        if unknown:
+            known = ", ".join(cls.url_keys) or "none"
+            raise SourceError(
+                f"{url}: unknown query key {unknown[0]!r} for {parsed.scheme}:// (known: {known})"
+            )
+    return cls(parsed, **options)

@@ -63,6 +63,8 @@ def pack_reports(frames: list[bytes]) -> bytes:
 class HidSource(ByteSource):
     """Wire frames from HID input reports, through hidapi (``pip install hidapi``)."""
 
+    url_keys = ("serial",)
+
     def __init__(self, url: SourceURL, **options: Any) -> None:
         super().__init__(url, **options)
         self.vid, self.pid = parse_vid_pid(url)

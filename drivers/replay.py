@@ -4,7 +4,10 @@
 (so its counters report CRC errors, lost frames ... of the capture);
 ``.csv``, ``.csv.gz`` and ``.npz`` are read with :func:`imudiag.logs.open_log`.
 ``speed`` is the playback rate relative to the sample time ``t`` (1 = real
-time, 10 = ten times faster, 0 = as fast as possible). At the end
+time, 10 = ten times faster, 0 = as fast as possible; then each read returns
+at most ``step`` seconds of sample time, default 0.05 s, so the daemon's
+checks, status lines and transitions follow sample time as they would live).
+At the end
 :meth:`read` raises :class:`EndOfStream`. A log that breaks a rule raises
 :class:`imudiag.logs.LogError` (file, line, reason) when its block is reached.
 
@@ -26,11 +29,14 @@ from .base import EndOfStream, Source, SourceError, SourceURL, register
 from .wire import SAMPLE_FRAME_SIZE, Decoder
 
 DEFAULT_BLOCK_SIZE = 16384  #: samples per block read from the file
+DEFAULT_STEP_S = 0.05  #: sample time returned per read at speed 0, s
 
 
 @register("replay")
 class ReplaySource(Source):
     """Plays a sample log back, paced by its sample time ``t`` (seconds)."""
+
+    url_keys = ("speed", "block_size", "step")
 
     def __init__(self, url: SourceURL, **options: Any) -> None:
         super().__init__(url, **options)
@@ -46,6 +52,9 @@ class ReplaySource(Source):
         )
         if self.block_size < 1:
             raise SourceError(f"{url.url}: bad value for 'block_size': {self.block_size}")
+        self.step_s = float(options.get("step", url.get("step", DEFAULT_STEP_S, float)))
+        if not (np.isfinite(self.step_s) and self.step_s > 0):
+            raise SourceError(f"{url.url}: bad value for 'step': {self.step_s!r} (need > 0 s)")
         self.decoder: Decoder | None = None
         self._reader: Any = None
         self._blocks: Iterator[SampleBlock] | None = None
@@ -115,7 +124,12 @@ class ReplaySource(Source):
                 pass
             if not len(self._buffer):
                 raise EndOfStream(str(self.path))
-            return self._take(len(self._buffer))
+            t = self._buffer.t
+            if t[-1] - t[0] < self.step_s and not self._exhausted:
+                self._pull()  # one step may span two file blocks
+                t = self._buffer.t
+            n = int(np.searchsorted(t, t[0] + self.step_s, side="left"))
+            return self._take(max(n, 1))
         deadline = time.monotonic() + timeout_s
         if self._t0 is None:
             while not len(self._buffer) and self._pull():

@@ -38,6 +38,8 @@ def _flag(value: str) -> bool:
 class SerialSource(ByteSource):
     """A wire-protocol byte stream read with pyserial ``serial_for_url``."""
 
+    url_keys = ("baud", "exclusive")
+
     def __init__(self, url: SourceURL, **options: Any) -> None:
         super().__init__(url, **options)
         if url.scheme == "serial":

@@ -31,6 +31,8 @@ def _int_auto(text: str) -> int:
 class UsbSource(ByteSource):
     """Wire frames from a USB bulk-IN endpoint through pyusb (``pip install pyusb``)."""
 
+    url_keys = ("serial", "interface", "endpoint")
+
     def __init__(self, url: SourceURL, **options: Any) -> None:
         super().__init__(url, **options)
         self.vid, self.pid = parse_vid_pid(url)
