@@ -56,6 +56,10 @@ class GateConfig:
     default_sigma_h_m_s: float = 0.05  #: m/s, horizontal velocity std when eps is absent
     default_sigma_v_m_s: float = 0.10  #: m/s, vertical velocity std when epc is absent
     max_gap_factor: float = 1.6  #: an epoch longer than this times the period is an outage
+    #: "measured": velocity noise per axis from the data (robust second differences,
+    #: where a receiver's stated eps/epc are often pessimistic); "stated": from eps/epc
+    velocity_noise: str = "measured"
+    min_sigma_m_s: float = 0.003  #: m/s, floor of a measured velocity std
     outlier_sigmas: float = 5.0  #: outlier threshold in combined sigmas
     jerk_allowance_m_s3: float = 3.0  #: m/s^3, jerk a smooth drive may have
 
@@ -100,8 +104,30 @@ class GnssEpochs:
         )
 
 
+def measured_velocity_sigma(track: GnssTrack, min_sigma: float = 0.003) -> np.ndarray:
+    """Per-axis white velocity noise (3,), m/s, from the second differences of the fixes.
+
+    For white noise s, r_k = v_k - (v_{k-1} + v_{k+1}) / 2 has variance 1.5 s^2; the
+    median absolute value (robust to outliers and manoeuvres) / 0.6745 estimates its std.
+    Smooth motion adds (dt^2 / 4) jerk, so the estimate errs on the high side.
+    """
+    v = track.vel_ned
+    ok = np.all(np.isfinite(v), axis=1) & (track.mode >= 2)
+    v = v[ok]
+    if v.shape[0] < 5:
+        return np.full(3, np.nan)
+    r = v[1:-1] - 0.5 * (v[:-2] + v[2:])
+    sig = np.median(np.abs(r), axis=0) / 0.6745 / np.sqrt(1.5)
+    return np.maximum(sig, min_sigma)
+
+
 def velocity_sigma(track: GnssTrack, gate: GateConfig) -> np.ndarray:
-    """Per-axis velocity standard deviations (K, 3), m/s, from eps/epc or the defaults."""
+    """Per-axis velocity standard deviations (K, 3), m/s: measured from the data
+    (``gate.velocity_noise == "measured"``), else from eps/epc or the defaults."""
+    if gate.velocity_noise == "measured":
+        m = measured_velocity_sigma(track, gate.min_sigma_m_s)
+        if np.all(np.isfinite(m)):
+            return np.broadcast_to(m, (len(track), 3)).copy()
     sh = np.where(np.isfinite(track.eps), track.eps / gate.eps_sigmas, gate.default_sigma_h_m_s)
     sv = np.where(np.isfinite(track.epc), track.epc / gate.eps_sigmas, gate.default_sigma_v_m_s)
     # gpsd eps is a speed error: read it as the std of each horizontal axis
@@ -131,7 +157,8 @@ def gnss_epochs(track: GnssTrack, gate: GateConfig | None = None, span: int = 1)
 
     mark(track.mode < gate.min_mode, "mode")
     mark(~np.all(np.isfinite(v), axis=1), "no_velocity")
-    mark(np.max(sig, axis=1) > gate.max_sigma_m_s, "accuracy")
+    stated = velocity_sigma(track, GateConfig(velocity_noise="stated"))
+    mark(np.max(stated, axis=1) > gate.max_sigma_m_s, "accuracy")
     dt = np.diff(t) if n else np.zeros(0)
     if k:
         gap = dt > gate.max_gap_factor * period
@@ -227,6 +254,22 @@ class ImuEpochs:
     gyro_mean: np.ndarray | None = None  #: (K, 3) rad/s
 
 
+def _interval_mean(t: np.ndarray, x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Mean over [a, b] (K,) of the samples x (N, 3) at instants t, linearly interpolated."""
+    if t.shape[0] < 2:
+        return np.full((a.shape[0], 3), np.nan)
+    ref = x[0]
+    xc = x - ref  # keeps the running integral small (raw counts are ~3e4)
+    steps = 0.5 * (xc[1:] + xc[:-1]) * np.diff(t)[:, None]
+    big = np.vstack([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+    out = np.empty((a.shape[0], 3))
+    for c in range(3):
+        fa = np.interp(a, t, big[:, c])
+        fb = np.interp(b, t, big[:, c])
+        out[:, c] = (fb - fa) / (b - a)
+    return out + ref
+
+
 def _rodrigues(theta: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Rotate vectors x (N, 3) by rotation vectors theta (N, 3), rad."""
     ang = np.linalg.norm(theta, axis=1)
@@ -290,17 +333,18 @@ def imu_epochs(
     sums = np.stack([np.bincount(idx, fc[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
     plain = np.stack([np.bincount(idx, f[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = sums / count[:, None]
+        # the rotation and lever-arm terms from the samples of each epoch; the mean
+        # itself as the integral of the linearly interpolated samples over [a, b]
+        # (trapezoid: samples are instants, no half-sample shift)
         comp = (sums - plain) / count[:, None]
+        mean = _interval_mean(t, f, a, b) + comp
         mag = np.linalg.norm(mean, axis=1)
         u = mean / mag[:, None]
         s2 = np.broadcast_to(np.asarray(sigma_sample_si, dtype=float) ** 2, (3,))
         sigma_mag = np.sqrt(np.sum(u * u * s2, axis=1) / count)
         mean_raw = None
         if accel_raw is not None:
-            r = np.asarray(accel_raw, dtype=float)
-            rs = np.stack([np.bincount(idx, r[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
-            mean_raw = rs / count[:, None]
+            mean_raw = _interval_mean(t, np.asarray(accel_raw, dtype=float), a, b)
     # covered: samples reach both ends of the epoch within 1.5 sample periods
     if n > 1:
         period = float(np.median(np.diff(t)))
@@ -341,6 +385,7 @@ __all__ = [
     "ImuEpochs",
     "gnss_epochs",
     "imu_epochs",
+    "measured_velocity_sigma",
     "noise_floor",
     "velocity_sigma",
 ]

@@ -23,6 +23,7 @@ from ..diagnosis.inputs import MagnitudeTable, check_units, log_rate_hz
 from ..diagnosis.stream import StreamingDiagnoser
 from ..errors import BadInput
 from ..logs import open_log
+from .gnss import add_gnss_arguments, check_gnss_options, moving_base_lines, moving_base_section
 from .noise import add_noise_argument, noise_for_detector, noise_lines
 
 
@@ -50,6 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a fault deviates by more than K std as well as the limit (default 4)")
     p.add_argument("--min-dof", type=float, metavar="N",
                    help="redundant observations a window's fit needs to be judged (default 3)")
+    add_gnss_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -154,9 +156,11 @@ def run(args: argparse.Namespace) -> int:
         print("imudiag diagnose: warning: moving-base without --magnitude uses the magnitude "
               "estimated from the triad itself (the paper's eqs. 17-18), which cannot see "
               "faults", file=sys.stderr)
+    check_gnss_options(args)
     certificate_noise, noise_report = noise_for_detector(args, cert, args.rate)
     monitor = None
     diag = None
+    kept: list = []  # the blocks, for the moving-base diagnosis (--gnss)
     with open_log(args.log, block_size=args.block_size) as reader:
         for block in reader:
             if diag is None:
@@ -168,6 +172,8 @@ def run(args: argparse.Namespace) -> int:
                 )
             monitor.update(block)
             diag.update(block, table.at(block.t) if table is not None else None)
+            if args.gnss:
+                kept.append(block)
     assert diag is not None and monitor is not None  # an empty log raises LogError
     diag.finish()
     f0 = {
@@ -192,9 +198,14 @@ def run(args: argparse.Namespace) -> int:
         report["certificate_warning"] = str(cert.device["warning"])
     report["sample_rate"] = diag.rate_hz
     report["noise"] = noise_report
+    if args.gnss:
+        report["moving_base"] = moving_base_section(args, kept, cert, diag.rate_hz)
     if args.json:
         write_json(report, args.json)
     out = sys.stderr if args.json == "-" else sys.stdout
-    for line in summary_lines(report) + noise_lines(noise_report):
+    lines = summary_lines(report) + noise_lines(noise_report)
+    if "moving_base" in report:
+        lines += moving_base_lines(report["moving_base"])
+    for line in lines:
         print(line, file=out)
     return 0

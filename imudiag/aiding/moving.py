@@ -1,0 +1,335 @@
+"""Moving-base diagnosis with GNSS aiding: F0 in motion and the accelerometer fit.
+
+Inputs: the IMU samples (raw, certificate units), the certificate and a GNSS
+track. Steps:
+
+1. GNSS specific force over epochs of ``interval_s`` (:func:`.gnss_epochs`,
+   gated on the GNSS side only); the IMU's certificate-corrected mean over the
+   same epochs, rotated to mid-epoch with the gyros and moved to the antenna
+   by the lever arm (:func:`.imu_epochs`), shifted by the GNSS latency
+   (estimated by :func:`.estimate_latency` unless configured).
+2. F0 in motion per epoch, ``F0 = 1/2 (|f_imu|^2 / |f_gnss|^2 - 1)``, failed
+   when ``|F0| > limits.f0 + k_sigma * sigma_F0`` with ``sigma_F0`` propagated
+   from both sides (IMU white noise of the epoch mean, GNSS velocity noise):
+   the certificate's limit plus the noise of this epoch, not a fixed number.
+3. Sliding windows of ``window_s`` (step ``step_s``): the exact scalar fit of
+   the accelerometer triad (:func:`~imudiag.diagnosis.scalar_fit.exact_fit`)
+   on the epoch means with the GNSS magnitude of each epoch; the variance of a
+   mean adds the GNSS magnitude's variance (converted to output units) to the
+   IMU's, to first order. Parameters the drive did not excite keep the
+   certificate's prior and are reported undetermined with the reason and the
+   specific force each axis saw. Faults: the statistical predicates with
+   persistence over windows (:class:`~imudiag.diagnosis.predicates.PredicateTracker`).
+
+The gyros are not fitted in motion (the GNSS course rate is not used): their
+9 parameters are reported undetermined here, and the static path covers them
+at stops.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from ..certificate import Certificate
+from ..diagnosis.params import CAUSES, sensor_of
+from ..diagnosis.scalar_fit import exact_fit
+from ..samples import SampleBlock
+from .align import LatencyEstimate, estimate_latency
+from .isolation import IsolationTracker, isolate
+from .specific_force import GateConfig, GnssEpochs, ImuEpochs, gnss_epochs, imu_epochs
+from .tpv import GnssTrack
+
+
+@dataclass
+class MovingConfig:
+    """Options of the moving-base diagnosis (units in the names)."""
+
+    interval_s: float = 1.0  #: GNSS epoch length used (whole GNSS periods)
+    latency_s: float | None = None  #: None: estimate it
+    max_latency_s: float = 0.5  #: search range of the estimate, s
+    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: IMU -> antenna, body, m
+    window_s: float = 180.0  #: fit window, s
+    step_s: float = 60.0  #: fit window step, s
+    min_epochs: int = 60  #: valid epochs a window needs
+    k_sigma_f0: float = 3.0  #: F0 threshold: limit + k sigma
+    k_sigma: float = 4.0  #: fault predicates: beyond the limit and k std
+    persist: int = 2  #: consecutive windows a fault must persist
+    prior_factor: float = 10.0  #: prior std at the certificate, limits
+    determined_std_ratio: float = 0.5  #: determined when std <= ratio x limit
+    min_dof: float = 3.0
+
+
+def _accel_noise(raw: np.ndarray, certificate_sigma: np.ndarray | None) -> np.ndarray:
+    """Per-sample white noise (3,), output units: the larger of the certificate's and the
+    one measured from the data (median absolute second difference / 0.6745 / sqrt(6)),
+    since a vehicle's vibration often far exceeds a data sheet's noise."""
+    raw = np.asarray(raw, dtype=float)
+    measured = (
+        np.median(np.abs(np.diff(raw, 2, axis=0)), axis=0) / 0.6745 / np.sqrt(6.0)
+        if raw.shape[0] > 10
+        else np.zeros(3)
+    )
+    cert = certificate_sigma if certificate_sigma is not None else np.zeros(3)
+    return np.maximum(measured, cert)
+
+
+def _excitation(mean_si: np.ndarray, names: tuple[str, ...]) -> dict[str, dict[str, float]]:
+    """Range of the specific force along each body axis over the epochs, m/s^2."""
+    out = {}
+    for c, n in enumerate(names):
+        x = mean_si[:, c]
+        out[n] = {"min_m_s2": round(float(np.min(x)), 3), "max_m_s2": round(float(np.max(x)), 3)}
+    return out
+
+
+def moving_base_diagnosis(
+    block: SampleBlock,
+    cert: Certificate,
+    track: GnssTrack,
+    cfg: MovingConfig | None = None,
+    gate: GateConfig | None = None,
+    rate_hz: float | None = None,
+) -> dict:
+    """The ``moving_base`` section of the diagnosis report (module doc)."""
+    cfg = cfg or MovingConfig()
+    acc, gyr = cert.accel, cert.gyro
+    t = block.t
+    rate = rate_hz or (1.0 / float(np.median(np.diff(t))) if len(t) > 1 else 100.0)
+    f_si = acc.inverse_si(block.accel)
+    w_si = gyr.inverse_si(block.gyro)
+    period = track.period_s()
+    span = max(1, int(round(cfg.interval_s / period))) if math.isfinite(period) else 1
+    ep = gnss_epochs(track, gate, span=span)
+    in_imu = (ep.t1 >= t[0]) & (ep.t0 <= t[-1])
+    ep = ep.select(in_imu)
+    report: dict = {
+        "gnss": {
+            "device": track.device,
+            "fixes": len(track),
+            "period_s": round(period, 4) if math.isfinite(period) else None,
+            "epoch_s": round(ep.period_s, 4) if math.isfinite(ep.period_s) else None,
+            "epochs": len(ep),
+            "valid": int(np.sum(ep.valid)),
+            "rejected": ep.counts,
+            "lever_arm_m": list(cfg.lever_arm_m),
+        },
+        "gyro": {
+            "determined": False,
+            "reason": "the moving-base gyro check (GNSS course rate) is not implemented; "
+            "the static path checks the gyros at stops",
+        },
+    }
+    if not np.any(ep.valid):
+        report["verdict"] = "unknown"
+        report["reason"] = "no valid GNSS epoch over the IMU record"
+        return report
+    if cfg.latency_s is None:
+        lat = estimate_latency(t, f_si, ep, gyro_si=w_si, max_latency_s=cfg.max_latency_s)
+        latency = lat.latency_s if lat.determined else 0.0
+        report["gnss"]["latency"] = dict(lat.to_json(), used_s=round(latency, 4))
+    else:
+        latency = float(cfg.latency_s)
+        lat = LatencyEstimate(latency, math.nan, True, "configured", 0)
+        report["gnss"]["latency"] = dict(lat.to_json(), used_s=latency)
+    sig_raw = _accel_noise(block.accel, acc.noise_sigma(rate))
+    sig_si = sig_raw / acc.scale_factor * acc.unit_to_si
+    lever = np.asarray(cfg.lever_arm_m, dtype=float)
+    im = imu_epochs(
+        t,
+        f_si,
+        ep.t0,
+        ep.t1,
+        gyro_si=w_si,
+        accel_raw=block.accel,
+        sigma_sample_si=sig_si,
+        latency_s=latency,
+        lever_arm_m=lever,
+    )
+    use = ep.valid & im.covered & np.isfinite(im.mag)
+    report["gnss"]["used"] = int(np.sum(use))
+    report["f0"] = _f0_in_motion(ep, im, use, acc.limits.f0, cfg.k_sigma_f0)
+    report["accel_noise_per_sample"] = [float(x) for x in sig_raw]
+    report.update(_windows(ep, im, use, cert, cfg, rate, block.accel))
+    return report
+
+
+def _f0_in_motion(ep: GnssEpochs, im: ImuEpochs, use: np.ndarray, limit: float, k: float) -> dict:
+    g, i = ep.mag[use], im.mag[use]
+    f0 = 0.5 * (i * i / (g * g) - 1.0)
+    sigma = np.sqrt(im.sigma_mag[use] ** 2 + ep.sigma_mag[use] ** 2) * i / (g * g)
+    thr = limit + k * sigma
+    failed = np.abs(f0) > thr
+    moving = ep.speed[use] > 0.5
+    return {
+        "checked": int(f0.size),
+        "failed": int(np.sum(failed)),
+        "checked_moving": int(np.sum(moving)),
+        "failed_moving": int(np.sum(failed & moving)),
+        "threshold_median": round(float(np.median(thr)), 6) if f0.size else None,
+        "sigma_median": round(float(np.median(sigma)), 6) if f0.size else None,
+        "f0_median": round(float(np.median(f0)), 6) if f0.size else None,
+    }
+
+
+def _windows(
+    ep: GnssEpochs,
+    im: ImuEpochs,
+    use: np.ndarray,
+    cert: Certificate,
+    cfg: MovingConfig,
+    rate: float,
+    im_raw_accel: np.ndarray,
+) -> dict:
+    acc = cert.accel
+    s = acc.scale_factor
+    unit = acc.unit_to_si
+    # the rotation/lever terms, SI -> output units (first order: U = B + S N x)
+    means = im.mean_raw + im.comp_si / unit * s
+    sig_raw = _accel_noise(im_raw_accel, acc.noise_sigma(rate))
+    var_imu = sig_raw**2 / np.maximum(im.count, 1)[:, None]
+    var_gnss = (ep.sigma_mag / unit)[:, None] ** 2 * s**2
+    var = var_imu + var_gnss
+    mag_in = ep.mag / unit
+    tracker = IsolationTracker(persist=cfg.persist)
+    t_mid = 0.5 * (ep.t0 + ep.t1)
+    windows = []
+    determined_any = np.zeros(9, dtype=bool)
+    last_fit = None
+    last_reason = [""] * 9
+    alone = np.zeros(9, dtype=bool)
+    last_iso = None
+    if np.any(use):
+        start = float(t_mid[use][0])
+        end = float(t_mid[use][-1])
+        w0 = start
+        while True:
+            w1 = w0 + cfg.window_s
+            sel = use & (t_mid >= w0) & (t_mid < w1)
+            if np.sum(sel) >= cfg.min_epochs:
+                fit = exact_fit(
+                    acc,
+                    means[sel],
+                    var[sel],
+                    mag_in[sel],
+                    prior_factor=cfg.prior_factor,
+                    determined_std_ratio=cfg.determined_std_ratio,
+                    method="moving-gnss",
+                )
+                fit.require_redundancy(
+                    fit.dof, cfg.min_dof, range(9), "the window's epochs fit exactly"
+                )
+                iso = isolate(acc, means[sel], var[sel], mag_in[sel], k_sigma=cfg.k_sigma)
+                cands = tracker.update(iso, min(w1, end))
+                determined_any |= fit.determined
+                last_fit = fit
+                last_reason = fit.reasons
+                alone |= iso.alone_std <= cfg.determined_std_ratio * iso.limit
+                last_iso = iso
+                windows.append(
+                    {
+                        "t_start": round(w0, 3),
+                        "t_end": round(min(w1, end), 3),
+                        "epochs": int(np.sum(sel)),
+                        "excitation": _excitation(im.mean_si[sel], ("ax", "ay", "az")),
+                        "accel": fit.to_json(),
+                        "candidates": cands,
+                        "findings": [
+                            {
+                                "group": [f"{sensor_of('accel', j)} {CAUSES[j]}" for j in f.group],
+                                "deviation": [float(f.deviation[j]) for j in f.group],
+                                "std": [float(f.std[j]) for j in f.group],
+                                "chi2_drop": round(float(f.chi2_drop[f.best]), 2),
+                                "fault": f.fault,
+                            }
+                            for f in iso.findings
+                        ],
+                    }
+                )
+            if w1 >= end:
+                break
+            w0 += cfg.step_s
+    faults = tracker.raised
+    findings = _aggregate_findings(windows, cfg.persist)
+    undetermined = []
+    excite = _excitation(im.mean_si[use], ("ax", "ay", "az")) if np.any(use) else {}
+    for i in range(9):
+        if determined_any[i]:
+            continue
+        if last_fit is None or last_iso is None:
+            why = "no window with enough GNSS epochs"
+        else:
+            why = f"with all 9 free, {last_reason[i]}"
+            conf = last_iso.confused_with(i)
+            if not alone[i]:
+                why = f"the drive did not excite it ({why})"
+            elif conf:
+                why = (
+                    f"alone it is observable (std {last_iso.alone_std[i]:.3g}), but its trace "
+                    f"in |f| is that of {', '.join(conf)} on this drive ({why})"
+                )
+        undetermined.append(
+            {
+                "triad": "accel",
+                "sensor": sensor_of("accel", i),
+                "cause": CAUSES[i],
+                "reason": why,
+                "observable_alone": bool(alone[i]),
+            }
+        )
+    determined = [
+        {"triad": "accel", "sensor": sensor_of("accel", i), "cause": CAUSES[i]}
+        for i in range(9)
+        if determined_any[i]
+    ]
+    verdict = "fault" if faults else ("ok" if windows else "unknown")
+    return {
+        "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()},
+        "windows_run": len(windows),
+        "windows": windows,
+        "excitation": excite,
+        "determined": determined,
+        "undetermined": undetermined,
+        "faults": faults,
+        "findings": findings,
+        "verdict": verdict,
+    }
+
+
+def _aggregate_findings(windows: list[dict], persist: int) -> list[dict]:
+    """Findings seen in at least ``persist`` windows, grouped by their parameter group,
+    with the median deviation of each member and whether they were faults."""
+    groups: dict[tuple[str, ...], list[dict]] = {}
+    for w in windows:
+        for f in w["findings"]:
+            groups.setdefault(tuple(f["group"]), []).append(f)
+    out = []
+    for key, items in groups.items():
+        if len(items) < persist:
+            continue
+        dev = np.median(np.array([f["deviation"] for f in items]), axis=0)
+        std = np.median(np.array([f["std"] for f in items]), axis=0)
+        faults = sum(1 for f in items if f["fault"])
+        alts = " or ".join(
+            f"{name} {d:+.4g} (std {s:.2g})" for name, d, s in zip(key, dev, std, strict=True)
+        )
+        text = f"{alts}, in {len(items)} of {len(windows)} windows"
+        if not faults:
+            text += "; not a fault: one of these explains it within its limit"
+        out.append(
+            {
+                "group": list(key),
+                "deviation": [float(x) for x in dev],
+                "std": [float(x) for x in std],
+                "windows": len(items),
+                "fault_windows": faults,
+                "fault": faults >= persist,
+                "text": text,
+            }
+        )
+    return out
+
+
+__all__ = ["MovingConfig", "moving_base_diagnosis"]

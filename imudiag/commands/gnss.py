@@ -1,0 +1,147 @@
+"""``--gnss`` options of ``imudiag diagnose``: the moving-base diagnosis aided by GNSS."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+
+from ..certificate import Certificate
+from ..errors import BadInput
+from ..samples import SampleBlock
+
+
+def add_gnss_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of the GNSS-aided moving-base diagnosis (docs/moving-base.md)."""
+    g = p.add_argument_group("moving base (GNSS aiding, docs/moving-base.md)")
+    g.add_argument(
+        "--gnss",
+        metavar="FILE",
+        help="gpsd TPV log (gpspipe -w, plain or .gz): adds the moving-base F0 and "
+        "accelerometer fit in motion to the report",
+    )
+    g.add_argument(
+        "--lever-arm",
+        metavar="X,Y,Z",
+        help="antenna position from the IMU in body axes, m (default 0,0,0)",
+    )
+    g.add_argument(
+        "--gnss-latency",
+        type=float,
+        metavar="S",
+        help="GNSS latency, s (default: estimated from the data)",
+    )
+    g.add_argument(
+        "--gnss-interval",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="GNSS epoch used, s (whole GNSS periods; default 1)",
+    )
+    g.add_argument(
+        "--gnss-window",
+        type=float,
+        default=180.0,
+        metavar="S",
+        help="moving-base fit window, s (default 180)",
+    )
+
+
+def parse_lever_arm(text: str | None) -> tuple[float, float, float]:
+    """``X,Y,Z`` in m; BadInput naming the option otherwise."""
+    if not text:
+        return (0.0, 0.0, 0.0)
+    try:
+        vals = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise BadInput(f"--lever-arm: expected X,Y,Z in m, got {text!r}") from None
+    if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
+        raise BadInput(f"--lever-arm: expected three finite numbers X,Y,Z in m, got {text!r}")
+    return vals  # type: ignore[return-value]
+
+
+def check_gnss_options(args: argparse.Namespace) -> None:
+    """Validate the options before the log is read."""
+    if not getattr(args, "gnss", None):
+        for opt in ("lever_arm", "gnss_latency"):
+            if getattr(args, opt, None) is not None:
+                raise BadInput(f"--{opt.replace('_', '-')}: needs --gnss FILE")
+        return
+    parse_lever_arm(args.lever_arm)
+    for opt in ("gnss_interval", "gnss_window"):
+        v = getattr(args, opt)
+        if not (math.isfinite(v) and v > 0):
+            raise BadInput(f"--{opt.replace('_', '-')}: must be > 0 s, got {v}")
+
+
+def moving_base_section(
+    args: argparse.Namespace, blocks: list[SampleBlock], cert: Certificate, rate_hz: float
+) -> dict:
+    """Run the moving-base diagnosis over the collected blocks."""
+    from ..aiding.moving import MovingConfig, moving_base_diagnosis
+    from ..aiding.tpv import read_gpspipe_log
+
+    track = read_gpspipe_log(args.gnss)
+    block = SampleBlock(
+        t=np.concatenate([b.t for b in blocks]),
+        gyro=np.concatenate([b.gyro for b in blocks]),
+        accel=np.concatenate([b.accel for b in blocks]),
+    )
+    if len(track) and (track.t[-1] < block.t[0] or track.t[0] > block.t[-1]):
+        raise BadInput(
+            f"{args.gnss}: the GNSS log ({track.t[0]:.3f} .. {track.t[-1]:.3f} s) does not "
+            f"overlap the sample log ({block.t[0]:.3f} .. {block.t[-1]:.3f} s): both need "
+            "UTC Unix time"
+        )
+    cfg = MovingConfig(
+        interval_s=args.gnss_interval,
+        latency_s=args.gnss_latency,
+        lever_arm_m=parse_lever_arm(args.lever_arm),
+        window_s=args.gnss_window,
+        step_s=args.gnss_window / 3.0,
+    )
+    section = moving_base_diagnosis(block, cert, track, cfg, rate_hz=rate_hz)
+    section["log"] = str(args.gnss)
+    return section
+
+
+def moving_base_lines(mb: dict) -> list[str]:
+    """A short account of the moving-base section."""
+    g = mb["gnss"]
+    lat = g.get("latency", {})
+    lines = [
+        f"moving base: GNSS {g['fixes']} fixes every {g['period_s']} s, {g.get('used', 0)} of "
+        f"{g['epochs']} epochs of {g['epoch_s']} s used (rejected {g['rejected'] or 'none'}), "
+        f"latency {lat.get('used_s')} s"
+        + ("" if lat.get("determined") else f" ({lat.get('reason')})")
+    ]
+    if "f0" in mb:
+        f0 = mb["f0"]
+        lines.append(
+            f"  accel F0 in motion: {f0['failed']} of {f0['checked']} epochs failed "
+            f"(median F0 {f0['f0_median']}, threshold {f0['threshold_median']})"
+        )
+    lines.append(f"  accel in motion: {mb.get('verdict')} ({mb.get('windows_run', 0)} windows)")
+    for f in mb.get("faults", []):
+        if f["named"]:
+            lines.append(
+                f"  FAULT accel {f['sensor']} {f['cause']}: estimate {f['estimate']:.6g}, "
+                f"certificate {f['certificate']:.6g}, limit {f['limit']:.6g}"
+            )
+        else:
+            alts = ", ".join(f"{o['sensor']} {o['cause']} {o['estimate']:.6g}" for o in f["one_of"])
+            lines.append(f"  FAULT accel, one of: {alts} ({f['reason']})")
+    for fd in mb.get("findings", []):
+        if not fd["fault"]:
+            lines.append(f"  finding (not a fault): {fd['text']}")
+    return lines
+
+
+__all__ = [
+    "add_gnss_arguments",
+    "check_gnss_options",
+    "moving_base_lines",
+    "moving_base_section",
+    "parse_lever_arm",
+]
