@@ -306,7 +306,9 @@ class Certificate:
 
     def save(self, path: str | Path) -> None:
         """Write the certificate to ``path`` (YAML); reading it back gives the same numbers."""
-        Path(path).write_text(self.dumps(), encoding="utf-8")
+        from .atomic import write_text_atomic
+
+        write_text_atomic(path, self.dumps())
 
 
 def _triad_to_dict(t: TriadModel) -> dict[str, Any]:

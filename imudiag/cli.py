@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -31,6 +32,16 @@ COMMANDS = (
 EXIT_OK = 0
 EXIT_ERROR = 1
 EXIT_BAD_INPUT = 2
+EXIT_SIGINT = 130  #: 128 + SIGINT, as a shell reports Ctrl-C
+EXIT_SIGTERM = 143  #: 128 + SIGTERM
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM during a command: unwinds like Ctrl-C (temporary files removed), exit 143."""
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise Terminated()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -59,15 +70,38 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
+    from .atomic import refuse_overwrite
     from .certificate import CertificateError
     from .logs import LogError
 
+    if args.command != "run":  # the daemon handles its own signals (exit 0 on SIGTERM)
+        signal.signal(signal.SIGTERM, _on_sigterm)
+
+    def named(keys: tuple[str, ...]) -> list[tuple[str, str | None]]:
+        return [
+            (
+                k.upper() if k in ("log", "input", "output") else "--" + k.replace("_", "-"),
+                getattr(args, k, None),
+            )
+            for k in keys
+        ]
+
     try:
+        refuse_overwrite(named(getattr(args, "inputs", ())), named(getattr(args, "outputs", ())))
         return int(args.func(args) or 0)
     except (BadInput, CertificateError, LogError) as exc:
         print(f"imudiag {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except Terminated:
+        print(
+            f"imudiag {args.command}: terminated (SIGTERM); nothing half-written left",
+            file=sys.stderr,
+        )
+        return EXIT_SIGTERM
     except KeyboardInterrupt:
-        return EXIT_OK
+        if args.command == "run":
+            return EXIT_OK
+        print(f"imudiag {args.command}: interrupted; nothing half-written left", file=sys.stderr)
+        return EXIT_SIGINT
     except BrokenPipeError:
         return EXIT_OK

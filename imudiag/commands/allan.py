@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from ..atomic import write_text_atomic
 from ..errors import BadInput
 from ..logs import LogError, open_log
 from ..noise_stats import identify_noise, overlapping_allan, welch_psd
@@ -55,7 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="tau values per decade (default 10)")
     p.add_argument("--psd-segment", type=int, default=4096, metavar="N",
                    help="samples per Welch segment (default 4096, at most N/8)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, inputs=("log",), outputs=("json",))
 
 
 def _collect(path: str, start: float | None, stop: float | None
@@ -142,8 +143,7 @@ def run(args: argparse.Namespace) -> int:
         if args.json == "-":
             sys.stdout.write(text + "\n")
         else:
-            with open(args.json, "w", encoding="utf-8") as fh:
-                fh.write(text + "\n")
+            write_text_atomic(args.json, text + "\n")
     return 0
 
 

@@ -13,6 +13,7 @@ import json
 import sys
 from pathlib import Path
 
+from ..atomic import write_text_atomic
 from ..errors import BadInput
 
 
@@ -77,8 +78,7 @@ def run(args: argparse.Namespace) -> int:
         print(table)
         if args.json:
             try:
-                with open(args.json, "w", encoding="utf-8") as f:
-                    f.write(text + "\n")
+                write_text_atomic(args.json, text + "\n")
             except OSError as exc:
                 raise BadInput(f"--json {args.json}: cannot write: {exc.strerror or exc}") from None
     return 1 if args.strict and not report["passed"] else 0

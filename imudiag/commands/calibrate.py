@@ -42,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--force", action="store_true",
                    help="write the certificate even when the held-out check says the "
                    "calibration does not generalise (it then carries device.warning)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, inputs=("log", "like", "magnitude"), outputs=("out", "json"))
 
 
 def run(args: argparse.Namespace) -> int:

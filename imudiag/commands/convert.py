@@ -36,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--no-meta", action="store_true",
         help="do not copy the metadata (e.g. when it does not fit a .bin device-info frame)",
     )
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, inputs=("input",), outputs=("output",))
 
 
 def run(args: argparse.Namespace) -> int:

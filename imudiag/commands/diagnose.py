@@ -17,6 +17,7 @@ import json
 import sys
 from typing import Any
 
+from ..atomic import write_text_atomic
 from ..certificate import Certificate, load, load_default
 from ..diagnosis.config import GYRO_MODES, METHODS, DiagnosisConfig
 from ..diagnosis.inputs import MagnitudeTable, check_units, log_rate_hz
@@ -52,7 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--min-dof", type=float, metavar="N",
                    help="redundant observations a window's fit needs to be judged (default 3)")
     add_gnss_arguments(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, inputs=("log", "certificate", "magnitude"), outputs=("json",))
 
 
 def add_common_arguments(p: argparse.ArgumentParser) -> None:
@@ -108,8 +109,7 @@ def write_json(report: dict, out: str) -> None:
         sys.stdout.flush()
     else:
         try:
-            with open(out, "w", encoding="utf-8") as fh:
-                fh.write(text + "\n")
+            write_text_atomic(out, text + "\n")
         except OSError as exc:
             raise BadInput(f"{out}: cannot write: {exc.strerror or exc}") from None
 

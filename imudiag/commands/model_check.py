@@ -16,7 +16,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "model-check",
         help="compare a recorded session with a simulation of the certificate's model, "
-             "name what it misses, extend the model and measure the gain",
+        "name what it misses, extend the model and measure the gain",
         description=(
             "Simulate the recorded session with the certificate's model (the quasi-static "
             "parts: measured gravity direction, zero rate), compare with the measurement, "
@@ -27,21 +27,43 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("log", metavar="LOG", help="sample log (.csv, .csv.gz, .npz, .bin)")
-    p.add_argument("--certificate", required=True, metavar="CERT",
-                   help="calibration certificate (YAML)")
-    p.add_argument("--json", default="-", metavar="OUT",
-                   help="report file, '-' for standard output (default)")
-    p.add_argument("--extended-certificate", metavar="FILE",
-                   help="write the certificate with the fitted extended-model blocks")
+    p.add_argument(
+        "--certificate", required=True, metavar="CERT", help="calibration certificate (YAML)"
+    )
+    p.add_argument(
+        "--json", default="-", metavar="OUT", help="report file, '-' for standard output (default)"
+    )
+    p.add_argument(
+        "--extended-certificate",
+        metavar="FILE",
+        help="write the certificate with the fitted extended-model blocks",
+    )
     p.add_argument("--plots", metavar="DIR", help="write PNG figures (needs matplotlib)")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulations (default 0)")
-    p.add_argument("--chunk", type=float, default=None, metavar="S",
-                   help="length of the quasi-static chunks, s (default 1)")
-    p.add_argument("--z-min", type=float, default=None, metavar="Z",
-                   help="significance an effect needs (default 5)")
-    p.add_argument("--block-size", type=int, default=None, metavar="N",
-                   help="samples per block read from the log (default 8192)")
-    p.set_defaults(func=run, _parser=p)
+    p.add_argument(
+        "--chunk",
+        type=float,
+        default=None,
+        metavar="S",
+        help="length of the quasi-static chunks, s (default 1)",
+    )
+    p.add_argument(
+        "--z-min",
+        type=float,
+        default=None,
+        metavar="Z",
+        help="significance an effect needs (default 5)",
+    )
+    p.add_argument(
+        "--block-size",
+        type=int,
+        default=None,
+        metavar="N",
+        help="samples per block read from the log (default 8192)",
+    )
+    p.set_defaults(
+        func=run, _parser=p, inputs=("log", "certificate"), outputs=("json", "extended_certificate")
+    )
 
 
 def run(args: argparse.Namespace) -> int:

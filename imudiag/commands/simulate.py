@@ -77,7 +77,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a scenario parameter (repeatable)")
     p.add_argument("--true-certificate", metavar="CERT",
                    help="also write the true model at the end (faults and effects applied)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, inputs=("certificate",), outputs=("out", "true_certificate"))
 
 
 def _meta(args: argparse.Namespace, rate: float, device: str, scenario: str,
