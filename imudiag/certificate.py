@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from . import yamlio
+
 FORMAT = "imudiag-certificate/1"
 
 #: Conversion factor from each allowed input unit to SI (rad/s, m/s^2).
@@ -490,16 +492,12 @@ def from_dict(doc: Any, source: str | None = None) -> Certificate:
 
 
 def loads(text: str, source: str | None = None) -> Certificate:
-    """Parse certificate YAML text."""
+    """Parse certificate YAML text (duplicate keys refused, see :mod:`imudiag.yamlio`)."""
     try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}" if mark is not None else "(document)"
-        raise CertificateError(where, f"not valid YAML: {exc}", source) from None
-    except (ValueError, OverflowError, RecursionError) as exc:
-        # a value YAML cannot build, e.g. the date 2026-13-01 (found by fuzz/)
-        raise CertificateError("(document)", f"not valid YAML: {exc}", source) from None
+        doc = yamlio.parse(text)
+    except yamlio.YamlError as exc:
+        where = f"line {exc.line}" if exc.line is not None else "(document)"
+        raise CertificateError(where, exc.problem, source) from None
     return from_dict(doc, source=source)
 
 
@@ -507,11 +505,11 @@ def load(path: str | Path) -> Certificate:
     """Read and validate a certificate file."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = yamlio.read_text(path)
     except OSError as exc:
         raise CertificateError("(file)", f"cannot read: {exc.strerror or exc}", str(path)) from None
-    except UnicodeDecodeError as exc:
-        raise CertificateError("(file)", f"not UTF-8 text: {exc}", str(path)) from None
+    except yamlio.YamlError as exc:
+        raise CertificateError("(file)", exc.problem, str(path)) from None
     return loads(text, source=str(path))
 
 

@@ -40,8 +40,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from imudiag import yamlio
 from imudiag.errors import BadInput
 from imudiag.sim.faults import KINDS as SENSOR_KINDS
 from imudiag.sim.faults import Fault
@@ -239,35 +238,7 @@ class BenchScenario:
 # YAML with line numbers and duplicate keys rejected
 
 
-class _LineDict(dict):
-    """A mapping that remembers the line of each key (1-based) and of itself."""
-
-    line: int | None = None
-    key_lines: dict[Any, int]
-
-
-class _Loader(yaml.SafeLoader):
-    pass
-
-
-def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> _LineDict:
-    out = _LineDict()
-    out.line = node.start_mark.line + 1
-    out.key_lines = {}
-    for key_node, value_node in node.value:
-        key = loader.construct_object(key_node, deep=True)
-        line = key_node.start_mark.line + 1
-        if key in out.key_lines:
-            raise yaml.constructor.ConstructorError(
-                None, None, f"duplicate key {key!r} (first on line {out.key_lines[key]})",
-                key_node.start_mark,
-            )
-        out.key_lines[key] = line
-        out[key] = loader.construct_object(value_node, deep=True)
-    return out
-
-
-_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+_LineDict = yamlio.LineDict
 
 
 class _Reader:
@@ -584,12 +555,9 @@ def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
 def loads(text: str, source: str = "(scenario)") -> BenchScenario:
     """Parse scenario YAML text."""
     try:
-        doc = yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise ScenarioError(source, None if mark is None else mark.line + 1, "(document)",
-                            f"not valid YAML: {problem}") from None
+        doc = yamlio.parse(text)
+    except yamlio.YamlError as exc:
+        raise ScenarioError(source, exc.line, "(document)", exc.problem) from None
     return from_dict(doc, source)
 
 
@@ -597,11 +565,11 @@ def load(path: str | Path) -> BenchScenario:
     """Read and validate a scenario file."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        text = yamlio.read_text(p)
     except OSError as exc:
         raise ScenarioError(str(p), None, "(file)", f"cannot read: {exc.strerror or exc}") from None
-    except UnicodeDecodeError as exc:
-        raise ScenarioError(str(p), None, "(file)", f"not UTF-8 text: {exc}") from None
+    except yamlio.YamlError as exc:
+        raise ScenarioError(str(p), None, "(file)", exc.problem) from None
     return loads(text, str(p))
 
 

@@ -17,8 +17,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from imudiag import yamlio
 from imudiag.errors import BadInput
 
 BUNDLED_CONFIG_NAME = "imudiag.yaml"
@@ -169,40 +168,12 @@ _FIELD_CHECK = {name: check for name, check in SCHEMA.values()}
 _SECTIONS = {path[0] for path in SCHEMA if len(path) > 1}
 
 
-# ---------------------------------------------------------------------------
-# YAML with duplicate keys rejected
-
-
-class _UniqueKeyLoader(yaml.SafeLoader):
-    pass
-
-
-def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:
-    seen: dict[Any, int] = {}
-    for key_node, _ in node.value:
-        key = loader.construct_object(key_node)
-        if key in seen:
-            raise yaml.constructor.ConstructorError(
-                None,
-                None,
-                f"duplicate key {key!r} (first on line {seen[key]})",
-                key_node.start_mark,
-            )
-        seen[key] = key_node.start_mark.line + 1
-    return loader.construct_mapping(node)
-
-
-_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
-
-
 def _parse_yaml(text: str, source: str) -> Any:
     try:
-        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}" if mark is not None else "(document)"
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise ConfigError(source, where, f"not valid YAML: {problem}") from None
+        return yamlio.parse(text)
+    except yamlio.YamlError as exc:
+        where = f"line {exc.line}" if exc.line is not None else "(document)"
+        raise ConfigError(source, where, exc.problem) from None
 
 
 # ---------------------------------------------------------------------------
@@ -293,11 +264,11 @@ def load_config(path: str | Path) -> DaemonConfig:
     """Read and validate a configuration file; omitted keys keep the defaults."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = yamlio.read_text(path)
     except OSError as exc:
         raise ConfigError(str(path), "(file)", f"cannot read: {exc.strerror or exc}") from None
-    except UnicodeDecodeError as exc:
-        raise ConfigError(str(path), "(file)", f"not UTF-8 text: {exc}") from None
+    except yamlio.YamlError as exc:
+        raise ConfigError(str(path), "(file)", exc.problem) from None
     return from_dict(_parse_yaml(text, str(path)), str(path))
 
 

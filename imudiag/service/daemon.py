@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import math
 import signal
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -68,6 +69,18 @@ class DaemonSettings:
     monitor: MonitorConfig = field(default_factory=MonitorConfig)
 
 
+class _ReloadThread(threading.Thread):
+    """Runs ``load()`` once in the background; ``result`` holds what it returned."""
+
+    def __init__(self, load: Any) -> None:
+        super().__init__(name="imudiag-reload", daemon=True)
+        self._load = load
+        self.result: Any = None
+
+    def run(self) -> None:
+        self.result = self._load()
+
+
 def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
@@ -100,6 +113,8 @@ class Daemon:
         self.schedule = StatusSchedule(settings.status_period_s)
         self._stop = False
         self._reload = False
+        self._reloading: _ReloadThread | None = None
+        self._reload_again = False
         self._last_data_wall: float | None = None
         self._last_errors = 0
         self._errors_wall = -math.inf
@@ -139,13 +154,41 @@ class Daemon:
     # -- certificate reload -----------------------------------------------
 
     def reload_certificate(self) -> bool:
-        """Re-read the certificate; keep the old one if the new one is bad. True if replaced."""
-        path = certificate_path_or_default(self.settings.certificate_path)
+        """Re-read the certificate now; keep the old one if the new one is bad. True if replaced."""
         self.notifier.reloading()
+        return self._apply_reload(self._read_certificate())
+
+    def _read_certificate(self) -> Certificate | CertificateError:
+        """Load the certificate file (runs in the reload thread): the certificate or the error."""
         try:
-            new = certmod.load(path)
+            return certmod.load(certificate_path_or_default(self.settings.certificate_path))
         except CertificateError as exc:
-            msg = f"certificate reload failed, keeping the previous one: {exc}"
+            return exc
+
+    def _start_reload(self) -> None:
+        """Read the certificate in a thread, so a slow file never stalls the sampling loop."""
+        if self._reloading is not None:
+            self._reload_again = True  # a SIGHUP during a reload: read the file once more after
+            return
+        self.notifier.reloading()
+        self._reloading = _ReloadThread(self._read_certificate)
+        self._reloading.start()
+
+    def _finish_reload(self) -> None:
+        """Apply a background reload that has finished (called every turn of the loop)."""
+        job = self._reloading
+        if job is None or job.is_alive():
+            return
+        self._reloading = None
+        self._apply_reload(job.result)
+        if self._reload_again:
+            self._reload_again = False
+            self._start_reload()
+
+    def _apply_reload(self, new: Certificate | CertificateError | None) -> bool:
+        path = certificate_path_or_default(self.settings.certificate_path)
+        if not isinstance(new, Certificate):
+            msg = f"certificate reload failed, keeping the previous one: {new}"
             log.error(msg)
             self.notes = [msg]
             self.notifier.ready()
@@ -244,7 +287,8 @@ class Daemon:
             while not self._stop:
                 if self._reload:
                     self._reload = False
-                    self.reload_certificate()
+                    self._start_reload()
+                self._finish_reload()
                 now = self.clock()
                 try:
                     block = self.source.read(self.settings.read_timeout_s)
