@@ -252,8 +252,15 @@ class Daemon:
             },
         }
         if self.diagnoser is not None:
-            verdict = self.diagnoser.verdict()
-            status["diagnosis"] = {name: verdict[name] for name in ("accel", "gyro")}
+            # the live verdict comes from the faults in force; what was ever raised is a
+            # counter (and the log), not a latch that contradicts "faults" and "state"
+            undetermined = {u["triad"] for u in self.diagnoser.undetermined}
+            status["diagnosis"] = {
+                name: "fault" if any(f["triad"] == name for f in diag_faults)
+                else "undetermined" if name in undetermined else "ok"
+                for name in ("accel", "gyro")
+            }
+            status["diagnosis"]["raised"] = len(self.diagnoser.tracker.raised)
         links = [s for s in self.sinks if hasattr(s, "dropped") and hasattr(s, "written")]
         if links:  # the serial NMEA link: sentences written and dropped (slow receiver)
             status["status_link"] = {
