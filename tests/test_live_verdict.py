@@ -63,3 +63,40 @@ def test_a_cleared_diagnosis_fault_leaves_the_live_verdict(tmp_path):
     assert last["diagnosis"]["accel"] != "fault" and last["faults"] == []
     assert last["diagnosis"]["raised"] >= 1
     assert np.isfinite(last["t"])
+
+
+def test_no_data_says_why_in_notes_and_the_log(tmp_path):
+    """Issue 12 item 4: a missing device is named with the OS error, not only no_data."""
+    import subprocess
+    import sys
+
+    from conftest import PROJECT_DIR
+
+    missing = tmp_path / "ttyNOPE"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "imudiag",
+            "run",
+            "--source",
+            f"serial://{missing}",
+            "--no-data-timeout",
+            "0.2",
+        ],
+        cwd=PROJECT_DIR,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        import json
+
+        line = json.loads(proc.stdout.readline())  # the first status line: an event
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=30)
+    assert line["state"] == "no_data" and line["link"] == "reconnecting"
+    (note,) = line["notes"]
+    assert str(missing) in note and "No such file or directory" in note
+    assert "WARNING" in err and "No such file or directory" in err

@@ -115,6 +115,7 @@ class Daemon:
         self._reload = False
         self._reloading: _ReloadThread | None = None
         self._reload_again = False
+        self._last_reason: str | None = None
         self._last_data_wall: float | None = None
         self._last_errors = 0
         self._errors_wall = -math.inf
@@ -267,19 +268,43 @@ class Daemon:
                 "written": sum(int(s.written) for s in links),
                 "dropped": sum(int(s.dropped) for s in links),
             }
-        if self.notes:
-            status["notes"] = list(self.notes)
+        notes = list(self.notes)
+        why = self._no_data_reason(now, status["state"])
+        if why:
+            notes.append(why)
+        if why != self._last_reason:
+            if why:
+                log.warning("%s", why)
+            self._last_reason = why
+        if notes:
+            status["notes"] = notes
         return status
+
+    def _no_data_reason(self, now: float, state: str) -> str | None:
+        """Why no frames arrive (the OS error, the URL), or None while they do."""
+        url = self.settings.source_url
+        error = getattr(self.source, "last_error", None)
+        if self.source.state != "connected":
+            text = error if error and url in error else f"source {url}: {error or 'not connected'}"
+            return f"{text}; reconnecting"
+        if state != "no_data":
+            return None
+        if self._last_data_wall is None:
+            return f"source {url}: connected, no valid frame yet"
+        return f"source {url}: no valid frame for {now - self._last_data_wall:.1f} s"
 
     def _publish(self, status: dict[str, Any]) -> None:
         for sink in self.sinks:
             if not getattr(sink, "self_paced", False):
                 sink.publish(status)
         self.statuses += 1
-        self.notifier.status(
+        text = (
             f"{status['state']}; t={status['t']}; faults={len(status['faults'])}; "
             f"frames={status['counters']['frames']}"
         )
+        if status["state"] == "no_data" and status.get("notes"):
+            text += f"; {status['notes'][-1]}"
+        self.notifier.status(text)
 
     # -- the loop ---------------------------------------------------------
 
