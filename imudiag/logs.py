@@ -104,13 +104,19 @@ def _make_block(cols: dict[str, np.ndarray], meta: dict[str, Any]) -> SampleBloc
     )
 
 
+#: Largest sensor output accepted in any unit (a 32-bit ADC gives 4.3e9 counts).
+ABSURD = 1e10
+
+
 def _first_violation(
     cols: dict[str, np.ndarray], last_t: float | None
 ) -> tuple[int, str] | None:
     """Index and reason of the first sample breaking a value rule, or None (vectorised).
 
-    Rules: every value finite; ``t`` strictly increasing, also after ``last_t``
-    (the previous block's last time); ``seq`` and ``flags`` integers in range.
+    Rules: every value finite; sensor outputs within :data:`ABSURD` (no ADC,
+    no SI reading comes near it: 1e300 is a corrupt value, not a sample); ``t``
+    strictly increasing, also after ``last_t`` (the previous block's last
+    time); ``seq`` and ``flags`` integers in range.
     """
     n = len(cols["t"])
     first = n
@@ -120,6 +126,15 @@ def _first_violation(
         if bad.size:
             first = int(bad[0])
             reason = f"column {name!r}: non-finite value {float(v[first])!r}"
+    for name in ("gx", "gy", "gz", "ax", "ay", "az"):
+        if name not in cols:
+            continue
+        v = cols[name][:first]
+        bad = np.flatnonzero(np.abs(v) > ABSURD)
+        if bad.size and bad[0] < first:
+            first = int(bad[0])
+            reason = (f"column {name!r}: absurd value {float(v[first])!r} (beyond "
+                      f"{ABSURD:g}, no sensor output comes near it)")
     for name, (lo, hi) in _INT_LIMITS.items():
         if name in cols:
             v = cols[name][:first]

@@ -39,7 +39,13 @@ from .certificate import SENSOR_NAMES, TRIADS, Certificate, TriadModel
 from .persistence import Persistence
 from .quasistatic import QuasiStaticDetector
 from .ringbuffer import SampleRing
-from .samples import FLAG_ACCEL_SATURATED, FLAG_ADC_ERROR, FLAG_GYRO_SATURATED, SampleBlock
+from .samples import (
+    FLAG_ACCEL_SATURATED,
+    FLAG_ADC_ERROR,
+    FLAG_GYRO_SATURATED,
+    FLAG_SELF_TEST,
+    SampleBlock,
+)
 from .scalar import f0
 from .trailing import TrailingSum
 
@@ -109,6 +115,7 @@ class Monitor:
         self.ring = SampleRing(self.config.ring_capacity)
         self.samples = 0  #: samples seen
         self.adc_errors = 0  #: samples flagged with an ADC error (not checked)
+        self.self_test = 0  #: samples flagged as self-test (deflected on purpose; not checked)
         self.t_last: float | None = None  #: sample time of the last sample, s
         self.static = False  #: the last sample was quasi-static
         self.state: dict[str, TriadState] = {}
@@ -251,6 +258,7 @@ class Monitor:
         flags = flags.astype(np.uint16, copy=False)
         adc_error = (flags & FLAG_ADC_ERROR) != 0
         self.adc_errors += int(np.count_nonzero(adc_error))
+        self.self_test += int(np.count_nonzero(flags & FLAG_SELF_TEST))
 
         static = self.detector.update(block)
         self.static = bool(static[-1])

@@ -41,10 +41,18 @@ import math
 import numpy as np
 
 from .certificate import Certificate
-from .samples import FLAG_ACCEL_SATURATED, FLAG_ADC_ERROR, FLAG_GYRO_SATURATED, SampleBlock
+from .samples import (
+    FLAG_ACCEL_SATURATED,
+    FLAG_ADC_ERROR,
+    FLAG_GYRO_SATURATED,
+    FLAG_SELF_TEST,
+    SampleBlock,
+)
 
-#: Flag bits that make a sample unusable for the static check.
-BAD_FLAGS = FLAG_GYRO_SATURATED | FLAG_ACCEL_SATURATED | FLAG_ADC_ERROR
+#: Flag bits that make a sample unusable for the static check (and so for F0 and the
+#: diagnosis intervals): saturation, ADC errors, and self-test, whose outputs are
+#: deflected on purpose.
+BAD_FLAGS = FLAG_GYRO_SATURATED | FLAG_ACCEL_SATURATED | FLAG_ADC_ERROR | FLAG_SELF_TEST
 
 #: Standard normal quantile used for the data-driven noise estimate.
 _NOISE_QUANTILE = 0.05

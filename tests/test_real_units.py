@@ -231,3 +231,51 @@ def test_replay_with_the_calibrated_certificate_raises_no_noise_fault(tmp_path, 
         block.accel[:, 1] += rng.normal(size=len(block)) * 4 * sigma[1]
         m.update(block)
     assert m.state["accel"].noise[1].raised > 0
+
+
+def test_self_test_samples_are_excluded_from_every_check_and_counted():
+    """Issue 10 item 8: a self-test burst, deflected on purpose, is not a fault."""
+    from imudiag.certificate import load_default
+    from imudiag.diagnosis.stream import diagnose_samples
+    from imudiag.monitor import Monitor
+    from imudiag.samples import FLAG_SELF_TEST
+    from imudiag.sim import multi_position, simulate
+
+    cert = load_default()
+    rng = np.random.default_rng(13)
+    traj = multi_position(n_attitudes=14, rate_hz=cert.sample_rate, seed=14)
+    block = simulate(cert, traj, seed=15).samples
+    n = len(block)
+    flags = np.zeros(n, dtype=np.uint16)
+    starts = rng.choice(np.arange(n // 10, n - 600), size=5, replace=False)
+    for s0 in starts:  # 2 s bursts: the accelerometers deflected by 40 bias limits
+        flags[s0 : s0 + 2 * int(cert.sample_rate)] |= FLAG_SELF_TEST
+    burst = (flags & FLAG_SELF_TEST) != 0
+    accel = block.accel.copy()
+    accel[burst] += 40 * cert.accel.limits.bias
+    flagged = type(block)(t=block.t, gyro=block.gyro, accel=accel, flags=flags)
+    unflagged = type(block)(t=block.t, gyro=block.gyro, accel=accel)
+    m = Monitor(cert)
+    m.update(flagged)
+    assert m.self_test == int(burst.sum())
+    assert m.active_faults == [] and m.state["accel"].persistence.raised == 0
+    assert diagnose_samples(cert, flagged).verdict()["faults"] == []
+    m2 = Monitor(cert)
+    m2.update(unflagged)  # the same deflection without the flag is a fault
+    assert m2.state["accel"].persistence.raised > 0
+
+
+def test_an_absurd_finite_value_is_refused_with_file_and_line(tmp_path):
+    """Issue 10 item 8: 1e300 in a CSV was read, warned about by numpy, and calibrated on."""
+    lines = gzip.open(XSENS, "rt").read().splitlines()[:400]
+    head = sum(1 for ln in lines if ln.startswith("#") or ln.startswith("t,"))
+    k = head + 123
+    fields = lines[k].split(",")
+    fields[6] = "1e300"
+    lines[k] = ",".join(fields)
+    log = tmp_path / "absurd.csv"
+    log.write_text("\n".join(lines) + "\n")
+    r = run_imudiag("calibrate", str(log), "--like", str(LIKE), "--out", str(tmp_path / "c.yaml"))
+    assert r.returncode == 2
+    assert f"{log}:{k + 1}:" in r.stderr and "absurd value" in r.stderr
+    assert "RuntimeWarning" not in r.stderr and not (tmp_path / "c.yaml").exists()

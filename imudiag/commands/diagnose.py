@@ -198,6 +198,8 @@ def run(args: argparse.Namespace) -> int:
         report["certificate_warning"] = str(cert.device["warning"])
     report["sample_rate"] = diag.rate_hz
     report["noise"] = noise_report
+    report["self_test"] = monitor.self_test  # samples excluded: deflected on purpose
+    report["adc_errors"] = monitor.adc_errors
     if args.gnss:
         report["moving_base"] = moving_base_section(args, kept, cert, diag.rate_hz)
     if args.json:

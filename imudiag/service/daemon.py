@@ -247,6 +247,7 @@ class Daemon:
                 for name, st in self.monitor.state.items()
             },
             "adc_errors": self.monitor.adc_errors,
+            "self_test": self.monitor.self_test,
             "certificate": {
                 "serial": str(self.certificate.device.get("serial", "")),
                 "reloads": self.reloads,
