@@ -467,7 +467,16 @@ class SerialStatusSink:
             self._abort.set()
             port = self._port
             if port is not None:
-                port.cancel_write()  # unblock a write stuck on a full buffer
+                # unblock a write stuck on a full buffer: serial ports cancel it; pyserial's
+                # socket:// handler has no cancel_write, and closing the socket does it
+                cancel = getattr(port, "cancel_write", None)
+                try:
+                    if callable(cancel):
+                        cancel()
+                    else:
+                        port.close()
+                except (serial.SerialException, OSError):
+                    pass
             self._thread.join(timeout_s + self.write_timeout_s)
         if self._port is not None:
             try:
