@@ -53,13 +53,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"imudiag {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"imudiag.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"imudiag.commands.{name}":
-                continue  # command not part of this build
-            raise
-        module.register(sub)
+        # every command is part of the build: one that fails to import is an error to see,
+        # never a command silently missing from --help
+        importlib.import_module(f"imudiag.commands.{name}").register(sub)
     return parser
 
 

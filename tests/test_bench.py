@@ -169,7 +169,11 @@ def test_bench_reports_a_wrong_expectation_as_missed_and_the_real_one_as_false_a
     assert "verdict: FAIL" in proc.stderr  # the table goes to stderr with --json -
 
 
-@pytest.mark.skipif(not HAS_DIAGNOSIS, reason="the daemon cannot run StreamingDiagnoser yet")
+def test_the_daemon_runs_the_window_diagnosis() -> None:
+    """A break in the live diagnoser fails here instead of turning tests into skips."""
+    assert HAS_DIAGNOSIS
+
+
 def test_near_limit_faults_need_the_window_diagnosis() -> None:
     report = run_bench(load_bundled("near-limits"), diagnosis=True)
     _assert_sensor_results(report)

@@ -47,12 +47,10 @@ def diagnosis_available() -> bool:
 
     settings = settings_from_config(default_config())
     settings.diagnosis = True
-    try:
-        diagnoser = Daemon._make_diagnoser(
-            SimpleNamespace(settings=settings), certmod.load_default()  # type: ignore[arg-type]
-        )
-    except (ImportError, TypeError, ValueError, AttributeError):
-        return False
+    # no except: a diagnoser that cannot be built is a defect to see, not "pending"
+    diagnoser = Daemon._make_diagnoser(
+        SimpleNamespace(settings=settings), certmod.load_default()  # type: ignore[arg-type]
+    )
     return hasattr(diagnoser, "faults") and callable(getattr(diagnoser, "verdict", None))
 
 
