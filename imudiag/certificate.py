@@ -226,12 +226,15 @@ class TriadModel:
         u: np.ndarray,
         temp_c: np.ndarray | float | None = None,
         accel_input: np.ndarray | None = None,
+        n_inv_t: np.ndarray | None = None,
     ) -> np.ndarray:
         """Inputs x (N, 3) in input units from outputs ``u`` (N, 3) in output units.
 
         The exact inverse of :meth:`forward`. With a nonlinearity block each
         axis solves ``q y^2 + S y = r`` in closed form, taking the root that
         tends to r/S as q -> 0 (NaN beyond the quadratic's turning point).
+        ``n_inv_t``: :meth:`n_inverse_t` computed once by a caller that inverts
+        many blocks with the same certificate (the monitor, the still detector).
         """
         u = np.asarray(u, dtype=float)
         r = u - self._bias_at(temp_c)
@@ -244,7 +247,11 @@ class TriadModel:
             with np.errstate(invalid="ignore"):
                 root = np.sqrt(scale**2 + 4.0 * self.nonlinearity * r)
             nx = 2.0 * r / (scale + root)
-        return nx @ np.linalg.inv(self.n_matrix()).T
+        return nx @ (self.n_inverse_t() if n_inv_t is None else n_inv_t)
+
+    def n_inverse_t(self) -> np.ndarray:
+        """The transpose of N^-1 (dimensionless, 3x3): ``x = (N^-1 y^T)^T = y @ n_inverse_t()``."""
+        return np.linalg.inv(self.n_matrix()).T
 
     def forward_si(self, x_si: np.ndarray, **kw: Any) -> np.ndarray:
         """As :meth:`forward` with ``x_si`` in rad/s or m/s^2."""

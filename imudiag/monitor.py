@@ -47,7 +47,10 @@ from .samples import (
     SampleBlock,
 )
 from .scalar import f0
-from .trailing import TrailingSum
+from .trailing import PrefixSums
+
+#: triads in the ring's column order (raw gyro columns 1-3, accel 4-6)
+TRIADS_RING = ("gyro", "accel")
 
 
 @dataclass
@@ -89,13 +92,9 @@ class TriadState:
     worst_axis: int | None = None  #: axis of the last gyro rest-rate failure
     persistence: Persistence | None = None
     saturation: Persistence | None = None
-    stuck_run: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=np.int64))
-    stuck_last: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     stuck_active: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=bool))
     noise: list[Persistence] = field(default_factory=list)  #: per axis, excess noise
     noise_gross: list[Persistence] = field(default_factory=list)  #: per axis, gross noise
-    noise_tail: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  #: last raw samples
-    noise_d2sq: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  #: last window
     noise_ratio_last: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
 
 
@@ -141,6 +140,18 @@ class Monitor:
             st.noise_gross = [Persistence(3, 5) for _ in range(3)]
             self.state[name] = st
         self.gyro_mode = self._gyro_mode(certificate.gyro, rate)
+        # per-certificate constants, computed once rather than on every block
+        self._n_inv_t = {name: certificate.triad(name).n_inverse_t() for name in TRIADS}
+        self._sigma = {name: certificate.triad(name).noise_sigma(rate) for name in TRIADS}
+        self._limit = {name: float(certificate.triad(name).limits.f0) for name in TRIADS}
+        # stuck outputs: both triads as one (6,) row, gyro then accel (the ring's column order)
+        enabled = [
+            np.zeros(3, dtype=bool) if sig is None else sig >= cfg.stuck_min_sigma
+            for sig in (self._sigma["gyro"], self._sigma["accel"])
+        ]
+        self._stuck_enabled = np.concatenate(enabled)
+        self._stuck_run = np.zeros(6, dtype=np.int64)
+        self._stuck_last = np.full(6, np.nan)
         self._gyro_window = max(1, int(round(cfg.gyro_window_s * rate)))
         # the detector's window is trailing: the first samples of a turn still look
         # static. The rest-rate mean is therefore taken over a window that ends
@@ -148,15 +159,30 @@ class Monitor:
         # after it are static too.
         self._gyro_lag = max(1, int(round(cfg.static_window_s * rate)))
         span = self._gyro_window + self._gyro_lag
-        self._gyro_sum = TrailingSum(span, 3)
-        self._gyro_recent = TrailingSum(self._gyro_lag, 3)
-        self._static_sum = TrailingSum(span)
+        self._span = span
         self._noise_w = max(4, int(round(cfg.noise_window_s * rate)))
         self._noise_step = max(1, int(round(cfg.noise_check_s * rate)))
-        self._noise_motion = TrailingSum(self._noise_w + 2)  # turning samples among d2's inputs
+        # the noise check reads its raw samples back from the ring of recent samples
+        if self.ring.capacity < self._noise_w + 2:
+            self.ring = SampleRing(self._noise_w + 2)
+        self._noise_from = self.samples  # the noise history restarts with the certificate
+        self._noise_sigma: dict[str, np.ndarray | None] = {}
+        for name in TRIADS:
+            sigma = self._sigma[name]
+            if sigma is not None and certificate.triad(name).output_unit == "count":
+                sigma = np.sqrt(sigma**2 + 1.0 / 12.0)  # whole counts add q^2/12
+            self._noise_sigma[name] = sigma
         self._accel_m = max(1, int(round(0.1 * rate)))  # angular acceleration: 0.1 s means
-        self._rate_2m = TrailingSum(2 * self._accel_m, 3)
-        self._rate_m = TrailingSum(self._accel_m, 3)
+        # every trailing window of the checks from prefix sums of the stream, one gather per
+        # block: columns gx, gy, gz (corrected, rad/s), static (0/1), non-finite gyro (0/1);
+        # P back by: lag, span (the rest-rate mean and the still count), m and 2m (the
+        # angular acceleration from 0.1 s means)
+        m = self._accel_m
+        self._offsets = np.array([self._gyro_lag, span, m, 2 * m])
+        self._prefix = PrefixSums(5, max(span, 2 * m))
+        # turning samples among the inputs of the noise window's second differences
+        self._turn_offsets = np.array([self._noise_w + 2])
+        self._turn_prefix = PrefixSums(1, self._noise_w + 2)
 
     def _gyro_mode(self, gyro: TriadModel, rate_hz: float) -> str:
         """``earth_rate`` if per-sample F0 on Earth rate is meaningful, else ``rest_rate``."""
@@ -251,7 +277,6 @@ class Monitor:
         if n == 0:
             return
         cert = self.certificate
-        self.ring.push(block)
         self.samples += n
         self.t_last = float(block.t[-1])
         flags = block.flags if block.flags is not None else np.zeros(n, dtype=np.uint16)
@@ -263,11 +288,11 @@ class Monitor:
         static = self.detector.update(block)
         self.static = bool(static[-1])
         temp = block.temp
-        accel_in = cert.accel.inverse(block.accel, temp_c=temp)  # accel input units
+        accel_in = cert.accel.inverse(block.accel, temp_c=temp, n_inv_t=self._n_inv_t["accel"])
         accel_si = accel_in * cert.accel.unit_to_si
         gyro_si = cert.gyro.inverse_si(
             block.gyro, temp_c=temp, accel_input=accel_in if cert.gyro.g_sensitivity is not None
-            else None,
+            else None, n_inv_t=self._n_inv_t["gyro"],
         )
 
         sat = {
@@ -284,25 +309,40 @@ class Monitor:
         self._record("accel", f0(accel_si[ok_a] / cert.gravity), block.t[ok_a])
 
         # gyro
+        rows = np.empty((n, 5))
+        rows[:, :3] = gyro_si
+        rows[:, 3] = static
+        rows[:, 4] = 0.0
+        finite = bool(np.isfinite(gyro_si).all())
+        if not finite:  # an ADC error: zeroed in the sums, counted in a column of its own
+            bad = ~np.isfinite(gyro_si).all(axis=1)
+            rows[bad, :3] = 0.0
+            rows[:, 4] = bad
+        now, back, idx = self._prefix.update(rows, self._offsets)
+
         ok_g = static & ~adc_error & ~sat["gyro"]
         if self.gyro_mode == "earth_rate":
             self._record("gyro", f0(gyro_si[ok_g] / cert.earth_rate), block.t[ok_g])
         else:
-            self._gyro_rest_rate(gyro_si, static, ok_g, block.t)
+            self._gyro_rest_rate(now, back, idx, ok_g, block.t)
 
         self._stuck(block)
-        # angular acceleration from the last 0.1 s mean rate minus the 0.1 s before it
+        # angular acceleration from the last 0.1 s mean rate minus the 0.1 s before it:
+        # (2 (P[s] - P[s-m]) - (P[s] - P[s-2m])) / m per 0.1 s
         m = self._accel_m
-        two, _ = self._rate_2m.update(gyro_si)
-        one, _ = self._rate_m.update(gyro_si)
-        alpha = np.linalg.norm(2.0 * one - two, axis=1) * (self.rate_hz / m) / m
+        d = now[:, :3] - 2.0 * back[:, 2, :3] + back[:, 3, :3]
+        alpha = np.sqrt(np.einsum("ij,ij->i", d, d)) * (self.rate_hz / m) / m
+        if not finite:
+            alpha[now[:, 4] - back[:, 3, 4] > 0] = np.nan
         turning = ~(alpha <= self.config.noise_motion_gate)  # NaN (ADC error): turning
-        turns, _ = self._noise_motion.update(turning.astype(float))
-        self._noise(block, turns == 0)
+        turns = turning[:, None].astype(float)
+        tnow, tback, _ = self._turn_prefix.update(turns, self._turn_offsets)
+        self._noise(block, tnow[:, 0] == tback[:, 0, 0])
+        self.ring.push(block)
 
     def _record(self, name: str, values: np.ndarray, t: np.ndarray) -> None:
         st = self.state[name]
-        limit = self.certificate.triad(name).limits.f0
+        limit = self._limit[name]
         failed = np.abs(values) > limit
         st.checked += int(values.size)
         st.failed += int(np.count_nonzero(failed))
@@ -313,21 +353,22 @@ class Monitor:
         st.persistence.update(failed, t)
 
     def _gyro_rest_rate(
-        self, gyro_si: np.ndarray, static: np.ndarray, ok: np.ndarray, t: np.ndarray
+        self, now: np.ndarray, back: np.ndarray, idx: np.ndarray, ok: np.ndarray, t: np.ndarray
     ) -> None:
-        """MEMS rest-rate check: moving mean of the corrected rate over a static window."""
+        """MEMS rest-rate check: moving mean of the corrected rate over a static window.
+
+        ``now`` (N, 5), ``back`` (N, 4, 5), ``idx`` (N,): the prefix sums (see ``_offsets``).
+        """
         cert = self.certificate
         gyro = cert.gyro
-        w, lag = self._gyro_window, self._gyro_lag
-        sums, counts = self._gyro_sum.update(gyro_si)
-        recent, _ = self._gyro_recent.update(gyro_si)
-        still, _ = self._static_sum.update(static.astype(float))
-        mean = (sums - recent) / w  # the w samples that end lag samples back
+        w, span = self._gyro_window, self._span
+        mean = (back[:, 0, :3] - back[:, 1, :3]) / w  # the w samples that end lag samples back
+        still = now[:, 3] - back[:, 1, 3]
         # the averaging window and the lag after it were all still
-        usable = ok & (counts == w + lag) & (still == w + lag)
+        usable = ok & (idx + 1 >= span) & (still == span)
 
         bias_lim_si = gyro.limits.bias / gyro.scale_factor * gyro.unit_to_si
-        sigma = gyro.noise_sigma(self.rate_hz)
+        sigma = self._sigma["gyro"]
         sigma_mean_si = (
             np.zeros(3)
             if sigma is None
@@ -352,26 +393,25 @@ class Monitor:
 
     def _stuck(self, block: SampleBlock) -> None:
         """Run length of identical raw outputs per channel, carried across blocks."""
-        cfg = self.config
-        for name in TRIADS:
-            st = self.state[name]
-            triad = self.certificate.triad(name)
-            sigma = triad.noise_sigma(self.rate_hz)
-            if sigma is None:
-                continue
-            enabled = sigma >= cfg.stuck_min_sigma
-            raw = block.triad(name)
-            prev = st.stuck_last
-            same_prev = np.vstack([raw[:1] == prev, raw[1:] == raw[:-1]])  # (N, 3)
-            n = raw.shape[0]
-            idx = np.arange(n)[:, None]
-            # index of the last change at or before each sample (-1: none in this block)
-            last_change = np.maximum.accumulate(np.where(~same_prev, idx, -1), axis=0)
-            carried = np.where(last_change < 0, st.stuck_run[None, :] + idx + 1, idx - last_change)
-            run = carried  # samples in the current run of equal values, excluding its first
-            st.stuck_run = run[-1].astype(np.int64)
-            st.stuck_last = raw[-1].copy()
-            st.stuck_active = enabled & (st.stuck_run >= cfg.stuck_samples - 1)
+        raw = np.concatenate([block.gyro, block.accel], axis=1)  # (N, 6)
+        n = raw.shape[0]
+        same_prev = np.empty(raw.shape, dtype=bool)
+        np.equal(raw[:1], self._stuck_last, out=same_prev[:1])
+        np.equal(raw[1:], raw[:-1], out=same_prev[1:])
+        if same_prev.all():  # no change in the block: every run grows by n
+            run = self._stuck_run + n
+        else:
+            # index of the last change in this block per channel (-1: none)
+            changed = ~same_prev
+            last_change = n - 1 - np.argmax(changed[::-1], axis=0)
+            last_change[~changed.any(axis=0)] = -1
+            run = np.where(last_change < 0, self._stuck_run + n, n - 1 - last_change)
+        # samples in the current run of equal values, excluding its first
+        self._stuck_run = run.astype(np.int64)
+        self._stuck_last = raw[-1].astype(float)
+        active = self._stuck_enabled & (self._stuck_run >= self.config.stuck_samples - 1)
+        self.state["gyro"].stuck_active = active[:3]
+        self.state["accel"].stuck_active = active[3:]
 
     def _noise(self, block: SampleBlock, calm: np.ndarray) -> None:
         """Excess white noise per channel from second differences, carried across blocks.
@@ -391,29 +431,28 @@ class Monitor:
         # check positions: samples whose index in the stream is a multiple of the step
         first = self.samples - n
         pos = np.arange((-first) % step, n, step)
-        for name in TRIADS:
+        # a check needs w second differences, i.e. w + 2 samples since the certificate was set
+        seen = first - self._noise_from  # samples before this block, since then
+        pos = pos[(seen + pos + 1 >= w + 2) & calm[pos]]
+        if pos.size == 0:
+            return  # the common case: nothing to judge in this block
+        # the w + 1 samples before the block come back from the ring (pushed after this)
+        back = min(w + 1, seen, len(self.ring))
+        hist = self.ring.latest(back)
+        raw_all = np.concatenate([hist[:, 1:7], np.concatenate([block.gyro, block.accel], axis=1)])
+        d2sq = np.diff(raw_all, n=2, axis=0) ** 2  # row r ends at raw_all row r + 2
+        ends = pos + back - 2 + 1  # d2sq rows end (exclusive) at each check sample
+        ratio6 = np.empty((pos.size, 6))
+        for j, end in enumerate(ends):
+            ratio6[j] = np.median(d2sq[end - w : end], axis=0)
+        t = block.t[pos]
+        for k, name in enumerate(TRIADS_RING):
+            sigma = self._noise_sigma[name]
+            if sigma is None:
+                continue
             st = self.state[name]
-            triad = self.certificate.triad(name)
-            sigma = triad.noise_sigma(self.rate_hz)
-            raw = np.concatenate([st.noise_tail, block.triad(name)])
-            st.noise_tail = raw[-2:]
-            if sigma is None or raw.shape[0] < 3:
-                continue
-            if triad.output_unit == "count":  # whole counts add q^2/12 of quantisation noise
-                sigma = np.sqrt(sigma**2 + 1.0 / 12.0)
-            d2sq = np.diff(raw, n=2, axis=0) ** 2  # ends at the block's last len(d2sq) samples
-            buf = np.concatenate([st.noise_d2sq, d2sq])
-            st.noise_d2sq = buf[-w:]
-            offset = buf.shape[0] - n  # buf row of block sample i is i + offset
-            ok = pos[(pos + offset + 1 >= w) & calm[pos]]
-            if ok.size == 0:
-                continue
-            ratio = np.empty((ok.size, 3))
-            for j, i in enumerate(ok):
-                end = i + offset + 1
-                ratio[j] = np.sqrt(np.median(buf[end - w : end], axis=0) / (0.4549 * 6.0)) / sigma
+            ratio = np.sqrt(ratio6[:, 3 * k : 3 * k + 3] / (0.4549 * 6.0)) / sigma
             st.noise_ratio_last = ratio[-1]
-            t = block.t[ok]
             for axis in range(3):
                 st.noise[axis].update(ratio[:, axis] > self.config.noise_ratio, t)
                 st.noise_gross[axis].update(ratio[:, axis] > self.config.noise_gross_ratio, t)

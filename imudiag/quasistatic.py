@@ -143,6 +143,9 @@ class QuasiStaticDetector:
                 self._noise_fixed[name] = False
         self._tail = np.zeros((0, 6))
         self._tail_bad = np.zeros(0, dtype=bool)
+        # the certificate's inverse matrices, once (inverting them per block cost more than
+        # the detection itself on a daemon's small blocks)
+        self._n_inv_t = {name: certificate.triad(name).n_inverse_t() for name in ("gyro", "accel")}
 
     # -- noise ---------------------------------------------------------------
 
@@ -166,8 +169,8 @@ class QuasiStaticDetector:
         """Window means (M, 6) whose gyro rate about the vertical is within the band (M,)."""
         cert = self.certificate
         g, a = cert.gyro, cert.accel
-        rate = g.inverse(mean[:, 0:3])  # gyro input units
-        down = a.inverse(mean[:, 3:6])
+        rate = g.inverse(mean[:, 0:3], n_inv_t=self._n_inv_t["gyro"])  # gyro input units
+        down = a.inverse(mean[:, 3:6], n_inv_t=self._n_inv_t["accel"])
         norm = np.sqrt(np.einsum("ij,ij->i", down, down))
         vertical = np.einsum("ij,ij->i", rate, down) / np.where(norm > 0, norm, 1.0)
         band = (

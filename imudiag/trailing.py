@@ -1,8 +1,11 @@
-"""Trailing-window sums over a stream of rows, carried across blocks (vectorised)."""
+"""Trailing-window sums over a stream of rows, carried across blocks (running sums)."""
 
 from __future__ import annotations
 
 import numpy as np
+
+#: rows between exact re-summations of the window (bounds the running sum's rounding drift)
+_RESUM_ROWS = 1 << 16
 
 
 class TrailingSum:
@@ -11,22 +14,131 @@ class TrailingSum:
     Rows are (N, k) arrays (or (N,) vectors). The first ``window - 1`` rows of
     the stream have shorter windows; :meth:`update` returns the row count of
     each window alongside the sums so callers can require full windows.
+
+    The work per block is proportional to the block, not to the window: a
+    running sum of the window is kept with the window's rows in a circular
+    buffer, and each new row adds itself and takes off the row that leaves
+    (one cumulative sum of the differences per block). The sum is recomputed
+    exactly every ``2**16`` rows so rounding cannot drift. A non-finite value
+    makes the sums of the windows that hold it NaN (per column), and only those.
     """
 
     def __init__(self, window: int, width: int | None = None) -> None:
         if window < 1:
             raise ValueError(f"trailing window must be >= 1 row, got {window}")
         self.window = int(window)
-        shape = (0,) if width is None else (0, width)
-        self._tail = np.zeros(shape)
+        self._shape: tuple[int, ...] = () if width is None else (int(width),)
+        self._hist = np.zeros((self.window,) + self._shape)  # circular; zeros before the start
+        self._head = 0  # index of the oldest row (the next one written)
+        self._rows = 0  # rows seen
+        self._sum = np.zeros(self._shape)  # sum of the finite rows in the window
+        self._bad_until = np.full(self._shape, -1, dtype=np.int64)  # last window with a NaN
+        self._next_resum = _RESUM_ROWS
 
     def update(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(sums, counts) for each row of ``rows``: sums has the rows' shape, counts (N,)."""
         rows = np.asarray(rows, dtype=float)
-        seq = np.concatenate([self._tail, rows]) if self._tail.size else rows
-        zero = np.zeros((1,) + seq.shape[1:])
-        c = np.concatenate([zero, np.cumsum(seq, axis=0)])
-        idx = np.arange(seq.shape[0] - rows.shape[0], seq.shape[0])
-        lo = np.maximum(idx + 1 - self.window, 0)
-        self._tail = seq[seq.shape[0] - min(self.window - 1, seq.shape[0]) :]
-        return c[idx + 1] - c[lo], idx + 1 - lo
+        n = rows.shape[0]
+        w = self.window
+        first = self._rows
+        idx = np.arange(first, first + n)
+        counts = np.minimum(idx + 1, w)
+        finite = np.isfinite(rows)
+        if not finite.all():
+            bad = np.where(finite, -1, idx.reshape((n,) + (1,) * len(self._shape)))
+            self._bad_until = np.maximum(self._bad_until, bad.max(axis=0) + w - 1)
+            rows = np.where(finite, rows, 0.0)
+        if n >= w:
+            seq = np.concatenate([self._ordered(), rows])
+            c = np.cumsum(seq, axis=0)
+            sums = c[w:] - c[:-w]
+            self._hist = seq[-w:].copy()
+            self._head = 0
+            self._sum = self._hist.sum(axis=0)
+        else:
+            h = self._head
+            end = h + n
+            if end <= w:
+                drop = self._hist[h:end]
+                sums = self._sum + np.cumsum(rows - drop, axis=0)
+                self._hist[h:end] = rows
+            else:
+                drop = np.concatenate([self._hist[h:], self._hist[: end - w]])
+                sums = self._sum + np.cumsum(rows - drop, axis=0)
+                self._hist[h:] = rows[: w - h]
+                self._hist[: end - w] = rows[w - h :]
+            self._head = end % w
+            self._sum = sums[-1].copy()
+        self._rows += n
+        if self._rows >= self._next_resum:
+            self._sum = self._hist.sum(axis=0)
+            self._next_resum = self._rows + _RESUM_ROWS
+        if np.any(self._bad_until >= first):
+            sums = np.where(idx.reshape((n,) + (1,) * len(self._shape)) <= self._bad_until,
+                            np.nan, sums)  # fmt: skip
+        return sums, counts
+
+    def _ordered(self) -> np.ndarray:
+        """The window's rows, oldest first (zeros before the stream's start)."""
+        h = self._head
+        return np.concatenate([self._hist[h:], self._hist[:h]]) if h else self._hist
+
+
+class PrefixSums:
+    """Prefix sums of a stream of rows, the last ones kept in a circular buffer.
+
+    The sum of the ``w`` rows ending at stream row ``s`` is ``P[s] - P[s - w]``
+    (``P[j] = 0`` before the stream's start), so any number of trailing windows
+    up to ``reach`` rows long come from one cumulative sum of each new block and
+    one gather: the work per block is proportional to the block, whatever the
+    windows. All stored sums are shifted back to zero every ``2**20`` rows so
+    they never grow large enough to lose precision; differences are unchanged.
+    Rows must be finite (callers zero non-finite values and count them in a
+    column of their own).
+    """
+
+    def __init__(self, width: int, reach: int) -> None:
+        if reach < 1:
+            raise ValueError(f"prefix-sum reach must be >= 1 row, got {reach}")
+        self.width = int(width)
+        self.reach = int(reach)
+        self.depth = 1 << int(reach + 1024).bit_length()  # power of two > reach + 1024
+        self._p = np.zeros((self.depth, self.width))  # slot s % depth holds P[s]
+        self._last = np.zeros(self.width)  # P of the last row
+        self._rows = 0  #: rows seen
+        self._next_rebase = 1 << 20
+
+    def update(
+        self, rows: np.ndarray, offsets: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(P at the new rows (N, k), P ``offsets`` rows back (N, len(offsets), k), stream
+        index of each new row (N,)); ``rows`` (N, k), each offset in 1..reach."""
+        n = rows.shape[0]
+        chunk = self.depth - self.reach - 1
+        if n > chunk:  # keep every slot a window reaches unwritten until it is read
+            parts = [self.update(rows[i : i + chunk], offsets) for i in range(0, n, chunk)]
+            return (
+                np.concatenate([p[0] for p in parts]),
+                np.concatenate([p[1] for p in parts]),
+                np.concatenate([p[2] for p in parts]),
+            )
+        first = self._rows
+        now = np.cumsum(rows, axis=0)
+        now += self._last
+        idx = np.arange(first, first + n)
+        slots = idx & (self.depth - 1)
+        self._p[slots] = now
+        back_idx = idx[:, None] - offsets[None, :]
+        back = self._p[back_idx & (self.depth - 1)]
+        if first < self.reach:  # P before the stream's start is 0
+            back[back_idx < 0] = 0.0
+        self._last = now[-1].copy()
+        self._rows = first + n
+        if self._rows >= self._next_rebase:
+            shift = self._last.copy()
+            self._p -= shift
+            self._last -= shift
+            now = now - shift
+            back = back - shift
+            self._next_rebase = self._rows + (1 << 20)
+        return now, back, idx
