@@ -6,10 +6,14 @@ checking many equal-length frames at once for the decoder's hot path. The
 vectorised form consumes 16 bits per step through a 65536-entry table: for a
 16-bit CRC the register after 16 message bits is a function of
 ``register ^ next 16 bits`` alone, so each step is one XOR and one gather over
-all frames.
+all frames. For a single message and for a few frames (a daemon's read at
+1 kHz holds about 5) the standard library's ``binascii.crc_hqx`` with init
+0xFFFF, which is this CRC in C, costs less than one numpy call.
 """
 
 from __future__ import annotations
+
+import binascii
 
 import numpy as np
 
@@ -49,10 +53,18 @@ _T16S = _word_table_swapped(_T8)
 #: Rows per pass of :func:`crc16_rows`: ~2.6 MB of 40-byte frames, so that the
 #: column-by-column passes hit the cache instead of memory.
 _BLOCK_ROWS = 65536
+#: Up to this many rows :func:`crc16_rows` checks frame by frame with ``binascii.crc_hqx``
+#: (about 0.3 us a frame, against some 40 numpy calls for the table passes).
+_FEW_ROWS = 32
 
 
 def crc16_ccitt_false(data: bytes | bytearray | memoryview) -> int:
     """CRC-16/CCITT-FALSE of ``data`` (one message), 0..65535."""
+    return binascii.crc_hqx(bytes(data), INIT)
+
+
+def crc16_ccitt_false_python(data: bytes | bytearray | memoryview) -> int:
+    """The same CRC one table step per byte in Python (the reference the C one is tested on)."""
     crc = INIT
     table = _T8_LIST
     for b in bytes(data):
@@ -80,9 +92,13 @@ def crc16_rows(rows: np.ndarray) -> np.ndarray:
         for i in range(0, m, _BLOCK_ROWS):
             out[i : i + _BLOCK_ROWS] = crc16_rows(rows[i : i + _BLOCK_ROWS])
         return out
+    if m <= _FEW_ROWS:
+        data = np.ascontiguousarray(rows).tobytes()
+        return np.array(
+            [binascii.crc_hqx(data[i : i + length], INIT) for i in range(0, m * length, length)],
+            dtype=np.uint16,
+        )
     crc = np.full(m, INIT, dtype=np.uint16)
-    if m == 0:
-        return crc
     if rows.strides[1] != 1:
         rows = np.ascontiguousarray(rows)
     start = 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from imudiag.drivers.crc import crc16_ccitt_false, crc16_rows
+from imudiag.drivers.crc import crc16_ccitt_false, crc16_ccitt_false_python, crc16_rows
 from imudiag.drivers.wire import (
     FRAME_DTYPE,
     SAMPLE_FRAME_SIZE,
@@ -57,18 +57,21 @@ def test_crc_check_value():
     rows = np.frombuffer(b"123456789", dtype=np.uint8)[None, :]
     assert crc16_rows(rows)[0] == 0x29B1
     assert crc16_ccitt_false(b"") == 0xFFFF
+    assert crc16_ccitt_false_python(b"123456789") == 0x29B1
 
 
+@pytest.mark.parametrize("count", [0, 1, 5, 32, 33, 300])  # binascii below 33 rows, tables above
 @pytest.mark.parametrize("length", [1, 2, 7, 36, 37])
-def test_crc_rows_matches_scalar(length):
+def test_crc_rows_matches_scalar(length, count):
     rng = np.random.default_rng(length)
-    rows = rng.integers(0, 256, (300, length + 5), dtype=np.uint8)[
+    rows = rng.integers(0, 256, (count, length + 5), dtype=np.uint8)[
         :, 2 : 2 + length
     ]  # strided view
     got = crc16_rows(rows)
-    want = [crc16_ccitt_false(r.tobytes()) for r in rows]
+    want = [crc16_ccitt_false_python(r.tobytes()) for r in rows]
     assert got.dtype == np.uint16
     assert got.tolist() == want
+    assert [crc16_ccitt_false(r.tobytes()) for r in rows] == want
 
 
 def test_crc_rows_rejects_bad_input():

@@ -104,6 +104,9 @@ class Daemon:
         self.monitor = Monitor(self.certificate, settings.monitor)
         self.diagnoser = self._make_diagnoser(self.certificate)
         self._diag_blocks: list[SampleBlock] = []  # gathered for the diagnoser
+        # the diagnoser's faults and verdict change only when it is fed: kept between feeds
+        # rather than rebuilt on every read
+        self._diag_view: tuple[list[dict[str, Any]], dict[str, Any]] | None = None
         self.source = ReconnectingSource(
             settings.source_url,
             certificate=self.certificate,
@@ -199,6 +202,7 @@ class Daemon:
         if self.diagnoser is not None:
             self.diagnoser = self._make_diagnoser(new)
             self._diag_blocks = []  # gathered under the old certificate
+            self._diag_view = None
         self.reloads += 1
         self.notes = []
         log.info("certificate reloaded from %s", path)
@@ -219,7 +223,22 @@ class Daemon:
 
     def status(self, now: float) -> dict[str, Any]:
         """The current status object (spec/reports.md keys first)."""
-        diag_faults = self.diagnoser.faults if self.diagnoser is not None else []
+        diag_faults: list[dict[str, Any]] = []
+        diagnosis: dict[str, Any] = {}
+        if self.diagnoser is not None:
+            if self._diag_view is None:
+                faults_now = self.diagnoser.faults
+                # the live verdict comes from the faults in force; what was ever raised is a
+                # counter (and the log), not a latch that contradicts "faults" and "state"
+                undetermined = {u["triad"] for u in self.diagnoser.undetermined}
+                view = {
+                    name: "fault" if any(f["triad"] == name for f in faults_now)
+                    else "undetermined" if name in undetermined else "ok"
+                    for name in ("accel", "gyro")
+                }
+                view["raised"] = len(self.diagnoser.tracker.raised)
+                self._diag_view = (faults_now, view)
+            diag_faults, diagnosis = self._diag_view
         faults = merge_faults(
             [{k: v for k, v in f.items() if k != "t_first"} for f in self.monitor.active_faults],
             [{k: f[k] for k in ("triad", "sensor", "cause") if k in f} for f in diag_faults],
@@ -254,15 +273,7 @@ class Daemon:
             },
         }
         if self.diagnoser is not None:
-            # the live verdict comes from the faults in force; what was ever raised is a
-            # counter (and the log), not a latch that contradicts "faults" and "state"
-            undetermined = {u["triad"] for u in self.diagnoser.undetermined}
-            status["diagnosis"] = {
-                name: "fault" if any(f["triad"] == name for f in diag_faults)
-                else "undetermined" if name in undetermined else "ok"
-                for name in ("accel", "gyro")
-            }
-            status["diagnosis"]["raised"] = len(self.diagnoser.tracker.raised)
+            status["diagnosis"] = dict(diagnosis)
         links = [s for s in self.sinks if hasattr(s, "dropped") and hasattr(s, "written")]
         if links:  # the serial NMEA link: sentences written and dropped (slow receiver)
             status["status_link"] = {
@@ -365,6 +376,7 @@ class Daemon:
         if block is None or pending[-1].t[-1] - pending[0].t[0] >= self.settings.diagnosis_batch_s:
             self._diag_blocks = []
             self.diagnoser.update(pending[0] if len(pending) == 1 else SampleBlock.concat(pending))
+            self._diag_view = None
 
     def _emit(self, now: float, force: bool = False) -> None:
         status = self.status(now)
