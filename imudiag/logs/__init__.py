@@ -43,7 +43,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from .samples import SampleBlock
+from ..samples import SampleBlock
 
 
 class LogError(ValueError):
@@ -506,7 +506,7 @@ class BinReader(LogReader):
 
     def __init__(self, path: str | Path, block_size: int = DEFAULT_BLOCK_SIZE) -> None:
         super().__init__(path, block_size)
-        from .drivers.wire import SAMPLE_FRAME_SIZE
+        from ..drivers.wire import SAMPLE_FRAME_SIZE
 
         self._chunk = self.block_size * SAMPLE_FRAME_SIZE
         decoder = self._decoder()
@@ -520,7 +520,7 @@ class BinReader(LogReader):
 
     @staticmethod
     def _decoder() -> Any:
-        from .drivers.wire import Decoder
+        from ..drivers.wire import Decoder
 
         return Decoder()
 
@@ -784,7 +784,7 @@ class BinWriter(LogWriter):
 
     def __init__(self, path: str | Path, meta: dict[str, Any] | None = None) -> None:
         super().__init__(path, meta)
-        from .drivers import wire
+        from ..drivers import wire
 
         self._wire = wire
         self._info: bytes | None = None
