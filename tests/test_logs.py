@@ -282,8 +282,10 @@ def test_csv_header_problems(tmp_path: Path) -> None:
 def test_unreadable_files(tmp_path: Path) -> None:
     err = rejection(tmp_path / "missing.csv")
     assert "cannot read" in err.reason
-    err = rejection(tmp_path / "log.txt")
+    err = rejection(tmp_path / "log.xlsx")
     assert "unknown log format" in err.reason
+    err = rejection(tmp_path / "log.txt")  # a text table (issue 11), here missing
+    assert "cannot read" in err.reason
     (tmp_path / "trunc.csv.gz").write_bytes(
         gzip.compress((HEADER + "\n" + "\n".join(GOOD_ROWS * 1) + "\n").encode())[:-12]
     )

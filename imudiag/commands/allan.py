@@ -20,6 +20,7 @@ import numpy as np
 from ..atomic import write_text_atomic
 from ..errors import BadInput
 from ..logs import LogError, open_log
+from ..logs.timing import timing_report
 from ..noise_stats import identify_noise, overlapping_allan, welch_psd
 
 SENSORS = ("gx", "gy", "gz", "ax", "ay", "az")
@@ -116,13 +117,14 @@ def run(args: argparse.Namespace) -> int:
         raise LogError(args.log, f"{t.shape[0]} samples in the selected range; need at least 16")
     dt = np.diff(t)
     median_dt = float(np.median(dt))
+    timing = timing_report(t, meta)
     rate = args.rate
     if rate is None:
-        try:
-            rate = float(meta.get("sample_rate", 0.0)) or 1.0 / median_dt
-        except (TypeError, ValueError):
-            raise LogError(args.log, f"metadata sample_rate is not a number: "
-                           f"{meta.get('sample_rate')!r}") from None
+        # the log's numeric sample_rate, else the rate its time stamps show (a
+        # descriptive sample_rate such as "about 90-100" is stated, not fatal)
+        rate = timing.metadata_rate_hz or 1.0 / median_dt
+    if timing.note:
+        print(f"{args.log}: {timing.note}", file=sys.stderr)
     if not (rate > 0 and math.isfinite(rate)):
         raise BadInput(f"--rate: must be > 0 Hz, got {rate}")
     gaps = int(np.count_nonzero(dt > 1.5 / rate))
@@ -133,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
         "rate_hz": rate,
         "duration_s": float(t[-1] - t[0]),
         "gaps": gaps,
+        "timing": timing.as_dict(),
         "units": UNITS,
         "sensors": analyse(t, u, rate, sensors, args.points_per_decade, args.psd_segment),
     }

@@ -42,7 +42,9 @@ from .base import (
 )
 from .csv_format import CsvReader, CsvWriter
 from .npz_format import NpzReader, NpzWriter
+from .options import LogOptions
 from .registry import FORMATS, LogFormat, formats, log_format, lookup, register_format
+from .text_table import TextTableReader
 from .wire_capture import BinReader, BinWriter
 
 register_format(LogFormat(".csv", (".csv",), CsvReader, CsvWriter, description="CSV table"))
@@ -62,15 +64,53 @@ register_format(
     )
 )
 
+register_format(
+    LogFormat(
+        "text",
+        (".txt", ".tsv", ".dat", ".txt.gz", ".tsv.gz", ".dat.gz"),
+        TextTableReader,
+        description="text table (comma, semicolon, tab or whitespace; --columns, --rate)",
+        takes_options=True,
+    )
+)
 
-def open_log(path: str | Path, block_size: int = DEFAULT_BLOCK_SIZE) -> LogReader:
-    """Open a sample log for streaming (format from the file name).
+
+def open_log(
+    path: str | Path, block_size: int = DEFAULT_BLOCK_SIZE, options: LogOptions | None = None
+) -> LogReader:
+    """Open a sample log for streaming (format from the file name and magic bytes).
 
     The header and metadata are read and checked now; the samples as the
-    reader is iterated, in blocks of at most ``block_size`` samples. Raises
-    :class:`LogError` for an unreadable file or a rule violation.
+    reader is iterated, in blocks of at most ``block_size`` samples. ``options``
+    (column names, units, time unit, rate) say how to read a text table; a
+    ``.csv`` is read as a text table when they are given or when its header is
+    not the spec's. Raises :class:`LogError` for an unreadable file or a rule
+    violation.
     """
-    return lookup(path).open_reader(path, block_size)
+    fmt = lookup(path)
+    table = options is not None and bool(options.columns or options.time_unit)
+    if fmt.name in (".csv", ".csv.gz") and table:
+        reader: LogReader = TextTableReader(path, block_size, options=options)
+    elif fmt.name in (".csv", ".csv.gz"):
+        try:
+            reader = fmt.open_reader(path, block_size)
+        except LogError as exc:
+            if not exc.reason.startswith("missing column"):
+                raise
+            try:  # a user's own table: other column names, or no header
+                reader = TextTableReader(path, block_size, options=options)
+            except LogError as text_exc:
+                hint = "name the columns with --columns (e.g. t,gx,gy,gz,ax,ay,az; _ skips one)"
+                if "--columns" in text_exc.reason or "--rate" in text_exc.reason:
+                    raise LogError(exc.path, f"{exc.reason}; {hint}", exc.line) from None
+                raise text_exc from None
+    else:
+        if table and not fmt.takes_options:
+            raise LogError(str(path), f"--columns and --time-unit do not apply to {fmt.name} logs")
+        reader = fmt.open_reader(path, block_size, options)
+    if options is not None and options.units:
+        reader.meta["units"] = dict(options.units)
+    return reader
 
 
 def read_log(path: str | Path) -> SampleBlock:
@@ -97,6 +137,8 @@ __all__ = [
     "FORMATS",
     "LogError",
     "LogFormat",
+    "LogOptions",
+    "TextTableReader",
     "BinReader",
     "BinWriter",
     "CsvReader",

@@ -31,12 +31,16 @@ class LogFormat:
     writer: Callable[..., LogWriter] | None = None  #: ``writer(path, meta)``
     magic: Callable[[bytes], bool] | None = None  #: accepts the file's first bytes
     description: str = ""
+    takes_options: bool = False  #: the reader takes ``options=LogOptions``
+    extra: str = ""  #: the pip extra holding the reader's dependencies, if any
 
-    def open_reader(self, path: str | Path, block_size: int, **options: Any) -> LogReader:
+    def open_reader(self, path: str | Path, block_size: int, options: Any = None) -> LogReader:
         """A reader of ``path``; raises LogError when the format cannot be read."""
         if self.reader is None:
             raise LogError(str(path), f"{self.name} logs cannot be read")
-        return self.reader(path, block_size, **options)
+        if self.takes_options:
+            return self.reader(path, block_size, options=options)
+        return self.reader(path, block_size)
 
     def open_writer(self, path: str | Path, meta: dict[str, Any] | None) -> LogWriter:
         """A writer of a new ``path``; raises LogError when the format cannot be written."""

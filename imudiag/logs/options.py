@@ -1,0 +1,170 @@
+"""Options that say how to read a log the user brought, shared by every log command and replay://.
+
+``--columns t,gx,gy,gz,ax,ay,az`` names a text table's columns in file order
+(``_`` skips one), ``--units gyro=deg/s,accel=g`` states the log's units,
+``--time-unit s|ms|us|ns`` the unit of ``t``, ``--rate HZ`` the sample rate of
+a log without time stamps. The same keys are ``replay://`` URL query keys
+(``?columns=t,gx,...&units=gyro=deg/s,accel=g&time_unit=ms&rate=100``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..errors import BadInput
+from .base import OPTIONAL_COLUMNS, REQUIRED_COLUMNS
+
+#: Seconds per unit of ``t``.
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+#: Units a log's outputs may be stated in, per triad (``count`` is raw ADC output).
+GYRO_UNITS = ("rad/s", "deg/s", "count")
+ACCEL_UNITS = ("m/s^2", "g", "count")
+#: Column names --columns accepts, besides ``_`` (skip).
+COLUMN_NAMES = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
+
+
+@dataclass
+class LogOptions:
+    """How to read a log: column names, units, time unit, sample rate (Hz)."""
+
+    columns: list[str] | None = None
+    units: dict[str, str] = field(default_factory=dict)  #: {"gyro": ..., "accel": ...}
+    time_unit: str | None = None
+    rate: float | None = None  #: Hz, for logs without time stamps
+
+    def given(self) -> bool:
+        """True when any option was given."""
+        return bool(self.columns or self.units or self.time_unit or self.rate)
+
+
+def parse_columns(text: str, where: str = "--columns") -> list[str]:
+    """``t,gx,...`` -> names; ``_`` skips a column. Raises BadInput naming the bad name."""
+    names = [c.strip() for c in text.split(",")]
+    seen: set[str] = set()
+    for name in names:
+        if name == "_":
+            continue
+        if name not in COLUMN_NAMES:
+            raise BadInput(
+                f"{where}: unknown column {name!r}; expected {', '.join(COLUMN_NAMES)} or _ (skip)"
+            )
+        if name in seen:
+            raise BadInput(f"{where}: column {name!r} named twice")
+        seen.add(name)
+    missing = [n for n in REQUIRED_COLUMNS[1:] if n not in seen]
+    if missing:
+        raise BadInput(f"{where}: missing {', '.join(missing)} (name the gyro and accel axes)")
+    return names
+
+
+def parse_units(text: str, where: str = "--units") -> dict[str, str]:
+    """``gyro=deg/s,accel=g`` -> {"gyro": "deg/s", "accel": "g"}; raises BadInput."""
+    units: dict[str, str] = {}
+    for part in text.replace(" ", ",").split(","):
+        if not part.strip():
+            continue
+        key, sep, value = part.partition("=")
+        key, value = key.strip(), value.strip()
+        allowed = {"gyro": GYRO_UNITS, "accel": ACCEL_UNITS}.get(key)
+        if not sep or allowed is None:
+            raise BadInput(f"{where}: expected gyro=UNIT,accel=UNIT, got {part!r}")
+        if value == "m/s2":
+            value = "m/s^2"
+        if value not in allowed:
+            raise BadInput(f"{where}: {key} unit {value!r} unknown; expected {', '.join(allowed)}")
+        units[key] = value
+    return units
+
+
+def parse_time_unit(text: str, where: str = "--time-unit") -> str:
+    """One of s, ms, us, ns; raises BadInput."""
+    if text not in TIME_UNITS:
+        raise BadInput(f"{where}: expected one of {', '.join(TIME_UNITS)}, got {text!r}")
+    return text
+
+
+def parse_rate(value: Any, where: str = "--rate") -> float:
+    """A sample rate in Hz, finite and > 0; raises BadInput."""
+    try:
+        rate = float(value)
+    except (TypeError, ValueError):
+        raise BadInput(f"{where}: expected a rate in Hz, got {value!r}") from None
+    if not (rate > 0 and math.isfinite(rate)):
+        raise BadInput(f"{where}: must be a finite rate > 0 Hz, got {value!r}")
+    return rate
+
+
+def add_log_options(parser: argparse.ArgumentParser) -> None:
+    """Add --columns, --units, --time-unit and (unless the command has one) --rate."""
+    g = parser.add_argument_group("reading logs (text tables, foreign formats)")
+    g.add_argument(
+        "--columns",
+        metavar="NAMES",
+        help="a text table's columns in file order, e.g. t,gx,gy,gz,ax,ay,az,temp (_ skips one)",
+    )
+    g.add_argument(
+        "--units",
+        metavar="SPEC",
+        help="the log's units: gyro=rad/s|deg/s|count,accel=m/s^2|g|count",
+    )
+    g.add_argument(
+        "--time-unit", metavar="U", help="unit of the t column: s (default), ms, us or ns"
+    )
+    if "--rate" not in parser._option_string_actions:
+        g.add_argument(
+            "--rate",
+            type=float,
+            metavar="HZ",
+            help="sample rate of a log without a t column (Hz)",
+        )
+
+
+def log_options(args: argparse.Namespace) -> LogOptions:
+    """The validated options of a parsed command line (exit 2 on a bad value)."""
+    opts = LogOptions()
+    if getattr(args, "columns", None):
+        opts.columns = parse_columns(args.columns)
+    if getattr(args, "units", None):
+        opts.units = parse_units(args.units)
+    if getattr(args, "time_unit", None):
+        opts.time_unit = parse_time_unit(args.time_unit)
+    if getattr(args, "rate", None) is not None:
+        opts.rate = parse_rate(args.rate)
+    return opts
+
+
+def options_from_query(query: dict[str, str]) -> LogOptions:
+    """The options of ``replay://`` URL query keys columns, units, time_unit, rate."""
+    opts = LogOptions()
+    if "columns" in query:
+        opts.columns = parse_columns(query["columns"], "replay://?columns")
+    if "units" in query:
+        opts.units = parse_units(query["units"], "replay://?units")
+    if "time_unit" in query:
+        opts.time_unit = parse_time_unit(query["time_unit"], "replay://?time_unit")
+    if "rate" in query:
+        opts.rate = parse_rate(query["rate"], "replay://?rate")
+    return opts
+
+
+def units_from_meta(meta: dict[str, Any]) -> dict[str, str]:
+    """A log's ``units`` metadata (``gyro=deg/s accel=g`` or a JSON object) as a dict.
+
+    Empty when absent or not in the known units (then nothing is assumed).
+    """
+    value = meta.get("units")
+    if value is None:
+        return {}
+    if isinstance(value, dict):
+        value = ",".join(f"{k}={v}" for k, v in value.items())
+    try:
+        return parse_units(str(value), "metadata units")
+    except BadInput:
+        return {}
+
+
+#: The replay:// query keys these options add.
+URL_KEYS = ("columns", "units", "time_unit", "rate")
