@@ -122,12 +122,73 @@ class Limits:
     misalignment: np.ndarray  #: rad, on d1, d2, d3
 
 
+#: FLICKER_FACTOR * B is the flat Allan deviation of a bias instability B: sqrt(2 ln 2 / pi)
+FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)
+
+#: The noise fields of a certificate (``<triad>.noise``), each a per-axis vector, with
+#: their units ("u" = the triad's output unit) and the IEEE Std 952 / 1554 term they hold.
+NOISE_FIELDS: dict[str, tuple[str, str]] = {
+    "density": ("u/sqrt(Hz)", "white noise, one-sided density (angle / velocity random "
+                "walk N = density / sqrt(2), u sqrt(s); per-sample sigma = density "
+                "sqrt(rate / 2))"),
+    "bias_random_walk": ("u/sqrt(s)", "rate random walk K: Allan variance K^2 tau / 3"),
+    "quantization": ("u s", "quantisation noise Q: Allan variance 3 Q^2 / tau^2 (an output "
+                     "quantised in steps q at rate f has Q = q / (f sqrt(12)))"),
+    "bias_instability": ("u", "bias instability (flicker floor) B: Allan deviation "
+                         "0.664 B, flat"),
+    "rate_ramp": ("u/s", "rate ramp R: Allan variance R^2 tau^2 / 2"),
+    "gauss_markov_sigma": ("u", "first-order Gauss-Markov bias, steady-state standard "
+                           "deviation (needs gauss_markov_time)"),
+    "gauss_markov_time": ("s", "correlation time of the Gauss-Markov bias, > 0 "
+                          "(needs gauss_markov_sigma)"),
+}
+
+
 @dataclass
 class Noise:
-    """White noise and bias random walk, output units."""
+    """Noise terms per axis, output units u (:data:`NOISE_FIELDS`: units and meaning)."""
 
-    density: np.ndarray | None = None  #: output units / sqrt(Hz)
-    bias_random_walk: np.ndarray | None = None  #: output units / sqrt(s)
+    density: np.ndarray | None = None  #: u / sqrt(Hz), one-sided white-noise density
+    bias_random_walk: np.ndarray | None = None  #: u / sqrt(s), rate random walk K
+    quantization: np.ndarray | None = None  #: u s, quantisation Q
+    bias_instability: np.ndarray | None = None  #: u, flicker floor B
+    rate_ramp: np.ndarray | None = None  #: u / s, rate ramp R
+    gauss_markov_sigma: np.ndarray | None = None  #: u, Gauss-Markov bias sigma
+    gauss_markov_time: np.ndarray | None = None  #: s, Gauss-Markov correlation time
+
+    def allan_deviation(self, tau: np.ndarray | float) -> np.ndarray:
+        """Closed-form Allan deviation (u) predicted from the noise terms, shape (3, len(tau)).
+
+        sigma^2(tau) = 3 Q^2/tau^2 + N^2/tau + (0.664 B)^2 + K^2 tau/3 + R^2 tau^2/2
+        + s^2 (T/tau)^2 (2 tau/T - 3 + 4 e^(-tau/T) - e^(-2 tau/T)) (IEEE Std 952 Annex C;
+        N = density / sqrt(2); the terms are independent). ``tau`` in s.
+        """
+        t = np.atleast_1d(np.asarray(tau, dtype=float))[None, :]
+
+        def col(v: np.ndarray | None) -> np.ndarray:
+            return np.zeros((3, 1)) if v is None else np.asarray(v, float).reshape(3, 1)
+
+        var = col(self.density) ** 2 / 2.0 / t
+        var = var + col(self.bias_random_walk) ** 2 * t / 3.0
+        var = var + 3.0 * col(self.quantization) ** 2 / t**2
+        var = var + (FLICKER_FACTOR * col(self.bias_instability)) ** 2
+        var = var + col(self.rate_ramp) ** 2 * t**2 / 2.0
+        if self.gauss_markov_sigma is not None and self.gauss_markov_time is not None:
+            tc = np.maximum(col(self.gauss_markov_time), 1e-300)
+            var = var + col(self.gauss_markov_sigma) ** 2 * markov_allan_shape(t / tc)
+        return np.sqrt(var)
+
+
+def markov_allan_shape(x: np.ndarray) -> np.ndarray:
+    """Allan variance of a unit first-order Gauss-Markov process at tau = x T:
+    (2x - 3 + 4 e^-x - e^-2x) / x^2, with its series below x = 1e-3."""
+    x = np.asarray(x, dtype=float)
+    small = x < 1e-3
+    xs = np.where(small, x, 1.0)
+    xl = np.where(small, 1.0, x)
+    series = 2.0 * xs / 3.0 - xs**2 / 2.0
+    exact = (2.0 * xl - 3.0 + 4.0 * np.exp(-xl) - np.exp(-2.0 * xl)) / xl**2
+    return np.where(small, series, exact)
 
 
 @dataclass
@@ -270,6 +331,12 @@ class TriadModel:
             return None
         return self.noise.density * math.sqrt(sample_rate_hz / 2.0)
 
+    def allan_deviation(self, tau: np.ndarray | float) -> np.ndarray | None:
+        """Allan deviation (output units, shape (3, len(tau))) predicted from the noise
+        fields at cluster times ``tau`` (s) (:meth:`Noise.allan_deviation`); None without
+        a noise block."""
+        return None if self.noise is None else self.noise.allan_deviation(tau)
+
 
 @dataclass
 class Certificate:
@@ -331,10 +398,10 @@ def _triad_to_dict(t: TriadModel) -> dict[str, Any]:
     }
     if t.noise is not None:
         n: dict[str, Any] = {}
-        if t.noise.density is not None:
-            n["density"] = [float(v) for v in t.noise.density]
-        if t.noise.bias_random_walk is not None:
-            n["bias_random_walk"] = [float(v) for v in t.noise.bias_random_walk]
+        for key in NOISE_FIELDS:
+            vals = getattr(t.noise, key)
+            if vals is not None:
+                n[key] = [float(v) for v in vals]
         d["noise"] = n
     d["limits"] = {
         "f0": float(t.limits.f0),
@@ -411,21 +478,24 @@ def _parse_triad(node: Any, name: str) -> TriadModel:
     noise = None
     if "noise" in node:
         nn = _mapping(node["noise"], f"{name}.noise")
-        _check_keys(nn, f"{name}.noise", (), ("density", "bias_random_walk"))
-        noise = Noise(
-            density=_vector(nn["density"], f"{name}.noise.density") if "density" in nn else None,
-            bias_random_walk=(
-                _vector(nn["bias_random_walk"], f"{name}.noise.bias_random_walk")
-                if "bias_random_walk" in nn
-                else None
-            ),
-        )
-        for key in ("density", "bias_random_walk"):
+        _check_keys(nn, f"{name}.noise", (), tuple(NOISE_FIELDS))
+        noise = Noise(**{key: _vector(nn[key], f"{name}.noise.{key}")
+                         for key in NOISE_FIELDS if key in nn})
+        for key in NOISE_FIELDS:
             vals = getattr(noise, key)
             if vals is not None:
                 for i, v in enumerate(vals):
                     if v < 0:
                         raise CertificateError(f"{name}.noise.{key}[{i}]", f"must be >= 0, got {v}")
+        has_s, has_t = "gauss_markov_sigma" in nn, "gauss_markov_time" in nn
+        if has_s != has_t:
+            missing = "gauss_markov_time" if has_s else "gauss_markov_sigma"
+            raise CertificateError(f"{name}.noise.{missing}",
+                                   "a Gauss-Markov bias needs both gauss_markov_sigma (u) "
+                                   "and gauss_markov_time (s)")
+        if noise.gauss_markov_time is not None:
+            for i, v in enumerate(noise.gauss_markov_time):
+                _positive(v, f"{name}.noise.gauss_markov_time[{i}]")
 
     temperature = None
     if "temperature" in node:

@@ -26,7 +26,8 @@ from typing import Any
 
 import numpy as np
 
-FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  #: 0.664, sigma floor / B
+from .certificate import FLICKER_FACTOR  # 0.664, sigma floor / B (one definition)
+from .certificate import markov_allan_shape as _markov_shape
 
 
 @dataclass
@@ -124,18 +125,6 @@ def theoretical_adev(
         x = tau / tc
         var = var + sigma**2 * _markov_shape(x)
     return np.sqrt(var)
-
-
-def _markov_shape(x: np.ndarray) -> np.ndarray:
-    """(2x - 3 + 4 e^-x - e^-2x) / x^2, with its series below x = 1e-3."""
-    x = np.asarray(x, dtype=float)
-    out = np.empty_like(x)
-    small = x < 1e-3
-    xs = x[small]
-    out[small] = 2.0 * xs / 3.0 - xs**2 / 2.0
-    xl = x[~small]
-    out[~small] = (2.0 * xl - 3.0 + 4.0 * np.exp(-xl) - np.exp(-2.0 * xl)) / xl**2
-    return out
 
 
 # ---------------------------------------------------------------------------

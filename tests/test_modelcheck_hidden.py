@@ -32,7 +32,7 @@ def test_hidden_effect_is_named(seed: int) -> None:
         f"hid {hidden.name} on {hidden.sensor} ({hidden.value}), named {report['effects']}")
     effect = report["effects"][0]
     assert effect["significance"] >= 5.0
-    assert effect["heldout_gain"] > 0.0
+    assert effect["heldout_loglik_gain_nats"] > 0.0
     if effect["sensor"] != hidden.sensor:
         # only where the data cannot tell the sensors apart, and then it must say so
         assert hidden.sensor in effect.get("alternatives", []), (hidden.sensor, effect)

@@ -36,6 +36,15 @@ from .spectral import Line
 from .streams import F0Check, Predictor, SegmentStats
 from .summaries import Session
 
+#: report key of an effect's held-out log-likelihood improvement, nats (above 0 is better)
+HELDOUT_LOGLIK_KEY = "heldout_loglik_gain_nats"
+#: what every entry of the report's ``gain`` block means
+GAIN_DEFINITION = (
+    "every gain is extended / baseline of the error measure it is named for (residual_rms, "
+    "rotation_rms, f0_false_alarm_rate, allan_misfit), both on held-out data: below 1 the "
+    "extended model is better, 1 no change; an effect's held-out log-likelihood improvement "
+    f"is {HELDOUT_LOGLIK_KEY!r} (nats, above 0 is better), never called a gain")
+
 _COL = {s: i for i, s in enumerate(SENSORS["gyro"] + SENSORS["accel"])}
 
 
@@ -61,7 +70,8 @@ class Effect:
         d.update(self.extra)
         if self.sigma is not None:
             d["sigma"] = self.sigma
-        d["heldout_gain"] = round(float(self.heldout), 3)
+        # a likelihood improvement (nats, above 0 is better), not a gain: see GAIN_DEFINITION
+        d[HELDOUT_LOGLIK_KEY] = round(float(self.heldout), 3)
         return d
 
 
@@ -392,6 +402,8 @@ def ratio(ext: float | None, base: float | None) -> float | None:
 
 
 __all__ = [
+    "GAIN_DEFINITION",
+    "HELDOUT_LOGLIK_KEY",
     "Effect",
     "FoldFit",
     "AccelFold",
