@@ -74,8 +74,9 @@ def test_all_noise_fields_round_trip_through_a_file(tmp_path: Path, doc: dict[st
         ("flicker", [0.1, 0.1, 0.1], "gyro.noise.flicker", "unknown key"),
     ],
 )
-def test_bad_noise_field_names_its_key(doc: dict[str, Any], field: str, value: Any, key: str,
-                                       reason: str) -> None:
+def test_bad_noise_field_names_its_key(
+    doc: dict[str, Any], field: str, value: Any, key: str, reason: str
+) -> None:
     doc["gyro"].setdefault("noise", {})[field] = value
     err = _error(doc)
     assert err.key == key and reason in err.reason
@@ -113,9 +114,11 @@ def test_closed_form_terms_have_their_ieee_signatures() -> None:
     assert FLICKER_FACTOR == pytest.approx(0.6643, abs=1e-4)
     # quantisation: sqrt(3) Q / tau; rate ramp: R tau / sqrt(2)
     assert _only("quantization", 0.01).allan_deviation(1.0)[0, 0] == pytest.approx(
-        math.sqrt(3.0) * 0.01)
+        math.sqrt(3.0) * 0.01
+    )
     assert _only("rate_ramp", 0.01).allan_deviation(10.0)[0, 0] == pytest.approx(
-        0.1 / math.sqrt(2.0))
+        0.1 / math.sqrt(2.0)
+    )
     # Gauss-Markov: a random walk sigma sqrt(2/T) well below T, white sigma sqrt(2T) well above
     gm = _only("gauss_markov_sigma", 0.3, gauss_markov_time=50.0)
     short, long_ = gm.allan_deviation(np.array([0.01, 1e5]))[0]
@@ -124,8 +127,9 @@ def test_closed_form_terms_have_their_ieee_signatures() -> None:
     # independent terms add in variance, per axis
     n = Noise(**{k: np.asarray(v) for k, v in FULL_NOISE.items()})
     total = n.allan_deviation(tau) ** 2
-    parts = sum(_single(k, n).allan_deviation(tau) ** 2
-                for k in FULL_NOISE if k != "gauss_markov_time")
+    parts = sum(
+        _single(k, n).allan_deviation(tau) ** 2 for k in FULL_NOISE if k != "gauss_markov_time"
+    )
     assert np.allclose(total, parts)
     assert not np.allclose(total[0], total[1])  # per sensor
 
@@ -153,8 +157,11 @@ def test_closed_form_matches_the_allan_deviation_of_a_realisation() -> None:
     measured = overlapping_allan(y, rate, points_per_decade=5)
     keep = measured.independent >= 20
     density = sigma_w / math.sqrt(rate / 2.0)
-    noise = Noise(density=np.full(3, density), gauss_markov_sigma=np.full(3, gm_sigma),
-                  gauss_markov_time=np.full(3, gm_t))
+    noise = Noise(
+        density=np.full(3, density),
+        gauss_markov_sigma=np.full(3, gm_sigma),
+        gauss_markov_time=np.full(3, gm_t),
+    )
     predicted = noise.allan_deviation(measured.tau[keep])[0]
     ratio = measured.adev[keep] / predicted
     assert np.all(np.abs(np.log(ratio)) < 4.0 / np.sqrt(measured.independent[keep]) + 0.03), ratio

@@ -81,6 +81,13 @@ class Effects:
     bias_drift: dict[str, float] = field(default_factory=dict)
     #: first-order Gauss-Markov bias instability, per sensor: (sigma output units, tau s)
     bias_instability: dict[str, tuple[float, float]] = field(default_factory=dict)
+    #: flicker floor (IEEE bias instability B, output units: Allan deviation 0.664 B flat
+    #: over ``flicker_band``), per sensor; a sum of Gauss-Markov processes
+    flicker: dict[str, float] = field(default_factory=dict)
+    #: cluster times (low, high), s, over which the flicker floor is flat
+    flicker_band: tuple[float, float] = (0.1, 1.0e4)
+    #: rate ramp R, output units / s (a bias growing as R t), per sensor
+    rate_ramp: dict[str, float] = field(default_factory=dict)
     #: board temperature over time (degC); None: constant ``temperature_reference``
     temperature: TemperatureProfile | Callable[[np.ndarray], np.ndarray] | None = None
     temperature_reference: float = 25.0  #: degC at which the certificate's B, S, E hold
@@ -112,8 +119,8 @@ class Effects:
             p if isinstance(p, PeriodicDisturbance) else PeriodicDisturbance(*p)
             for p in self.periodic_disturbance
         ]
-        for name in ("bias_drift", "bias_instability", "temperature_bias", "temperature_scale",
-                     "scale_nonlinearity"):
+        for name in ("bias_drift", "bias_instability", "flicker", "rate_ramp",
+                     "temperature_bias", "temperature_scale", "scale_nonlinearity"):
             for sensor in getattr(self, name):
                 sensor_index(sensor)
         for s in self.bias_step:

@@ -26,6 +26,8 @@ for the bundled board):
 ``noise:SCALE``                        white-noise multiplier (0 = off)
 ``bias_drift:S:K``                     random walk, output units/sqrt(s)
 ``bias_instability:S:SIGMA:TAU``       Gauss-Markov, output units and s
+``flicker:S:B[:TAU_LOW:TAU_HIGH]``     flicker floor B (output units), flat over that tau band
+``rate_ramp:S:R``                      rate ramp, output units/s
 ``temperature:START:WARMUP:TAU[:RAMP]`` profile: degC, degC, s, degC/s
 ``temperature_bias:S:C``               output units/degC
 ``temperature_scale:S:C``              relative/degC
@@ -168,6 +170,8 @@ def apply_effect(effects: Effects, spec: str) -> Effects:
         effects,
         bias_drift=dict(effects.bias_drift),
         bias_instability=dict(effects.bias_instability),
+        flicker=dict(effects.flicker),
+        rate_ramp=dict(effects.rate_ramp),
         temperature_bias=dict(effects.temperature_bias),
         temperature_scale=dict(effects.temperature_scale),
         scale_nonlinearity=dict(effects.scale_nonlinearity),
@@ -192,6 +196,21 @@ def apply_effect(effects: Effects, spec: str) -> Effects:
         if not rest:
             raise ValueError(f"effect {spec!r}: expected {name}:SENSOR:VALUE")
         per_sensor[name](_sensor(rest[0], spec), _floats(rest[1:], 1, spec))
+    elif name == "flicker":
+        if not rest or len(rest) not in (2, 4):
+            raise ValueError(f"effect {spec!r}: expected flicker:SENSOR:B[:TAU_LOW:TAU_HIGH]")
+        vals = _floats(rest[1:], len(rest) - 1, spec)
+        if vals[0] < 0:
+            raise ValueError(f"effect {spec!r}: need B >= 0")
+        if len(vals) == 3:
+            if not 0 < vals[1] < vals[2]:
+                raise ValueError(f"effect {spec!r}: need 0 < TAU_LOW < TAU_HIGH s")
+            e.flicker_band = (vals[1], vals[2])
+        e.flicker[_sensor(rest[0], spec)] = vals[0]
+    elif name == "rate_ramp":
+        if len(rest) != 2:
+            raise ValueError(f"effect {spec!r}: expected rate_ramp:SENSOR:R")
+        e.rate_ramp[_sensor(rest[0], spec)] = _floats(rest[1:], 1, spec)[0]
     elif name == "bias_instability":
         if not rest:
             raise ValueError(f"effect {spec!r}: expected bias_instability:SENSOR:SIGMA:TAU")
@@ -273,8 +292,8 @@ def split_list(values: Iterable[str]) -> list[str]:
 def describe(effects: Effects) -> list[str]:
     """Names of the effects that are on (for log metadata)."""
     on = ["white_noise"] if effects.white_noise else []
-    for name in ("bias_drift", "bias_instability", "temperature_bias", "temperature_scale",
-                 "scale_nonlinearity", "bias_step", "periodic_disturbance"):
+    for name in ("bias_drift", "bias_instability", "flicker", "rate_ramp", "temperature_bias",
+                 "temperature_scale", "scale_nonlinearity", "bias_step", "periodic_disturbance"):
         if getattr(effects, name):
             on.append(name)
     for name in ("temperature", "g_sensitivity", "saturation"):

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imudiag.certificate import Certificate, Noise, Temperature
+from imudiag.certificate import FLICKER_FACTOR, SENSOR_NAMES, Certificate, Noise, Temperature
 from imudiag.samples import (
     FLAG_ACCEL_SATURATED,
     FLAG_ADC_ERROR,
@@ -34,13 +34,14 @@ from imudiag.samples import (
 
 from .effects import Effects, sensor_index
 from .faults import Fault, apply_faults
-from .processes import gauss_markov, random_walk
+from .processes import flicker_components, gauss_markov, random_walk
 from .trajectories import Trajectory
 
 #: position in N of each misalignment key, and its sign (certificate.md)
 _D_ENTRY = {"xz": (0, 1, 1.0), "xy": (0, 2, -1.0), "yz": (1, 0, -1.0), "yx": (1, 2, 1.0),
             "zy": (2, 0, 1.0), "zx": (2, 1, -1.0)}
-_STREAMS = ("white", "walk", "markov", "adc", "drop", "jitter")
+#: (a new stream goes at the end: the earlier ones keep their numbers)
+_STREAMS = ("white", "walk", "markov", "adc", "drop", "jitter", "flicker")
 _DEFAULT_ADC_RANGE = (0.0, 65535.0)
 
 
@@ -100,6 +101,17 @@ class Simulator:
             self._gm_tau[sensor_index(s)] = tau
         # stationary start of the Gauss-Markov states
         self._gm_state = self._gm_sigma * self._rng["markov"].standard_normal(6)
+        # flicker floors: per sensor a sum of Gauss-Markov processes (sigma_k, T_k)
+        self._flicker: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
+        if e.flicker:
+            tc, w = flicker_components(e.flicker_band)
+            for sname, b in sorted(e.flicker.items(), key=lambda kv: sensor_index(kv[0])):
+                if b < 0:
+                    raise ValueError(f"flicker[{sname}]: need B >= 0, got {b}")
+                sig = FLICKER_FACTOR * b * np.sqrt(w)
+                state = sig * self._rng["flicker"].standard_normal(tc.shape[0])
+                self._flicker.append((sensor_index(sname), sig, tc, state))
+        self._ramp = Effects.per_sensor(e.rate_ramp)
         self._stuck_hold: dict[int, float] = {}
         self.meta = dict(meta or {})
         self._meta_rate: float | None = None
@@ -169,6 +181,8 @@ class Simulator:
                 out[t >= f.t_s, f.columns[0]] += f.value
         for s in e.bias_step:
             out[t >= s.t_s, sensor_index(s.sensor)] += s.size
+        if np.any(self._ramp):
+            out += t[:, None] * self._ramp
         for p in e.periodic_disturbance:
             out[:, sensor_index(p.sensor)] += p.amplitude * np.sin(
                 2.0 * math.pi * p.frequency_hz * t + p.phase_rad
@@ -192,6 +206,17 @@ class Simulator:
                 if n:
                     self._gm_state[j] = gm[-1, j]
             total = gm if total is None else total + gm
+        if self._flicker:
+            fl = np.zeros((n, 6))
+            for j, sig, tc, state in self._flicker:
+                xi = self._rng["flicker"].standard_normal((n, tc.shape[0]))
+                for k in range(tc.shape[0]):  # a dozen components per sensor
+                    a = math.exp(-dt / tc[k])
+                    x = gauss_markov(xi[:, k] * (sig[k] * math.sqrt(1.0 - a * a)), a, state[k])
+                    if n:
+                        state[k] = x[-1]
+                    fl[:, j] += x
+            total = fl if total is None else total + fl
         return total
 
     # -- one block -------------------------------------------------------------
@@ -333,6 +358,16 @@ def true_certificate(
         if tri.noise.density is not None:
             tri.noise.density = tri.noise.density * (e.noise_scale if e.white_noise else 0.0)
         tri.noise.bias_random_walk = walk
+        gm = [e.bias_instability.get(s) for s in SENSOR_NAMES[name]]
+        if any(g is not None for g in gm):
+            tri.noise.gauss_markov_sigma = np.array([0.0 if g is None else g[0] for g in gm])
+            tri.noise.gauss_markov_time = np.array([1.0 if g is None else g[1] for g in gm])
+        flick = Effects.per_sensor(e.flicker)[cols]
+        if np.any(flick):
+            tri.noise.bias_instability = flick
+        ramp = Effects.per_sensor(e.rate_ramp)[cols]
+        if np.any(ramp):
+            tri.noise.rate_ramp = np.abs(ramp)
     return cert
 
 
