@@ -40,6 +40,7 @@ from .extend import (
     residual_rms,
     rotation_rms,
 )
+from .noisemodel import MIN_RUN_S, SensorNoise, longest_run, report_entry, run_samples, select
 from .residuals import (
     SENSORS,
     Channel,
@@ -69,8 +70,9 @@ from .summaries import DEFAULT_BLOCK_SIZE, BlockSource, Session, block_source, c
 
 FORMAT = "imudiag-model-check/1"
 ALL_SENSORS = SENSORS["gyro"] + SENSORS["accel"]
-CATALOGUE = ("bias_drift", "temperature_bias", "temperature_scale", "g_sensitivity",
-             "scale_nonlinearity", "bias_step", "periodic_disturbance")
+CATALOGUE = ("bias_drift", "bias_instability", "gauss_markov_bias", "temperature_bias",
+             "temperature_scale", "g_sensitivity", "scale_nonlinearity", "bias_step",
+             "periodic_disturbance")
 
 
 @dataclass
@@ -268,6 +270,10 @@ def model_check(
     effects = det_effects + collect_effects([], lines, c.t_start, c.t_end, c.run, half_y,
                                             out_units)
 
+    # -- the noise model the longest still run supports (Allan, whole run, held-out choice) ----
+    noise_section, noise_fits = _noise_model(source, c, session.rate_hz, cfg, out_units)
+    effects = _noise_effects(effects, noise_fits, out_units)
+
     # -- noise models: certificate's, and extended (walk and lines fitted on the first half) ---
     walk_cert = np.concatenate([_walk(certificate.triad(n)) for n in ("gyro", "accel")])
     walk_first = walk_cert.copy()
@@ -329,6 +335,9 @@ def model_check(
     extended = extended_certificate(certificate, effects,
                                     None if np.all(np.isfinite(cert_density)) else density_meas,
                                     refs)
+    _write_noise_model(extended, noise_fits)
+    if noise_section is not None:
+        _predicted_by_extended(noise_section, extended)
 
     # -- comparison: measurement against the simulation of the certificate's model -------------
     comparison = _comparison(certificate, accel_w, session, measured, sims, a_in, temp,
@@ -390,6 +399,7 @@ def model_check(
             "gain": GAIN_DEFINITION,
         },
         "comparison": comparison,
+        "noise_model": noise_section,
         "tested": sorted(tested, key=lambda d: -float(d.get("significance", 0.0))),
         "untestable": untestable,
     })
@@ -548,6 +558,110 @@ def _comparison(certificate: Certificate, accel_w: TriadModel, session: Session,
         spec[f"half{half}"]["resolution_hz"] = float(f[1] - f[0])
     out["psd"] = spec
     return out
+
+
+NOISE_METHOD = (
+    "Allan deviation of the longest still stretch (still runs joined across detector "
+    "false alarms: gaps under 2 s without a change of attitude; bins of at most 0.05 s), "
+    "cluster times from 0.1 s to a tenth of the stretch. Candidates: white noise alone, "
+    "with bias_instability B, with bias_drift K, with a Gauss-Markov bias, with B and K. "
+    "Each is fitted on one half of the stretch and scored on the other (Gaussian "
+    "likelihood of ln adev); a model beyond white noise must gain z_min^2/2 nats per "
+    "parameter held out. Among the models that reproduce the whole stretch's curve "
+    "within 1.5x, the lowest whole-stretch score plus the same penalty per parameter is "
+    "chosen and fitted on the whole stretch.")
+
+
+def _noise_model(source: BlockSource, c: Any, rate_hz: float, cfg: ModelCheckConfig,
+                 out_units: dict[str, str]
+                 ) -> tuple[dict[str, Any] | None, dict[str, SensorNoise]]:
+    """The noise-model section of the report and the selection per sensor ({} when the
+    longest still run is shorter than MIN_RUN_S)."""
+    t0, t1 = longest_run(c.t_start, c.t_end, c.run, c.accel)
+    if t1 - t0 < MIN_RUN_S:
+        return ({"untestable": f"longest still run {t1 - t0:.1f} s: a noise model needs "
+                               f"{MIN_RUN_S:g} s or more (cluster times to a tenth of it)"},
+                {})
+    y, rate = run_samples(source(), t0, t1, rate_hz)
+    fits = {s: select(y[:, j], rate, cfg.z_min) for j, s in enumerate(ALL_SENSORS)}
+    section: dict[str, Any] = {
+        "run": [t0, t1], "run_s": t1 - t0, "tau_range_s": [0.1, (t1 - t0) / 10.0],
+        "method": NOISE_METHOD,
+        "sensors": {s: report_entry(f, out_units["gyro" if s.startswith("g") else "accel"])
+                    for s, f in fits.items()},
+    }
+    return section, fits
+
+
+def _noise_effects(effects: list[Effect], fits: dict[str, SensorNoise],
+                   out_units: dict[str, str]) -> list[Effect]:
+    """Effects named by the noise model replace the chunk-level random walk of a sensor."""
+    if not fits:
+        return effects
+    out = [e for e in effects if not (e.name == "bias_drift" and e.sensor in fits)]
+    for s, f in fits.items():
+        triad = "gyro" if s.startswith("g") else "accel"
+        u = out_units[triad]
+        z = f.significance()
+        terms = f.model.terms
+        common = {"model": f.model.name, "density": terms["density"]}
+        for name in f.terms_named:
+            if name == "bias_instability":
+                out.append(Effect("bias_instability", triad, s, terms["bias_instability"], u, z,
+                                  heldout=f.gain_nats, extra=dict(common)))
+            elif name == "bias_drift":
+                out.append(Effect("bias_drift", triad, s, terms["bias_drift"], f"{u}/sqrt(s)",
+                                  z, heldout=f.gain_nats, extra=dict(common)))
+            elif name == "gauss_markov":
+                out.append(Effect("gauss_markov_bias", triad, s, terms["gauss_markov_sigma"], u,
+                                  z, heldout=f.gain_nats,
+                                  extra=dict(common,
+                                             correlation_time=terms["gauss_markov_time"])))
+    return out
+
+
+def _write_noise_model(cert: Certificate, fits: dict[str, SensorNoise]) -> None:
+    """The chosen noise terms into the extended certificate's noise fields (in place)."""
+    from ..certificate import Noise
+
+    for k, triad in enumerate(("gyro", "accel")):
+        sensors = ALL_SENSORS[3 * k:3 * k + 3]
+        if not all(s in fits for s in sensors):
+            continue
+        tri = cert.triad(triad)
+        if tri.noise is None:
+            tri.noise = Noise()
+        terms = [fits[s].model.terms for s in sensors]
+        tri.noise.density = np.array([t["density"] for t in terms])
+        tri.noise.bias_random_walk = np.array([t.get("bias_drift", 0.0) for t in terms])
+        b = np.array([t.get("bias_instability", 0.0) for t in terms])
+        tri.noise.bias_instability = b if np.any(b) else None
+        gs = np.array([t.get("gauss_markov_sigma", 0.0) for t in terms])
+        if np.any(gs):
+            tri.noise.gauss_markov_sigma = gs
+            tri.noise.gauss_markov_time = np.array([t.get("gauss_markov_time", 1.0)
+                                                    for t in terms])
+        else:
+            tri.noise.gauss_markov_sigma = tri.noise.gauss_markov_time = None
+
+
+def _predicted_by_extended(section: dict[str, Any], cert: Certificate) -> None:
+    """Add, per sensor, the Allan deviation the extended certificate's noise fields predict
+    (closed form) and its ratio to the measured one, over the compared cluster times."""
+    for j, s in enumerate(ALL_SENSORS):
+        entry = section["sensors"].get(s)
+        if entry is None:
+            continue
+        tri = cert.triad("gyro" if j < 3 else "accel")
+        tau = np.asarray(entry["allan"]["tau"], dtype=float)
+        pred = tri.allan_deviation(tau)
+        if pred is None or tau.shape[0] == 0:
+            continue
+        p = pred[j % 3]
+        r = np.asarray(entry["allan"]["measured"]) / p
+        entry["allan"]["extended_certificate"] = p.tolist()
+        entry["allan"]["ratio_extended_certificate"] = r.tolist()
+        entry["max_ratio_extended_certificate"] = float(np.max(np.maximum(r, 1.0 / r)))
 
 
 __all__ = ["CATALOGUE", "FORMAT", "ModelCheckResult", "model_check"]

@@ -4,7 +4,10 @@
   certificate's model and of the extended model;
 - ``residuals_<channel>.png``: chunk residuals against time and against the variable
   that explains a named effect (temperature, specific force), before and after;
-- ``psd_<sensor>.png``: the spectrum with the named lines.
+- ``psd_<sensor>.png``: the spectrum with the named lines;
+- ``noise_model_<sensor>.png``: the Allan deviation of the longest still stretch against
+  the closed form of the chosen noise model and of the extended certificate, with their
+  ratio (the 1.5x band shaded).
 """
 
 from __future__ import annotations
@@ -85,6 +88,36 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
                 fig.savefig(path, dpi=90)
                 plt.close(fig)
                 written.append(path)
+    nm = result.report.get("noise_model") or {}
+    for s, entry in (nm.get("sensors") or {}).items():
+        a = entry["allan"]
+        tau = np.asarray(a["tau"])
+        if tau.shape[0] == 0:
+            continue
+        fig, (ax, ax2) = plt.subplots(2, 1, figsize=(6, 6), sharex=True,
+                                      gridspec_kw={"height_ratios": [3, 1]})
+        meas = np.asarray(a["measured"])
+        err = np.asarray(a["relative_error"])
+        ax.fill_between(tau, meas * (1 - err), meas * (1 + err), color="k", alpha=0.15)
+        ax.loglog(tau, meas, "k.-", label="measured")
+        ax.loglog(tau, a["predicted"], "b-", label=f"model: {entry['model']}")
+        if "extended_certificate" in a:
+            ax.loglog(tau, a["extended_certificate"], "g--", label="extended certificate")
+            ax2.semilogx(tau, a["ratio_extended_certificate"], "g.-")
+        ax2.semilogx(tau, a["ratio"], "b.-")
+        ax2.axhspan(1 / 1.5, 1.5, color="g", alpha=0.1)
+        ax2.set_ylabel("measured / predicted")
+        ax2.set_xlabel("tau [s]")
+        ax.set_ylabel(f"Allan deviation [{entry['allan_unit']}]")
+        ax.set_title(f"{s}: noise model, still stretch {nm['run_s']:.0f} s")
+        ax.grid(True, which="both", alpha=0.3)
+        ax2.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+        path = out_dir / f"noise_model_{s}.png"
+        fig.tight_layout()
+        fig.savefig(path, dpi=90)
+        plt.close(fig)
+        written.append(path)
     c = result.session.chunks
     for res in result.channels:
         ch = res.channel
