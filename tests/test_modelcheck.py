@@ -219,6 +219,8 @@ def test_xsens_gyro_g_sensitivity_is_named_and_explains_held_out_data(xsens_repo
     # no temperature column: temperature effects are untestable, and said so
     reasons = {(u["name"], u["sensor"]): u["reason"] for u in rep["untestable"]}
     assert "no temperature column" in reasons[("temperature_bias", "gx")]
+    # still runs of about 16 s: no noise model, and said so
+    assert "60 s or more" in rep["noise_model"]["untestable"]
 
 
 def test_firm_flight_has_too_little_still_data() -> None:

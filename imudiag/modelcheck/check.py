@@ -649,7 +649,7 @@ def _predicted_by_extended(section: dict[str, Any], cert: Certificate) -> None:
     """Add, per sensor, the Allan deviation the extended certificate's noise fields predict
     (closed form) and its ratio to the measured one, over the compared cluster times."""
     for j, s in enumerate(ALL_SENSORS):
-        entry = section["sensors"].get(s)
+        entry = section.get("sensors", {}).get(s)
         if entry is None:
             continue
         tri = cert.triad("gyro" if j < 3 else "accel")
