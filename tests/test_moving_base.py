@@ -201,3 +201,21 @@ def test_real_drive_moving_base():
     # F0 in motion sees it on the epochs where the noise margin is smallest
     assert 10 < out["f0"]["failed"] < 80
     assert out["f0"]["f0_median"] == pytest.approx(0.0131, abs=0.001)
+
+
+def test_simulate_drive_with_gnss_log(tmp_path, capsys):
+    log, gnss = tmp_path / "hilly.csv", tmp_path / "hilly.tpv.json"
+    assert main(["simulate", "hilly", "--param", "length=120", "--rate", "100", "--seed", "4",
+                 "--out", str(log), "--gnss", str(gnss)]) == 0
+    block = read_log(log)
+    track = read_gpspipe_log(gnss)
+    # the same clock: UTC Unix seconds from EPOCH_UNIX; GNSS at 5 Hz tagged 0.12 s late
+    assert block.t[0] == pytest.approx(EPOCH_UNIX)
+    assert track.period_s() == pytest.approx(0.2)
+    assert track.t[0] == pytest.approx(EPOCH_UNIX + 0.12, abs=1e-3)
+    assert abs(track.t[-1] - block.t[-1]) < 1.0
+    lines = gnss.read_text().splitlines()
+    assert [json.loads(x)["class"] for x in lines[:4]] == ["VERSION", "DEVICES", "WATCH", "TPV"]
+    assert main(["simulate", "static", "--duration", "5", "--out", str(tmp_path / "s.csv"),
+                 "--gnss", str(tmp_path / "s.json")]) == 2
+    assert "--gnss: only the drive scenarios" in capsys.readouterr().err

@@ -14,9 +14,11 @@ import math
 from ..certificate import load, load_default
 from ..errors import BadInput
 from ..logs import log_format, open_writer
+from ..sim.drive import EPOCH_UNIX, gnss_reports, write_gpspipe_log
 from ..sim.effects import Effects
 from ..sim.faults import Fault
 from ..sim.scenarios import (
+    DRIVES,
     SCENARIOS,
     canonical_scenario,
     describe,
@@ -49,6 +51,8 @@ scenario parameters (--param key=value):
   multiposition: n dwell turn first_dwell latitude
   turntable: turn_rate axis ramp latitude
   vehicle: still accel speed cruise turn turn_deg final latitude
+  urban, highway, hilly, aircraft: length (s, whole legs; default 600); sample time is UTC
+    Unix seconds from 2026-01-01, and --gnss OUT writes the drive's GNSS as a gpspipe -w log
 """
 
 
@@ -77,6 +81,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a fault (repeatable)")
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                    help="a scenario parameter (repeatable)")
+    p.add_argument("--gnss", metavar="OUT",
+                   help="drive scenarios: also write the GNSS stream as a gpspipe -w log "
+                   "(5 Hz, 0.03/0.05 m/s noise, 0.12 s latency, multipath outliers)")
     p.add_argument("--true-certificate", metavar="CERT",
                    help="also write the true model at the end (faults and effects applied)")
     p.set_defaults(func=run, inputs=("certificate",), outputs=("out", "true_certificate"))
@@ -127,6 +134,9 @@ def run(args: argparse.Namespace) -> int:
     elif total is None:
         raise BadInput(f"--duration: required for the endless scenario {scenario!r}")
 
+    drive = scenario in DRIVES
+    if args.gnss and not drive:
+        raise BadInput(f"--gnss: only the drive scenarios ({', '.join(DRIVES)}) have GNSS")
     device = str(cert.device.get("model", "simulated IMU"))
     meta = _meta(args, rate, device, scenario, effects, faults)
     sim = Simulator(cert, effects, faults, args.seed, meta=dict(meta))
@@ -136,9 +146,14 @@ def run(args: argparse.Namespace) -> int:
         done = 0
         while done < total:
             n = min(chunk, total - done)
-            writer.write(sim.step(motion.sample(rate, done, n)))
+            block = sim.step(motion.sample(rate, done, n))
+            if drive:
+                block.t = block.t + EPOCH_UNIX
+            writer.write(block)
             done += n
         written = writer.samples_written
+    if args.gnss:
+        write_gpspipe_log(args.gnss, gnss_reports(motion, seed=args.seed))  # type: ignore[arg-type]
     if args.true_certificate:
         t_end = (total - 1) / rate if total else 0.0
         true_certificate(cert, effects, faults, t_end).save(args.true_certificate)

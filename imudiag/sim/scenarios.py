@@ -61,13 +61,17 @@ from .trajectories import (
     turntable_motion,
 )
 
-SCENARIOS = ("static", "still", "multiposition", "turntable", "vehicle")
+SCENARIOS = ("static", "still", "multiposition", "turntable", "vehicle", "urban", "highway",
+             "hilly", "aircraft")
+#: Drives with a consistent GNSS stream (imudiag.sim.drive); their time is UTC Unix seconds.
+DRIVES = ("urban", "highway", "hilly", "aircraft")
 _PARAMS: dict[str, tuple[str, ...]] = {
     "static": ("n", "dwell", "turn", "latitude"),
     "still": ("roll", "pitch", "yaw", "latitude"),
     "multiposition": ("n", "dwell", "turn", "first_dwell", "loop", "latitude"),
     "turntable": ("turn_rate", "axis", "ramp", "latitude"),
     "vehicle": ("still", "accel", "speed", "cruise", "turn", "turn_deg", "final", "latitude"),
+    **{d: ("length",) for d in DRIVES},
 }
 
 
@@ -116,6 +120,10 @@ def scenario_motion(name: str, seed: int = 0, params: Mapping[str, str] | None =
             raise ValueError(f"scenario {sc}: {key} must be finite, got {params[key]!r}")
         return v
 
+    if sc in DRIVES:
+        from .drive import drive_motion
+
+        return drive_motion(sc, num("length", 600.0), seed)
     lat = num("latitude", 45.0)
     if sc == "static":
         return static_cycle_motion(int(num("n", 4)), num("dwell", 20.0), num("turn", 4.0), seed,
