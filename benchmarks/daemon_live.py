@@ -9,7 +9,12 @@ board's rate, as a CDC-ACM board delivers them. After a warm-up the daemon's
 user + system CPU time (``/proc/PID/stat``) over the wall time gives its share
 of one core; its resident set (``/proc/PID/statm``) is sampled every second.
 
-Run: ``.venv/bin/python -m benchmarks.daemon_live [--rate 1000] [--duration 60]``.
+The floor reader (:mod:`benchmarks.floor_reader`) runs beside it on a second pty
+fed the same frames at the same read interval; the daemon's CPU over the floor's,
+both from the same window, is the figure that holds on a shared machine.
+
+Run: ``.venv/bin/python -m benchmarks.daemon_live [--rate 1000] [--duration 60]
+[--read-interval 0.02]``.
 """
 
 from __future__ import annotations
@@ -153,21 +158,37 @@ def measure_live(
     diagnosis: bool = True,
     warmup_s: float | None = None,
     seed: int = 0,
+    read_interval_s: float | None = None,
 ) -> dict[str, Any]:
     """Run the daemon on a pty fed at ``rate_hz`` for ``duration_s`` seconds; its cost.
 
-    Returns CPU share (% of one core, over the time after ``warmup_s``), resident
-    memory (MB: after warm-up, at the end, the peak of the 1 s samples), frames
-    written and received, status lines and the exit status.
+    Beside it, in the same run, the floor reader (:mod:`benchmarks.floor_reader`)
+    reads the same frames from a second pty at the same read interval: both CPU
+    shares are measured over the same wall-clock window, so their ratio holds on a
+    loaded machine where the absolute shares do not. Returns CPU shares (% of one
+    core, over the time after ``warmup_s``) and their ratio, resident memory (MB:
+    after warm-up, at the end, the peak of the 1 s samples), frames written and
+    received, status lines and the exit status. ``read_interval_s``: the daemon's
+    (``read_interval_s`` of its configuration) and the floor's; default 5 ms, the daemon's.
     """
     warm = warmup_s if warmup_s is not None else min(5.0, duration_s / 4)
+    interval = 0.005 if read_interval_s is None else float(read_interval_s)
     stream = board_stream(load_default(), rate_hz, duration_s + 2.0, seed)
-    with tempfile.TemporaryDirectory() as tmp, PtyPair() as pair:
+    with tempfile.TemporaryDirectory() as tmp, PtyPair() as pair, PtyPair() as floor_pair:
         cert_path = rate_certificate(rate_hz, Path(tmp))
-        proc = subprocess.Popen(
-            daemon_command(f"serial://{pair.slave_path}", cert_path, diagnosis),
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        )
+        cmd = daemon_command(f"serial://{pair.slave_path}", cert_path, diagnosis)
+        if read_interval_s is not None:  # a configuration file that sets only the interval
+            config = Path(tmp) / "imudiag.yaml"
+            config.write_text(f"read_interval_s: {interval:g}\n", encoding="utf-8")
+            cmd += ["--config", str(config)]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        floor = subprocess.Popen(
+            [sys.executable, "-m", "benchmarks.floor_reader", floor_pair.slave_path,
+             str(cert_path), "--interval", f"{interval:g}"],
+            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+        )  # fmt: skip
+        floor_lines: list[str] = []
+        threading.Thread(target=lambda: floor_lines.extend(floor.stdout), daemon=True).start()
         reader = StatusReader(proc.stdout)
         reader.start()
         stderr: list[str] = []
@@ -178,7 +199,9 @@ def measure_live(
             except queue.Empty:
                 raise RuntimeError(f"daemon wrote no status: {''.join(stderr)[-2000:]}") from None
             writer = BoardWriter(pair, stream.chunks, rate_hz=rate_hz)
+            floor_writer = BoardWriter(floor_pair, stream.chunks, rate_hz=rate_hz)
             writer.start()
+            floor_writer.start()
             start = time.monotonic()
             rss: list[tuple[float, int]] = []
             cpu0 = wall0 = None
@@ -186,28 +209,41 @@ def measure_live(
                 rss.append((now - start, rss_bytes(proc.pid)))
                 if cpu0 is None and now - start >= warm:
                     cpu0, wall0 = cpu_seconds(proc.pid), now
+                    floor0 = cpu_seconds(floor.pid)
                 time.sleep(1.0)
             if proc.poll() is not None:
                 raise RuntimeError(f"daemon exited early: {''.join(stderr)[-2000:]}")
             cpu1, wall1 = cpu_seconds(proc.pid), time.monotonic()
+            floor1 = cpu_seconds(floor.pid)
             rss.append((wall1 - start, rss_bytes(proc.pid)))
             written = writer.chunks_written
             writer.stop()
+            floor_writer.stop()
             time.sleep(0.3)  # let the daemon drain the pty before stopping it
         finally:
             if proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
             exit_status = proc.wait(15.0)
+            if floor.poll() is None:
+                floor.send_signal(signal.SIGTERM)
+            floor.wait(15.0)
         reader.join(5.0)
     assert cpu0 is not None and wall0 is not None
     last = reader.last or {}
     rss_after = [r for t, r in rss if t >= warm]
     mb = 1.0 / 2**20
+    floor_last = json.loads(floor_lines[-1]) if floor_lines else {}
+    cpu = 100.0 * (cpu1 - cpu0) / (wall1 - wall0)
+    floor_cpu = 100.0 * (floor1 - floor0) / (wall1 - wall0)
     return {
         "rate_hz": rate_hz,
         "duration_s": duration_s,
         "diagnosis": diagnosis,
-        "cpu_percent_of_one_core": 100.0 * (cpu1 - cpu0) / (wall1 - wall0),
+        "read_interval_s": interval,
+        "cpu_percent_of_one_core": cpu,
+        "floor_cpu_percent_of_one_core": floor_cpu,
+        "cpu_ratio_to_floor": cpu / floor_cpu if floor_cpu > 0 else None,
+        "floor_frames": int(floor_last.get("frames", 0)),
         "cpu_window_s": wall1 - wall0,
         "rss_mb_after_warmup": rss_after[0] * mb,
         "rss_mb_end": rss_after[-1] * mb,
@@ -227,9 +263,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--rate", type=float, action="append", help="board rate, Hz (repeatable)")
     p.add_argument("--duration", type=float, default=60.0, help="seconds per run")
     p.add_argument("--no-diagnosis", action="store_true", help="per-sample checks only")
+    p.add_argument("--read-interval", type=float, help="daemon's and floor's read interval, s")
     a = p.parse_args(argv)
     for rate in a.rate or [200.0, 1000.0]:
-        r = measure_live(rate, a.duration, diagnosis=not a.no_diagnosis)
+        r = measure_live(rate, a.duration, diagnosis=not a.no_diagnosis,
+                         read_interval_s=a.read_interval)  # fmt: skip
         print(json.dumps(r, indent=1))
 
 
