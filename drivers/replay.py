@@ -11,7 +11,10 @@ At the end
 :meth:`read` raises :class:`EndOfStream`. A log that breaks a rule raises
 :class:`imudiag.logs.LogError` (file, line, reason) when its block is reached.
 
-``replay:///abs/path.bin`` and ``replay://relative/path.csv`` both work.
+``replay:///abs/path.bin`` and ``replay://relative/path.csv`` both work. A
+user's text table is read with the query keys of the log commands' options:
+``replay:///data/imu.txt?columns=t,gx,gy,gz,ax,ay,az&time_unit=ms`` (also
+``units=gyro=deg/s,accel=g`` and ``rate=HZ`` for a table without time).
 """
 
 from __future__ import annotations
@@ -23,6 +26,9 @@ from typing import Any
 
 import numpy as np
 
+from imudiag.errors import BadInput
+from imudiag.logs.options import URL_KEYS as LOG_URL_KEYS
+from imudiag.logs.options import options_from_query
 from imudiag.samples import SampleBlock
 
 from .base import EndOfStream, Source, SourceError, SourceURL, register
@@ -36,7 +42,7 @@ DEFAULT_STEP_S = 0.05  #: sample time returned per read at speed 0, s
 class ReplaySource(Source):
     """Plays a sample log back, paced by its sample time ``t`` (seconds)."""
 
-    url_keys = ("speed", "block_size", "step")
+    url_keys = ("speed", "block_size", "step", *LOG_URL_KEYS)
 
     def __init__(self, url: SourceURL, **options: Any) -> None:
         super().__init__(url, **options)
@@ -55,6 +61,10 @@ class ReplaySource(Source):
         self.step_s = float(options.get("step", url.get("step", DEFAULT_STEP_S, float)))
         if not (np.isfinite(self.step_s) and self.step_s > 0):
             raise SourceError(f"{url.url}: bad value for 'step': {self.step_s!r} (need > 0 s)")
+        try:  # columns, units, time_unit, rate: how to read a text table
+            self.log_options = options_from_query(url.params)
+        except BadInput as exc:
+            raise SourceError(f"{url.url}: {exc}") from None
         self.decoder: Decoder | None = None
         self._reader: Any = None
         self._blocks: Iterator[SampleBlock] | None = None
@@ -77,7 +87,7 @@ class ReplaySource(Source):
         else:
             from imudiag.logs import open_log
 
-            self._reader = open_log(self.path, self.block_size)
+            self._reader = open_log(self.path, self.block_size, options=self.log_options)
             self.device_info = dict(self._reader.meta)
             self._blocks = iter(self._reader)
 
@@ -89,10 +99,16 @@ class ReplaySource(Source):
             raise SourceError(f"{self.url.url}: cannot read {self.path}: {e}") from e
         try:
             while chunk := fh.read(self.block_size * SAMPLE_FRAME_SIZE):
-                yield self.decoder.feed(chunk)
-            yield self.decoder.finish()
+                yield self._temp_said(self.decoder.feed(chunk))
+            yield self._temp_said(self.decoder.finish())
         finally:
             fh.close()
+
+    def _temp_said(self, block: SampleBlock) -> SampleBlock:
+        """Drop the frames' temp (0) when the capture's device info says it has none."""
+        if self.decoder is not None and self.decoder.device_info.get("temperature") is False:
+            block.temp = None
+        return block
 
     def _pull(self) -> bool:
         """Append the next block of the file to the buffer; False at the end."""

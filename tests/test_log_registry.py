@@ -72,3 +72,50 @@ def test_reading_only_format_refuses_writing(tmp_path: Path) -> None:
             write_log(tmp_path / "x.rotest", _block())
     finally:
         registry._FORMATS.remove(fmt)
+
+
+PLUGIN = """
+import numpy as np
+from imudiag.logs.base import LogReader, make_block
+from imudiag.logs.registry import LogFormat
+
+
+class ConstReader(LogReader):
+    format = "const"
+
+    def _blocks(self):
+        n = 5
+        cols = {k: np.zeros(n) for k in ("gx", "gy", "gz", "ax", "ay", "az")}
+        cols["t"] = np.arange(n) * 0.5
+        yield make_block(cols, self.meta)
+
+
+FORMAT = LogFormat("const", (".const",), ConstReader, description="plug-in test format")
+"""
+
+
+def test_plugin_formats_come_from_entry_points(tmp_path: Path) -> None:
+    """A distribution declaring imudiag.log_formats adds a format (python-can's model)."""
+    import subprocess
+    import sys
+
+    (tmp_path / "imudiag_const_plugin.py").write_text(PLUGIN)
+    dist = tmp_path / "imudiag_const_plugin-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text(
+        "Metadata-Version: 2.1\nName: imudiag-const-plugin\nVersion: 0.1\n"
+    )
+    (dist / "entry_points.txt").write_text(
+        "[imudiag.log_formats]\nconst = imudiag_const_plugin:FORMAT\n"
+    )
+    (tmp_path / "x.const").write_bytes(b"")
+    code = (
+        "import sys; sys.path.insert(0, sys.argv[1]);"
+        "from imudiag.logs import read_log, log_format;"
+        "b = read_log(sys.argv[1] + '/x.const'); print(log_format('a.const'), len(b), b.t[-1])"
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["const", "5", "2.0"]

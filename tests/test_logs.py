@@ -443,6 +443,10 @@ def test_convert_to_bin_and_back(tmp_path: Path, real_data_dir: Path, imudiag_cl
     assert proc.returncode == 2 and "device-info frame holds 249" in proc.stderr
     assert not (tmp_path / "r.bin").exists()
     proc = imudiag_cli("convert", "--no-meta", str(sections), str(tmp_path / "r.bin"))
+    assert proc.returncode == 2 and "not in counts (gyro in deg/s, accel in m/s^2)" in proc.stderr
+    assert not (tmp_path / "r.bin").exists()
+    quantum = ["--quantum", "gyro=0.001,accel=0.0001"]
+    proc = imudiag_cli("convert", "--no-meta", *quantum, str(sections), str(tmp_path / "r.bin"))
     assert proc.returncode == 0, proc.stderr
     assert open_log(tmp_path / "r.bin").meta == {}
     src = real_data_dir / "mpu6050" / "rot90x.csv.gz"

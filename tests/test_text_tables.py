@@ -105,3 +105,160 @@ def test_option_values_are_checked() -> None:
     with pytest.raises(BadInput, match="furlong"):
         parse_units("gyro=furlong/s")
     assert parse_units("gyro=deg/s,accel=g") == {"gyro": "deg/s", "accel": "g"}
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    """One simulated multi-position session (counts), as the spec CSV of imudiag."""
+    from imudiag.certificate import load_default
+    from imudiag.logs import open_writer
+    from imudiag.sim import Fault, multi_position, simulate
+
+    cert = load_default()
+    traj = multi_position(n_attitudes=14, dwell_s=3.0, turn_s=1.5, rate_hz=200, seed=21)
+    lim = cert.accel.limits.scale_factor_error[2]
+    sim = simulate(cert, traj, seed=22, faults=[Fault("scale_factor", "az", 0.0, 4 * lim)])
+    d = tmp_path_factory.mktemp("table")
+    with open_writer(d / "session.csv", {}) as w:
+        w.write(sim.samples)
+    return d, sim.samples
+
+
+def _report(imudiag_cli, *args: str) -> dict:
+    import json
+
+    r = imudiag_cli("diagnose", *args, "--json", "-", "--no-windows")
+    assert r.returncode == 0, r.stderr
+    report = json.loads(r.stdout)
+    report.pop("log", None)
+    return report
+
+
+def test_diagnose_reads_a_users_table_like_the_spec_csv(session, imudiag_cli) -> None:
+    """Same session, whitespace table in ms with other column names: the same report."""
+    d, samples = session
+    table = d / "session.txt"
+    lines = ["# exported by a bench logger", "stamp_ms wx wy wz acc_x acc_y acc_z"]
+    for i in range(len(samples)):
+        vals = [samples.t[i] * 1e3, *samples.gyro[i], *samples.accel[i]]
+        lines.append(" ".join(repr(float(v)) for v in vals))
+    table.write_text("\n".join(lines) + "\n")
+    ref = _report(imudiag_cli, str(d / "session.csv"))
+    assert ref["verdict"]["accel"] == "fault"
+    got = _report(imudiag_cli, str(table), "--columns", "t,gx,gy,gz,ax,ay,az", "--time-unit", "ms")
+    _same(got, ref)
+
+
+def _same(a, b, where: str = "") -> None:
+    """Equal reports up to float precision (t in ms -> s rounds in the last bit)."""
+    if isinstance(a, dict):
+        assert set(a) == set(b), where
+        for k in a:
+            _same(a[k], b[k], f"{where}.{k}")
+    elif isinstance(a, list):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _same(x, y, f"{where}[{i}]")
+    elif isinstance(a, float) and isinstance(b, float):
+        assert a == pytest.approx(b, rel=1e-9, abs=1e-12), where
+    else:
+        assert a == b, where
+
+
+def test_log_options_refuse_bad_values_with_exit_2(session, imudiag_cli) -> None:
+    d, _ = session
+    for args, text in (
+        (["--columns", "t,gx,gy,gz,ax,ay,bogus"], "unknown column 'bogus'"),
+        (["--units", "gyro=furlong/s"], "furlong"),
+        (["--time-unit", "fortnight"], "--time-unit"),
+    ):
+        r = imudiag_cli("diagnose", str(d / "session.csv"), *args)
+        assert r.returncode == 2 and text in r.stderr, (args, r.stderr)
+        assert "Traceback" not in r.stderr
+
+
+def test_replay_url_reads_a_text_table_with_query_keys(tmp_path: Path) -> None:
+    from imudiag.drivers import EndOfStream, SourceError, open_source
+
+    from imudiag.samples import SampleBlock
+
+    path = tmp_path / "imu.txt"
+    path.write_text("\n".join(_rows(" ", with_t=False)) + "\n")
+    src = open_source(f"replay://{path}?speed=0&columns=gx,gy,gz,ax,ay,az&rate=100")
+    blocks = []
+    with src:
+        with pytest.raises(EndOfStream):
+            for _ in range(1000):
+                blocks.append(src.read())
+    _check(SampleBlock.concat(blocks), t=np.arange(N) * 0.01)
+    with pytest.raises(SourceError, match="time_unit"):
+        open_source(f"replay://{path}?time_unit=fortnight")
+    with pytest.raises(SourceError, match="rate"):
+        open_source(f"replay://{path}?columns=gx,gy,gz,ax,ay,az&rate=0")
+
+
+@pytest.mark.parametrize("name", ["spec.csv", "table.txt"])
+def test_absurd_finite_values_are_refused_with_file_and_line(tmp_path: Path, name: str) -> None:
+    rows = _rows(",")
+    rows[4] = rows[4].replace(repr(float(A[4, 2])), "1e300")
+    path = tmp_path / name
+    path.write_text("t,gx,gy,gz,ax,ay,az\n" + "\n".join(rows) + "\n")
+    with pytest.raises(LogError, match="absurd value 1e\\+300") as exc:
+        read_log(path)
+    assert exc.value.line == 6 and exc.value.path == str(path)
+
+
+def test_convert_to_bin_refuses_a_log_not_in_counts(tmp_path: Path, imudiag_cli) -> None:
+    """Issue 11 item 5 / 12 item 7: FIRM (deg/s, g) to .bin was rc 0 with every gyro 0.0."""
+    firm = Path(__file__).parent / "data" / "real" / "firm-rocket-launch" / "flight.csv.gz"
+    out = tmp_path / "firm.bin"
+    r = imudiag_cli("convert", str(firm), str(out))
+    assert r.returncode == 2 and "not in counts (gyro in deg/s, accel in g)" in r.stderr
+    assert "--quantum" in r.stderr and not out.exists()
+    assert not Path(str(out) + ".part").exists()
+    r = imudiag_cli("convert", str(firm), str(out), "--quantum", "gyro=0.001,accel=0.0001")
+    assert r.returncode == 0, r.stderr
+    back = read_log(out)
+    src = read_log(firm)
+    np.testing.assert_allclose(back.gyro * 0.001, src.gyro, atol=0.0005 + 1e-12)
+    np.testing.assert_allclose(back.accel * 0.0001, src.accel, atol=0.00005 + 1e-12)
+    assert np.any(back.gyro != 0)
+    assert back.meta["units"] == "gyro=count accel=count"
+
+
+def test_convert_to_bin_refuses_fractional_counts_and_keeps_no_temperature(
+    tmp_path: Path, imudiag_cli
+) -> None:
+    path = tmp_path / "frac.csv"
+    path.write_text("t,gx,gy,gz,ax,ay,az\n" + "\n".join(_rows(",")) + "\n")
+    r = imudiag_cli("convert", str(path), str(tmp_path / "frac.bin"))
+    assert r.returncode == 2 and "sample 0 (t = 100.0 s): gyro output" in r.stderr
+    assert not (tmp_path / "frac.bin").exists()
+    counts = tmp_path / "counts.csv"
+    rows = [f"{i * 0.01!r},1,2,3,4,5,{1000 + i}" for i in range(20)]
+    counts.write_text("t,gx,gy,gz,ax,ay,az\n" + "\n".join(rows) + "\n")
+    r = imudiag_cli("convert", str(counts), str(tmp_path / "counts.bin"))
+    assert r.returncode == 0, r.stderr
+    back = read_log(tmp_path / "counts.bin")
+    assert back.temp is None and back.meta == {}  # not temp 0.0
+    r = imudiag_cli("convert", str(tmp_path / "counts.bin"), str(tmp_path / "again.csv"))
+    assert r.returncode == 0, r.stderr
+    assert "temp" not in (tmp_path / "again.csv").read_text().splitlines()[0]
+
+
+@pytest.mark.parametrize("command", ["diagnose", "calibrate"])
+def test_si_log_with_a_counts_certificate_is_exit_2_naming_both(
+    session, tmp_path: Path, imudiag_cli, command: str
+) -> None:
+    """Issue 11 item 2: no silent misreading of units, stated in the log or by --units."""
+    d, _ = session
+    firm = Path(__file__).parent / "data" / "real" / "firm-rocket-launch" / "flight.csv.gz"
+    extra = ["--like", "config/default-certificate.yaml", "--out", str(tmp_path / "c.yaml")]
+    args = extra if command == "calibrate" else []
+    r = imudiag_cli(command, str(firm), *args)
+    assert r.returncode == 2, r.stderr
+    assert "'deg/s'" in r.stderr and "output_unit is 'count'" in r.stderr
+    assert "--units" in r.stderr and "use a certificate" in r.stderr
+    r = imudiag_cli(command, str(d / "session.csv"), "--units", "gyro=rad/s,accel=m/s^2", *args)
+    assert r.returncode == 2 and "'rad/s'" in r.stderr and "'count'" in r.stderr, r.stderr
+    assert not (tmp_path / "c.yaml").exists()

@@ -20,6 +20,7 @@ import numpy as np
 from ..atomic import write_text_atomic
 from ..errors import BadInput
 from ..logs import LogError, open_log
+from ..logs.options import LogOptions, add_log_options, log_options
 from ..logs.timing import timing_report
 from ..noise_stats import identify_noise, overlapping_allan, welch_psd
 
@@ -53,6 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stop", type=float, metavar="S", help="ignore samples after t = S s")
     p.add_argument("--rate", type=float, metavar="HZ",
                    help="sample rate (default: the log's sample_rate, else from t)")
+    add_log_options(p)
     p.add_argument("--points-per-decade", type=int, default=10, metavar="K",
                    help="tau values per decade (default 10)")
     p.add_argument("--psd-segment", type=int, default=4096, metavar="N",
@@ -60,12 +62,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run, inputs=("log",), outputs=("json",))
 
 
-def _collect(path: str, start: float | None, stop: float | None
+def _collect(path: str, start: float | None, stop: float | None, options: LogOptions | None = None
              ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """t (N,) and outputs (N, 6) of the log within [start, stop]."""
     ts: list[np.ndarray] = []
     us: list[np.ndarray] = []
-    with open_log(path) as reader:
+    with open_log(path, options=options) as reader:
         for block in reader:
             keep = np.ones(len(block), dtype=bool)
             if start is not None:
@@ -112,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
             raise BadInput(f"--sensors: unknown sensor {s!r}; expected {' '.join(SENSORS)}")
     if args.points_per_decade < 1 or args.psd_segment < 16:
         raise BadInput("--points-per-decade must be >= 1 and --psd-segment >= 16")
-    t, u, meta = _collect(args.log, args.start, args.stop)
+    t, u, meta = _collect(args.log, args.start, args.stop, log_options(args))
     if t.shape[0] < 16:
         raise LogError(args.log, f"{t.shape[0]} samples in the selected range; need at least 16")
     dt = np.diff(t)

@@ -21,6 +21,7 @@ from ..diagnosis.intervals import IntervalCollector
 from ..diagnosis.scalar_fit import NormalEquations, sample_rows
 from ..errors import BadInput
 from ..logs import open_log
+from ..logs.options import log_options
 from .diagnose import add_common_arguments, make_config, write_json
 from .noise import noise_for_detector, noise_lines
 
@@ -60,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     intervals = []
     moving: dict[str, tuple[NormalEquations, float]] = {}
     rate = None
-    with open_log(args.log, block_size=args.block_size) as reader:
+    with open_log(args.log, block_size=args.block_size, options=log_options(args)) as reader:
         for block in reader:
             if collector is None:
                 check_units(args.log, reader.meta, like)

@@ -24,6 +24,7 @@ from ..diagnosis.inputs import MagnitudeTable, check_units, log_rate_hz
 from ..diagnosis.stream import StreamingDiagnoser
 from ..errors import BadInput
 from ..logs import open_log
+from ..logs.options import add_log_options, log_options
 from .gnss import add_gnss_arguments, check_gnss_options, moving_base_lines, moving_base_section
 from .noise import add_noise_argument, noise_for_detector, noise_lines
 
@@ -76,6 +77,7 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-interval", type=float, metavar="S",
                    help="shortest still stretch used, s (default 1.0)")
     add_noise_argument(p)
+    add_log_options(p)  # after --rate, which it shares
 
 
 def make_config(args: argparse.Namespace, **extra: Any) -> DiagnosisConfig:
@@ -161,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
     monitor = None
     diag = None
     kept: list = []  # the blocks, for the moving-base diagnosis (--gnss)
-    with open_log(args.log, block_size=args.block_size) as reader:
+    with open_log(args.log, block_size=args.block_size, options=log_options(args)) as reader:
         for block in reader:
             if diag is None:
                 check_units(args.log, reader.meta, cert)

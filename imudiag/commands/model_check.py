@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 from ..certificate import load
 from ..errors import BadInput
+from ..logs.options import LogOptions, add_log_options, log_options
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -27,6 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("log", metavar="LOG", help="sample log (.csv, .csv.gz, .npz, .bin)")
+    add_log_options(p)
     p.add_argument(
         "--certificate", required=True, metavar="CERT", help="calibration certificate (YAML)"
     )
@@ -91,7 +94,11 @@ def run(args: argparse.Namespace) -> int:
     cert = load(args.certificate)
     try:
         kw = {"block_size": args.block_size} if args.block_size else {}
-        result = model_check(args.log, cert, seed=args.seed, config=cfg, **kw)
+        options = log_options(args)
+        log: Any = args.log
+        if options.given():  # a text table read with the user's names
+            log = _table_source(args.log, options, args.block_size)
+        result = model_check(log, cert, seed=args.seed, config=cfg, **kw)
     except ValueError as exc:
         if type(exc).__name__ in ("LogError", "CertificateError"):
             raise
@@ -110,3 +117,14 @@ def run(args: argparse.Namespace) -> int:
         for line in report_mod.summary(result.report):
             print(line, file=sys.stderr)
     return 0
+
+
+def _table_source(path: str, options: LogOptions, block_size: int | None) -> Any:
+    """A block source reading ``path`` with the user's log options."""
+    from ..logs import DEFAULT_BLOCK_SIZE, open_log
+
+    def blocks() -> Any:
+        with open_log(path, block_size=block_size or DEFAULT_BLOCK_SIZE, options=options) as r:
+            yield from r
+
+    return blocks

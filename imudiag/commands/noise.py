@@ -19,6 +19,7 @@ import numpy as np
 from ..certificate import Certificate
 from ..diagnosis.inputs import log_rate_hz
 from ..logs import open_log
+from ..logs.options import LogOptions, log_options
 from ..noise_estimate import NOISE_MISMATCH_FACTOR, NoiseMeter, compare
 from ..quasistatic import BAD_FLAGS
 from ..samples import FLAG_SELF_TEST
@@ -37,11 +38,17 @@ def add_noise_argument(p: argparse.ArgumentParser) -> None:
     )
 
 
-def measure(log: str, cert: Certificate, rate: float | None, block_size: int) -> dict[str, Any]:
+def measure(
+    log: str,
+    cert: Certificate,
+    rate: float | None,
+    block_size: int,
+    options: LogOptions | None = None,
+) -> dict[str, Any]:
     """The report's ``noise`` part: measured white noise per triad beside the certificate's."""
     meter = None
     t0 = None
-    with open_log(log, block_size=block_size) as reader:
+    with open_log(log, block_size=block_size, options=options) as reader:
         for block in reader:
             if meter is None:
                 meter = NoiseMeter(rate or log_rate_hz(reader.meta, block, cert))
@@ -74,7 +81,7 @@ def noise_for_detector(
     the data (a data-sheet figure 1.5x too low leaves no window still, a figure
     too high takes motion for rest). ``--certificate-noise`` trusts the certificate.
     """
-    report = measure(args.log, cert, rate, args.block_size)
+    report = measure(args.log, cert, rate, args.block_size, log_options(args))
     use_cert = bool(getattr(args, "certificate_noise", False))
     for name in ("gyro", "accel"):
         has_cert = cert.triad(name).noise is not None and cert.triad(name).noise.density is not None

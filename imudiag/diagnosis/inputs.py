@@ -48,7 +48,9 @@ def check_units(log_path: str, meta: dict[str, Any], cert: Certificate) -> None:
             src = cert.source or "the certificate"
             raise BadInput(
                 f"{log_path}: units: the log's {triad} outputs are in {unit!r} but "
-                f"{src}: {triad}.output_unit is {cu!r}; they must match"
+                f"{src}: {triad}.output_unit is {cu!r}; they must match: use a certificate "
+                f"whose {triad}.output_unit is {unit!r}, or a log in {cu!r} (convert "
+                f"--quantum makes counts), or state the log's true units with --units"
             )
 
 

@@ -41,6 +41,7 @@ from .base import (
     LogWriter,
 )
 from .csv_format import CsvReader, CsvWriter
+from .matlab import MatReader
 from .npz_format import NpzReader, NpzWriter
 from .options import LogOptions
 from .registry import FORMATS, LogFormat, formats, log_format, lookup, register_format
@@ -71,6 +72,16 @@ register_format(
         TextTableReader,
         description="text table (comma, semicolon, tab or whitespace; --columns, --rate)",
         takes_options=True,
+    )
+)
+register_format(
+    LogFormat(
+        ".mat",
+        (".mat",),
+        MatReader,
+        description="MATLAB matrix (v5 via scipy, v7.3 via h5py; --variable, --columns)",
+        takes_options=True,
+        extra="mat",
     )
 )
 

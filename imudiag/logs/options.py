@@ -34,10 +34,11 @@ class LogOptions:
     units: dict[str, str] = field(default_factory=dict)  #: {"gyro": ..., "accel": ...}
     time_unit: str | None = None
     rate: float | None = None  #: Hz, for logs without time stamps
+    variable: str | None = None  #: the matrix of a MATLAB file
 
     def given(self) -> bool:
         """True when any option was given."""
-        return bool(self.columns or self.units or self.time_unit or self.rate)
+        return bool(self.columns or self.units or self.time_unit or self.rate or self.variable)
 
 
 def parse_columns(text: str, where: str = "--columns") -> list[str]:
@@ -113,6 +114,7 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--time-unit", metavar="U", help="unit of the t column: s (default), ms, us or ns"
     )
+    g.add_argument("--variable", metavar="NAME", help="the matrix of a MATLAB .mat file")
     if "--rate" not in parser._option_string_actions:
         g.add_argument(
             "--rate",
@@ -133,6 +135,8 @@ def log_options(args: argparse.Namespace) -> LogOptions:
         opts.time_unit = parse_time_unit(args.time_unit)
     if getattr(args, "rate", None) is not None:
         opts.rate = parse_rate(args.rate)
+    if getattr(args, "variable", None):
+        opts.variable = args.variable
     return opts
 
 
@@ -147,6 +151,8 @@ def options_from_query(query: dict[str, str]) -> LogOptions:
         opts.time_unit = parse_time_unit(query["time_unit"], "replay://?time_unit")
     if "rate" in query:
         opts.rate = parse_rate(query["rate"], "replay://?rate")
+    if "variable" in query:
+        opts.variable = query["variable"]
     return opts
 
 
@@ -167,4 +173,4 @@ def units_from_meta(meta: dict[str, Any]) -> dict[str, str]:
 
 
 #: The replay:// query keys these options add.
-URL_KEYS = ("columns", "units", "time_unit", "rate")
+URL_KEYS = ("columns", "units", "time_unit", "rate", "variable")

@@ -23,6 +23,9 @@ from .base import (
     first_violation,
 )
 
+#: Device-info key saying the capture has no temperature (its frames' temp field is 0).
+NO_TEMP_KEY = "temperature"
+
 
 class BinReader(LogReader):
     """Reader of raw wire captures (``.bin``) through the live frame decoder.
@@ -46,6 +49,8 @@ class BinReader(LogReader):
         finally:
             self._release(fh)
         self.meta = dict(decoder.device_info)
+        #: False when the writer said the capture has no temperature (temp then None)
+        self.has_temp = self.meta.pop(NO_TEMP_KEY, True) is not False
         self.counters = decoder.counters
 
     @staticmethod
@@ -65,7 +70,9 @@ class BinReader(LogReader):
                 data = fh.read(self._chunk)
                 block = decoder.feed(data) if data else decoder.finish()
                 if decoder.device_info:
-                    self.meta.update(decoder.device_info)
+                    info = dict(decoder.device_info)
+                    self.has_temp = info.pop(NO_TEMP_KEY, True) is not False
+                    self.meta.update(info)
                 if len(block):
                     bad = first_violation({"t": block.t}, last_t)
                     if bad is not None:
@@ -74,6 +81,8 @@ class BinReader(LogReader):
                     last_t = float(block.t[-1])
                     done += len(block)
                     block.meta = self.meta
+                    if not self.has_temp:
+                        block.temp = None  # the writer said the log had no temperature
                     for start in range(0, len(block), self.block_size):
                         yield block.slice(start, start + self.block_size)
                 if not data:
@@ -91,7 +100,9 @@ class BinWriter(LogWriter):
     frame: at most 249 bytes), with the seq just before the first sample's.
     ``seq`` is taken from the blocks when present (gaps kept; it reads back
     modulo 65536, unwrapped from the first frame), otherwise counted from 1.
-    The decoder always yields temp and flags: 0 where the blocks had none.
+    The decoder always yields flags (0 where the blocks had none). Blocks without
+    temperature are written with ``"temperature": false`` in the device-info
+    frame and read back without temperature (the frames' temp field is 0).
     """
 
     def __init__(self, path: str | Path, meta: dict[str, Any] | None = None) -> None:
@@ -122,10 +133,18 @@ class BinWriter(LogWriter):
             raise LogError(self.path, "output outside the int32 range of a .bin capture")
         raw = raw.astype(np.int32)
         seq = cols["seq"].astype(np.int64) if "seq" in cols else self._seq + np.arange(n)
-        if self.samples_written == 0 and self.meta:
-            self._fh.write(
-                self._wire.encode_info(int(seq[0] - 1) & 0xFFFF, int(time_us[0]), self.meta)
-            )
+        info = self.meta
+        if "temp" not in cols:  # said in the device info, so it reads back as absent, not 0.0
+            info = {**self.meta, NO_TEMP_KEY: False}
+        if self.samples_written == 0 and info:
+            size = len(json.dumps(info, separators=(",", ":")).encode("utf-8"))
+            if size > 249:
+                raise LogError(
+                    self.path,
+                    f"metadata is {size} bytes of JSON with '{NO_TEMP_KEY}': false (the log "
+                    "has no temperature), a device-info frame holds 249",
+                )
+            self._fh.write(self._wire.encode_info(int(seq[0] - 1) & 0xFFFF, int(time_us[0]), info))
         temp, flags = cols.get("temp"), cols.get("flags")
         cuts = np.flatnonzero(np.diff(seq) != 1) + 1
         for a, b in zip(np.r_[0, cuts], np.r_[cuts, n], strict=True):

@@ -1,0 +1,153 @@
+"""MATLAB ``.mat`` files: v4-v7 through scipy, v7.3 (HDF5) through h5py (extra ``[mat]``).
+
+The samples are one numeric matrix, N rows by k columns (a k x N matrix is
+transposed when k is the shorter side), named by ``--variable NAME``, or the
+only 2-D numeric variable of the file. ``--columns`` names its columns as for a
+text table (``_`` skips one); without it the matrix must have 7 columns
+``t gx gy gz ax ay az`` or 8 with ``temp``, or 6 without ``t`` given ``--rate``.
+The whole matrix is loaded (MATLAB files are read whole by both libraries),
+then handed out in blocks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from ..samples import SampleBlock
+from .base import DEFAULT_BLOCK_SIZE, LogError, LogReader, first_violation, make_block
+from .extras import require
+from .options import TIME_UNITS, LogOptions, units_from_meta
+
+#: First bytes of a v7.3 file (HDF5 with a 512-byte MATLAB text header).
+V73_TEXT = b"MATLAB 7.3 MAT-file"
+
+
+def _default_columns(k: int, rate: float | None) -> list[str] | None:
+    if k == 7:
+        return ["t", "gx", "gy", "gz", "ax", "ay", "az"]
+    if k == 8:
+        return ["t", "gx", "gy", "gz", "ax", "ay", "az", "temp"]
+    if k == 6 and rate is not None:
+        return ["gx", "gy", "gz", "ax", "ay", "az"]
+    return None
+
+
+class MatReader(LogReader):
+    """Reader of a numeric matrix in a MATLAB ``.mat`` file."""
+
+    format = ".mat"
+
+    def __init__(
+        self,
+        path: str | Path,
+        block_size: int = DEFAULT_BLOCK_SIZE,
+        options: LogOptions | None = None,
+    ) -> None:
+        super().__init__(path, block_size)
+        self.options = options or LogOptions()
+        fh = self._open(open, self.path, "rb")
+        try:
+            head = fh.read(128)
+        finally:
+            self._release(fh)
+        self.version = "7.3" if head.startswith(V73_TEXT) else "5"
+        variables = self._load_v73() if self.version == "7.3" else self._load_v5()
+        self.variable, matrix = self._choose(variables)
+        self._set_matrix(matrix)
+        units = dict(self.options.units) or units_from_meta(self.meta)
+        if units:
+            self.meta["units"] = units
+        self.meta.setdefault("source", f"MATLAB v{self.version} variable {self.variable!r}")
+
+    def _load_v5(self) -> dict[str, np.ndarray]:
+        scipy_io = require("scipy.io", "mat", "MATLAB .mat files")
+        try:
+            data = scipy_io.loadmat(self.path, squeeze_me=False)
+        except (ValueError, TypeError, OSError, NotImplementedError) as exc:
+            raise LogError(self.path, f"not a readable MATLAB file: {exc}") from None
+        return {
+            k: v for k, v in data.items() if not k.startswith("__") and isinstance(v, np.ndarray)
+        }
+
+    def _load_v73(self) -> dict[str, np.ndarray]:
+        h5py = require("h5py", "mat", "MATLAB v7.3 (HDF5) .mat files")
+        out: dict[str, np.ndarray] = {}
+        try:
+            with h5py.File(self.path, "r") as f:
+                for name, item in f.items():
+                    if isinstance(item, h5py.Dataset) and item.dtype.kind in "biuf":
+                        out[name] = np.asarray(item[()]).T  # HDF5 holds MATLAB's transpose
+        except OSError as exc:
+            raise LogError(self.path, f"not a readable MATLAB v7.3 file: {exc}") from None
+        return out
+
+    def _choose(self, variables: dict[str, np.ndarray]) -> tuple[str, np.ndarray]:
+        numeric = {
+            k: v
+            for k, v in variables.items()
+            if v.dtype.kind in "biuf" and v.ndim == 2 and min(v.shape) > 1
+        }
+        wanted = self.options.variable
+        if wanted:
+            if wanted not in variables:
+                raise LogError(
+                    self.path, f"no variable {wanted!r}; the file has {sorted(variables)}"
+                )
+            if wanted not in numeric:
+                raise LogError(self.path, f"variable {wanted!r} is not a 2-D numeric matrix")
+            return wanted, numeric[wanted]
+        if len(numeric) != 1:
+            listed = ", ".join(f"{k} {v.shape[0]}x{v.shape[1]}" for k, v in numeric.items())
+            raise LogError(
+                self.path,
+                f"{len(numeric)} numeric matrices ({listed or 'none'}): choose one with "
+                "--variable NAME",
+            )
+        return next(iter(numeric.items()))
+
+    def _set_matrix(self, matrix: np.ndarray) -> None:
+        m = np.asarray(matrix, dtype=float)
+        names = self.options.columns
+        k = len(names) if names else None
+        if k is not None and m.shape[1] != k and m.shape[0] == k:
+            m = m.T
+        elif k is None and m.shape[0] < m.shape[1]:
+            m = m.T  # samples are the long side
+        if names is None:
+            names = _default_columns(m.shape[1], self.options.rate)
+            if names is None:
+                raise LogError(
+                    self.path,
+                    f"variable {self.variable!r} is {m.shape[0]}x{m.shape[1]}: name its "
+                    "columns with --columns (e.g. t,gx,gy,gz,ax,ay,az; _ skips one)",
+                )
+        if m.shape[1] != len(names):
+            raise LogError(
+                self.path,
+                f"--columns names {len(names)} columns, variable {self.variable!r} has "
+                f"{m.shape[1]}",
+            )
+        cols = {n: m[:, i] for i, n in enumerate(names) if n != "_"}
+        if "t" in cols:
+            cols["t"] = cols["t"] * TIME_UNITS[self.options.time_unit or "s"]
+        elif self.options.rate is not None:
+            cols["t"] = np.arange(m.shape[0]) / self.options.rate
+            self.meta.setdefault("sample_rate", self.options.rate)
+        else:
+            raise LogError(self.path, "no time column: give the sample rate with --rate HZ")
+        self._cols = cols
+
+    def _blocks(self) -> Iterator[SampleBlock]:
+        n = len(self._cols["t"])
+        last_t: float | None = None
+        for start in range(0, n, self.block_size):
+            cols = {k: v[start : start + self.block_size] for k, v in self._cols.items()}
+            bad = first_violation(cols, last_t)
+            if bad is not None:
+                where = f"variable {self.variable!r} row {start + bad[0] + 1}"
+                raise LogError(self.path, f"{where}: {bad[1]}")
+            last_t = float(cols["t"][-1])
+            yield make_block(cols, self.meta)
