@@ -1,35 +1,125 @@
 """Files that are whole or absent: atomic writes, and outputs that never replace inputs.
 
 A command's output goes to a temporary file in the same directory (a unique
-name, so two writers never share one) and is renamed over the target only when
-complete; on any error, Ctrl-C or SIGTERM the temporary file is removed. A
-command refuses an output path that is one of its inputs, or the same file
-under another name, before it reads anything.
+name ``.NAME.XXXXXXXX.part``, so two writers never share one) and is renamed
+over the target only when complete; on any error, Ctrl-C or SIGTERM the
+temporary file is removed (and any still present at interpreter exit, as a
+backstop). A command refuses an output path that is one of its inputs, or the
+same file under another name, before it reads anything.
 """
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import os
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import IO, Any
 
 from .errors import BadInput
+
+#: Suffix of every temporary output file.
+TEMP_SUFFIX = ".part"
+
+_live: set[str] = set()  # temporaries created and not yet renamed or removed
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_MODE = 0o666 & ~_umask()  # what open(path, "w") gives a new file (mkstemp gives 0600)
+
+
+def temp_path(path: str | os.PathLike[str]) -> str:
+    """Create and return a unique, empty temporary file beside ``path``.
+
+    Its mode is what a new file would get. Pass it to :func:`commit` or
+    :func:`discard` when done; it is removed at exit otherwise.
+    """
+    dest = os.fspath(path)
+    directory = os.path.dirname(dest) or "."
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{os.path.basename(dest)}.", suffix=TEMP_SUFFIX, dir=directory
+    )
+    try:
+        os.fchmod(fd, _MODE)
+    finally:
+        os.close(fd)
+    _live.add(tmp)
+    return tmp
+
+
+def commit(tmp: str, path: str | os.PathLike[str]) -> None:
+    """Give the finished temporary ``tmp`` its final name ``path`` (atomic rename)."""
+    os.replace(tmp, path)
+    _live.discard(tmp)
+
+
+def discard(tmp: str) -> None:
+    """Remove the temporary ``tmp`` (missing is fine)."""
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(tmp)
+    _live.discard(tmp)
+
+
+@atexit.register
+def _remove_leftovers() -> None:
+    for tmp in list(_live):
+        discard(tmp)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[str]:
+    """A temporary path to write; renamed to ``path`` when the block ends normally,
+    removed when it ends by an exception. For libraries that write by file name
+    (matplotlib, h5py, zipfile). An ``OSError`` creating it becomes :class:`BadInput`."""
+    try:
+        tmp = temp_path(path)
+    except OSError as exc:
+        raise BadInput(f"{os.fspath(path)}: cannot write: {exc.strerror or exc}") from None
+    try:
+        yield tmp
+    except BaseException:
+        discard(tmp)
+        raise
+    commit(tmp, path)
+
+
+@contextlib.contextmanager
+def atomic_open(
+    path: str | os.PathLike[str], mode: str = "w", encoding: str | None = "utf-8"
+) -> Iterator[IO[Any]]:
+    """Open a temporary beside ``path`` for writing; it replaces ``path`` (fsync, rename)
+    when the block ends normally and is removed when it ends by an exception."""
+    if "b" in mode:
+        encoding = None
+    with atomic_path(path) as tmp, open(tmp, mode, encoding=encoding) as fh:
+        yield fh
+        fh.flush()
+        os.fsync(fh.fileno())
 
 
 def write_text_atomic(path: str | Path, text: str) -> None:
     """Write ``text`` (UTF-8) to ``path`` so that it is either complete or untouched."""
-    target = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent or ".")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_open(path, "w") as fh:
+        fh.write(text)
+
+
+def save_figure(fig: Any, path: str | os.PathLike[str], **kwargs: Any) -> None:
+    """``fig.savefig`` to ``path`` atomically (format from the file name, PNG by default)."""
+    fmt = Path(path).suffix[1:].lower() or "png"
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=fmt, **kwargs)
+
+
+def leftovers(directory: str | Path) -> list[Path]:
+    """Temporary output files (``*.part``) in ``directory``: for tests and clean-up checks."""
+    return sorted(p for p in Path(directory).iterdir() if p.name.endswith(TEMP_SUFFIX))
 
 
 def _same(a: str, b: str) -> bool:

@@ -40,8 +40,13 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM during a command: unwinds like Ctrl-C (temporary files removed), exit 143."""
 
 
-def _on_sigterm(signum: int, frame: object) -> None:
-    raise Terminated()
+def _on_signal(signum: int, frame: object) -> None:
+    # one signal ends the command: a second must not cut its clean-up short
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    if signum == signal.SIGTERM:
+        raise Terminated()
+    raise KeyboardInterrupt()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -71,12 +76,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     from .logs import LogError
 
     if args.command != "run":  # the daemon handles its own signals (exit 0 on SIGTERM)
-        signal.signal(signal.SIGTERM, _on_sigterm)
+        signal.signal(signal.SIGTERM, _on_signal)
+        signal.signal(signal.SIGINT, _on_signal)
 
     def named(keys: tuple[str, ...]) -> list[tuple[str, str | None]]:
         return [
             (
-                k.upper() if k in ("log", "input", "output") else "--" + k.replace("_", "-"),
+                k.upper()
+                if k in ("log", "input", "output")
+                else {"scenario_file": "--scenario"}.get(k, "--" + k.replace("_", "-")),
                 getattr(args, k, None),
             )
             for k in keys

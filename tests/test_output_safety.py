@@ -4,6 +4,7 @@ subprocesses, real signals."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -12,6 +13,9 @@ from pathlib import Path
 
 import pytest
 from conftest import PROJECT_DIR, run_imudiag
+
+from imudiag import atomic
+from imudiag.errors import BadInput
 
 REAL = Path(__file__).parent / "data" / "real"
 LOG = REAL / "imucal-ferraris" / "session.csv.gz"
@@ -77,3 +81,241 @@ def test_a_signal_ends_a_command_with_its_code_and_no_partial_file(tmp_path, sig
     assert proc.returncode == code, err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------
+# more cases: aliases, two outputs, atomic writes, signals mid-stream
+
+CERT = PROJECT_DIR / "config" / "default-certificate.yaml"
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A short simulated multi-position session (CSV)."""
+    d = tmp_path_factory.mktemp("session")
+    log = d / "session.csv"
+    r = run_imudiag("simulate", "multiposition", "--seed", "3", "--out", str(log))
+    assert r.returncode == 0, r.stderr
+    return log
+
+
+def _copy(src: Path, dst: Path) -> Path:
+    shutil.copyfile(src, dst)
+    return dst
+
+
+def _one_line(stderr: str) -> str:
+    lines = [ln for ln in stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, stderr
+    return lines[0]
+
+
+# ---------------------------------------------------------------------------
+# an output is never an input
+
+
+def _refusals(d: Path, log: Path, cert: Path) -> list[tuple[list[str], Path]]:
+    link = d / "link.csv"
+    link.symlink_to(log)
+    dotted = d / ".." / d.name / log.name
+    return [
+        (["diagnose", str(log), "--json", str(log)], log),
+        (["diagnose", str(log), "--json", str(link)], log),
+        (["diagnose", str(log), "--certificate", str(cert), "--json", str(cert)], cert),
+        (["calibrate", str(log), "--like", str(cert), "--out", str(dotted)], log),
+        (["calibrate", str(log), "--like", str(cert), "--out", str(cert)], cert),
+        (
+            [
+                "calibrate",
+                str(log),
+                "--like",
+                str(cert),
+                "--out",
+                str(d / "new.yaml"),
+                "--json",
+                str(log),
+            ],
+            log,
+        ),
+        (["allan", str(log), "--json", str(log)], log),
+        (["model-check", str(log), "--certificate", str(cert), "--json", str(link)], log),
+        (
+            [
+                "model-check",
+                str(log),
+                "--certificate",
+                str(cert),
+                "--json",
+                str(d / "r.json"),
+                "--extended-certificate",
+                str(cert),
+            ],
+            cert,
+        ),
+        (["convert", str(log), str(link)], log),
+        (["convert", str(link), str(log)], log),
+        (
+            [
+                "simulate",
+                "static",
+                "--duration",
+                "1",
+                "--certificate",
+                str(cert),
+                "--out",
+                str(cert),
+            ],
+            cert,
+        ),
+    ]
+
+
+def test_every_command_refuses_an_output_that_is_an_input(session: Path, tmp_path: Path):
+    log = _copy(session, tmp_path / "session.csv")
+    cert = _copy(CERT, tmp_path / "cert.yaml")
+    before = {p: p.read_bytes() for p in (log, cert)}
+    for argv, victim in _refusals(tmp_path, log, cert):
+        r = run_imudiag(*argv)
+        assert r.returncode == 2, (argv, r.stderr)
+        line = _one_line(r.stderr)
+        assert "input" in line and "refusing" in line, line
+        assert victim.read_bytes() == before[victim], argv
+    assert atomic.leftovers(tmp_path) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cert.yaml", "link.csv", "session.csv"]
+
+
+def test_two_outputs_naming_one_file_are_refused(session: Path, tmp_path: Path):
+    out = tmp_path / "x.yaml"
+    r = run_imudiag(
+        "calibrate", str(session), "--like", str(CERT), "--out", str(out), "--json", str(out)
+    )
+    assert r.returncode == 2
+    assert "name the same file" in _one_line(r.stderr)
+    assert not out.exists()
+
+
+# ---------------------------------------------------------------------------
+# atomic writes
+
+
+def test_atomic_write_replaces_whole_or_not_at_all(tmp_path: Path):
+    dest = tmp_path / "report.json"
+    dest.write_text("old\n")
+    with pytest.raises(RuntimeError), atomic.atomic_open(dest) as fh:
+        fh.write("half a rep")
+        assert len(atomic.leftovers(tmp_path)) == 1
+        raise RuntimeError("cut short")
+    assert dest.read_text() == "old\n"
+    assert atomic.leftovers(tmp_path) == []
+    atomic.write_text_atomic(dest, "new\n")
+    assert dest.read_text() == "new\n"
+    assert atomic.leftovers(tmp_path) == []
+    # the file gets the mode a plain open() would give it, not mkstemp's 0600
+    umask = os.umask(0)
+    os.umask(umask)
+    assert dest.stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+def test_temporary_names_are_unique(tmp_path: Path):
+    dest = tmp_path / "log.csv"
+    a, b = atomic.temp_path(dest), atomic.temp_path(dest)
+    try:
+        assert a != b and Path(a).parent == Path(b).parent == tmp_path
+    finally:
+        atomic.discard(a)
+        atomic.discard(b)
+    assert atomic.leftovers(tmp_path) == []
+
+
+def test_unwritable_output_is_bad_input(tmp_path: Path):
+    with pytest.raises(BadInput, match="no-such-dir"), atomic.atomic_open(
+        tmp_path / "no-such-dir" / "r.json"
+    ):
+        pass
+
+
+def test_report_into_a_missing_directory_exits_2(session: Path, tmp_path: Path):
+    r = run_imudiag("allan", str(session), "--json", str(tmp_path / "nodir" / "a.json"))
+    assert r.returncode == 2
+    assert "cannot write" in _one_line(r.stderr)
+
+
+# ---------------------------------------------------------------------------
+# signals
+
+
+def _wait_for(proc: subprocess.Popen[str], cond, what: str, timeout_s: float = 60.0) -> None:
+    """Poll ``cond`` (a file-system event) until true; fail if the process ended first."""
+    end = time.monotonic() + timeout_s
+    while not cond():
+        if proc.poll() is not None:
+            out, err = proc.communicate()
+            pytest.fail(f"command ended (rc {proc.returncode}) before {what}: {err}")
+        if time.monotonic() > end:
+            proc.kill()
+            pytest.fail(f"no {what} within {timeout_s} s")
+        time.sleep(0.01)
+
+
+SIGNALS = [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")]
+
+
+@pytest.mark.parametrize(("sig", "code", "word"), SIGNALS)
+def test_simulate_stopped_leaves_old_output_and_no_temporary(tmp_path: Path, sig, code, word):
+    out = tmp_path / "long.csv"
+    out.write_text("previous\n")
+    proc = _start("simulate", "static", "--duration", "1e6", "--out", str(out))
+    _wait_for(proc, lambda: atomic.leftovers(tmp_path), "temporary output file")
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == code, err
+    assert word in _one_line(err)
+    assert atomic.leftovers(tmp_path) == []
+    assert out.read_text() == "previous\n"
+
+
+@pytest.fixture(scope="module")
+def long_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """1000 s at 200 Hz as a wire capture: seconds of work for convert and diagnose."""
+    log = tmp_path_factory.mktemp("long") / "long.bin"
+    r = run_imudiag("simulate", "static", "--duration", "1000", "--out", str(log))
+    assert r.returncode == 0, r.stderr
+    return log
+
+
+def _has_open(proc: subprocess.Popen[str], path: Path) -> bool:
+    """Whether the process has ``path`` open (Linux /proc): it is reading the log."""
+    fd_dir = Path(f"/proc/{proc.pid}/fd")
+    try:
+        links = [os.readlink(fd_dir / fd) for fd in os.listdir(fd_dir)]
+    except OSError:  # an fd closed while listing
+        return False
+    return str(path.resolve()) in links
+
+
+@pytest.mark.parametrize(("sig", "code", "word"), SIGNALS)
+def test_convert_stopped_mid_stream(long_log: Path, tmp_path: Path, sig, code, word):
+    out = tmp_path / "out.csv"
+    proc = _start("convert", str(long_log), str(out))
+    _wait_for(proc, lambda: atomic.leftovers(tmp_path), "temporary output file")
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == code, err
+    assert word in _one_line(err)
+    assert atomic.leftovers(tmp_path) == []
+    assert not out.exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs Linux /proc")
+@pytest.mark.parametrize(("sig", "code", "word"), SIGNALS)
+def test_diagnose_stopped_writes_no_report(long_log: Path, tmp_path: Path, sig, code, word):
+    report = tmp_path / "report.json"
+    report.write_text("previous\n")
+    proc = _start("diagnose", str(long_log), "--json", str(report))
+    _wait_for(proc, lambda: _has_open(proc, long_log), "log opened")
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == code, err
+    assert word in _one_line(err)
+    assert report.read_text() == "previous\n"
+    assert atomic.leftovers(tmp_path) == []

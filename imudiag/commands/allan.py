@@ -148,7 +148,10 @@ def run(args: argparse.Namespace) -> int:
         if args.json == "-":
             sys.stdout.write(text + "\n")
         else:
-            write_text_atomic(args.json, text + "\n")
+            try:
+                write_text_atomic(args.json, text + "\n")
+            except OSError as exc:
+                raise BadInput(f"{args.json}: cannot write: {exc.strerror or exc}") from None
     return 0
 
 

@@ -41,6 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="exit 1 when a checked expectation fails (default: 0 whatever the "
                    "verdict)")
     p.add_argument("--list", action="store_true", help="list the bundled scenarios and exit")
+    p.set_defaults(inputs=("scenario_file",), outputs=("json",))
     p.set_defaults(func=run)
 
 

@@ -2,14 +2,14 @@
 
 Formats by file name: ``.csv``, ``.csv.gz``, ``.npz``, ``.bin`` (spec/sample-log.md).
 The output appears only when the whole input has been read and checked: a bad
-input (exit 2, ``file:line: reason``) leaves no output file behind.
+input (exit 2, ``file:line: reason``) leaves no output file behind; an output that
+is the input is refused (``imudiag.cli`` checks each command's declared files).
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-import os
 
 import numpy as np
 
@@ -55,9 +55,6 @@ def run(args: argparse.Namespace) -> int:
     if args.block_size < 1:
         raise BadInput(f"--block-size: must be >= 1, got {args.block_size}")
     log_format(args.output)  # reject an unknown output format before reading anything
-    both = os.path.exists(args.input) and os.path.exists(args.output)
-    if both and os.path.samefile(args.input, args.output):
-        raise BadInput(f"{args.output}: output is the input file")
     quantum = _parse_quantum(args.quantum) if args.quantum else None
     to_bin = log_format(args.output) == ".bin"
     if quantum is not None and not to_bin:

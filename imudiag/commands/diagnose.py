@@ -54,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--min-dof", type=float, metavar="N",
                    help="redundant observations a window's fit needs to be judged (default 3)")
     add_gnss_arguments(p)
-    p.set_defaults(func=run, inputs=("log", "certificate", "magnitude"), outputs=("json",))
+    p.set_defaults(func=run, inputs=("log", "certificate", "magnitude", "gnss"), outputs=("json",))
 
 
 def add_common_arguments(p: argparse.ArgumentParser) -> None:

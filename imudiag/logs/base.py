@@ -7,7 +7,6 @@ Every format module (one per file format) builds on :class:`LogReader` and
 from __future__ import annotations
 
 import json
-import os
 import re
 from collections.abc import Iterator
 from pathlib import Path
@@ -177,17 +176,18 @@ def format_float(values: np.ndarray) -> list[str]:
 class LogWriter:
     """Writes blocks to a new log; the file appears under its name on :meth:`close`.
 
-    Data goes to ``PATH.part`` first, so a log cut short by an error is never
-    mistaken for a whole one (leaving the ``with`` block by an exception
-    removes it). Every block must have the same optional columns as the first;
-    values must be finite and ``t`` strictly increasing across blocks.
+    Data goes to a unique temporary ``.NAME.XXXXXXXX.part`` beside it first,
+    so a log cut short by an error is never mistaken for a whole one (leaving
+    the ``with`` block by an exception removes it). Every block must have the
+    same optional columns as the first; values must be finite and ``t``
+    strictly increasing across blocks.
     """
 
     def __init__(self, path: str | Path, meta: dict[str, Any] | None = None) -> None:
         self.path = str(path)
         self.meta = dict(meta or {})
         self.samples_written = 0
-        self._part = self.path + ".part"
+        self._part_path: str | None = None  # the unique temporary, made on first use
         self._columns: list[str] | None = None
         self._last_t: float | None = None
         self._closed = False
@@ -226,6 +226,18 @@ class LogWriter:
         self._last_t = float(block.t[-1])
         self.samples_written += len(block)
 
+    @property
+    def _part(self) -> str:
+        """The temporary file beside the log (unique, ``.NAME.XXXXXXXX.part``)."""
+        if self._part_path is None:
+            from .. import atomic
+
+            try:
+                self._part_path = atomic.temp_path(self.path)
+            except OSError as exc:
+                raise LogError(self.path, f"cannot write: {exc.strerror or exc}") from None
+        return self._part_path
+
     def _start(self, columns: list[str]) -> None:
         """Called with the column names before the first block is written."""
 
@@ -244,7 +256,9 @@ class LogWriter:
             self._start(self._columns)
         self._finish()
         self._closed = True
-        os.replace(self._part, self.path)
+        from .. import atomic
+
+        atomic.commit(self._part, self.path)
 
     def abort(self) -> None:
         """Stop writing and remove the partial file."""
@@ -254,7 +268,10 @@ class LogWriter:
         try:
             self._finish()
         finally:
-            Path(self._part).unlink(missing_ok=True)
+            if self._part_path is not None:
+                from .. import atomic
+
+                atomic.discard(self._part_path)
 
     def __enter__(self) -> LogWriter:
         return self

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import atomic
 from .check import ALL_SENSORS, ModelCheckResult
 
 
@@ -63,7 +64,7 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
             ax.legend(fontsize=7)
             path = out_dir / f"allan_{s}.png"
             fig.tight_layout()
-            fig.savefig(path, dpi=90)
+            atomic.save_figure(fig, path, dpi=90)
             plt.close(fig)
             written.append(path)
         for half in (0, 1):
@@ -85,7 +86,7 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
                 ax.legend(fontsize=7)
                 path = out_dir / f"psd_{s}_half{half + 1}.png"
                 fig.tight_layout()
-                fig.savefig(path, dpi=90)
+                atomic.save_figure(fig, path, dpi=90)
                 plt.close(fig)
                 written.append(path)
     nm = result.report.get("noise_model") or {}
@@ -155,7 +156,7 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
         axes[1].set_title(ch.label)
         path = out_dir / f"residuals_{ch.label}.png"
         fig.tight_layout()
-        fig.savefig(path, dpi=90)
+        atomic.save_figure(fig, path, dpi=90)
         plt.close(fig)
         written.append(path)
     return written

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from .. import atomic
 from .check import CATALOGUE, FORMAT
 
 REQUIRED = ("format", "effects", "baseline", "extended", "gain")
@@ -53,7 +54,7 @@ def write(report: dict[str, Any], dest: str | Path) -> None:
         sys.stdout.write(text)
         sys.stdout.flush()
     else:
-        Path(dest).write_text(text, encoding="utf-8")
+        atomic.write_text_atomic(dest, text)
 
 
 def summary(report: dict[str, Any]) -> list[str]:
