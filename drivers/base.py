@@ -9,11 +9,8 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 from urllib.parse import parse_qs, urlsplit
 
+from imudiag.errors import SourceError
 from imudiag.samples import SampleBlock
-
-
-class SourceError(OSError):
-    """A source cannot be opened or has gone away (device unplugged, port closed)."""
 
 
 class EndOfStream(Exception):

@@ -29,6 +29,7 @@ import numpy as np
 import yaml
 
 from . import yamlio
+from .errors import CertificateError as _CertificateErrorBase
 
 FORMAT = "imudiag-certificate/1"
 
@@ -49,7 +50,7 @@ MISALIGNMENT_PAIRS = {
 MISALIGNMENT_KEYS = ("xz", "xy", "yz", "yx", "zy", "zx")
 
 
-class CertificateError(ValueError):
+class CertificateError(_CertificateErrorBase):
     """A certificate that breaks a rule; ``key`` is the offending key path."""
 
     def __init__(self, key: str, reason: str, source: str | None = None) -> None:

@@ -3,7 +3,11 @@
 Each command module defines ``register(subparsers)`` that adds its parser and
 sets ``func`` to a callable ``(args) -> int``. Exit status (spec/reports.md):
 0 done whatever the verdict, 2 bad input (the message names file, line or
-key, and the reason), 1 anything else.
+key, and the reason), 1 anything else; an error of the
+:class:`~imudiag.errors.ImudiagError` family maps to its status through
+:func:`imudiag.errors.exit_code`, here and nowhere else. Every module listed
+in :data:`COMMANDS` must import: a command that fails to load is an error,
+never a silently missing subcommand.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import sys
 from collections.abc import Sequence
 
 from . import __version__
-from .errors import BadInput
+from .errors import EXIT_BAD_INPUT, EXIT_ERROR, EXIT_OK, ImudiagError, exit_code
 
 #: Subcommand modules in ``imudiag.commands``, in the order ``--help`` lists them.
 COMMANDS = (
@@ -29,9 +33,7 @@ COMMANDS = (
     "convert",
 )
 
-EXIT_OK = 0
-EXIT_ERROR = 1
-EXIT_BAD_INPUT = 2
+__all__ = ["COMMANDS", "EXIT_BAD_INPUT", "EXIT_ERROR", "EXIT_OK", "build_parser", "main"]
 EXIT_SIGINT = 130  #: 128 + SIGINT, as a shell reports Ctrl-C
 EXIT_SIGTERM = 143  #: 128 + SIGTERM
 
@@ -72,8 +74,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
     from .atomic import refuse_overwrite
-    from .certificate import CertificateError
-    from .logs import LogError
 
     if args.command != "run":  # the daemon handles its own signals (exit 0 on SIGTERM)
         signal.signal(signal.SIGTERM, _on_signal)
@@ -93,9 +93,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         refuse_overwrite(named(getattr(args, "inputs", ())), named(getattr(args, "outputs", ())))
         return int(args.func(args) or 0)
-    except (BadInput, CertificateError, LogError) as exc:
+    except ImudiagError as exc:
         print(f"imudiag {args.command}: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return exit_code(exc)
     except Terminated:
         print(
             f"imudiag {args.command}: terminated (SIGTERM); nothing half-written left",

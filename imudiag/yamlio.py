@@ -21,12 +21,14 @@ from typing import Any
 
 import yaml
 
+from .errors import BadInput
+
 #: Largest YAML file read, bytes (certificates, configurations and scenarios are a few
 #: KiB; PyYAML needs about 2 s for 256 KiB of keys, so even that never reaches the loop)
 MAX_BYTES = 256 * 1024
 
 
-class YamlError(ValueError):
+class YamlError(BadInput):
     """A YAML file that cannot be used: ``line`` (1-based, or None) and a one-line ``problem``."""
 
     def __init__(self, problem: str, line: int | None = None) -> None:

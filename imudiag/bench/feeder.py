@@ -37,6 +37,7 @@ from typing import Protocol
 import numpy as np
 
 from imudiag.drivers.pty import PtyPair
+from imudiag.errors import BenchError
 from imudiag.sim.board import SimulatedBoard
 
 from .scenario import Injection
@@ -54,7 +55,7 @@ class Host(Protocol):
         """True once the reader reports at least ``n`` bytes read."""
 
 
-class FeederError(RuntimeError):
+class FeederError(BenchError):
     """The feeder could not go on (the reader never connected, or never drained)."""
 
 

@@ -21,6 +21,7 @@ from typing import Any
 import yaml
 
 from imudiag import certificate as certmod
+from imudiag.errors import BenchError
 from imudiag.sim.board import SimulatedBoard
 from imudiag.sim.scenarios import parse_effects, scenario_motion
 
@@ -30,10 +31,6 @@ from .feeder import BoardFeeder
 from .scenario import BenchScenario
 
 REPORT_FORMAT = "imudiag-bench/1"
-
-
-class BenchError(RuntimeError):
-    """The bench could not complete a run (the daemon died, never connected, ...)."""
 
 
 def diagnosis_available() -> bool:

@@ -14,10 +14,11 @@ from typing import IO, Any
 
 import numpy as np
 
+from ..errors import BadInput
 from ..samples import SampleBlock
 
 
-class LogError(ValueError):
+class LogError(BadInput):
     """A log that breaks a rule of spec/sample-log.md; names file, line and reason."""
 
     def __init__(self, path: str, reason: str, line: int | None = None) -> None:

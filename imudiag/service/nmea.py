@@ -43,6 +43,8 @@ from urllib.parse import parse_qs, urlsplit
 
 import serial
 
+from imudiag.errors import BadInput, SinkError
+
 log = logging.getLogger(__name__)
 
 TALKER = "PIMD"  #: proprietary talker P + manufacturer mnemonic IMD
@@ -56,7 +58,7 @@ STATES = ("ok", "degraded", "fault", "no_data")
 _RESERVED = set("$!*,\\^~\r\n")
 
 
-class NmeaError(ValueError):
+class NmeaError(BadInput):
     """A sentence that breaks the format (checksum, length, characters, fields)."""
 
 
@@ -286,7 +288,7 @@ def decode_sentence(line: str | bytes) -> dict[str, Any]:
 # the serial sink
 
 
-class StatusLinkError(OSError):
+class StatusLinkError(SinkError):
     """The status serial port cannot be opened (the message names the URL)."""
 
 
