@@ -321,3 +321,14 @@ def test_real_drive_magnitudes_agree():
     assert np.median(track.eps) / 2 > 2 * np.max(measured)
     est = estimate_latency(block.t, f, ep, gyro_si=w, max_latency_s=0.5)
     assert est.determined and abs(est.latency_s) < 0.3
+
+
+def test_missing_velocity_rejects_only_its_epochs():
+    # gpsd's first TPV after a (re)start may lack velD/climb: only the epochs that use it go
+    t = np.arange(0, 10, 0.2)
+    vel = np.stack([5 + 0.1 * t, 0 * t, 0 * t], 1)
+    vel[0, 2] = np.nan
+    for span in (1, 5):
+        ep = gnss_epochs(make_track(t, vel), span=span)
+        assert list(ep.reason).count("no_velocity") == 1
+        assert np.all(ep.valid[1:])

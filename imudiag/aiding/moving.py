@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ..certificate import Certificate
+from ..certificate import Certificate, TriadModel
 from ..diagnosis.params import CAUSES, sensor_of
 from ..diagnosis.scalar_fit import exact_fit
 from ..samples import SampleBlock
@@ -62,7 +62,7 @@ class MovingConfig:
     min_dof: float = 3.0
 
 
-def _accel_noise(raw: np.ndarray, certificate_sigma: np.ndarray | None) -> np.ndarray:
+def accel_noise(raw: np.ndarray, certificate_sigma: np.ndarray | None) -> np.ndarray:
     """Per-sample white noise (3,), output units: the larger of the certificate's and the
     one measured from the data (median absolute second difference / 0.6745 / sqrt(6)),
     since a vehicle's vibration often far exceeds a data sheet's noise."""
@@ -74,6 +74,21 @@ def _accel_noise(raw: np.ndarray, certificate_sigma: np.ndarray | None) -> np.nd
     )
     cert = certificate_sigma if certificate_sigma is not None else np.zeros(3)
     return np.maximum(measured, cert)
+
+
+def epoch_observations(
+    ep: GnssEpochs, im: ImuEpochs, acc: TriadModel, sig_raw: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(means (K, 3) output units, their variances (K, 3), magnitudes (K,) input units)
+    of the epochs for the scalar fit: the rotation/lever terms go from SI to output
+    units to first order (U = B + S N x); a mean's variance adds the GNSS magnitude's
+    variance (converted) to the IMU's white noise over the epoch."""
+    s = acc.scale_factor
+    unit = acc.unit_to_si
+    means = im.mean_raw + im.comp_si / unit * s
+    var_imu = sig_raw**2 / np.maximum(im.count, 1)[:, None]
+    var_gnss = (ep.sigma_mag / unit)[:, None] ** 2 * s**2
+    return means, var_imu + var_gnss, ep.mag / unit
 
 
 def _excitation(mean_si: np.ndarray, names: tuple[str, ...]) -> dict[str, dict[str, float]]:
@@ -134,7 +149,7 @@ def moving_base_diagnosis(
         latency = float(cfg.latency_s)
         lat = LatencyEstimate(latency, math.nan, True, "configured", 0)
         report["gnss"]["latency"] = dict(lat.to_json(), used_s=latency)
-    sig_raw = _accel_noise(block.accel, acc.noise_sigma(rate))
+    sig_raw = accel_noise(block.accel, acc.noise_sigma(rate))
     sig_si = sig_raw / acc.scale_factor * acc.unit_to_si
     lever = np.asarray(cfg.lever_arm_m, dtype=float)
     im = imu_epochs(
@@ -184,15 +199,8 @@ def _windows(
     im_raw_accel: np.ndarray,
 ) -> dict:
     acc = cert.accel
-    s = acc.scale_factor
-    unit = acc.unit_to_si
-    # the rotation/lever terms, SI -> output units (first order: U = B + S N x)
-    means = im.mean_raw + im.comp_si / unit * s
-    sig_raw = _accel_noise(im_raw_accel, acc.noise_sigma(rate))
-    var_imu = sig_raw**2 / np.maximum(im.count, 1)[:, None]
-    var_gnss = (ep.sigma_mag / unit)[:, None] ** 2 * s**2
-    var = var_imu + var_gnss
-    mag_in = ep.mag / unit
+    sig_raw = accel_noise(im_raw_accel, acc.noise_sigma(rate))
+    means, var, mag_in = epoch_observations(ep, im, acc, sig_raw)
     tracker = IsolationTracker(persist=cfg.persist)
     t_mid = 0.5 * (ep.t0 + ep.t1)
     windows = []
@@ -332,4 +340,4 @@ def _aggregate_findings(windows: list[dict], persist: int) -> list[dict]:
     return out
 
 
-__all__ = ["MovingConfig", "moving_base_diagnosis"]
+__all__ = ["MovingConfig", "accel_noise", "epoch_observations", "moving_base_diagnosis"]

@@ -109,7 +109,8 @@ def parse_tpv(obj: dict) -> dict | None:
 
 
 def track_from_reports(reports: Iterable[dict], device: str | None = None) -> GnssTrack:
-    """A track from parsed TPV dicts (:func:`parse_tpv`), sorted by time, duplicates dropped.
+    """A track from parsed TPV dicts (:func:`parse_tpv`), sorted by time; several
+    reports with one time are merged, later values winning over earlier ones.
 
     ``device``: keep only that gpsd device (default: the first device seen).
     """
@@ -117,10 +118,17 @@ def track_from_reports(reports: Iterable[dict], device: str | None = None) -> Gn
     if device is None and rows:
         device = rows[0]["device"]
     rows = [r for r in rows if device is None or r["device"] == device]
-    rows.sort(key=lambda r: r["t"])
+    rows.sort(key=lambda r: r["t"])  # stable: reports of one time keep their order
     dedup: list[dict] = []
     for r in rows:
         if dedup and r["t"] <= dedup[-1]["t"]:
+            # gpsd may report an epoch twice (u-blox NAV-PVT, then NAV-VELNED with the
+            # epoch's velocity): later values win, but a missing value does not erase one
+            merged = dict(dedup[-1])
+            for k, v in r.items():
+                if not (isinstance(v, float) and math.isnan(v)):
+                    merged[k] = v
+            dedup[-1] = merged
             continue
         dedup.append(r)
 

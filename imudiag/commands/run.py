@@ -41,6 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-data-timeout", type=float, help="seconds without frames -> no_data")
     p.add_argument("--no-diagnosis", action="store_true", help="per-sample checks only")
     p.add_argument("--log-level", help="debug, info, warning, error, critical")
+    p.add_argument("--aiding", nargs="?", const="gpsd://127.0.0.1:2947", metavar="URL",
+                   help="GNSS aiding from gpsd (default gpsd://127.0.0.1:2947): the moving-base "
+                   "F0 and accelerometer check in motion (docs/moving-base.md)")
     p.set_defaults(func=run)
 
 
@@ -54,6 +57,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         "nmea_rate_hz": args.nmea_rate,
         "no_data_timeout_s": args.no_data_timeout,
         "log_level": args.log_level,
+        "aiding": args.aiding,
     }
 
 

@@ -59,6 +59,7 @@ class DaemonConfig:
     diagnosis_persist_windows: int = 2  #: consecutive windows before a fault is reported
     static_window_s: float = 0.5  #: quasi-static detector window, s
     log_level: str = "info"  #: debug | info | warning | error | critical
+    aiding: str | None = None  #: GNSS aiding gpsd://HOST:PORT; None = none
     origin: str | None = dataclasses.field(default=None, compare=False)  #: file read from
 
     def replace(self, **changes: Any) -> DaemonConfig:
@@ -140,6 +141,18 @@ def _log_level(value: Any, fail: Callable[[str], Exception]) -> str:
     return value
 
 
+def _aiding_url(value: Any, fail: Callable[[str], Exception]) -> str:
+    from imudiag.aiding.gpsd_client import parse_gpsd_url
+    from imudiag.errors import BadInput
+
+    value = _text(value, fail)
+    try:
+        parse_gpsd_url(value)
+    except BadInput as exc:
+        raise fail(str(exc).removeprefix("aiding: ")) from None
+    return value
+
+
 #: YAML key path -> (DaemonConfig field, check). The order is the file's.
 SCHEMA: dict[tuple[str, ...], tuple[str, Check]] = {
     ("source",): ("source", _source_url),
@@ -162,6 +175,7 @@ SCHEMA: dict[tuple[str, ...], tuple[str, Check]] = {
     ("diagnosis", "persist_windows"): ("diagnosis_persist_windows", _integer(1, 1000)),
     ("diagnosis", "static_window_s"): ("static_window_s", _number(0.0, 60.0)),
     ("log_level",): ("log_level", _log_level),
+    ("aiding",): ("aiding", _optional(_aiding_url)),
 }
 _FIELD_KEY = {name: ".".join(path) for path, (name, _) in SCHEMA.items()}
 _FIELD_CHECK = {name: check for name, check in SCHEMA.values()}

@@ -67,6 +67,9 @@ class DaemonSettings:
     diagnosis: bool = True  #: run the sliding-window 18-parameter diagnosis live
     diagnosis_options: dict[str, Any] = field(default_factory=dict)
     monitor: MonitorConfig = field(default_factory=MonitorConfig)
+    #: GNSS aiding: gpsd://HOST:PORT, or None (docs/moving-base.md)
+    aiding_url: str | None = None
+    aiding_options: dict[str, Any] = field(default_factory=dict)
 
 
 class _ReloadThread(threading.Thread):
@@ -113,6 +116,7 @@ class Daemon:
             min_backoff_s=settings.reconnect_min_s,
             max_backoff_s=settings.reconnect_max_s,
         )
+        self.aiding = self._make_aiding(self.certificate)
         self.schedule = StatusSchedule(settings.status_period_s)
         self._stop = False
         self._reload = False
@@ -140,6 +144,20 @@ class Daemon:
         # made its memory grow about 2 MB per hour of data (soak/)
         options = {"max_windows_kept": DAEMON_WINDOWS_KEPT, **self.settings.diagnosis_options}
         return StreamingDiagnoser(cert, options)
+
+    def _make_aiding(self, cert: Certificate) -> Any:
+        if not self.settings.aiding_url:
+            return None
+        from ..aiding.live import LiveAiding
+        from ..aiding.moving import MovingConfig
+
+        return LiveAiding(
+            self.settings.aiding_url,
+            cert,
+            MovingConfig(**self.settings.aiding_options),
+            reconnect_min_s=self.settings.reconnect_min_s,
+            reconnect_max_s=self.settings.reconnect_max_s,
+        )
 
     def install_signal_handlers(self) -> None:
         """SIGTERM/SIGINT stop, SIGHUP reloads the certificate (main thread only)."""
@@ -203,6 +221,8 @@ class Daemon:
             self.diagnoser = self._make_diagnoser(new)
             self._diag_blocks = []  # gathered under the old certificate
             self._diag_view = None
+        if self.aiding is not None:
+            self.aiding.set_certificate(new)
         self.reloads += 1
         self.notes = []
         log.info("certificate reloaded from %s", path)
@@ -242,6 +262,7 @@ class Daemon:
         faults = merge_faults(
             [{k: v for k, v in f.items() if k != "t_first"} for f in self.monitor.active_faults],
             [{k: f[k] for k in ("triad", "sensor", "cause") if k in f} for f in diag_faults],
+            self.aiding.faults() if self.aiding is not None else [],
         )
         counters = self.source.counters.as_dict()
         errors = counters["crc_errors"] + counters["lost"] + self.monitor.adc_errors
@@ -280,6 +301,8 @@ class Daemon:
                 "written": sum(int(s.written) for s in links),
                 "dropped": sum(int(s.dropped) for s in links),
             }
+        if self.aiding is not None:
+            status["aiding"] = self.aiding.status()
         notes = list(self.notes)
         why = self._no_data_reason(now, status["state"])
         if why:
@@ -347,6 +370,8 @@ class Daemon:
                     self.watchdog.frames_arrived(now)
                     self.monitor.update(block)
                     self._feed_diagnoser(block)
+                if self.aiding is not None:
+                    self.aiding.update(block if len(block) else None)
                 self.watchdog.tick(now)
                 self._emit(now)
                 interval = self.settings.read_interval_s
@@ -359,6 +384,8 @@ class Daemon:
         finally:
             self.notifier.stopping()
             self.source.close()
+            if self.aiding is not None:
+                self.aiding.close()
             for sink in self.sinks:
                 sink.close()
         return 0
@@ -410,6 +437,7 @@ def settings_from_config(config: DaemonConfig) -> DaemonSettings:
             "detector_window_s": config.static_window_s,
         },
         monitor=monitor,
+        aiding_url=config.aiding,
     )
 
 
