@@ -12,7 +12,9 @@ drift, a slow tilt) contributes ``x'' dt^2``, which is tiny at IMU rates, and a
 step or a bump only touches a few differences, which a median ignores. So per
 chunk of ``chunk_s`` seconds ``sigma = 1.4826 MAD(d) / sqrt(6)``, and the
 figure of a channel is a low quantile of its chunk values (the quietest
-stretches, where nothing but noise moves the signal). For a signal quantised in
+stretches, where nothing but noise moves the signal), divided by the value
+that quantile has on pure white noise (:func:`quantile_bias`), so a still
+record gives its sigma without bias. For a signal quantised in
 steps ``q`` finer than its noise this is unbiased; where the noise is below one
 step the MAD can be 0, and the plain RMS of ``d`` is used (floored at the
 quantisation noise ``q / sqrt(12)`` when ``q`` is known).
@@ -24,8 +26,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
+
+from .stats import chi2_ratio_quantile
 
 #: Name of the method, printed beside every measured figure.
 METHOD = "median-second-difference"
@@ -35,6 +40,23 @@ _MAD_TO_SIGMA = 1.482602218505602
 
 #: Measured / certificate noise ratio beyond which the certificate's noise is reported wrong.
 NOISE_MISMATCH_FACTOR = 1.5
+
+#: Variance inflation of a mean of squared second differences of white noise: their
+#: correlations are -2/3 (lag 1) and 1/6 (lag 2), so 1 + 2 (4/9 + 1/36) = 35/18.
+_SECOND_DIFFERENCE_INFLATION = 35.0 / 18.0
+
+
+def quantile_bias(samples_per_chunk: int, quantile: float) -> float:
+    """Expected ``quantile`` of chunk sigmas over the true sigma, for white noise.
+
+    A chunk of ``n`` samples gives a sigma whose square is a chi-square ratio
+    with ``(n - 2) / (35/18)`` effective degrees of freedom; the low quantile
+    the meter takes to ignore motion is therefore below the true sigma (about
+    7 % at 100 samples, 2 % at 1000 for the lower quartile), and the figure is
+    divided by this factor (Wilson-Hilferty).
+    """
+    dof = max(samples_per_chunk - 2, 1) / _SECOND_DIFFERENCE_INFLATION
+    return math.sqrt(chi2_ratio_quantile(dof, NormalDist().inv_cdf(quantile)))
 
 
 def second_difference_sigma(x: np.ndarray) -> np.ndarray:
@@ -125,11 +147,23 @@ class NoiseMeter:
                 self._chunks.append(second_difference_sigma(part))
         self._buf = buf[n * self.chunk :].copy()
 
+    def gap(self) -> None:
+        """Drop the unfinished chunk: the next samples do not follow the last ones."""
+        self._buf = np.zeros((0, 6))
+
+    def sample_sigma(self) -> np.ndarray:
+        """(6,) per-sample sigma of gx gy gz ax ay az (output units); NaN before a chunk."""
+        figures = self.result()
+        if figures is None:
+            return np.full(6, np.nan)
+        return np.concatenate([figures["gyro"].sigma, figures["accel"].sigma])
+
     def result(self) -> dict[str, NoiseFigure] | None:
         """Measured noise per triad, or None when no complete clean chunk was seen."""
         if not self._chunks:
             return None
         sig = np.nanquantile(np.vstack(self._chunks), self.quantile, axis=0)
+        sig = sig / quantile_bias(self.chunk, self.quantile)
         if self.quantum is not None:
             sig = np.maximum(sig, self.quantum / math.sqrt(12.0))
         sig = np.where(np.isfinite(sig) & (sig > 0), sig, np.nan)

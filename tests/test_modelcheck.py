@@ -19,11 +19,11 @@ from imudiag.logs import write_log
 from imudiag.modelcheck import model_check
 from imudiag.modelcheck.kalman import filter_products, run_filter
 from imudiag.modelcheck.report import check_report
-from imudiag.modelcheck.stats import chi2_significance, log_chi2_sf, z_from_log_p
 from imudiag.modelcheck.streams import SegmentStats, allan_m_grid
 from imudiag.monitor import Monitor
 from imudiag.samples import SampleBlock
 from imudiag.sim import Effects, TemperatureProfile, simulate, turntable
+from imudiag.stats import chi2_significance, log_chi2_sf, z_from_log_p
 
 MC_DATA = Path(__file__).parent / "data" / "modelcheck"
 

@@ -5,6 +5,7 @@ one noise term hidden at random under a seed, clean white noise, and the real MP
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -128,3 +129,28 @@ def test_mpu6050_still_recording_is_white_noise_and_predicted(tmp_path: Path) ->
     if plots.available():
         names = {p.name for p in plots.write_plots(res, tmp_path)}
         assert {f"noise_model_{s}.png" for s in nm["sensors"]} <= names
+
+
+def test_one_white_noise_figure_in_allan_and_model_check(tmp_path: Path) -> None:
+    """allan, model-check (and calibrate/diagnose, through the same meter) report the same
+    white-noise density for a sensor, measured by one named method (issue 13 item 3)."""
+    from conftest import run_imudiag
+
+    from imudiag.noise_estimate import METHOD
+
+    log = DATA / "real" / "mpu6050" / "static.csv.gz"
+    out = tmp_path / "allan.json"
+    r = run_imudiag("allan", str(log), "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    assert METHOD in r.stdout
+    allan = json.loads(out.read_text())["sensors"]
+    res = model_check(log, load(DATA / "modelcheck" / "mpu6050.yaml"), seed=0)
+    mc = res.report["comparison"]["noise_density"]
+    for s, entry in allan.items():
+        assert entry["white_noise_method"] == METHOD
+        # the whole log is still: the two see the same samples, chunked differently
+        assert entry["white_noise_density"] == pytest.approx(mc[s]["measured"], rel=0.03), s
+        assert mc[s]["method"] == METHOD
+        # the Allan curve's N and the PSD agree with it here (white noise), so no note
+        assert entry["density_one_sided"] == pytest.approx(entry["white_noise_density"], rel=0.1)
+        assert entry["white_noise_note"] is None

@@ -1,9 +1,12 @@
 """``imudiag allan LOG [--json OUT]``: Allan deviation, PSD and noise identification of a log.
 
-Per sensor (gx gy gz ax ay az): the overlapping Allan deviation, the IEEE 952
-readings (white noise N, bias instability B, random walk K; see
+Per sensor (gx gy gz ax ay az): the white-noise density measured the one way
+every command measures it (:mod:`imudiag.noise_estimate`), the overlapping Allan
+deviation, the IEEE 952 readings (N, bias instability B, random walk K; see
 :mod:`imudiag.noise_stats` for units and conventions) and the Welch PSD with its
-white-noise level. Meaningful on a still recording (motion shows up as noise).
+white-noise level; the last two white-noise readings are cross-checks of the
+first, and a disagreement beyond 25 % is named (coloured noise or quantisation).
+Meaningful on a still recording (motion shows up as noise).
 The samples are taken as uniformly spaced; gaps in ``t`` are counted and reported.
 """
 
@@ -22,15 +25,23 @@ from ..errors import BadInput
 from ..logs import LogError, open_log
 from ..logs.options import LogOptions, add_log_options, log_options
 from ..logs.timing import timing_report
+from ..noise_estimate import METHOD as WHITE_NOISE_METHOD
+from ..noise_estimate import NoiseMeter
 from ..noise_stats import identify_noise, overlapping_allan, welch_psd
 
 SENSORS = ("gx", "gy", "gz", "ax", "ay", "az")
 FORMAT = "imudiag-allan/1"
+#: Cross-check readings of the white noise further than this from the measured density
+#: (as a ratio) are named on the console and in ``white_noise_note``.
+CROSS_CHECK_TOLERANCE = 1.25
 UNITS = {
     "tau": "s",
     "adev": "output units",
-    "white_noise": "output units/sqrt(Hz) (IEEE 952 N, sigma at tau = 1 s)",
-    "density_one_sided": "output units/sqrt(Hz) (sqrt(2) N, the certificate's noise.density)",
+    "white_noise_density": "output units/sqrt(Hz), one-sided (the certificate's noise.density), "
+    "measured by white_noise_method: the figure every command uses",
+    "white_noise": "output units/sqrt(Hz) (IEEE 952 N, sigma at tau = 1 s; cross-check)",
+    "density_one_sided": "output units/sqrt(Hz) (sqrt(2) N from the Allan curve; cross-check)",
+    "psd_white_density": "output units/sqrt(Hz) (Welch PSD, 0.1-0.4 of the rate; cross-check)",
     "bias_instability": "output units (Allan minimum / 0.664)",
     "random_walk": "output units/sqrt(s) (the certificate's noise.bias_random_walk)",
     "psd": "output units^2/Hz, one-sided",
@@ -87,6 +98,9 @@ def analyse(t: np.ndarray, u: np.ndarray, rate_hz: float, sensors: list[str],
     """The per-sensor report for samples ``u`` (N, 6) at ``rate_hz``."""
     out: dict[str, Any] = {}
     n = u.shape[0]
+    meter = NoiseMeter(rate_hz)
+    meter.update(u[:, :3], u[:, 3:])
+    figures = meter.result()
     nperseg = int(min(psd_segment, max(16, 1 << int(math.log2(max(n // 8, 16))))))
     for name in sensors:
         y = u[:, SENSORS.index(name)]
@@ -95,8 +109,18 @@ def analyse(t: np.ndarray, u: np.ndarray, rate_hz: float, sensors: list[str],
         psd = welch_psd(y, rate_hz, nperseg)
         band = (psd.frequency >= 0.1 * rate_hz) & (psd.frequency <= 0.4 * rate_hz)
         white_psd = math.sqrt(float(np.mean(psd.density[band]))) if np.any(band) else None
+        k = SENSORS.index(name)
+        measured = None
+        if figures is not None:
+            d = float(figures["gyro" if k < 3 else "accel"].density[k % 3])
+            measured = d if math.isfinite(d) else None
+        readings = terms.as_dict()
         out[name] = {
-            **terms.as_dict(),
+            "white_noise_density": measured,
+            "white_noise_method": WHITE_NOISE_METHOD,
+            "white_noise_note": _cross_check(measured, readings.get("density_one_sided"),
+                                             white_psd),
+            **readings,
             "psd_white_density": white_psd,
             "allan": {"tau": allan.tau.tolist(), "adev": allan.adev.tolist(),
                       "error": allan.error.tolist()},
@@ -155,6 +179,23 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cross_check(measured: float | None, allan_density: float | None,
+                 psd_density: float | None) -> str | None:
+    """Why the cross-check readings disagree with the measured density, or None."""
+    if measured is None or measured <= 0:
+        return None
+    off = []
+    for label, v in (("Allan sqrt(2) N", allan_density), ("PSD", psd_density)):
+        if v is not None and v > 0:
+            r = v / measured
+            if not 1.0 / CROSS_CHECK_TOLERANCE <= r <= CROSS_CHECK_TOLERANCE:
+                off.append(f"{label} {r:.2f}x")
+    if not off:
+        return None
+    return ("cross-checks off: " + ", ".join(off) + " (coloured noise, quantisation or motion "
+            "in the record: trust the measured density for the white part)")
+
+
 def _fmt(v: float | None) -> str:
     return "-" if v is None else f"{v:.4g}"
 
@@ -162,12 +203,18 @@ def _fmt(v: float | None) -> str:
 def _print_table(report: dict[str, Any], out: Any) -> None:
     print(f"{report['log']}: {report['samples']} samples at {report['rate_hz']:g} Hz, "
           f"{report['duration_s']:.1f} s, {report['gaps']} gaps", file=out)
-    print("sensor  N [u/rtHz]  density [u/rtHz]  PSD white [u/rtHz]  B [u] (tau s)  "
-          "K [u/rts]", file=out)
+    print(f"white noise: one-sided density, measured by {WHITE_NOISE_METHOD} (the figure "
+          "calibrate, diagnose and model-check use; Allan N and the PSD are cross-checks "
+          "in the JSON)", file=out)
+    print("sensor  white [u/rtHz]  B [u] (tau s)  K [u/rts]", file=out)
+    notes = []
     for name, r in report["sensors"].items():
         b = f"{_fmt(r['bias_instability'])} ({r['bias_instability_tau']:.3g})"
         if not r["bias_floor"]:
             b = "<=" + b
-        print(f"{name:6s}  {_fmt(r['white_noise']):>11s}  {_fmt(r['density_one_sided']):>16s}  "
-              f"{_fmt(r['psd_white_density']):>18s}  {b:>13s}  {_fmt(r['random_walk'])}",
-              file=out)
+        print(f"{name:6s}  {_fmt(r['white_noise_density']):>14s}  {b:>13s}  "
+              f"{_fmt(r['random_walk'])}", file=out)
+        if r["white_noise_note"]:
+            notes.append(f"{name}: {r['white_noise_note']}")
+    for line in notes:
+        print(line, file=out)

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..certificate import Certificate, TriadModel
+from ..noise_estimate import METHOD as WHITE_NOISE_METHOD
 from ..samples import SampleBlock
 from .config import ModelCheckConfig
 from .detectors import ChannelResult, analyse_channel, k_on_rows
@@ -523,7 +524,8 @@ def _comparison(certificate: Certificate, accel_w: TriadModel, session: Session,
     for j, s in enumerate(ALL_SENSORS):
         noise[s] = {"certificate": None if not np.isfinite(cert_density[j]) else
                     float(cert_density[j]),
-                    "measured": float(density_meas[j]), "simulated": float(sim_density[j])}
+                    "measured": float(density_meas[j]), "simulated": float(sim_density[j]),
+                    "method": WHITE_NOISE_METHOD}
     out["noise_density"] = noise
     tau, adev_m, ind = measured.allan("baseline")
     allan: dict[str, Any] = {"tau": tau.tolist(), "independent_terms": ind.tolist()}

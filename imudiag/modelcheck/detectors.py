@@ -33,10 +33,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..stats import chi2_significance, log_chi2_sf, z_from_log_p
 from .config import ModelCheckConfig
 from .kalman import Products, filter_products, pinv_sym, run_filter
 from .residuals import Candidate, Channel
-from .stats import chi2_significance, log_chi2_sf, z_from_log_p
 
 
 @dataclass

@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..certificate import Certificate, Temperature, TriadModel
+from ..stats import chi2_ratio_quantile
 from .config import ModelCheckConfig
-from .stats import chi2_ratio_quantile
 from .summaries import SUB_BLOCKS, Session
 
 SENSORS = {"gyro": ("gx", "gy", "gz"), "accel": ("ax", "ay", "az")}

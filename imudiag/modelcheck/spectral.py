@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .stats import chi2_ratio_quantile, log_chi2_sf, z_from_log_p
+from ..stats import chi2_ratio_quantile, log_chi2_sf, z_from_log_p
 
 SENSORS = ("gx", "gy", "gz", "ax", "ay", "az")
 #: degrees of freedom of a Hann / 50 % Welch average, per segment (conservative)

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..certificate import TriadModel
+from ..noise_estimate import NoiseMeter
 from ..samples import SampleBlock
 from .rotations import MotionCollector
 from .summaries import Chunks
@@ -132,8 +133,7 @@ class SegmentStats:
     chunk_sum: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
     chunk_n: np.ndarray = field(default_factory=lambda: np.zeros(0))
     samples: int = 0
-    sigma_sq_sum: np.ndarray = field(default_factory=lambda: np.zeros(6))  #: first differences
-    sigma_terms: int = 0
+    noise: NoiseMeter | None = None  #: white noise, measured as every command measures it
 
     def __post_init__(self) -> None:
         self.chunk_sum = np.zeros((self.n_chunks, 6))
@@ -141,6 +141,7 @@ class SegmentStats:
         if self.nperseg:
             k = np.arange(self.nperseg)
             self._window = 0.5 - 0.5 * np.cos(2.0 * math.pi * k / self.nperseg)
+        self.noise = NoiseMeter(self.rate_hz)
 
     # -- one segment ----------------------------------------------------------------
 
@@ -155,10 +156,9 @@ class SegmentStats:
         uniq, first = np.unique(chunk, return_index=True)
         self.chunk_sum[uniq] += np.add.reduceat(u, first, axis=0)
         self.chunk_n[uniq] += np.diff(np.concatenate([first, [n]]))
-        if n >= 2:
-            d = np.diff(u, axis=0)
-            self.sigma_sq_sum += np.sum(d * d, axis=0) / 2.0
-            self.sigma_terms += n - 1
+        assert self.noise is not None
+        self.noise.update(u[:, :3], u[:, 3:])
+        self.noise.gap()  # the next segment does not follow this one
         for name, predict in self.predictors.items():
             r = u - predict(t, temp, chunk)
             self._allan(name, half, r)
@@ -255,8 +255,10 @@ class SegmentStats:
             return self.chunk_sum / self.chunk_n[:, None]
 
     def sample_sigma(self) -> np.ndarray:
-        """(6,) per-sample noise from first differences (the shortest-tau Allan deviation)."""
-        return np.sqrt(self.sigma_sq_sum / max(self.sigma_terms, 1))
+        """(6,) per-sample white noise, output units (:mod:`imudiag.noise_estimate`; NaN for a
+        stream without a whole 1 s still chunk)."""
+        assert self.noise is not None
+        return self.noise.sample_sigma()
 
 
 def stream_measured(blocks: Iterable[SampleBlock], chunks: Chunks, segments: Segments,

@@ -378,7 +378,7 @@ def detection_noise(source: BlockSource, rate_hz: float, window_s: float,
     windows, divided by that quantile of chi2(W-1)/(W-1), is the noise of the quietest
     stretches (the unit still). At most ``max_windows`` windows are kept (evenly thinned).
     """
-    from .stats import chi2_ratio_quantile
+    from ..stats import chi2_ratio_quantile
 
     w = max(3, int(round(window_s * rate_hz)))
     carry = np.zeros((0, 6))
