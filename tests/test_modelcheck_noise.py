@@ -19,7 +19,7 @@ from imudiag.sim import Effects, simulate, still
 RATE = 20.0  #: Hz: low rate keeps hour-long sessions cheap (tau from 0.1 s needs >= 20 Hz)
 DATA = Path(__file__).parent / "data"
 #: hidden term -> (effect name of the model check, how to draw it)
-TERMS = ("bias_instability", "bias_drift", "gauss_markov_bias", None)
+TERMS = ("bias_instability", "bias_drift", "gauss_markov_bias", "rate_ramp", None)
 
 
 def _draw(seed: int) -> tuple[str | None, str, Effects, float, float]:
@@ -37,10 +37,13 @@ def _draw(seed: int) -> tuple[str | None, str, Effects, float, float]:
     if term == "gauss_markov_bias":
         sigma, tc = float(rng.uniform(10.0, 25.0)), float(rng.uniform(30.0, 120.0))
         return term, sensor, Effects(bias_instability={sensor: (sigma, tc)}), sigma, duration
+    if term == "rate_ramp":
+        r = float(rng.uniform(0.01, 0.03))  # counts/s: 36-108 counts of drift in an hour
+        return term, sensor, Effects(rate_ramp={sensor: r}), r, duration
     return None, sensor, Effects(), 0.0, duration
 
 
-@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("seed", range(10))
 def test_hidden_noise_term_is_named_with_its_value(seed: int) -> None:
     term, sensor, effects, value, duration = _draw(seed)
     cert = load_default()
@@ -61,6 +64,7 @@ def test_hidden_noise_term_is_named_with_its_value(seed: int) -> None:
             "bias_instability": "bias_instability",
             "bias_drift": "bias_drift",
             "gauss_markov": "gauss_markov_bias",
+            "rate_ramp": "rate_ramp",
         }
         got = [named[t] for t in sn.terms_named]
         assert got == ([expect] if expect else []), (seed, s, sn.model, sn.heldout_nll)
@@ -70,6 +74,7 @@ def test_hidden_noise_term_is_named_with_its_value(seed: int) -> None:
             "bias_instability": "bias_instability",
             "bias_drift": "bias_drift",
             "gauss_markov_bias": "gauss_markov_sigma",
+            "rate_ramp": "rate_ramp",
         }[expect]
         assert abs(sn.model.terms[key] / value - 1) < 0.3, (sn.model.terms, value)
         assert sn.significance() >= 5.0
@@ -154,3 +159,18 @@ def test_one_white_noise_figure_in_allan_and_model_check(tmp_path: Path) -> None
         # the Allan curve's N and the PSD agree with it here (white noise), so no note
         assert entry["density_one_sided"] == pytest.approx(entry["white_noise_density"], rel=0.1)
         assert entry["white_noise_note"] is None
+
+
+def test_rate_ramp_is_named_and_written_to_the_extended_certificate() -> None:
+    """A steady bias drift (rate ramp R = 0.02 count/s on gz, 72 counts in 1 h) is the
+    noise term `rate_ramp`, in count/s, and the extended certificate carries it."""
+    cert = load_default()
+    r = simulate(cert, still(3600.0, rate_hz=RATE), seed=7, effects=Effects(rate_ramp={"gz": 0.02}))
+    res = model_check(r.samples, cert, seed=0)
+    named = [(e["name"], e["sensor"], e["unit"]) for e in res.report["effects"]]
+    assert named == [("rate_ramp", "gz", "count/s")]
+    assert res.report["effects"][0]["value"] == pytest.approx(0.02, rel=0.3)
+    ramp = res.extended.gyro.noise.rate_ramp
+    assert ramp is not None and ramp[:2].tolist() == [0.0, 0.0]
+    assert ramp[2] == pytest.approx(0.02, rel=0.3)
+    assert res.report["noise_model"]["sensors"]["gz"]["max_ratio_extended_certificate"] <= 1.5

@@ -71,7 +71,7 @@ from .summaries import DEFAULT_BLOCK_SIZE, BlockSource, Session, block_source, c
 
 FORMAT = "imudiag-model-check/1"
 ALL_SENSORS = SENSORS["gyro"] + SENSORS["accel"]
-CATALOGUE = ("bias_drift", "bias_instability", "gauss_markov_bias", "temperature_bias",
+CATALOGUE = ("bias_drift", "bias_instability", "gauss_markov_bias", "rate_ramp", "temperature_bias",
              "temperature_scale", "g_sensitivity", "scale_nonlinearity", "bias_step",
              "periodic_disturbance")
 
@@ -614,6 +614,9 @@ def _noise_effects(effects: list[Effect], fits: dict[str, SensorNoise],
             elif name == "bias_drift":
                 out.append(Effect("bias_drift", triad, s, terms["bias_drift"], f"{u}/sqrt(s)",
                                   z, heldout=f.gain_nats, extra=dict(common)))
+            elif name == "rate_ramp":
+                out.append(Effect("rate_ramp", triad, s, terms["rate_ramp"], f"{u}/s", z,
+                                  heldout=f.gain_nats, extra=dict(common)))
             elif name == "gauss_markov":
                 out.append(Effect("gauss_markov_bias", triad, s, terms["gauss_markov_sigma"], u,
                                   z, heldout=f.gain_nats,
@@ -638,6 +641,8 @@ def _write_noise_model(cert: Certificate, fits: dict[str, SensorNoise]) -> None:
         tri.noise.bias_random_walk = np.array([t.get("bias_drift", 0.0) for t in terms])
         b = np.array([t.get("bias_instability", 0.0) for t in terms])
         tri.noise.bias_instability = b if np.any(b) else None
+        r = np.array([t.get("rate_ramp", 0.0) for t in terms])
+        tri.noise.rate_ramp = r if np.any(r) else None
         gs = np.array([t.get("gauss_markov_sigma", 0.0) for t in terms])
         if np.any(gs):
             tri.noise.gauss_markov_sigma = gs

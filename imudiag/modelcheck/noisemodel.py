@@ -5,6 +5,7 @@ Candidate models (every one has white noise N; u = output units):
 - ``white``: N only;
 - ``bias_instability``: N + flicker floor B (u);
 - ``bias_drift``: N + rate random walk K (u/sqrt(s));
+- ``rate_ramp``: N + rate ramp R (u/s; a steady drift of the bias, e.g. warming up);
 - ``bias_instability+bias_drift``: N + B + K;
 - ``gauss_markov``: N + first-order Gauss-Markov bias (sigma u, correlation time T s).
 
@@ -35,6 +36,7 @@ CANDIDATES: dict[str, tuple[str, ...]] = {
     "bias_instability": ("bias_instability",),
     "bias_drift": ("bias_drift",),
     "gauss_markov": ("gauss_markov_sigma", "gauss_markov_time"),
+    "rate_ramp": ("rate_ramp",),
     "bias_instability+bias_drift": ("bias_instability", "bias_drift"),
 }
 TAU_MIN_S = 0.1  #: s, shortest cluster time compared
@@ -64,6 +66,7 @@ def _variance(terms: dict[str, float], tau: np.ndarray) -> np.ndarray:
     var = terms.get("density", 0.0) ** 2 / 2.0 / tau
     var = var + (FLICKER_FACTOR * terms.get("bias_instability", 0.0)) ** 2
     var = var + terms.get("bias_drift", 0.0) ** 2 * tau / 3.0
+    var = var + terms.get("rate_ramp", 0.0) ** 2 * tau**2 / 2.0
     if terms.get("gauss_markov_sigma"):
         var = var + terms["gauss_markov_sigma"] ** 2 * markov_allan_shape(
             tau / terms["gauss_markov_time"]
@@ -92,6 +95,9 @@ def fit(name: str, allan: AllanResult, sel: np.ndarray) -> NoiseFit:
     if "bias_drift" in extra:
         cols.append(tau / 3.0)
         keys.append("bias_drift")
+    if "rate_ramp" in extra:
+        cols.append(tau**2 / 2.0)
+        keys.append("rate_ramp")
     if name != "gauss_markov":
         a = np.stack(cols, 1)
         coef = _nnls_small(a * w[:, None], var * w)
@@ -181,7 +187,7 @@ def select(y: np.ndarray, rate_hz: float, z_min: float = 5.0) -> SensorNoise:
     if chosen != "white" and scores["white"] - scores[chosen] < per_term * _extra(chosen):
         chosen = "white"  # not confirmed on held-out data
     model = fits[chosen]
-    named = [t for t in ("bias_instability", "bias_drift") if t in CANDIDATES[chosen]]
+    named = [t for t in ("bias_instability", "bias_drift", "rate_ramp") if t in CANDIDATES[chosen]]
     if chosen == "gauss_markov":
         named = ["gauss_markov"]
     return SensorNoise(
@@ -219,6 +225,7 @@ UNITS = {
     "density": "u/sqrt(Hz) (one-sided white noise)",
     "bias_instability": "u (flicker floor B: Allan deviation 0.664 B)",
     "bias_drift": "u/sqrt(s) (rate random walk K, the certificate's bias_random_walk)",
+    "rate_ramp": "u/s (rate ramp R, the certificate's rate_ramp)",
     "gauss_markov_sigma": "u",
     "gauss_markov_time": "s",
 }
