@@ -146,6 +146,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"WARNING: {result.certificate.device['warning']}", file=sys.stderr)
     elif check.get("reason"):
         print(f"  note: generalisation {check['reason']}", file=out)
+    for r in result.rejected():
+        what = f"rejected {r['point']}" if r.get("point") else "outliers left in"
+        print(f"  {what} ({r['triad']} fit): {r['reason']}", file=out)
     for u in result.undetermined:
         print(f"  undetermined (kept from --like) {u['triad']} {u['sensor']} {u['cause']}: "
               f"{u['reason']}", file=out)

@@ -46,8 +46,14 @@ from .gyro_fit import (
 )
 from .intervals import QuasiStaticInterval
 from .params import TriadFit, certificate_vector, limit_vector, sensor_of
-from .scalar_fit import NormalEquations, exact_fit, linear_fit, normal_equation_fit
-from .window import count_rotations, distinct_attitudes, rotation_pairs
+from .scalar_fit import (
+    NormalEquations,
+    exact_fit,
+    linear_fit,
+    normal_equation_fit,
+    robust_exact_fit,
+)
+from .window import count_rotations, distinct_attitudes, interval_labels, rotation_pairs
 
 #: Prior standard deviation (in limits) of the calibration fits: practically none.
 CALIBRATION_PRIOR = 1e4
@@ -163,8 +169,19 @@ class CalibrationResult:
             "accel": self.accel.to_json(),
             "gyro": self.gyro.to_json(),
             "undetermined": self.undetermined,
+            "rejected": self.rejected(),
             "generalisation": self.generalisation,
         }
+
+    def rejected(self) -> list[dict]:
+        """Intervals (or motions) the fits rejected as outliers, with the triad and why."""
+        out = []
+        for fit in (self.accel, self.gyro):
+            for r in fit.extra.get("rejected", []):
+                out.append(dict(r, triad=fit.triad))
+            if fit.extra.get("outliers"):
+                out.append({"triad": fit.triad, "point": None, "reason": fit.extra["outliers"]})
+        return out
 
 
 def fields_from_n(n: np.ndarray, scale_factor: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
@@ -250,6 +267,7 @@ def calibrate(
     mvar = np.array([iv.mean_var("accel") for iv in intervals])
     covs = np.array([iv.accel_cov for iv in intervals])
     counts = np.array([iv.n for iv in intervals], dtype=float)
+    labels = interval_labels(intervals)
 
     # -- accelerometers
     if method == "moving-base":
@@ -264,14 +282,21 @@ def calibrate(
         acc_fit, acc_prior = _pinned_fit(
             lambda pf, probe: exact_fit(
                 acc_like, means, mvar, g_in, prior_factor=pf, determined_std_ratio=ratio,
-                max_iter=0 if probe else 100, start="certificate" if probe else "linear",
-                scale_by_residual=not probe,
+                max_iter=0, start="certificate", scale_by_residual=False,
+            )
+            if probe
+            else robust_exact_fit(
+                acc_like, means, mvar, g_in, labels=labels, min_dof=CALIBRATION_MIN_DOF,
+                prior_factor=pf, determined_std_ratio=ratio, max_iter=100,
             ),
             CALIBRATION_MIN_DOF,
         )
     generalisation = None
     if method == "exact":
-        generalisation = _leave_one_out(acc_like, means, mvar, g_in, acc_fit, acc_prior, ratio)
+        kept = acc_fit.kept if acc_fit.kept is not None else np.ones(len(means), dtype=bool)
+        generalisation = _leave_one_out(
+            acc_like, means[kept], mvar[kept], g_in, acc_fit, acc_prior, ratio
+        )
     new = like.copy()
     new.sample_rate = rate
     acc = new.accel
@@ -313,8 +338,14 @@ def calibrate(
             gyr_fit, _ = _pinned_fit(
                 lambda pf, probe: exact_fit(
                     gyr_like, gmeans, gmvar, w_in, prior_factor=pf, determined_std_ratio=ratio,
-                    max_iter=0 if probe else 100, method="exact-earth-rate",
-                    start="certificate" if probe else "linear", scale_by_residual=not probe,
+                    max_iter=0, method="exact-earth-rate", start="certificate",
+                    scale_by_residual=False,
+                )
+                if probe
+                else robust_exact_fit(
+                    gyr_like, gmeans, gmvar, w_in, labels=labels, min_dof=CALIBRATION_MIN_DOF,
+                    prior_factor=pf, determined_std_ratio=ratio, max_iter=100,
+                    method="exact-earth-rate",
                 ),
                 CALIBRATION_MIN_DOF,
             )

@@ -26,6 +26,7 @@ import numpy as np
 from ..certificate import Certificate, TriadModel
 from .gauge import p_matrix, shape_of_triad
 from .params import limit_vector
+from .robust import point_diagnostics
 
 #: Floor of the direction residual (rad): integration and modelling resolution.
 DIRECTION_FLOOR = 1e-4
@@ -180,6 +181,8 @@ class RotationFitResult:
     max_angle_deg: float  #: largest rotation among the pairs
     dof: float = float("nan")  #: effective degrees of freedom
     frame_cov: np.ndarray | None = None  #: (3, 3) covariance of ``frame``, rad^2 (fit_frame only)
+    #: (pairs, 6) ``deviation`` with each motion left out (NaN where it alone carries one)
+    loo_deviation: np.ndarray | None = None
 
 
 def _block_increments(inc: np.ndarray, block_rad: float) -> np.ndarray:
@@ -324,6 +327,11 @@ def rotation_fit(
     chi2 = float(np.sum(res * res * wgt))
     # two observations per motion (a direction), less the parameters the data determine
     dof = 2 * len(pairs) - float(np.trace(cov @ info))
+    loo = None
+    if pairs and max_iter > 0:
+        groups = [np.arange(3 * i, 3 * i + 3) for i in range(len(pairs))]
+        diag = point_diagnostics(-jac, res, 1.0 / wgt, cov, groups=groups, weights=wgt)
+        loo = x[None, :6] + diag.shift[:, :6]
     if dof > 0.5 and scale_by_residual:
         cov = cov * max(1.0, chi2 / dof)
     ang = [
@@ -339,6 +347,7 @@ def rotation_fit(
         max_angle_deg=max(ang) if ang else 0.0,
         dof=dof,
         frame_cov=cov[6:9, 6:9] if fit_frame else None,
+        loo_deviation=loo,
     )
 
 

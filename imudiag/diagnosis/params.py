@@ -74,6 +74,18 @@ class TriadFit:
     extra: dict = field(default_factory=dict)
     judged: np.ndarray = field(default_factory=lambda: np.ones(9, dtype=bool))
     dof: float = float("nan")  #: effective degrees of freedom of the fit (observations - params)
+    #: (G, 9) estimate minus certificate with each point (interval or motion) of the fit left
+    #: out, certificate units (NaN where that point alone carries the parameter); None when the
+    #: fit does not compute it (:mod:`.robust`)
+    loo_deviation: np.ndarray | None = None
+    #: (G,) robustly standardised deletion residual of each point, sigma (:mod:`.robust`)
+    point_z: np.ndarray | None = None
+    #: (K,) which of the points given to the fit it kept (outliers rejected: False)
+    kept: np.ndarray | None = None
+    #: scatter of the fit beyond its points' noise (normalised residual variance, 0: none)
+    excess_var: float = 0.0
+    #: names of the points behind ``loo_deviation`` rows, for reports
+    point_labels: list[str] | None = None
 
     def require_redundancy(self, dof: float, min_dof: float, idx: range, what: str) -> None:
         """Mark parameters ``idx`` unjudged when the fit's effective dof is below ``min_dof``."""

@@ -17,16 +17,78 @@ import numpy as np
 from .params import CAUSES, TriadFit, sensor_of
 
 
+def _beyond(dev: np.ndarray, fit: TriadFit, k_sigma: float) -> np.ndarray:
+    with np.errstate(invalid="ignore"):
+        return (np.abs(dev) > fit.limit) & (np.abs(dev) > k_sigma * fit.std)
+
+
 def candidates(fit: TriadFit, k_sigma: float) -> np.ndarray:
-    """Signs (9,) of the parameters beyond their limit and k_sigma std (0 where not)."""
+    """Signs (9,) of the parameters beyond their limit and k_sigma std (0 where not).
+
+    A candidate must be well determined (``fit.determined``: its std at most the
+    configured fraction of its limit), judged (the fit had redundancy), and
+    stable: still beyond, with the same sign, with any single point of the fit
+    left out (``fit.loo_deviation``, :mod:`.robust`), so one interval or motion
+    cannot make a fault.
+    """
     dev = fit.deviation
     beyond = (
-        (np.abs(dev) > fit.limit)
-        & (np.abs(dev) > k_sigma * fit.std)
+        _beyond(dev, fit, k_sigma)
         & np.isfinite(fit.std)
         & fit.judged
+        & fit.determined
+        & stable(fit, k_sigma)
     )
     return np.where(beyond, np.sign(dev), 0.0)
+
+
+def _stable_rows(fit: TriadFit, k_sigma: float) -> np.ndarray:
+    """(G, 9) bool: with point g left out, parameter i is still beyond, with its sign.
+
+    A point the parameter cannot be seen without (NaN: an essential point, such as
+    the only hold with an axis down) cannot be contradicted by the others: it
+    counts as stable."""
+    loo = fit.loo_deviation
+    assert loo is not None
+    sign = np.sign(fit.deviation)
+    with np.errstate(invalid="ignore"):
+        ok = _beyond(loo, fit, k_sigma) & (np.sign(loo) == sign[None, :])
+    return ok | ~np.isfinite(loo)
+
+
+def stable(fit: TriadFit, k_sigma: float) -> np.ndarray:
+    """(9,) bool: no single point of the fit, left out, brings the parameter back within
+    its limit or k_sigma std, or flips its sign (True where the fit gives no such figure)."""
+    if fit.loo_deviation is None or fit.loo_deviation.shape[0] == 0:
+        return np.ones(9, dtype=bool)
+    return np.all(_stable_rows(fit, k_sigma), axis=0)
+
+
+def held_back(fit: TriadFit, k_sigma: float, labels: list[str]) -> list[dict]:
+    """Parameters that would be fault candidates but for one point (the first such point):
+    ``sensor``, ``cause``, ``estimate``, the estimate without that ``point`` and the
+    reason."""
+    dev = fit.deviation
+    loo = fit.loo_deviation
+    if loo is None or loo.shape[0] == 0:
+        return []
+    would = _beyond(dev, fit, k_sigma) & np.isfinite(fit.std) & fit.judged & fit.determined
+    rows = _stable_rows(fit, k_sigma)
+    out = []
+    for i in np.flatnonzero(would & ~np.all(rows, axis=0)):
+        g = int(np.flatnonzero(~rows[:, i])[0])
+        out.append(
+            {
+                "sensor": sensor_of(fit.triad, int(i)),
+                "cause": CAUSES[int(i)],
+                "estimate": float(fit.estimate[i]),
+                "without_point": float(fit.certificate[i] + loo[g, i]),
+                "point": labels[g] if g < len(labels) else f"point {g}",
+                "reason": "not a fault candidate: one point makes it (left out, the "
+                "estimate is within its limit or its noise, or changes sign)",
+            }
+        )
+    return out
 
 
 @dataclass
@@ -72,9 +134,7 @@ class PredicateTracker:
                         st.fault = dict(entry, t_first=st.t_first, t_last=t)
                         self.raised.append(st.fault)
                     elif st.fault is not None:
-                        st.fault.update(
-                            estimate=entry["estimate"], std=entry["std"], t_last=t
-                        )
+                        st.fault.update(estimate=entry["estimate"], std=entry["std"], t_last=t)
             elif informative:
                 st.streak = 0
                 if st.active:
@@ -100,9 +160,7 @@ class PredicateTracker:
     def active(self) -> list[dict]:
         """Faults active now (reports.md ``faults`` entries plus ``std`` and ``t_last``)."""
         return [
-            _public(st.fault)
-            for st in self._state.values()
-            if st.active and st.fault is not None
+            _public(st.fault) for st in self._state.values() if st.active and st.fault is not None
         ]
 
     def all_raised(self) -> list[dict]:
@@ -111,9 +169,18 @@ class PredicateTracker:
 
 
 def _public(f: dict) -> dict:
-    keys = ("triad", "sensor", "cause", "estimate", "certificate", "limit", "t_first",
-            "t_last", "std")
+    keys = (
+        "triad",
+        "sensor",
+        "cause",
+        "estimate",
+        "certificate",
+        "limit",
+        "t_first",
+        "t_last",
+        "std",
+    )
     return {k: f[k] for k in keys if k in f}
 
 
-__all__ = ["PredicateTracker", "candidates"]
+__all__ = ["PredicateTracker", "candidates", "held_back", "stable"]

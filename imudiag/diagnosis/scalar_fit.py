@@ -22,11 +22,14 @@ of the symmetric part P of N (see :mod:`.gauge`).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from ..certificate import TriadModel
 from .gauge import p_matrix, shape_of_triad
 from .params import TriadFit, certificate_vector, internal_scale, limit_vector
+from .robust import point_diagnostics, reject_outliers
 
 #: Floor of the standard deviation of a normalised residual (model resolution).
 RESIDUAL_FLOOR = 1e-7
@@ -160,6 +163,7 @@ def exact_fit(
     method: str = "exact",
     start: np.ndarray | str = "linear",
     scale_by_residual: bool = True,
+    predict: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> TriadFit:
     """Fit B, E, d of ``triad`` to interval means on the exact scalar model.
 
@@ -172,6 +176,9 @@ def exact_fit(
     ``start="certificate"`` gives the covariance of the linearisation at the
     certificate (what the data can determine, whatever the estimate), best
     with ``scale_by_residual=False`` (no chi^2 / dof inflation of the covariance).
+    ``predict``: (means (J, 3), variances (J, 3), magnitudes (J,)) of points not
+    in the fit; their prediction errors in sigma (their noise, the fit's excess
+    scatter and its parameter uncertainty) go to ``fit.extra["predicted_z"]``.
     """
     means = np.asarray(means, dtype=float).reshape(-1, 3)
     k = means.shape[0]
@@ -245,6 +252,8 @@ def exact_fit(
         info = jac.T @ (jac * wgt[:, None])
         hess = info + np.diag(prior_prec)
         cov = np.linalg.pinv(hess)
+        cov_unscaled = cov
+        extra_used = extra
         chi2 = float(np.sum(r * r * wgt))
         dof = k - float(np.trace(cov @ info))
         if not scale_by_residual or dof < 1.0 or chi2 <= 1.5 * dof:
@@ -266,6 +275,69 @@ def exact_fit(
         _scaled_condition(info, lim), k, rms,
     )
     fit.dof = dof
+    fit.excess_var = float(extra_used)
+    if k and max_iter > 0:
+        diag = point_diagnostics(jac, r, sig2 - extra_used, cov_unscaled, weights=wgt)
+        scale = internal_scale(triad, m0)
+        loo = (theta - theta_c)[None, :] + diag.shift
+        fit.loo_deviation = np.where(null[None, :], 0.0, loo * scale[None, :])
+        fit.point_z = diag.z
+    if predict is not None:
+        # the scatter of the points about this fit, measured robustly (the median, so
+        # other outliers still in cannot mask the probed one by inflating it)
+        noise = sig2 - extra_used
+        e_rob = diag.excess_var if k and max_iter > 0 else extra_used
+        w_rob = 1.0 / (noise + e_rob)
+        cov_rob = np.linalg.pinv(jac.T @ (jac * w_rob[:, None]) + np.diag(prior_prec))
+        pm, pv, pmag = (np.asarray(x, dtype=float) for x in predict)
+        rp, jp, wp = _residuals_and_jacobian(
+            theta, pm.reshape(-1, 3) / (s * m0), np.atleast_1d(pmag) / m0
+        )
+        nvp = np.einsum("kj,kj->k", wp * wp, pv.reshape(-1, 3) / (s * m0) ** 2)
+        parvar = np.maximum(np.einsum("ki,ij,kj->k", jp, cov_rob, jp), 0.0)
+        total = nvp + RESIDUAL_FLOOR**2 + e_rob + parvar
+        fit.extra["predicted_z"] = [float(x) for x in np.abs(rp) / np.sqrt(total)]
+    return fit
+
+
+def robust_exact_fit(
+    triad: TriadModel,
+    means: np.ndarray,
+    mean_var: np.ndarray,
+    magnitude: float | np.ndarray,
+    labels: list[str] | None = None,
+    min_dof: float = 3.0,
+    **kwargs: Any,
+) -> TriadFit:
+    """:func:`exact_fit` with outlier points rejected (:func:`.robust.reject_outliers`).
+
+    Same arguments as :func:`exact_fit` plus ``labels`` (one per mean, for the
+    report) and ``min_dof`` (the redundancy a rejection must leave). The fit's
+    ``extra`` lists what was rejected and why (``rejected``) and, when outliers
+    were too many to reject, says so (``outliers``); ``kept`` is the mask of the
+    means it used.
+    """
+    means = np.asarray(means, dtype=float).reshape(-1, 3)
+    var = np.asarray(mean_var, dtype=float).reshape(-1, 3)
+    k = means.shape[0]
+    mag = np.broadcast_to(np.asarray(magnitude, dtype=float), (k,))
+    names = labels if labels is not None else [f"point {i}" for i in range(k)]
+
+    def once(
+        keep: np.ndarray, probe: int | None
+    ) -> tuple[TriadFit, np.ndarray | None, float, float]:
+        pr = None if probe is None else (means[probe], var[probe], mag[probe : probe + 1])
+        f = exact_fit(triad, means[keep], var[keep], mag[keep], predict=pr, **kwargs)
+        zp = f.extra.pop("predicted_z", [float("nan")])[0]
+        return f, f.point_z, f.dof, zp
+
+    fit, keep, rejected, note = reject_outliers(once, k, names, min_dof)
+    fit.kept = keep
+    fit.point_labels = [x for x, kept in zip(names, keep, strict=True) if kept]
+    if rejected:
+        fit.extra["rejected"] = rejected
+    if note:
+        fit.extra["outliers"] = note
     return fit
 
 
@@ -504,6 +576,7 @@ def linear_fit(
 
 __all__ = [
     "exact_fit",
+    "robust_exact_fit",
     "linear_fit",
     "NormalEquations",
     "samples_normal_equations",

@@ -29,6 +29,7 @@ from .gyro_fit import (
 )
 from .intervals import QuasiStaticInterval
 from .params import TriadFit, certificate_vector, limit_vector
+from .predicates import held_back
 from .scalar_fit import exact_fit, linear_fit
 
 
@@ -105,6 +106,16 @@ def model_with(triad: TriadModel, estimate: np.ndarray) -> TriadModel:
     return out
 
 
+def interval_labels(intervals: list[QuasiStaticInterval]) -> list[str]:
+    """How reports name each interval: running number and time span (s)."""
+    return [f"interval {iv.index} ({iv.t_start:.2f}-{iv.t_end:.2f} s)" for iv in intervals]
+
+
+def motion_labels(pairs: list[RotationPair]) -> list[str]:
+    """How reports name each motion of the rotation fit: its time span (s)."""
+    return [f"motion {p.t[0]:.2f}-{p.t[-1]:.2f} s" for p in pairs]
+
+
 def _stack(intervals: list[QuasiStaticInterval], triad: str) -> tuple[np.ndarray, ...]:
     means = np.array([iv.mean(triad) for iv in intervals])
     mvar = np.array([iv.mean_var(triad) for iv in intervals])
@@ -140,10 +151,15 @@ def accel_window_fit(
         fit = linear_fit(tri, means, covs, counts, g_in, config.determined_std_ratio,
                          config.prior_factor)
     else:
+        # no outlier rejection in a sliding window: a unit that changed inside it makes
+        # the older intervals disagree with the newer ones, and dropping some of them
+        # leaves a mixture that names the wrong parameter; a single interval is kept from
+        # making a fault by the influence rule of the predicates instead
         fit = exact_fit(
             tri, means, mvar, g_in, prior_factor=config.prior_factor,
             determined_std_ratio=config.determined_std_ratio,
         )
+        fit.point_labels = interval_labels(intervals)
     if method != "linear":
         fit.require_redundancy(fit.dof, config.min_dof, range(9), f"{len(intervals)} intervals")
     _with_reason(
@@ -252,6 +268,7 @@ def gyro_window_fit(
             tri, means, mvar, w_in, prior_factor=config.prior_factor,
             determined_std_ratio=config.determined_std_ratio, method="exact-earth-rate",
         )
+        fit.point_labels = interval_labels(intervals)
         fit.require_redundancy(fit.dof, config.min_dof, range(9), f"{len(intervals)} intervals")
         _with_reason(
             fit, range(9),
@@ -272,6 +289,7 @@ def gyro_window_fit(
     rms = float("nan")
     extra: dict = {}
     rot_dof = float("nan")
+    loo_rows = None
     if rotations:
         sample_var = np.mean([np.diag(iv.gyro_cov) for iv in intervals], axis=0)
         rot = rotation_fit(
@@ -288,6 +306,11 @@ def gyro_window_fit(
         rms = rot.rms
         rot_dof = rot.dof
         extra = {"rotation_rms_rad": rot.rms, "frame_rad": [float(v) for v in rot.frame]}
+        if rot.loo_deviation is not None:
+            # each motion left out: the shape moves, the rest biases do not
+            loo = np.tile(est - cert_vec, (len(pairs), 1))
+            loo[:, 3:] = rot.loo_deviation * scale
+            loo_rows = loo
     determined = std <= config.determined_std_ratio * limit
     reasons = []
     for i in range(9):
@@ -318,6 +341,8 @@ def gyro_window_fit(
         rms_residual=rms,
         extra=extra,
         dof=rot_dof,
+        loo_deviation=loo_rows,
+        point_labels=motion_labels(pairs) if loo_rows is not None else None,
     )
     if rotations:
         fit.require_redundancy(rot_dof, config.min_dof, range(3, 9), f"{len(pairs)} motions")
@@ -340,6 +365,10 @@ def diagnose_window(
     acc = accel_window_fit(cert, intervals, config, method, attitudes)
     accel_model = model_with(cert.accel, acc.estimate)
     gyr, rotations = gyro_window_fit(cert, intervals, config, method, accel_model, attitudes)
+    for fit in (acc, gyr):
+        hb = held_back(fit, config.k_sigma, fit.point_labels or [])
+        if hb:
+            fit.extra["held_back"] = hb
     return WindowResult(
         index=index,
         t_start=intervals[0].t_start,

@@ -1,0 +1,215 @@
+"""What one interval (or one motion) does to a fit: outlier rejection and influence.
+
+Two questions are asked of every weighted least-squares fit of the diagnosis,
+both from the converged fit alone (no refits, exact for a linear model):
+
+- *Is a point an outlier?* Its deletion residual, the residual it would have
+  against the fit to all the others, standardised by the noise of the point
+  and a common excess scatter estimated robustly (the median of the squared
+  standardised residuals, so one gross outlier cannot hide itself by inflating
+  the scale the way the chi^2 / dof scale would). A bump during a hold, a
+  stopped turntable plateau or a clipped turn stands out at many sigma;
+  :func:`reject_outliers` checks the worst such point against the fit to the
+  others and drops it when it is beyond :data:`REJECT_SIGMA` there, and
+  repeats, within a budget (:data:`MAX_REJECT_FRACTION` of the
+  points, and never below the redundancy the fit needs), and lists what it
+  rejected and why.
+- *Does one point make a fault?* The parameter change its removal would cause
+  (the deletion formula of regression diagnostics, the group form for the
+  three residuals of a motion): a fault candidate must stay a candidate with
+  any single point left out (:func:`imudiag.diagnosis.predicates.candidates`).
+
+For a fit with residuals ``r`` (n,), Jacobian ``J = dr/dtheta`` (n, p),
+weights ``w`` (n,) and the unscaled posterior covariance ``C`` (the inverse of
+J^T W J plus the prior precision), leaving out the rows ``g`` of one point
+moves the estimate by ``C A^T (I - H)^-1 s`` with ``A = W_g^1/2 J_g``,
+``s = W_g^1/2 r_g`` and ``H = A C A^T`` (its leverage); that is a Newton step
+from the optimum of the full fit, exact when the model is linear near it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import TypeVar
+
+import numpy as np
+
+T = TypeVar("T")
+
+#: A point whose prediction error from the fit to the others exceeds this (sigma) is rejected.
+REJECT_SIGMA = 5.0
+#: A point whose deletion figure in the fit to all points exceeds this (sigma) is checked.
+SCREEN_SIGMA = 3.0
+#: Points checked per round: the ones with the largest deletion figures (when the fit
+#: scatters more than its noise, these are checked even below SCREEN_SIGMA: an outlier
+#: pulls the fit to all points towards itself and inflates the scale, so the screening
+#: figure understates it).
+PROBES = 3
+#: At most this fraction of a fit's points is rejected; more outliers than that is not a
+#: few bad points but a model that does not fit, and is reported as such.
+MAX_REJECT_FRACTION = 0.25
+#: Leverage above which a point is the only evidence for some direction: it cannot be
+#: judged an outlier (nothing predicts it), and a fault resting on it is not stable.
+MAX_LEVERAGE = 0.99
+#: Median of a chi^2 variable with one degree of freedom.
+_CHI2_1_MEDIAN = 0.454936423119572
+
+
+@dataclass
+class PointDiagnostics:
+    """Per-point figures of a converged fit (internal parameter units)."""
+
+    z: np.ndarray  #: (G,) robustly standardised deletion residuals, sigma (NaN: cannot judge)
+    leverage: np.ndarray  #: (G,) largest eigenvalue of the point's hat block, 0..1
+    shift: np.ndarray  #: (G, p) parameter change when the point is left out (NaN: unseen)
+    excess_var: float  #: robust common excess variance added to every residual
+
+
+def point_diagnostics(
+    jac: np.ndarray,
+    r: np.ndarray,
+    noise_var: np.ndarray,
+    cov: np.ndarray,
+    groups: Sequence[np.ndarray] | None = None,
+    weights: np.ndarray | None = None,
+) -> PointDiagnostics:
+    """Deletion residuals, leverages and parameter shifts of every point of a fit.
+
+    ``jac`` (n, p) = dr/dtheta, ``r`` (n,) residuals, ``noise_var`` (n,) the
+    variance of each residual from the data's noise alone, ``cov`` (p, p) the
+    unscaled posterior covariance the fit was solved with, ``weights`` (n,) the
+    weights it used (default ``1 / noise_var``). ``groups``: the rows of each
+    point (default one row each).
+    """
+    n = r.shape[0]
+    w = 1.0 / noise_var if weights is None else weights
+    if groups is None:
+        groups = [np.array([i]) for i in range(n)]
+    g_count = len(groups)
+    p = cov.shape[0]
+    shift = np.full((g_count, p), np.nan)
+    lev = np.ones(g_count)
+    u = np.full(g_count, np.nan)  # squared deletion residual in units of the noise
+    m_rows = np.array([len(g) for g in groups], dtype=float)
+    nv_mean = np.ones(g_count)
+    for k, rows in enumerate(groups):
+        sw = np.sqrt(w[rows])
+        a = jac[rows] * sw[:, None]
+        h = a @ cov @ a.T
+        h = 0.5 * (h + h.T)
+        ev = np.linalg.eigvalsh(h)
+        lev[k] = float(np.clip(ev[-1], 0.0, 1.0))
+        if lev[k] > MAX_LEVERAGE:
+            continue
+        s = sw * r[rows]
+        m = np.eye(len(rows)) - h
+        sol = np.linalg.solve(m, s)
+        shift[k] = cov @ a.T @ sol
+        # squared standardised deletion residual s^T (I - H)^-1 s, in weight units,
+        # rescaled to the noise-only variance
+        u[k] = float(s @ sol) / float(np.mean(noise_var[rows] * w[rows]))
+        nv_mean[k] = float(np.mean(noise_var[rows]))
+    excess = _robust_excess(u, nv_mean, m_rows)
+    z = np.sqrt(u / (m_rows * (1.0 + excess / nv_mean)))
+    return PointDiagnostics(z=z, leverage=lev, shift=shift, excess_var=excess)
+
+
+def _robust_excess(u: np.ndarray, nv: np.ndarray, m: np.ndarray) -> float:
+    """Common excess variance e making the median of u / (m (1 + e / nv)) the chi^2_1 median."""
+    ok = np.isfinite(u)
+    if ok.sum() < 3:
+        return 0.0
+    u, nv, m = u[ok], nv[ok], m[ok]
+
+    def med(e: float) -> float:
+        return float(np.median(u / (m * (1.0 + e / nv))))
+
+    if med(0.0) <= _CHI2_1_MEDIAN:
+        return 0.0
+    lo, hi = 0.0, float(np.max(u / m * nv)) + 1e-300
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        if med(mid) > _CHI2_1_MEDIAN:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def reject_outliers(
+    fit_once: Callable[[np.ndarray, int | None], tuple[T, np.ndarray | None, float, float]],
+    count: int,
+    labels: Sequence[str],
+    min_dof: float = 3.0,
+) -> tuple[T, np.ndarray, list[dict], str]:
+    """Fit; while a point looks off, confirm it against the fit to the others and drop it.
+
+    ``fit_once(keep, probe)`` fits the points where the boolean mask ``keep``
+    (count,) is true and returns the fit, the screening figures of the kept
+    points (:attr:`PointDiagnostics.z`; None when it cannot judge them), its
+    effective degrees of freedom and, when ``probe`` is a point index, that
+    point's prediction error in sigma against this fit (its noise, the common
+    excess scatter and the fit's own uncertainty). A point is screened when its
+    deletion figure exceeds :data:`SCREEN_SIGMA`, or is among the :data:`PROBES`
+    largest when the fit scatters more than its noise (``fit.excess_var > 0``),
+    and rejected when its prediction error from the others
+    exceeds :data:`REJECT_SIGMA`. A rejection never leaves fewer than ``min_dof``
+    degrees of freedom nor drops more than :data:`MAX_REJECT_FRACTION` of the
+    points. Returns the last fit, the mask, the rejected points (label, sigma,
+    reason) and a note when confirmed outliers were left in, else "".
+    """
+    keep = np.ones(count, dtype=bool)
+    fit, z, dof, _ = fit_once(keep, None)
+    rejected: list[dict] = []
+    note = ""
+    budget = int(np.floor(MAX_REJECT_FRACTION * count))
+    while z is not None and z.size and dof - 1.0 >= min_dof:
+        zz = np.where(np.isfinite(z), z, -np.inf)
+        order = [int(j) for j in np.argsort(-zz)[:PROBES] if np.isfinite(zz[j])]
+        if not order:
+            break
+        scatter = bool(getattr(fit, "excess_var", 0.0) > 0.0)
+        if not scatter:
+            order = [j for j in order if zz[j] > SCREEN_SIGMA]
+        best = None
+        for j in order:
+            i = int(np.flatnonzero(keep)[j])
+            trial_keep = keep.copy()
+            trial_keep[i] = False
+            trial = fit_once(trial_keep, i)
+            if trial[3] > REJECT_SIGMA and (best is None or trial[3] > best[1][3]):
+                best = (i, trial, trial_keep)
+        if best is None:
+            break
+        i, (trial, tz, tdof, zp), trial_keep = best
+        if len(rejected) + 1 > budget:
+            note = (
+                f"{labels[i]} is {zp:.1f} sigma off the fit to the others after "
+                f"{len(rejected)} rejected and is left in: more outliers than "
+                f"{MAX_REJECT_FRACTION:.0%} of the points is not a few bad points but a model "
+                "that does not fit these data"
+            )
+            break
+        rejected.append(
+            {
+                "point": labels[i],
+                "sigma": round(float(zp), 2),
+                "reason": f"{float(zp):.1f} sigma off the fit to the others (beyond "
+                f"{REJECT_SIGMA:g}): a bump in the hold, a wrong reference magnitude, "
+                "a clipped or interrupted motion",
+            }
+        )
+        keep, fit, z, dof = trial_keep, trial, tz, tdof
+    return fit, keep, rejected, note
+
+
+__all__ = [
+    "MAX_LEVERAGE",
+    "MAX_REJECT_FRACTION",
+    "PointDiagnostics",
+    "REJECT_SIGMA",
+    "SCREEN_SIGMA",
+    "point_diagnostics",
+    "reject_outliers",
+]
