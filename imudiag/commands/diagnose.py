@@ -75,7 +75,8 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--block-size", type=int, default=65536, metavar="N",
                    help="samples per block read (default 65536)")
     p.add_argument("--min-interval", type=float, metavar="S",
-                   help="shortest still stretch used, s (default 1.0)")
+                   help="shortest still stretch used, s (default "
+                   f"{DiagnosisConfig().min_interval_s:g}; each is weighted by its noise)")
     add_noise_argument(p)
     add_log_options(p)  # after --rate, which it shares
 

@@ -22,7 +22,9 @@ class DiagnosisConfig:
     gyro_mode: str = "auto"  #: auto | earth-rate | rotation
     # quasi-static intervals
     detector_window_s: float = 0.5  #: s, trailing window of the static detector
-    min_interval_s: float = 1.0  #: s, shorter still runs are not used
+    #: s, shorter still runs are not used (holds of 0.5-1 s are common in hand sessions; each
+    #: interval is weighted by the noise of its mean, so a short one counts for less)
+    min_interval_s: float = 0.5
     max_interval_s: float = 30.0  #: s, longer still runs are split
     trim_s: float = 0.25  #: s, dropped at the end of each still run
     #: s, how far a motion's gyro integral reaches into the still intervals on both sides:

@@ -9,6 +9,8 @@ gyro samples of the motion between two consecutive intervals are kept (up to
 change of the measured gravity direction.
 
 Runs of static samples shorter than ``min_interval_s`` are treated as motion;
+each interval's mean is weighted by its noise (its sample variance, never below
+the unit's white noise, over the samples averaged), so short holds count less;
 the last ``trim_s`` of every run are dropped (the trailing detector window
 reacts to the start of a motion a few samples late); the gyro integral of a
 motion reaches ``motion_margin_s`` into the still intervals on both sides (a
@@ -28,6 +30,10 @@ import numpy as np
 from ..certificate import Certificate
 from ..quasistatic import BAD_FLAGS, QuasiStaticDetector
 from ..samples import SampleBlock
+from .config import DiagnosisConfig
+
+#: the diagnosis settings' defaults (one definition, :mod:`.config`)
+_DEFAULTS = DiagnosisConfig()
 
 # column layout of the buffered rows (_BAD: saturation / ADC-error flag of the sample)
 _T, _G, _A, _TEMP, _BAD = 0, slice(1, 4), slice(4, 7), 7, 8
@@ -69,6 +75,11 @@ class QuasiStaticInterval:
     temp: float | None = None  #: mean temperature, degC
     up: np.ndarray = field(default_factory=lambda: np.zeros(3))  #: unit specific force, body
     before: MotionSegment | None = None  #: the motion since the previous interval
+    #: (3,) per-sample white-noise variance of the unit (output units^2) when the interval
+    #: closed, from the still detector (measured from the data unless told to trust the
+    #: certificate); None when not known yet
+    gyro_noise_var: np.ndarray | None = None
+    accel_noise_var: np.ndarray | None = None
 
     @property
     def duration_s(self) -> float:
@@ -84,8 +95,14 @@ class QuasiStaticInterval:
         return self.gyro_cov if triad == "gyro" else self.accel_cov
 
     def mean_var(self, triad: str) -> np.ndarray:
-        """Variance of the mean (3,), output units^2 (white noise: sample variance / n)."""
-        return np.diag(self.cov(triad)) / max(self.n, 1)
+        """Variance of the mean (3,), output units^2: the sample variance over n, never below
+        the unit's white noise over n (a short interval's sample variance can be low by
+        chance, and would weigh it far above its worth)."""
+        var = np.diag(self.cov(triad))
+        floor = self.gyro_noise_var if triad == "gyro" else self.accel_noise_var
+        if floor is not None:
+            var = np.maximum(var, floor)
+        return var / max(self.n, 1)
 
     @property
     def roll_pitch_deg(self) -> tuple[float, float]:
@@ -120,12 +137,12 @@ class IntervalCollector:
         self,
         certificate: Certificate,
         rate_hz: float | None = None,
-        detector_window_s: float = 0.5,
-        min_interval_s: float = 1.0,
-        max_interval_s: float = 30.0,
-        trim_s: float = 0.25,
-        motion_margin_s: float = 0.75,
-        max_motion_s: float = 20.0,
+        detector_window_s: float = _DEFAULTS.detector_window_s,
+        min_interval_s: float = _DEFAULTS.min_interval_s,
+        max_interval_s: float = _DEFAULTS.max_interval_s,
+        trim_s: float = _DEFAULTS.trim_s,
+        motion_margin_s: float = _DEFAULTS.motion_margin_s,
+        max_motion_s: float = _DEFAULTS.max_motion_s,
         max_time_step_s: float | None = None,
         detector_options: dict | None = None,
     ) -> None:
@@ -179,6 +196,10 @@ class IntervalCollector:
         self._gap_usable = False
         self._gap_reason = "time gap in the samples"
 
+    def _noise_var(self, triad: str) -> np.ndarray | None:
+        sigma = self.detector.noise_sigma(triad)
+        return None if sigma is None else np.asarray(sigma, dtype=float) ** 2
+
     def _emit(self, rows: np.ndarray) -> QuasiStaticInterval:
         """Reduce static rows to an interval; the rows' first sample closes the motion."""
         g = rows[:, _G]
@@ -214,6 +235,8 @@ class IntervalCollector:
             temp=temp_mean,
             up=up,
             before=before,
+            gyro_noise_var=self._noise_var("gyro"),
+            accel_noise_var=self._noise_var("accel"),
         )
         self._count += 1
         self._have_interval = True
