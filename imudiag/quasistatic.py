@@ -114,8 +114,14 @@ class QuasiStaticDetector:
         bias_margin: float | None = 8.0,
         gyro_floor_si: float = math.radians(0.5),
         certificate_noise: bool = True,
+        triads: tuple[str, ...] = ("gyro", "accel"),
     ) -> None:
         self.certificate = certificate
+        #: the triads whose stillness is checked (``("gyro",)``: a gyro-only log on a
+        #: turntable, where "still" means a constant rate and the accelerometers are absent)
+        self.triads = tuple(triads)
+        if not self.triads or any(t not in ("gyro", "accel") for t in self.triads):
+            raise ValueError(f"triads must name gyro and/or accel, got {triads!r}")
         self.rate_hz = float(rate_hz if rate_hz else certificate.sample_rate)
         if self.rate_hz <= 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz!r}")
@@ -189,7 +195,9 @@ class QuasiStaticDetector:
         bad_new = np.zeros(n, dtype=bool)
         if block.flags is not None:
             bad_new = (np.asarray(block.flags).astype(np.int64) & BAD_FLAGS) != 0
-        bad_new |= ~np.all(np.isfinite(x_new), axis=1)
+        cols = np.concatenate([np.arange(3 * k, 3 * k + 3) for k, name in
+                               enumerate(("gyro", "accel")) if name in self.triads])
+        bad_new |= ~np.all(np.isfinite(x_new[:, cols]), axis=1)
         x_new = np.where(np.isfinite(x_new), x_new, 0.0)
         x = np.concatenate([self._tail, x_new])
         bad = np.concatenate([self._tail_bad, bad_new])
@@ -206,6 +214,8 @@ class QuasiStaticDetector:
                 self._update_noise_estimate(name, v[ok] if ok.any() else v[:0])
             ok = ok.copy()
             for k, name in enumerate(("gyro", "accel")):
+                if name not in self.triads:
+                    continue
                 sigma2 = self._noise_var[name]
                 if sigma2 is None:
                     ok[:] = False
@@ -213,7 +223,7 @@ class QuasiStaticDetector:
                 v = var[:, 3 * k : 3 * k + 3]
                 ref = np.maximum(sigma2, self._gyro_floor_var) if name == "gyro" else sigma2
                 ok &= np.sum(v / ref, axis=1) <= self.variance_ratio_limit
-                if name == "gyro" and self.bias_margin is not None:
+                if name == "gyro" and self.bias_margin is not None and "accel" in self.triads:
                     ok &= self._vertical_rate_ok(mean, sigma2)
             # row i of the window arrays ends at concat index i + w - 1
             first_end = w - 1

@@ -15,9 +15,10 @@ import argparse
 import sys
 
 from ..certificate import load
-from ..diagnosis.calibrate import calibrate
+from ..diagnosis.calibrate import calibrate, calibrate_known_rate
 from ..diagnosis.inputs import MagnitudeTable, check_units, log_rate_hz
 from ..diagnosis.intervals import IntervalCollector
+from ..diagnosis.known_rate import PLATEAU_DETECTOR
 from ..diagnosis.scalar_fit import NormalEquations, sample_rows
 from ..errors import BadInput
 from ..logs import open_log
@@ -56,7 +57,13 @@ def run(args: argparse.Namespace) -> int:
                        "(--magnitude FILE); the triad's own magnitude cannot calibrate it")
     if table is not None and cfg.method != "moving-base":
         raise BadInput("--magnitude: only the moving-base method uses independent magnitudes")
+    known = cfg.known_rate_rad_s
+    if known is not None and table is not None:
+        raise BadInput("--known-rate: only the exact method (no --magnitude) uses a known rate")
     certificate_noise, noise_report = noise_for_detector(args, like, args.rate)
+    detector_options = {"certificate_noise": certificate_noise}
+    if known is not None:
+        detector_options.update(PLATEAU_DETECTOR)
     collector = None
     intervals = []
     moving: dict[str, tuple[NormalEquations, float]] = {}
@@ -70,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
                     like, rate, detector_window_s=cfg.detector_window_s,
                     min_interval_s=cfg.min_interval_s, max_interval_s=cfg.max_interval_s,
                     trim_s=cfg.trim_s, max_motion_s=cfg.max_motion_s,
-                    detector_options={"certificate_noise": certificate_noise},
+                    detector_options=detector_options,
                 )
                 if table is not None:
                     moving = {
@@ -94,8 +101,12 @@ def run(args: argparse.Namespace) -> int:
                        "still long enough): nothing to calibrate from")
     moving = {k: v for k, v in moving.items() if v[0].n > 0}
     try:
-        result = calibrate(intervals, like, cfg.method, rate, moving or None, cfg,
-                           source=str(args.log))
+        if known is not None:
+            result = calibrate_known_rate(intervals, like, known, rate, cfg,
+                                          source=str(args.log))
+        else:
+            result = calibrate(intervals, like, cfg.method, rate, moving or None, cfg,
+                               source=str(args.log))
     except ValueError as exc:
         raise BadInput(f"{args.log}: {exc}") from None
     check = result.generalisation or {}
@@ -128,10 +139,19 @@ def run(args: argparse.Namespace) -> int:
         write_json(summary, args.json)
     out = sys.stderr if args.json == "-" else sys.stdout
     b, a = result.accel_spread_before, result.accel_spread_after
-    print(f"{result.intervals} quasi-static intervals, {result.attitudes} attitudes, "
-          f"{result.rotations} rotations; wrote {args.out}", file=out)
-    print(f"|a|/g - 1 over the intervals: rms {b['rms']:.3e} -> {a['rms']:.3e}, "
-          f"peak-to-peak {b['peak_to_peak']:.3e} -> {a['peak_to_peak']:.3e}", file=out)
+    kr = result.known_rate
+    if kr is not None:
+        print(f"{kr['plateaus']} plateaus at {kr['rate']:.6g} {kr['unit']} used "
+              f"({kr['set_aside']} set aside, of {result.intervals} constant-rate intervals); "
+              f"wrote {args.out}", file=out)
+        b, a = kr["norm_spread"]["before"], kr["norm_spread"]["after"]
+        print(f"|w|/rate - 1 over the plateaus: rms {b['rms']:.3e} -> {a['rms']:.3e}, "
+              f"peak-to-peak {b['peak_to_peak']:.3e} -> {a['peak_to_peak']:.3e}", file=out)
+    elif b is not None and a is not None:
+        print(f"{result.intervals} quasi-static intervals, {result.attitudes} attitudes, "
+              f"{result.rotations} rotations; wrote {args.out}", file=out)
+        print(f"|a|/g - 1 over the intervals: rms {b['rms']:.3e} -> {a['rms']:.3e}, "
+              f"peak-to-peak {b['peak_to_peak']:.3e} -> {a['peak_to_peak']:.3e}", file=out)
     if result.rotation_rms_before_deg is not None:
         print(f"gravity direction after integrated rotations, rms: "
               f"{result.rotation_rms_before_deg:.3f} -> {result.rotation_rms_after_deg:.3f} deg",
@@ -139,7 +159,8 @@ def run(args: argparse.Namespace) -> int:
     for line in noise_lines(noise_report):
         print(line, file=out)
     if check.get("leave_one_out_rms") is not None:
-        print(f"held-out check: |a|/g - 1 rms {check['leave_one_out_rms']:.3e} leaving each of "
+        print(f"held-out check: {check['quantity']} rms {check['leave_one_out_rms']:.3e} "
+              f"leaving each of "
               f"{check['held_out']} intervals out (in-sample {check['in_sample_rms']:.3e})",
               file=out)
     if refused:
@@ -147,7 +168,8 @@ def run(args: argparse.Namespace) -> int:
     elif check.get("reason"):
         print(f"  note: generalisation {check['reason']}", file=out)
     for r in result.rejected():
-        what = f"rejected {r['point']}" if r.get("point") else "outliers left in"
+        what = f"set aside {r['point']}" if "rate" in r else (
+            f"rejected {r['point']}" if r.get("point") else "outliers left in")
         print(f"  {what} ({r['triad']} fit): {r['reason']}", file=out)
     for u in result.undetermined:
         print(f"  undetermined (kept from --like) {u['triad']} {u['sensor']} {u['cause']}: "

@@ -21,6 +21,7 @@ from ..atomic import write_text_atomic
 from ..certificate import Certificate, load, load_default
 from ..diagnosis.config import GYRO_MODES, METHODS, DiagnosisConfig
 from ..diagnosis.inputs import MagnitudeTable, check_units, log_rate_hz
+from ..diagnosis.known_rate import parse_known_rate
 from ..diagnosis.stream import StreamingDiagnoser
 from ..errors import BadInput
 from ..logs import open_log
@@ -77,6 +78,12 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-interval", type=float, metavar="S",
                    help="shortest still stretch used, s (default "
                    f"{DiagnosisConfig().min_interval_s:g}; each is weighted by its noise)")
+    p.add_argument("--known-rate", metavar="RATE",
+                   help="gyros on a turntable turning at this rate, with a unit (33.333rpm, "
+                   "200deg/s, 3.49rad/s, 0.5rev/s): constant-rate plateaus are the intervals "
+                   "and the gyro fit uses this magnitude instead of Earth rate; stopped "
+                   "plateaus are set aside; a log without accelerometer columns is accepted "
+                   "and the accelerometers are not diagnosed or calibrated")
     add_noise_argument(p)
     add_log_options(p)  # after --rate, which it shares
 
@@ -90,6 +97,8 @@ def make_config(args: argparse.Namespace, **extra: Any) -> DiagnosisConfig:
         v = getattr(args, opt, None)
         if v is not None:
             d[key] = v
+    if getattr(args, "known_rate", None) is not None:
+        d["known_rate_rad_s"] = parse_known_rate(args.known_rate)
     if getattr(args, "no_windows", False):
         d["max_windows_kept"] = 16  # not listed: keep only what the predicates need
     d.update(extra)
@@ -183,12 +192,18 @@ def run(args: argparse.Namespace) -> int:
         t: {"checked": int(monitor.f0_checked[t]), "failed": int(monitor.f0_failed[t])}
         for t in ("accel", "gyro")
     }
+    known_fault = None
+    if cfg.known_rate_rad_s is not None:
+        # on a turntable the gyro F0 is checked per plateau against the table's rate
+        st = diag.plateau_f0
+        f0["gyro"] = {"checked": st["checked"], "failed": st["failed"], "check": "known_rate"}
+        known_fault = diag.plateau_f0_fault()
     report = diag.report(f0=f0, windows=not args.no_windows)
     # persistent F0 failures are faults, by the daemon's own k-of-n persistence
     # (``explained_by``: the parameter faults the window diagnosis names on that triad)
     verdict = report["verdict"]
     named = list(verdict["faults"])
-    for fault in monitor.f0_faults():
+    for fault in monitor.f0_faults() + ([known_fault] if known_fault else []):
         fault["explained_by"] = [
             {"sensor": f["sensor"], "cause": f["cause"]} for f in named
             if f["triad"] == fault["triad"]

@@ -65,6 +65,10 @@ def measure(
     for name, fig in (figures or {}).items():
         tri = cert.triad(name)
         certified = tri.noise.density if tri.noise is not None else None
+        if not np.all(np.isfinite(fig.density)):
+            # a gyro-only log (--known-rate): nothing to measure on that triad
+            report[name] = {"measured": None, "unit": f"{tri.output_unit}/sqrt(Hz)"}
+            continue
         entry: dict[str, Any] = {"measured": fig.as_dict(), "unit": f"{tri.output_unit}/sqrt(Hz)"}
         entry.update(compare(fig.density, certified))
         report[name] = entry

@@ -45,7 +45,8 @@ from .gyro_fit import (
     rotation_fit,
 )
 from .intervals import QuasiStaticInterval
-from .params import TriadFit, certificate_vector, limit_vector, sensor_of
+from .known_rate import classify_plateaus
+from .params import TriadFit, certificate_vector, limit_vector, sensor_of, undetermined_fit
 from .scalar_fit import (
     NormalEquations,
     exact_fit,
@@ -142,13 +143,16 @@ class CalibrationResult:
     rotations: int
     accel: TriadFit
     gyro: TriadFit
-    accel_spread_before: dict[str, float]
-    accel_spread_after: dict[str, float]
+    accel_spread_before: dict[str, float] | None  #: None: accelerometers not calibrated
+    accel_spread_after: dict[str, float] | None
     rotation_rms_before_deg: float | None = None
     rotation_rms_after_deg: float | None = None
     undetermined: list[dict] = field(default_factory=list)
-    #: accelerometer held-out check (:func:`_leave_one_out`), None where not run
+    #: held-out check (:func:`_leave_one_out`) of the accelerometers (of the gyros with a known
+    #: rate), None where not run
     generalisation: dict[str, Any] | None = None
+    #: the known-rate route: rate (rad/s), plateaus used and set aside, |w|/rate - 1 spreads
+    known_rate: dict[str, Any] | None = None
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary of the calibration."""
@@ -171,12 +175,15 @@ class CalibrationResult:
             "undetermined": self.undetermined,
             "rejected": self.rejected(),
             "generalisation": self.generalisation,
+            "known_rate": self.known_rate,
         }
 
     def rejected(self) -> list[dict]:
         """Intervals (or motions) the fits rejected as outliers, with the triad and why."""
         out = []
         for fit in (self.accel, self.gyro):
+            for r in fit.extra.get("plateaus_set_aside", []):
+                out.append(dict(r, triad=fit.triad))
             for r in fit.extra.get("rejected", []):
                 out.append(dict(r, triad=fit.triad))
             if fit.extra.get("outliers"):
@@ -409,8 +416,129 @@ def calibrate(
     )
 
 
+def _norm_spread(triad: TriadModel, means: np.ndarray, magnitude_in: float) -> dict[str, float]:
+    """Spread of |x| / magnitude - 1 over interval means with ``triad``'s correction."""
+    r = np.linalg.norm(triad.inverse(means), axis=1) / magnitude_in - 1.0
+    return {
+        "rms": float(np.sqrt(np.mean(r * r))),
+        "std": float(np.std(r)),
+        "peak_to_peak": float(np.ptp(r)),
+        "max_abs": float(np.max(np.abs(r))),
+    }
+
+
+def calibrate_known_rate(
+    intervals: list[QuasiStaticInterval],
+    like: Certificate,
+    rate_rad_s: float,
+    rate_hz: float | None = None,
+    config: DiagnosisConfig | None = None,
+    source: str = "",
+) -> CalibrationResult:
+    """Calibrate the gyros from turntable plateaus at a known rate (rad/s); the
+    accelerometers are kept from ``like`` (a turntable adds centripetal acceleration, and
+    the log may have no accelerometer columns).
+
+    ``intervals``: plateaus found by a detector with :data:`.known_rate.PLATEAU_DETECTOR`.
+    Plateaus off the rate (stopped, another speed) are set aside with the reason; the
+    rest go through the outlier rejection and the pinning of :func:`calibrate`, and the
+    held-out check is made on |w| / rate - 1.
+    """
+    cfg = config or DiagnosisConfig()
+    rate = float(rate_hz or like.sample_rate)
+    ratio = cfg.determined_std_ratio
+    gyr_like = like.gyro
+    rate_in = rate_rad_s / gyr_like.unit_to_si
+    keep, set_aside = classify_plateaus(gyr_like, intervals, rate_in)
+    plateaus = [iv for iv, k in zip(intervals, keep, strict=True) if k]
+    if len(plateaus) < 2:
+        raise ValueError(
+            f"{len(plateaus)} plateau(s) at the known rate {rate_in:.4g} {gyr_like.input_unit} "
+            f"among {len(intervals)} constant-rate intervals: nothing to calibrate from"
+        )
+    gmeans = np.array([iv.gyro_mean for iv in plateaus])
+    gmvar = np.array([iv.mean_var("gyro") for iv in plateaus])
+    labels = interval_labels(plateaus)
+    gyr_fit, gprior = _pinned_fit(
+        lambda pf, probe: exact_fit(
+            gyr_like, gmeans, gmvar, rate_in, prior_factor=pf, determined_std_ratio=ratio,
+            max_iter=0, start="certificate", scale_by_residual=False,
+            method="exact-known-rate",
+        )
+        if probe
+        else robust_exact_fit(
+            gyr_like, gmeans, gmvar, rate_in, labels=labels, min_dof=CALIBRATION_MIN_DOF,
+            prior_factor=pf, determined_std_ratio=ratio, max_iter=100,
+            method="exact-known-rate",
+        ),
+        CALIBRATION_MIN_DOF,
+    )
+    if set_aside:
+        gyr_fit.extra["plateaus_set_aside"] = set_aside
+    kept = gyr_fit.kept if gyr_fit.kept is not None else np.ones(len(plateaus), dtype=bool)
+    generalisation = _leave_one_out(
+        gyr_like, gmeans[kept], gmvar[kept], rate_in, gyr_fit, gprior, ratio,
+        quantity="|w|/rate - 1",
+    )
+    new = like.copy()
+    new.sample_rate = rate
+    gyr = new.gyro
+    g_shape_c, g_q = shape_of_triad(gyr_like)
+    gdev = gyr_fit.estimate - certificate_vector(gyr_like)
+    g_shape = g_shape_c + np.concatenate([gdev[3:6] / gyr_like.scale_factor, gdev[6:9]])
+    gyr.bias = gyr_fit.estimate[:3].copy()
+    gyr.scale_factor_error, gyr.misalignment = fields_from_n(
+        p_matrix(g_shape) @ g_q, gyr_like.scale_factor
+    )
+    gyr.noise = _with_density(gyr_like.noise, _noise_density(gyr_like, plateaus, rate))
+    acc_fit = undetermined_fit(
+        like.accel, "kept",
+        "known-rate session: the accelerometers are not calibrated from turntable plateaus "
+        "(centripetal acceleration; the log may have none)",
+    )
+    unit = gyr_like.input_unit
+    device = dict(like.device)
+    device["calibrated"] = _dt.date.today().isoformat()
+    device["calibration"] = (
+        f"imudiag calibrate --known-rate {rate_in:.6g} {unit}"
+        + (f" from {source}" if source else "")
+        + f": {len(plateaus)} plateaus ({len(set_aside)} set aside)"
+    )
+    new.device = device
+    new.source = None
+    used = gmeans[kept]
+    known = {
+        "rate_rad_s": rate_rad_s,
+        "rate": rate_in,
+        "unit": unit,
+        "plateaus": int(kept.sum()),
+        "set_aside": len(set_aside),
+        "norm_spread": {
+            "before": _norm_spread(gyr_like, used, rate_in),
+            "after": _norm_spread(gyr, used, rate_in),
+        },
+    }
+    return CalibrationResult(
+        certificate=new,
+        method="exact-known-rate",
+        intervals=len(intervals),
+        attitudes=0,
+        rotations=0,
+        accel=acc_fit,
+        gyro=gyr_fit,
+        accel_spread_before=None,
+        accel_spread_after=None,
+        undetermined=_undetermined(acc_fit) + _undetermined(gyr_fit),
+        generalisation=generalisation,
+        known_rate=known,
+    )
+
+
 #: A calibration generalises when its leave-one-interval-out |a| residual is at most this
-#: many times its in-sample residual ...
+#: many times its in-sample residual, beyond what its redundancy explains: a correct fit of
+#: p effective parameters to K points already predicts held-out points about K / (K - p)
+#: times worse than it fits them (in-sample residuals shrink by 1 - h, held-out ones grow
+#: by 1 / (1 - h), h = p / K the mean leverage), 4x for 12 plateaus and 9 parameters
 LOO_RATIO_LIMIT = 3.0
 
 
@@ -422,14 +550,17 @@ def _leave_one_out(
     fit: TriadFit,
     prior: np.ndarray,
     ratio: float,
+    quantity: str = "|a|/g - 1",
 ) -> dict[str, Any]:
-    """Leave-one-interval-out check of the accelerometer calibration (dimensionless |a|/g - 1).
+    """Leave-one-interval-out check of a calibration (dimensionless ``quantity``: |a|/g - 1,
+    or |w|/rate - 1 on a turntable; ``g_in`` the reference magnitude, input units).
 
     Each interval is predicted by the fit to all the others (same pinned
     parameters). The calibration generalises when the held-out RMS is below the
     uncalibrated RMS (``like``) and at most :data:`LOO_RATIO_LIMIT` times the
-    in-sample RMS; a fit that only reproduces the holds it was made from (too
-    few holds, one outlier carrying a parameter) fails, with the reason.
+    in-sample RMS times K / dof (what the redundancy explains); a fit that only
+    reproduces the holds it was made from (too few holds, one outlier carrying a
+    parameter) fails, with the reason.
     """
     k = means.shape[0]
 
@@ -465,13 +596,16 @@ def _leave_one_out(
         return float(np.sqrt(np.nanmean(r * r)))
 
     checked = int(np.isfinite(held).sum())
+    dof = fit.dof if np.isfinite(fit.dof) and fit.dof > 0 else 1.0
+    limit = LOO_RATIO_LIMIT * max(1.0, k / min(max(dof, 1.0), float(k)))
     out: dict[str, Any] = {
         "in_sample_rms": rms(inside),
         "leave_one_out_rms": rms(held) if checked else None,
         "uncalibrated_rms": rms(before),
         "held_out": checked,
         "essential": essential,
-        "ratio_limit": LOO_RATIO_LIMIT,
+        "ratio_limit": limit,
+        "quantity": quantity,
         "generalises": None,
         "reason": "",
     }
@@ -484,16 +618,17 @@ def _leave_one_out(
     elif loo > out["uncalibrated_rms"]:
         out["generalises"] = False
         out["reason"] = (
-            f"held-out |a|/g - 1 rms {loo:.3g} is worse than without calibration "
+            f"held-out {quantity} rms {loo:.3g} is worse than without calibration "
             f"({out['uncalibrated_rms']:.3g}): the fit does not predict holds it was not "
             "made from"
         )
-    elif loo > LOO_RATIO_LIMIT * max(out["in_sample_rms"], 1e-12):
+    elif loo > limit * max(out["in_sample_rms"], 1e-12):
         out["generalises"] = False
         out["reason"] = (
-            f"held-out |a|/g - 1 rms {loo:.3g} is {loo / out['in_sample_rms']:.1f}x the "
-            f"in-sample {out['in_sample_rms']:.3g} (limit {LOO_RATIO_LIMIT:g}x): the fit "
-            "follows its own holds"
+            f"held-out {quantity} rms {loo:.3g} is {loo / out['in_sample_rms']:.1f}x the "
+            f"in-sample {out['in_sample_rms']:.3g} (limit {limit:.3g}x: {LOO_RATIO_LIMIT:g}x "
+            f"what {k} points for {k - fit.dof:.1f} parameters explain): the fit follows its "
+            "own holds"
         )
     else:
         out["generalises"] = True

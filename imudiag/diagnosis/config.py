@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -47,6 +48,9 @@ class DiagnosisConfig:
     min_dof: float = 3.0  #: effective degrees of freedom a fit needs to be judged
     persist: int = 2  #: consecutive windows a deviation must persist
     max_windows_kept: int = 10000  #: windows kept for the report
+    #: rad/s, a turntable's known rate: plateaus at it are the intervals and the gyro fit's
+    #: magnitude (:mod:`.known_rate`); the accelerometers are not diagnosed. None: at rest
+    known_rate_rad_s: float | None = None
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -55,6 +59,12 @@ class DiagnosisConfig:
             raise ValueError(
                 f"gyro_mode must be one of {', '.join(GYRO_MODES)}, got {self.gyro_mode!r}"
             )
+        if self.known_rate_rad_s is not None and not (
+            math.isfinite(self.known_rate_rad_s) and self.known_rate_rad_s > 0
+        ):
+            raise ValueError(f"known_rate_rad_s must be > 0, got {self.known_rate_rad_s!r}")
+        if self.known_rate_rad_s is not None and self.method != "exact":
+            raise ValueError("a known rate is used by the exact method only")
         if self.persist < 1 or self.window_intervals < 1 or self.min_intervals < 1:
             raise ValueError("persist, window_intervals and min_intervals must be >= 1")
 

@@ -11,6 +11,7 @@ own estimate from the certificate-corrected output, which is circular: note §1)
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from typing import Any
 
@@ -20,6 +21,7 @@ from ..certificate import Certificate
 from ..samples import SampleBlock
 from .config import DiagnosisConfig
 from .intervals import IntervalCollector, QuasiStaticInterval
+from .known_rate import PLATEAU_DETECTOR, classify_plateaus
 from .params import CAUSES, TriadFit, sensor_of
 from .predicates import PredicateTracker
 from .scalar_fit import NormalEquations, corrected_normalised, normal_equation_fit, sample_rows
@@ -77,7 +79,10 @@ class StreamingDiagnoser:
             trim_s=cfg.trim_s,
             motion_margin_s=cfg.motion_margin_s,
             max_motion_s=cfg.max_motion_s,
-            detector_options={"certificate_noise": self.certificate_noise},
+            detector_options={
+                "certificate_noise": self.certificate_noise,
+                **(PLATEAU_DETECTOR if cfg.known_rate_rad_s is not None else {}),
+            },
         )
         self.tracker = PredicateTracker(cfg.k_sigma, cfg.persist)
         self._window: deque[QuasiStaticInterval] = deque()
@@ -87,6 +92,10 @@ class StreamingDiagnoser:
         self._determined = {t: np.zeros(9, dtype=bool) for t in TRIADS}
         self._reasons: dict[str, list[str]] = {t: ["no window was fitted"] * 9 for t in TRIADS}
         self.samples = 0
+        #: known-rate sessions: F0 of each plateau (checked, failed, squares, streak)
+        self.plateau_f0: dict[str, Any] = {
+            "checked": 0, "failed": 0, "sum_sq": 0.0, "streak": 0, "t_first": None,
+        }
         # moving-base state
         self._chunks: deque[tuple[int, dict[str, NormalEquations]]] = deque()
         self._chunk_id: int | None = None
@@ -136,6 +145,8 @@ class StreamingDiagnoser:
         out = []
         for iv in new:
             self.intervals += 1
+            if cfg.known_rate_rad_s is not None:
+                self._plateau_f0(iv)
             self._window.append(iv)
             while len(self._window) > cfg.window_intervals:
                 self._window.popleft()
@@ -148,6 +159,42 @@ class StreamingDiagnoser:
                 self._judge(res)
                 out.append(res)
         return out
+
+    def _plateau_f0(self, iv: QuasiStaticInterval) -> None:
+        """F0 of one turntable plateau: 1/2 (|w|^2 / rate^2 - 1) of its certificate-corrected
+        mean against the gyro's ``limits.f0``; plateaus off the rate (stopped) are not
+        checked. Two failing in a row are a fault, as two windows are for a parameter."""
+        tri = self.certificate.gyro
+        assert self.config.known_rate_rad_s is not None
+        rate_in = self.config.known_rate_rad_s / tri.unit_to_si
+        keep, _ = classify_plateaus(tri, [iv], rate_in)
+        if not keep[0]:
+            return
+        w = tri.inverse(iv.gyro_mean[None, :])[0]
+        value = 0.5 * (float(w @ w) / rate_in**2 - 1.0)
+        st = self.plateau_f0
+        st["checked"] += 1
+        st["sum_sq"] += value * value
+        if abs(value) > float(tri.limits.f0):
+            st["failed"] += 1
+            st["streak"] += 1
+            if st["streak"] >= self.config.persist and st["t_first"] is None:
+                st["t_first"] = iv.t_end
+        else:
+            st["streak"] = 0
+
+    def plateau_f0_fault(self) -> dict[str, Any] | None:
+        """The gyro ``f0`` fault of a known-rate session (plateau F0 failing in a row)."""
+        st = self.plateau_f0
+        if st["t_first"] is None:
+            return None
+        return {
+            "triad": "gyro", "sensor": None, "cause": "f0", "check": "known_rate",
+            "estimate": math.sqrt(st["sum_sq"] / st["checked"]),
+            "certificate": 0.0, "limit": float(self.certificate.gyro.limits.f0),
+            "t_first": st["t_first"], "raised": 1, "failed": st["failed"],
+            "checked": st["checked"],
+        }
 
     def _judge(self, res: WindowResult) -> None:
         self.windows_run += 1

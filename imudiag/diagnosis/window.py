@@ -28,7 +28,8 @@ from .gyro_fit import (
     rotation_fit,
 )
 from .intervals import QuasiStaticInterval
-from .params import TriadFit, certificate_vector, limit_vector
+from .known_rate import classify_plateaus
+from .params import TriadFit, certificate_vector, limit_vector, undetermined_fit
 from .predicates import held_back
 from .scalar_fit import exact_fit, linear_fit
 
@@ -349,6 +350,40 @@ def gyro_window_fit(
     return fit, rotations
 
 
+def known_rate_window_fit(
+    cert: Certificate, intervals: list[QuasiStaticInterval], config: DiagnosisConfig
+) -> TriadFit:
+    """The gyro fit of one window of turntable plateaus at ``config.known_rate_rad_s``.
+
+    Plateaus off the rate (stopped, another speed) are left out and listed
+    (``plateaus_set_aside``); the others are fitted with the table rate as the
+    magnitude (no outlier rejection in a window, see :func:`accel_window_fit`).
+    """
+    tri = cert.gyro
+    assert config.known_rate_rad_s is not None
+    rate_in = config.known_rate_rad_s / tri.unit_to_si
+    keep, set_aside = classify_plateaus(tri, intervals, rate_in)
+    plateaus = [iv for iv, k in zip(intervals, keep, strict=True) if k]
+    if len(plateaus) < 2:
+        fit = undetermined_fit(
+            tri, "exact-known-rate",
+            f"{len(plateaus)} plateau(s) at the known rate in the window (2 or more needed)",
+        )
+    else:
+        means, mvar, _covs, _counts = _stack(plateaus, "gyro")
+        means = _temperature_corrected(tri, means, [iv.temp for iv in plateaus])
+        fit = exact_fit(
+            tri, means, mvar, rate_in, prior_factor=config.prior_factor,
+            determined_std_ratio=config.determined_std_ratio, method="exact-known-rate",
+        )
+        fit.point_labels = interval_labels(plateaus)
+        fit.require_redundancy(fit.dof, config.min_dof, range(9), f"{len(plateaus)} plateaus")
+        _with_reason(fit, range(9), f"{len(plateaus)} plateau(s) at the known rate")
+    if set_aside:
+        fit.extra["plateaus_set_aside"] = set_aside
+    return fit
+
+
 def diagnose_window(
     cert: Certificate,
     intervals: list[QuasiStaticInterval],
@@ -359,12 +394,20 @@ def diagnose_window(
     method = config.method
     if not intervals:
         raise ValueError("a window needs at least one interval")
-    attitudes = distinct_attitudes(
-        np.array([iv.up for iv in intervals]), config.attitude_separation_deg
-    )
-    acc = accel_window_fit(cert, intervals, config, method, attitudes)
-    accel_model = model_with(cert.accel, acc.estimate)
-    gyr, rotations = gyro_window_fit(cert, intervals, config, method, accel_model, attitudes)
+    if config.known_rate_rad_s is not None:
+        attitudes, rotations = 0, 0
+        acc = undetermined_fit(
+            cert.accel, "kept",
+            "known-rate session: the accelerometers are not diagnosed on a turntable",
+        )
+        gyr = known_rate_window_fit(cert, intervals, config)
+    else:
+        attitudes = distinct_attitudes(
+            np.array([iv.up for iv in intervals]), config.attitude_separation_deg
+        )
+        acc = accel_window_fit(cert, intervals, config, method, attitudes)
+        accel_model = model_with(cert.accel, acc.estimate)
+        gyr, rotations = gyro_window_fit(cert, intervals, config, method, accel_model, attitudes)
     for fit in (acc, gyr):
         hb = held_back(fit, config.k_sigma, fit.point_labels or [])
         if hb:

@@ -50,11 +50,13 @@ def parse_meta_value(value: str) -> Any:
 
 
 def make_block(cols: dict[str, np.ndarray], meta: dict[str, Any]) -> SampleBlock:
-    """A SampleBlock from validated float columns (seq, flags converted to integers)."""
+    """A SampleBlock from validated float columns (seq, flags converted to integers; absent
+    accelerometer columns, of a gyro-only log, as NaN)."""
+    nan = np.full(len(cols["t"]), np.nan)  # a gyro-only log (LogOptions.gyro_only)
     return SampleBlock(
         t=cols["t"],
         gyro=np.column_stack([cols["gx"], cols["gy"], cols["gz"]]),
-        accel=np.column_stack([cols["ax"], cols["ay"], cols["az"]]),
+        accel=np.column_stack([cols.get("ax", nan), cols.get("ay", nan), cols.get("az", nan)]),
         temp=cols.get("temp"),
         seq=None if "seq" not in cols else cols["seq"].astype(np.int64),
         flags=None if "flags" not in cols else cols["flags"].astype(np.uint16),

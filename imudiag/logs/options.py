@@ -24,6 +24,7 @@ GYRO_UNITS = ("rad/s", "deg/s", "count")
 ACCEL_UNITS = ("m/s^2", "g", "count")
 #: Column names --columns accepts, besides ``_`` (skip).
 COLUMN_NAMES = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
+GYRO_COLUMNS = ("gx", "gy", "gz")
 
 
 @dataclass
@@ -35,13 +36,23 @@ class LogOptions:
     time_unit: str | None = None
     rate: float | None = None  #: Hz, for logs without time stamps
     variable: str | None = None  #: the matrix of a MATLAB file
+    #: accept a log without accelerometer columns (a gyro on a turntable, ``--known-rate``):
+    #: its accelerometer outputs read as NaN
+    gyro_only: bool = False
 
     def given(self) -> bool:
         """True when any option was given."""
         return bool(self.columns or self.units or self.time_unit or self.rate or self.variable)
 
 
-def parse_columns(text: str, where: str = "--columns") -> list[str]:
+def missing_columns(names: list[str], gyro_only: bool = False) -> list[str]:
+    """The sensor columns a log must name that ``names`` lacks (accelerometer axes not
+    needed for a ``gyro_only`` log)."""
+    need = GYRO_COLUMNS if gyro_only else REQUIRED_COLUMNS[1:]
+    return [n for n in need if n not in names]
+
+
+def parse_columns(text: str, where: str = "--columns", gyro_only: bool = False) -> list[str]:
     """``t,gx,...`` -> names; ``_`` skips a column. Raises BadInput naming the bad name."""
     names = [c.strip() for c in text.split(",")]
     seen: set[str] = set()
@@ -55,7 +66,7 @@ def parse_columns(text: str, where: str = "--columns") -> list[str]:
         if name in seen:
             raise BadInput(f"{where}: column {name!r} named twice")
         seen.add(name)
-    missing = [n for n in REQUIRED_COLUMNS[1:] if n not in seen]
+    missing = missing_columns(list(seen), gyro_only)
     if missing:
         raise BadInput(f"{where}: missing {', '.join(missing)} (name the gyro and accel axes)")
     return names
@@ -126,9 +137,9 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
 
 def log_options(args: argparse.Namespace) -> LogOptions:
     """The validated options of a parsed command line (exit 2 on a bad value)."""
-    opts = LogOptions()
+    opts = LogOptions(gyro_only=getattr(args, "known_rate", None) is not None)
     if getattr(args, "columns", None):
-        opts.columns = parse_columns(args.columns)
+        opts.columns = parse_columns(args.columns, gyro_only=opts.gyro_only)
     if getattr(args, "units", None):
         opts.units = parse_units(args.units)
     if getattr(args, "time_unit", None):

@@ -37,7 +37,7 @@ from .base import (
     make_block,
     parse_meta_value,
 )
-from .options import TIME_UNITS, LogOptions, units_from_meta
+from .options import TIME_UNITS, LogOptions, missing_columns, units_from_meta
 
 #: Header names (lower case, unit in brackets removed) and the column they mean.
 ALIASES = {
@@ -165,7 +165,7 @@ class TextTableReader(LogReader):
         for f in fields:
             key = _UNIT_SUFFIX.sub("", f).strip().lower().replace(" ", "_")
             names.append(ALIASES.get(key, "_"))
-        missing = [n for n in REQUIRED_COLUMNS[1:] if n not in names]
+        missing = missing_columns(names, self.options.gyro_only)
         if missing:
             raise LogError(
                 self.path,
