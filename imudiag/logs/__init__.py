@@ -46,6 +46,7 @@ from .npz_format import NpzReader, NpzWriter
 from .options import LogOptions
 from .registry import FORMATS, LogFormat, formats, log_format, lookup, register_format
 from .text_table import TextTableReader
+from .ulog import ULogReader, is_ulog
 from .wire_capture import BinReader, BinWriter
 
 register_format(LogFormat(".csv", (".csv",), CsvReader, CsvWriter, description="CSV table"))
@@ -72,6 +73,18 @@ register_format(
         TextTableReader,
         description="text table (comma, semicolon, tab or whitespace; --columns, --rate)",
         takes_options=True,
+    )
+)
+register_format(
+    LogFormat(
+        ".ulg",
+        (".ulg",),
+        ULogReader,
+        magic=is_ulog,
+        description="PX4 ULog flight log (sensor_combined, or sensor_gyro/sensor_accel with "
+        "--instance)",
+        takes_options=True,
+        extra="px4",
     )
 )
 register_format(

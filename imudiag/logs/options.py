@@ -39,10 +39,18 @@ class LogOptions:
     #: accept a log without accelerometer columns (a gyro on a turntable, ``--known-rate``):
     #: its accelerometer outputs read as NaN
     gyro_only: bool = False
+    instance: int | None = None  #: the sensor instance of a multi-sensor log (PX4 multi id)
 
     def given(self) -> bool:
         """True when any option was given."""
-        return bool(self.columns or self.units or self.time_unit or self.rate or self.variable)
+        return bool(
+            self.columns
+            or self.units
+            or self.time_unit
+            or self.rate
+            or self.variable
+            or self.instance is not None
+        )
 
 
 def missing_columns(names: list[str], gyro_only: bool = False) -> list[str]:
@@ -126,6 +134,12 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
         "--time-unit", metavar="U", help="unit of the t column: s (default), ms, us or ns"
     )
     g.add_argument("--variable", metavar="NAME", help="the matrix of a MATLAB .mat file")
+    g.add_argument(
+        "--instance",
+        metavar="N",
+        help="the sensor instance of a PX4 ULog (raw sensor_gyro/sensor_accel multi id; "
+        "default: sensor_combined unless the raw topics are logged as fast)",
+    )
     if "--rate" not in parser._option_string_actions:
         g.add_argument(
             "--rate",
@@ -148,7 +162,22 @@ def log_options(args: argparse.Namespace) -> LogOptions:
         opts.rate = parse_rate(args.rate)
     if getattr(args, "variable", None):
         opts.variable = args.variable
+    if getattr(args, "instance", None) is not None:
+        opts.instance = parse_instance(args.instance)
     return opts
+
+
+def parse_instance(text: str, where: str = "--instance") -> int:
+    """A sensor instance number (>= 0); raises BadInput."""
+    try:
+        value = int(str(text).strip())
+    except ValueError:
+        raise BadInput(
+            f"{where}: expected a sensor instance number (0, 1, ...), got {text!r}"
+        ) from None
+    if value < 0:
+        raise BadInput(f"{where}: expected a sensor instance number >= 0, got {value}")
+    return value
 
 
 def options_from_query(query: dict[str, str]) -> LogOptions:
@@ -164,6 +193,8 @@ def options_from_query(query: dict[str, str]) -> LogOptions:
         opts.rate = parse_rate(query["rate"], "replay://?rate")
     if "variable" in query:
         opts.variable = query["variable"]
+    if "instance" in query:
+        opts.instance = parse_instance(query["instance"], "replay://?instance")
     return opts
 
 
@@ -184,4 +215,4 @@ def units_from_meta(meta: dict[str, Any]) -> dict[str, str]:
 
 
 #: The replay:// query keys these options add.
-URL_KEYS = ("columns", "units", "time_unit", "rate", "variable")
+URL_KEYS = ("columns", "units", "time_unit", "rate", "variable", "instance")

@@ -1,0 +1,176 @@
+"""PX4 ULog flight logs (``.ulg``) through pyulog (extra ``[px4]``).
+
+Which topics: the raw ``sensor_gyro`` and ``sensor_accel`` of one instance
+(``--instance N``, the sensor's multi id) when asked for, or when they are
+logged at least half as fast as ``sensor_combined`` (PX4 usually logs the raw
+topics at about 1 Hz and ``sensor_combined`` at the control rate, 100-250
+Hz); otherwise ``sensor_combined``. The choice and its reason are in the
+metadata (``source``) and printed by the commands that show the log's source.
+Units are SI (rad/s, m/s^2, the ``units`` metadata says so); time is the
+sample's ``timestamp`` (``timestamp_sample`` for raw topics) in s from the
+log's start. With the raw topics the accelerometer samples are interpolated
+linearly to the gyro's time stamps (their clocks differ), within their
+overlap; the gyro's temperature is ``temp``. The file is parsed whole (pyulog
+reads a ULog in one pass), then handed out in blocks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..samples import SampleBlock
+from .base import DEFAULT_BLOCK_SIZE, LogError, LogReader, first_violation, make_block
+from .extras import require
+from .options import LogOptions
+
+#: First bytes of a ULog file ("ULog" then 0x01 0x12 0x35).
+ULOG_MAGIC = b"ULog\x01\x12\x35"
+_TOPICS = ["sensor_combined", "sensor_gyro", "sensor_accel"]
+
+
+def is_ulog(head: bytes) -> bool:
+    """Whether a file's first bytes are a ULog header."""
+    return head.startswith(ULOG_MAGIC)
+
+
+def _rate_hz(t_s: np.ndarray) -> float:
+    return float(1.0 / np.median(np.diff(t_s))) if t_s.shape[0] > 1 else 0.0
+
+
+class ULogReader(LogReader):
+    """Reader of the IMU topics of a PX4 ULog file."""
+
+    format = ".ulg"
+
+    def __init__(
+        self,
+        path: str | Path,
+        block_size: int = DEFAULT_BLOCK_SIZE,
+        options: LogOptions | None = None,
+    ) -> None:
+        super().__init__(path, block_size)
+        self.options = options or LogOptions()
+        pyulog = require("pyulog", "px4", "PX4 ULog files")
+        fh = self._open(open, self.path, "rb")
+        try:
+            head = fh.read(len(ULOG_MAGIC))
+        finally:
+            self._release(fh)
+        if not is_ulog(head):
+            raise LogError(self.path, "not a ULog file (no ULog header)")
+        try:
+            ulog = pyulog.ULog(self.path, message_name_filter_list=_TOPICS)
+        except Exception as exc:  # pyulog raises bare Exceptions on corrupt files
+            raise LogError(self.path, f"not a readable ULog file: {exc}") from None
+        topics: dict[tuple[str, int], dict[str, np.ndarray]] = {
+            (d.name, int(d.multi_id)): d.data for d in ulog.data_list
+        }
+        self._start_us = int(ulog.start_timestamp)
+        self._cols, source = self._choose(topics)
+        self.meta.update(
+            {
+                "source": source,
+                "units": {"gyro": "rad/s", "accel": "m/s^2"},
+                "sample_rate": round(_rate_hz(self._cols["t"]), 3),
+                "device": f"PX4 ULog {Path(self.path).name}",
+            }
+        )
+
+    # -- topic choice ---------------------------------------------------------
+
+    def _choose(
+        self, topics: dict[tuple[str, int], dict[str, np.ndarray]]
+    ) -> tuple[dict[str, np.ndarray], str]:
+        instances = sorted(
+            i for (name, i) in topics if name == "sensor_gyro" and ("sensor_accel", i) in topics
+        )
+        combined = topics.get(("sensor_combined", 0))
+        wanted = self.options.instance
+        if wanted is not None:
+            if wanted not in instances:
+                have = ", ".join(map(str, instances)) or "none"
+                raise LogError(
+                    self.path,
+                    f"--instance {wanted}: no sensor_gyro and sensor_accel of that instance "
+                    f"(instances with both: {have})",
+                )
+            cols = self._raw(topics, wanted)
+            return cols, (
+                f"sensor_gyro/sensor_accel instance {wanted} (--instance), "
+                f"{_rate_hz(cols['t']):.3g} Hz"
+            )
+        if combined is None and not instances:
+            raise LogError(
+                self.path, "no IMU topic: neither sensor_combined nor sensor_gyro + sensor_accel"
+            )
+        comb_rate = _rate_hz(self._time(combined["timestamp"])) if combined is not None else 0.0
+        for i in instances:
+            t = self._time(topics[("sensor_gyro", i)]["timestamp"])
+            raw_rate = _rate_hz(t)
+            if raw_rate >= 0.5 * comb_rate:
+                cols = self._raw(topics, i)
+                return cols, (
+                    f"sensor_gyro/sensor_accel instance {i} ({raw_rate:.3g} Hz raw; "
+                    f"sensor_combined {comb_rate:.3g} Hz)"
+                )
+        assert combined is not None
+        why = (
+            f"the raw sensor_gyro/sensor_accel topics (instances "
+            f"{', '.join(map(str, instances))}) are logged at "
+            f"{_rate_hz(self._time(topics[('sensor_gyro', instances[0])]['timestamp'])):.3g} Hz;"
+            " --instance N reads them"
+            if instances
+            else "no raw sensor_gyro/sensor_accel topics in the log"
+        )
+        return self._combined(combined), f"sensor_combined, {comb_rate:.3g} Hz ({why})"
+
+    def _time(self, stamp_us: np.ndarray) -> np.ndarray:
+        return (np.asarray(stamp_us, dtype=np.int64) - self._start_us) * 1e-6
+
+    def _combined(self, d: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        cols = {"t": self._time(d["timestamp"])}
+        for k, axis in enumerate("xyz"):
+            cols[f"g{axis}"] = np.asarray(d[f"gyro_rad[{k}]"], dtype=float)
+            cols[f"a{axis}"] = np.asarray(d[f"accelerometer_m_s2[{k}]"], dtype=float)
+        return cols
+
+    def _raw(self, topics: dict[tuple[str, int], dict[str, np.ndarray]], i: int) -> dict[str, Any]:
+        g = topics[("sensor_gyro", i)]
+        a = topics[("sensor_accel", i)]
+        tg = self._time(g.get("timestamp_sample", g["timestamp"]))
+        ta = self._time(a.get("timestamp_sample", a["timestamp"]))
+        order = np.argsort(ta, kind="stable")
+        ta = ta[order]
+        inside = (tg >= ta[0]) & (tg <= ta[-1])
+        if inside.sum() < 2:
+            raise LogError(
+                self.path,
+                f"instance {i}: the gyro and accelerometer samples do not overlap in time",
+            )
+        cols: dict[str, Any] = {"t": tg[inside]}
+        for axis in "xyz":
+            cols[f"g{axis}"] = np.asarray(g[axis], dtype=float)[inside]
+            cols[f"a{axis}"] = np.interp(tg[inside], ta, np.asarray(a[axis], dtype=float)[order])
+        if "temperature" in g:
+            cols["temp"] = np.asarray(g["temperature"], dtype=float)[inside]
+        return cols
+
+    # -- samples ----------------------------------------------------------------
+
+    def _blocks(self) -> Iterator[SampleBlock]:
+        n = len(self._cols["t"])
+        last_t: float | None = None
+        for start in range(0, n, self.block_size):
+            cols = {k: v[start : start + self.block_size] for k, v in self._cols.items()}
+            bad = first_violation(cols, last_t)
+            if bad is not None:
+                raise LogError(self.path, f"sample {start + bad[0] + 1}: {bad[1]}")
+            last_t = float(cols["t"][-1])
+            yield make_block(cols, self.meta)
+
+
+__all__ = ["ULOG_MAGIC", "ULogReader", "is_ulog"]

@@ -1,0 +1,126 @@
+"""PX4 ULog flight logs, read through pyulog: real files from pyulog's own test data.
+
+tests/data/real/px4-ulog/ (SOURCE.md and LICENSE.md there): ``sample.ulg`` (69 s,
+``sensor_combined`` only) and ``sample_log_small.ulg`` (raw ``sensor_gyro`` /
+``sensor_accel`` of 3 instances at 1 Hz beside ``sensor_combined`` at 205 Hz).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import run_imudiag
+
+from imudiag.logs import LogError, LogOptions, lookup, open_log, read_log
+
+DATA = Path(__file__).parent / "data" / "real" / "px4-ulog"
+SAMPLE = DATA / "sample.ulg"
+SMALL = DATA / "sample_log_small.ulg"
+
+
+def test_ulg_is_found_by_extension_and_magic():
+    assert lookup(SAMPLE).name == ".ulg"
+    assert SAMPLE.read_bytes()[:7] == b"ULog\x01\x12\x35"
+
+
+def test_sensor_combined_is_read_in_si_with_its_source_named():
+    with open_log(SAMPLE) as reader:
+        blocks = list(reader)
+        meta = dict(reader.meta)
+    s = blocks[0].concat(blocks)
+    assert len(s) == 17070
+    assert meta["units"] == {"gyro": "rad/s", "accel": "m/s^2"}
+    assert meta["source"].startswith("sensor_combined, 250 Hz")
+    assert "no raw sensor_gyro/sensor_accel topics" in meta["source"]
+    assert 245 < meta["sample_rate"] < 255  # the median step (the mean is 247 Hz: gaps)
+    assert np.all(np.diff(s.t) > 0) and s.t[0] >= 0.0
+    # a flight log: |f| about g on the median, gyro rates of a flying vehicle
+    a = np.linalg.norm(s.accel, axis=1)
+    assert 9.5 < float(np.median(a)) < 10.1
+    assert float(np.max(np.abs(s.gyro))) < 20.0  # rad/s
+
+
+def test_raw_topics_at_1_hz_are_not_chosen_unless_asked():
+    with open_log(SMALL) as reader:
+        n = sum(len(b) for b in reader)
+        source = reader.meta["source"]
+    assert source.startswith("sensor_combined")
+    assert "instances 0, 1, 2" in source and "--instance N reads them" in source
+    assert n > 1000
+    raw = read_log_with(SMALL, LogOptions(instance=1))
+    assert 4 <= len(raw) <= 6
+    assert raw.temp is not None and np.all(np.isfinite(raw.temp))
+    assert 9.0 < float(np.median(np.linalg.norm(raw.accel, axis=1))) < 10.6
+
+
+def read_log_with(path: Path, options: LogOptions):
+    with open_log(path, options=options) as reader:
+        blocks = list(reader)
+        assert reader.meta["source"].startswith(
+            f"sensor_gyro/sensor_accel instance {options.instance}"
+        )
+    return blocks[0].concat(blocks)
+
+
+def test_unknown_instance_lists_the_ones_there():
+    with pytest.raises(LogError, match=r"--instance 7: .*instances with both: 0, 1, 2"):
+        open_log(SMALL, options=LogOptions(instance=7))
+
+
+def test_a_truncated_ulog_or_a_foreign_file_is_exit_2(tmp_path):
+    bad = tmp_path / "notes.ulg"
+    bad.write_text("not a flight log\n")
+    r = run_imudiag("allan", str(bad))
+    assert r.returncode == 2 and "not a ULog file" in r.stderr and str(bad) in r.stderr
+
+
+def test_commands_take_a_ulog_and_say_which_topic(tmp_path):
+    out = tmp_path / "flight.csv"
+    r = run_imudiag("convert", str(SAMPLE), str(out))
+    assert r.returncode == 0, r.stderr
+    back = read_log(out)
+    assert len(back) == 17070
+    # the converted log says where its samples came from, and in which units
+    head = out.read_text().splitlines()[:4]
+    assert "# source: sensor_combined, 250 Hz" in head[0]
+    assert '"gyro": "rad/s"' in head[1]
+    r = run_imudiag("convert", str(SMALL), str(tmp_path / "raw.csv"), "--instance", "2")
+    assert r.returncode == 0, r.stderr
+    assert len(read_log(tmp_path / "raw.csv")) <= 6
+    r = run_imudiag("allan", str(SAMPLE), "--json", str(tmp_path / "a.json"))
+    assert r.returncode == 0, r.stderr
+    report = json.loads((tmp_path / "a.json").read_text())
+    assert report["rate_hz"] == pytest.approx(250, abs=5) and report["gaps"] == 8
+
+
+BLOCKED = """
+import sys
+class Block:
+    def find_spec(self, name, path=None, target=None):
+        if name == "pyulog" or name.startswith("pyulog."):
+            raise ImportError("blocked for the test: " + name)
+sys.meta_path.insert(0, Block())
+sys.argv = ["imudiag", "allan", {path!r}]
+from imudiag.cli import main
+sys.exit(main())
+"""
+
+
+def test_missing_pyulog_is_exit_2_with_the_pip_command():
+    code = BLOCKED.format(path=str(SAMPLE))
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2, r.stderr
+    assert "'pyulog'" in r.stderr and "pip install 'imudiag[px4]'" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_a_ulog_in_si_against_a_certificate_in_counts_names_both_units(tmp_path):
+    r = run_imudiag("diagnose", str(SAMPLE), "--json", str(tmp_path / "d.json"))
+    assert r.returncode == 2
+    assert "'rad/s'" in r.stderr and "'count'" in r.stderr
+    assert not (tmp_path / "d.json").exists()
