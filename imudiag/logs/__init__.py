@@ -45,6 +45,7 @@ from .matlab import MatReader
 from .npz_format import NpzReader, NpzWriter
 from .options import LogOptions
 from .registry import FORMATS, LogFormat, formats, log_format, lookup, register_format
+from .rosbag import RosbagReader, is_bag_directory, is_ros1_bag
 from .text_table import TextTableReader
 from .ulog import ULogReader, is_ulog
 from .wire_capture import BinReader, BinWriter
@@ -85,6 +86,29 @@ register_format(
         "--instance)",
         takes_options=True,
         extra="px4",
+    )
+)
+register_format(
+    LogFormat(
+        "rosbag2",
+        (".db3", ".mcap"),
+        RosbagReader,
+        description="ROS 2 bag: a bag directory (metadata.yaml) or one .db3 / .mcap file "
+        "(sensor_msgs/msg/Imu; --topic)",
+        takes_options=True,
+        extra="ros",
+        directory=is_bag_directory,
+    )
+)
+register_format(
+    LogFormat(
+        "rosbag1",
+        (".bag",),
+        RosbagReader,
+        magic=is_ros1_bag,
+        description="ROS 1 bag (sensor_msgs/msg/Imu; --topic)",
+        takes_options=True,
+        extra="ros",
     )
 )
 register_format(

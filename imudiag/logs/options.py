@@ -40,6 +40,7 @@ class LogOptions:
     #: its accelerometer outputs read as NaN
     gyro_only: bool = False
     instance: int | None = None  #: the sensor instance of a multi-sensor log (PX4 multi id)
+    topic: str | None = None  #: the IMU topic of a ROS bag
 
     def given(self) -> bool:
         """True when any option was given."""
@@ -50,6 +51,7 @@ class LogOptions:
             or self.rate
             or self.variable
             or self.instance is not None
+            or self.topic
         )
 
 
@@ -135,6 +137,11 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument("--variable", metavar="NAME", help="the matrix of a MATLAB .mat file")
     g.add_argument(
+        "--topic",
+        metavar="NAME",
+        help="the sensor_msgs/msg/Imu topic of a ROS bag (needed when it has several)",
+    )
+    g.add_argument(
         "--instance",
         metavar="N",
         help="the sensor instance of a PX4 ULog (raw sensor_gyro/sensor_accel multi id; "
@@ -164,6 +171,8 @@ def log_options(args: argparse.Namespace) -> LogOptions:
         opts.variable = args.variable
     if getattr(args, "instance", None) is not None:
         opts.instance = parse_instance(args.instance)
+    if getattr(args, "topic", None):
+        opts.topic = args.topic
     return opts
 
 
@@ -193,6 +202,8 @@ def options_from_query(query: dict[str, str]) -> LogOptions:
         opts.rate = parse_rate(query["rate"], "replay://?rate")
     if "variable" in query:
         opts.variable = query["variable"]
+    if "topic" in query:
+        opts.topic = query["topic"]
     if "instance" in query:
         opts.instance = parse_instance(query["instance"], "replay://?instance")
     return opts
@@ -215,4 +226,4 @@ def units_from_meta(meta: dict[str, Any]) -> dict[str, str]:
 
 
 #: The replay:// query keys these options add.
-URL_KEYS = ("columns", "units", "time_unit", "rate", "variable", "instance")
+URL_KEYS = ("columns", "units", "time_unit", "rate", "variable", "instance", "topic")

@@ -33,6 +33,8 @@ class LogFormat:
     description: str = ""
     takes_options: bool = False  #: the reader takes ``options=LogOptions``
     extra: str = ""  #: the pip extra holding the reader's dependencies, if any
+    #: accepts a directory that is a log of this format (a ROS 2 bag directory)
+    directory: Callable[[Path], bool] | None = None
 
     def open_reader(self, path: str | Path, block_size: int, options: Any = None) -> LogReader:
         """A reader of ``path``; raises LogError when the format cannot be read."""
@@ -107,6 +109,13 @@ def _head(path: str | Path) -> bytes | None:
 def lookup(path: str | Path) -> LogFormat:
     """The format of ``path`` from its name and, where names collide, its first bytes."""
     _load_plugins()
+    if Path(path).is_dir():
+        for f in _FORMATS:
+            if f.directory is not None and f.directory(Path(path)):
+                return f
+        raise LogError(
+            str(path), "a directory, not a log (a ROS 2 bag directory holds a metadata.yaml)"
+        )
     ending = _ending(path)
     if ending is None:
         known = ", ".join(sorted({e for f in _FORMATS for e in f.extensions}))
