@@ -41,6 +41,7 @@ from .base import (
     LogWriter,
 )
 from .csv_format import CsvReader, CsvWriter
+from .dataflash import DataFlashReader, is_dataflash
 from .matlab import MatReader
 from .npz_format import NpzReader, NpzWriter
 from .options import LogOptions
@@ -67,6 +68,17 @@ register_format(
     )
 )
 
+register_format(
+    LogFormat(
+        "dataflash",
+        (".bin",),
+        DataFlashReader,
+        magic=is_dataflash,
+        description="ArduPilot DataFlash log (IMU messages; --instance)",
+        takes_options=True,
+        extra="ardupilot",
+    )
+)
 register_format(
     LogFormat(
         "text",

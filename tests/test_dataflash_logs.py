@@ -1,0 +1,140 @@
+"""ArduPilot DataFlash logs, read through pymavlink's DFReader.
+
+No DataFlash log is shipped and pymavlink cannot write one, so the files here are
+written byte for byte to ArduPilot's self-describing format (FMT messages, then
+``A3 95 id payload`` records, as AP_Logger writes them) holding the real imucal
+recording (tests/data/real/imucal-ferraris, SOURCE.md there) as ``IMU`` messages in
+rad/s and m/s^2; every file is first checked with pymavlink's own reader.
+"""
+
+from __future__ import annotations
+
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import run_imudiag
+from pymavlink import DFReader  # the [test] extra installs pymavlink
+
+from imudiag.logs import LogError, LogOptions, lookup, open_log, read_log
+
+IMUCAL = Path(__file__).parent / "data" / "real" / "imucal-ferraris" / "session.csv.gz"
+HEAD = b"\xa3\x95"
+#: IMU as current ArduPilot logs it (instance field I), and the older per-instance names
+IMU_FMT, IMU_COLS = "QBffffffIIfBB", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH"
+OLD_FMT, OLD_COLS = "QffffffIIf", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T"
+
+
+def _fmt(type_id: int, name: str, fmt: str, cols: str) -> bytes:
+    # FMT's own format uses DataFlash's n (char[4]), N (char[16]), Z (char[64]): 89 bytes
+    length = 89 if name == "FMT" else 3 + struct.calcsize("<" + fmt)
+    body = struct.pack("<BB4s16s64s", type_id, length, name.encode(), fmt.encode(), cols.encode())
+    return HEAD + bytes([128]) + body
+
+
+def write_dataflash(path: Path, s, instances=(0, 1), old_names=False) -> Path:
+    """``s`` (deg/s, m/s^2) as IMU messages; instance i's gyro is scaled by 1 + i / 100."""
+    gyro = np.radians(s.gyro)
+    out = [_fmt(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns")]
+    names = {0: "IMU", 1: "IMU2", 2: "IMU3"}
+    if old_names:
+        out += [_fmt(131 + i, names[i], OLD_FMT, OLD_COLS) for i in instances]
+    else:
+        out.append(_fmt(131, "IMU", IMU_FMT, IMU_COLS))
+    for k in range(len(s)):
+        us = int(round(s.t[k] * 1e6)) + 5_000_000  # 5 s after boot
+        for i in instances:
+            g = gyro[k] * (1.0 + i / 100.0)
+            if old_names:
+                rec = struct.pack("<" + OLD_FMT, us, *g, *s.accel[k], 0, 0, 31.5)
+                out.append(HEAD + bytes([131 + i]) + rec)
+            else:
+                rec = struct.pack("<" + IMU_FMT, us, i, *g, *s.accel[k], 0, 0, 31.5, 1, 1)
+                out.append(HEAD + bytes([131]) + rec)
+    path.write_bytes(b"".join(out))
+    # the reference reader agrees the file is a DataFlash log
+    log = DFReader.DFReader_binary(str(path), zero_time_base=True)
+    assert log.recv_match(type=["IMU", "IMU2", "IMU3"]) is not None
+    return path
+
+
+@pytest.fixture(scope="module")
+def session():
+    return read_log(IMUCAL).slice(0, 3000)
+
+
+def _same(got, s, scale=1.0):
+    f32 = np.float32
+    assert len(got) == len(s)
+    np.testing.assert_allclose(got.t, s.t + 5.0, atol=1e-6)
+    np.testing.assert_allclose(got.gyro, (np.radians(s.gyro) * scale).astype(f32), rtol=1e-6)
+    np.testing.assert_allclose(got.accel, s.accel.astype(f32), rtol=1e-6)
+
+
+def test_dataflash_and_wire_captures_share_bin_and_are_told_apart(tmp_path, session):
+    log = write_dataflash(tmp_path / "00000042.BIN", session)
+    assert lookup(log).name == "dataflash"
+    wire = tmp_path / "capture.bin"
+    r = run_imudiag("simulate", "static", "--duration", "2", "--out", str(wire))
+    assert r.returncode == 0, r.stderr
+    assert lookup(wire).name == ".bin"
+
+
+def test_instance_0_by_default_and_the_others_listed(tmp_path, session):
+    log = write_dataflash(tmp_path / "a.bin", session)
+    with open_log(log) as reader:
+        got = next(iter(reader))
+        meta = dict(reader.meta)
+    _same(got, session)
+    assert meta["source"].startswith("DataFlash IMU instance 0 (the lowest")
+    assert "instances in the log: 0, 1" in meta["source"]
+    assert meta["units"] == {"gyro": "rad/s", "accel": "m/s^2"}
+    assert meta["sample_rate"] == pytest.approx(102.4, abs=0.1)
+    assert np.allclose(got.temp, 31.5)
+    with open_log(log, options=LogOptions(instance=1)) as reader:
+        _same(next(iter(reader)), session, scale=1.01)
+    with pytest.raises(LogError, match=r"--instance 2: no IMU of that instance \(have 0, 1\)"):
+        open_log(log, options=LogOptions(instance=2))
+
+
+def test_older_logs_name_the_instance_in_the_message(tmp_path, session):
+    log = write_dataflash(tmp_path / "old.bin", session, instances=(0, 1, 2), old_names=True)
+    with open_log(log, options=LogOptions(instance=2)) as reader:
+        _same(next(iter(reader)), session, scale=1.02)
+        assert "instances in the log: 0, 1, 2" in reader.meta["source"]
+
+
+def test_commands_take_a_dataflash_log(tmp_path, session):
+    log = write_dataflash(tmp_path / "flight.bin", session)
+    out = tmp_path / "flight.csv"
+    r = run_imudiag("convert", str(log), str(out), "--instance", "1")
+    assert r.returncode == 0, r.stderr
+    _same(read_log(out), session, scale=1.01)
+    r = run_imudiag("allan", str(log))
+    assert r.returncode == 0, r.stderr
+    assert "3000 samples at 102" in r.stdout
+
+
+BLOCKED = """
+import sys
+class Block:
+    def find_spec(self, name, path=None, target=None):
+        if name == "pymavlink" or name.startswith("pymavlink."):
+            raise ImportError("blocked for the test: " + name)
+sys.meta_path.insert(0, Block())
+sys.argv = ["imudiag", "allan", {path!r}]
+from imudiag.cli import main
+sys.exit(main())
+"""
+
+
+def test_missing_pymavlink_is_exit_2_with_the_pip_command(tmp_path, session):
+    log = write_dataflash(tmp_path / "m.bin", session.slice(0, 50))
+    code = BLOCKED.format(path=str(log))
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2, r.stderr
+    assert "'pymavlink'" in r.stderr and "pip install 'imudiag[ardupilot]'" in r.stderr
+    assert "Traceback" not in r.stderr
