@@ -217,7 +217,9 @@ class Monitor:
         for name in TRIADS:
             st = self.state[name]
             if st.persistence is not None and st.persistence.active:
-                fault: dict[str, Any] = {"triad": name, "cause": "f0"}
+                # sensor: the worst axis where the check can tell it (a MEMS gyro at rest),
+                # else None (F0 is a triad check); the key is always there (reports.md)
+                fault: dict[str, Any] = {"triad": name, "sensor": None, "cause": "f0"}
                 if name == "gyro" and self.gyro_mode == "rest_rate" and st.worst_axis is not None:
                     fault["sensor"] = SENSOR_NAMES[name][st.worst_axis]
                 fault["t_first"] = st.persistence.t_first

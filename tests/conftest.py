@@ -48,6 +48,28 @@ def run_imudiag(*args: str, timeout: float = 120.0) -> subprocess.CompletedProce
     )
 
 
+_WITHOUT = """
+import sys
+class Block:
+    def find_spec(self, name, path=None, target=None):
+        if name == {module!r} or name.startswith({module!r} + "."):
+            raise ImportError("blocked for the test: " + name)
+sys.meta_path.insert(0, Block())
+sys.argv = ["imudiag", *{args!r}]
+from imudiag.cli import main
+sys.exit(main())
+"""
+
+
+def run_imudiag_without(module: str, *args: str) -> subprocess.CompletedProcess[str]:
+    """Run ``imudiag ARGS`` in a real subprocess in which ``module`` cannot be imported (an
+    optional extra that is not installed)."""
+    code = _WITHOUT.format(module=module, args=list(args))
+    return subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=False
+    )
+
+
 @pytest.fixture
 def imudiag_cli():
     """The :func:`run_imudiag` helper: ``imudiag_cli("convert", a, b).returncode``."""

@@ -10,13 +10,11 @@ rad/s and m/s^2; every file is first checked with pymavlink's own reader.
 from __future__ import annotations
 
 import struct
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_imudiag
+from conftest import run_imudiag, run_imudiag_without
 from pymavlink import DFReader  # the [test] extra installs pymavlink
 
 from imudiag.logs import LogError, LogOptions, lookup, open_log, read_log
@@ -118,23 +116,9 @@ def test_commands_take_a_dataflash_log(tmp_path, session):
     assert "3000 samples at 102" in r.stdout
 
 
-BLOCKED = """
-import sys
-class Block:
-    def find_spec(self, name, path=None, target=None):
-        if name == "pymavlink" or name.startswith("pymavlink."):
-            raise ImportError("blocked for the test: " + name)
-sys.meta_path.insert(0, Block())
-sys.argv = ["imudiag", "allan", {path!r}]
-from imudiag.cli import main
-sys.exit(main())
-"""
-
-
 def test_missing_pymavlink_is_exit_2_with_the_pip_command(tmp_path, session):
     log = write_dataflash(tmp_path / "m.bin", session.slice(0, 50))
-    code = BLOCKED.format(path=str(log))
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    r = run_imudiag_without("pymavlink", "allan", str(log))
     assert r.returncode == 2, r.stderr
     assert "'pymavlink'" in r.stderr and "pip install 'imudiag[ardupilot]'" in r.stderr
     assert "Traceback" not in r.stderr

@@ -14,6 +14,7 @@ import h5py  # the [test] extra installs both
 import numpy as np
 import pytest
 import scipy.io as scipy_io
+from conftest import run_imudiag_without
 
 from imudiag.logs import LogError, LogOptions, open_log, read_log
 
@@ -87,26 +88,12 @@ def test_diagnose_on_mat_equals_diagnose_on_csv(session, name: str) -> None:
     assert got == ref
 
 
-BLOCKED = """
-import sys
-class Block:
-    def find_spec(self, name, path=None, target=None):
-        if name == {mod!r} or name.startswith({mod!r} + "."):
-            raise ImportError("blocked for the test: " + name)
-sys.meta_path.insert(0, Block())
-sys.argv = ["imudiag", "diagnose", {path!r}, "--variable", "imu"]
-from imudiag.cli import main
-sys.exit(main())
-"""
-
-
 @pytest.mark.parametrize(
     ("name", "mod"), [("session_v5.mat", "scipy"), ("session_v73.mat", "h5py")]
 )
 def test_missing_extra_is_exit_2_with_the_pip_command(session, name: str, mod: str) -> None:
     d, _ = session
-    code = BLOCKED.format(mod=mod, path=str(d / name))
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    r = run_imudiag_without(mod, "diagnose", str(d / name), "--variable", "imu")
     assert r.returncode == 2, r.stderr
     assert f"'{mod}'" in r.stderr and "pip install 'imudiag[mat]'" in r.stderr
     assert "Traceback" not in r.stderr

@@ -41,6 +41,7 @@ def test_gross_accel_bias_fails_f0_after_its_time(sensor):
     _feed(m, _session([Fault("bias", sensor, 8.0, 2000.0)]), [513] * 10)
     faults = [f for f in m.active_faults if f["cause"] == "f0"]
     assert [f["triad"] for f in faults] == ["accel"]
+    assert faults[0]["sensor"] is None  # F0 is a triad check: the key is there, no axis
     # the step itself looks like motion to the 0.5 s detector window, then 20 of 50 fail
     assert 8.0 <= faults[0]["t_first"] < 9.0
 
@@ -145,3 +146,15 @@ def test_gross_gyro_bias_on_a_horizontal_axis_does_not_hide_later_faults():
     assert ("gyro", "gx", "f0") in found
     assert ("accel", None, "f0") in found
     assert not any(f["cause"] == "noise" for f in m.active_faults)  # steps are not noise
+
+
+def test_every_status_fault_carries_the_contract_keys_sensor_null_where_untold():
+    from imudiag.service.status import merge_faults
+
+    merged = merge_faults(
+        [{"triad": "accel", "cause": "f0", "t_first": 3.0}],
+        [{"triad": "accel", "sensor": "az", "cause": "scale_factor"}],
+        [{"triad": "accel", "sensor": None, "cause": "f0"}],  # the same fault again
+    )
+    assert [list(f)[:3] for f in merged] == [["triad", "sensor", "cause"]] * 2
+    assert [(f["sensor"], f["cause"]) for f in merged] == [(None, "f0"), ("az", "scale_factor")]

@@ -8,13 +8,11 @@ tests/data/real/px4-ulog/ (SOURCE.md and LICENSE.md there): ``sample.ulg`` (69 s
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_imudiag
+from conftest import run_imudiag, run_imudiag_without
 
 from imudiag.logs import LogError, LogOptions, lookup, open_log, read_log
 
@@ -98,22 +96,8 @@ def test_commands_take_a_ulog_and_say_which_topic(tmp_path):
     assert report["rate_hz"] == pytest.approx(250, abs=5) and report["gaps"] == 8
 
 
-BLOCKED = """
-import sys
-class Block:
-    def find_spec(self, name, path=None, target=None):
-        if name == "pyulog" or name.startswith("pyulog."):
-            raise ImportError("blocked for the test: " + name)
-sys.meta_path.insert(0, Block())
-sys.argv = ["imudiag", "allan", {path!r}]
-from imudiag.cli import main
-sys.exit(main())
-"""
-
-
 def test_missing_pyulog_is_exit_2_with_the_pip_command():
-    code = BLOCKED.format(path=str(SAMPLE))
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    r = run_imudiag_without("pyulog", "allan", str(SAMPLE))
     assert r.returncode == 2, r.stderr
     assert "'pyulog'" in r.stderr and "pip install 'imudiag[px4]'" in r.stderr
     assert "Traceback" not in r.stderr

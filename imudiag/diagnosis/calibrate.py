@@ -205,6 +205,18 @@ def fields_from_n(n: np.ndarray, scale_factor: np.ndarray) -> tuple[np.ndarray, 
     return e, mis
 
 
+def _set_from_fit(out: TriadModel, like: TriadModel, fit: TriadFit) -> None:
+    """Write a fit's bias and N (the certificate's rotation kept, the fitted symmetric
+    shape applied) into the certificate triad ``out``."""
+    shape_c, q = shape_of_triad(like)
+    dev = fit.estimate - certificate_vector(like)
+    shape = shape_c + np.concatenate([dev[3:6] / like.scale_factor, dev[6:9]])
+    out.bias = fit.estimate[:3].copy()
+    out.scale_factor_error, out.misalignment = fields_from_n(
+        p_matrix(shape) @ q, like.scale_factor
+    )
+
+
 def accel_norm_spread(
     accel: TriadModel, intervals: list[QuasiStaticInterval], gravity: float
 ) -> dict[str, float]:
@@ -331,13 +343,7 @@ def calibrate(
         ne, m0 = moving["gyro"]
         gyr_fit = normal_equation_fit(gyr_like, ne, m0, "moving-base", ratio,
                                       prior_factor=CALIBRATION_PRIOR)
-        g_shape_c, g_q = shape_of_triad(gyr_like)
-        gdev = gyr_fit.estimate - certificate_vector(gyr_like)
-        g_shape = g_shape_c + np.concatenate([gdev[3:6] / gyr_like.scale_factor, gdev[6:9]])
-        gyr.bias = gyr_fit.estimate[:3].copy()
-        gyr.scale_factor_error, gyr.misalignment = fields_from_n(
-            p_matrix(g_shape) @ g_q, gyr_like.scale_factor
-        )
+        _set_from_fit(gyr, gyr_like, gyr_fit)
     elif mode == "earth-rate":
         if method == "linear":
             gyr_fit = linear_fit(gyr_like, gmeans, gcovs, counts, w_in, ratio, CALIBRATION_PRIOR)
@@ -356,13 +362,7 @@ def calibrate(
                 ),
                 CALIBRATION_MIN_DOF,
             )
-        g_shape_c, g_q = shape_of_triad(gyr_like)
-        gdev = gyr_fit.estimate - certificate_vector(gyr_like)
-        g_shape = g_shape_c + np.concatenate([gdev[3:6] / gyr_like.scale_factor, gdev[6:9]])
-        gyr.bias = gyr_fit.estimate[:3].copy()
-        gyr.scale_factor_error, gyr.misalignment = fields_from_n(
-            p_matrix(g_shape) @ g_q, gyr_like.scale_factor
-        )
+        _set_from_fit(gyr, gyr_like, gyr_fit)
     else:
         n_holder: dict[str, np.ndarray] = {}
 
@@ -483,13 +483,7 @@ def calibrate_known_rate(
     new = like.copy()
     new.sample_rate = rate
     gyr = new.gyro
-    g_shape_c, g_q = shape_of_triad(gyr_like)
-    gdev = gyr_fit.estimate - certificate_vector(gyr_like)
-    g_shape = g_shape_c + np.concatenate([gdev[3:6] / gyr_like.scale_factor, gdev[6:9]])
-    gyr.bias = gyr_fit.estimate[:3].copy()
-    gyr.scale_factor_error, gyr.misalignment = fields_from_n(
-        p_matrix(g_shape) @ g_q, gyr_like.scale_factor
-    )
+    _set_from_fit(gyr, gyr_like, gyr_fit)
     gyr.noise = _with_density(gyr_like.noise, _noise_density(gyr_like, plateaus, rate))
     acc_fit = undetermined_fit(
         like.accel, "kept",

@@ -171,6 +171,28 @@ class LogReader:
         self.close()
 
 
+class ColumnsReader(LogReader):
+    """A reader whose format is parsed whole into columns (``self._cols``, set by the
+    subclass), then handed out in blocks, each checked by :func:`first_violation`;
+    ``_where(i)`` names sample ``i`` (0-based) in the file's own terms for errors."""
+
+    _cols: dict[str, np.ndarray]
+
+    def _where(self, index: int) -> str:
+        return f"sample {index + 1}"
+
+    def _blocks(self) -> Iterator[SampleBlock]:
+        n = len(self._cols["t"])
+        last_t: float | None = None
+        for start in range(0, n, self.block_size):
+            cols = {k: v[start : start + self.block_size] for k, v in self._cols.items()}
+            bad = first_violation(cols, last_t)
+            if bad is not None:
+                raise LogError(self.path, f"{self._where(start + bad[0])}: {bad[1]}")
+            last_t = float(cols["t"][-1])
+            yield make_block(cols, self.meta)
+
+
 def format_float(values: np.ndarray) -> list[str]:
     """Shortest text that reads back to the same float64, per value."""
     return list(map(repr, values.tolist()))

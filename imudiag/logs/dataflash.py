@@ -13,13 +13,11 @@ reads message by message in Python), then handed out in blocks.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from ..samples import SampleBlock
-from .base import DEFAULT_BLOCK_SIZE, LogError, LogReader, first_violation, make_block
+from .base import DEFAULT_BLOCK_SIZE, ColumnsReader, LogError
 from .extras import require
 from .options import LogOptions
 
@@ -33,7 +31,7 @@ def is_dataflash(head: bytes) -> bool:
     return head.startswith(DATAFLASH_MAGIC)
 
 
-class DataFlashReader(LogReader):
+class DataFlashReader(ColumnsReader):
     """Reader of the IMU messages of one instance of an ArduPilot DataFlash log."""
 
     format = "dataflash"
@@ -104,16 +102,8 @@ class DataFlashReader(LogReader):
         if step > 0:
             self.meta["sample_rate"] = round(1.0 / step, 3)
 
-    def _blocks(self) -> Iterator[SampleBlock]:
-        n = len(self._cols["t"])
-        last_t: float | None = None
-        for start in range(0, n, self.block_size):
-            cols = {k: v[start : start + self.block_size] for k, v in self._cols.items()}
-            bad = first_violation(cols, last_t)
-            if bad is not None:
-                raise LogError(self.path, f"IMU message {start + bad[0] + 1}: {bad[1]}")
-            last_t = float(cols["t"][-1])
-            yield make_block(cols, self.meta)
+    def _where(self, index: int) -> str:
+        return f"IMU message {index + 1}"
 
 
 __all__ = ["DATAFLASH_MAGIC", "DataFlashReader", "is_dataflash"]

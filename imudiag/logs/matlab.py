@@ -11,13 +11,11 @@ then handed out in blocks.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from ..samples import SampleBlock
-from .base import DEFAULT_BLOCK_SIZE, LogError, LogReader, first_violation, make_block
+from .base import DEFAULT_BLOCK_SIZE, ColumnsReader, LogError
 from .extras import require
 from .options import TIME_UNITS, LogOptions, units_from_meta
 
@@ -35,7 +33,7 @@ def _default_columns(k: int, rate: float | None) -> list[str] | None:
     return None
 
 
-class MatReader(LogReader):
+class MatReader(ColumnsReader):
     """Reader of a numeric matrix in a MATLAB ``.mat`` file."""
 
     format = ".mat"
@@ -140,14 +138,5 @@ class MatReader(LogReader):
             raise LogError(self.path, "no time column: give the sample rate with --rate HZ")
         self._cols = cols
 
-    def _blocks(self) -> Iterator[SampleBlock]:
-        n = len(self._cols["t"])
-        last_t: float | None = None
-        for start in range(0, n, self.block_size):
-            cols = {k: v[start : start + self.block_size] for k, v in self._cols.items()}
-            bad = first_violation(cols, last_t)
-            if bad is not None:
-                where = f"variable {self.variable!r} row {start + bad[0] + 1}"
-                raise LogError(self.path, f"{where}: {bad[1]}")
-            last_t = float(cols["t"][-1])
-            yield make_block(cols, self.meta)
+    def _where(self, index: int) -> str:
+        return f"variable {self.variable!r} row {index + 1}"

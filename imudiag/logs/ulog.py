@@ -16,14 +16,12 @@ reads a ULog in one pass), then handed out in blocks.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..samples import SampleBlock
-from .base import DEFAULT_BLOCK_SIZE, LogError, LogReader, first_violation, make_block
+from .base import DEFAULT_BLOCK_SIZE, ColumnsReader, LogError
 from .extras import require
 from .options import LogOptions
 
@@ -41,7 +39,7 @@ def _rate_hz(t_s: np.ndarray) -> float:
     return float(1.0 / np.median(np.diff(t_s))) if t_s.shape[0] > 1 else 0.0
 
 
-class ULogReader(LogReader):
+class ULogReader(ColumnsReader):
     """Reader of the IMU topics of a PX4 ULog file."""
 
     format = ".ulg"
@@ -158,19 +156,6 @@ class ULogReader(LogReader):
         if "temperature" in g:
             cols["temp"] = np.asarray(g["temperature"], dtype=float)[inside]
         return cols
-
-    # -- samples ----------------------------------------------------------------
-
-    def _blocks(self) -> Iterator[SampleBlock]:
-        n = len(self._cols["t"])
-        last_t: float | None = None
-        for start in range(0, n, self.block_size):
-            cols = {k: v[start : start + self.block_size] for k, v in self._cols.items()}
-            bad = first_violation(cols, last_t)
-            if bad is not None:
-                raise LogError(self.path, f"sample {start + bad[0] + 1}: {bad[1]}")
-            last_t = float(cols["t"][-1])
-            yield make_block(cols, self.meta)
 
 
 __all__ = ["ULOG_MAGIC", "ULogReader", "is_ulog"]

@@ -19,17 +19,19 @@ FAULT_KEYS = ("triad", "sensor", "cause")
 
 def fault_key(fault: dict[str, Any]) -> tuple[str, str, str]:
     """Identity of a fault for change detection and de-duplication."""
-    return (fault.get("triad", ""), fault.get("sensor", ""), fault.get("cause", ""))
+    return (fault.get("triad") or "", fault.get("sensor") or "", fault.get("cause") or "")
 
 
 def merge_faults(*groups: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Faults of several checkers, de-duplicated, in a stable order, contract keys first."""
+    """Faults of several checkers, de-duplicated, in a stable order, contract keys first
+    (every fault has ``sensor``: null where the check cannot tell the axis, as for F0 of a
+    triad or saturation)."""
     seen: dict[tuple[str, str, str], dict[str, Any]] = {}
     for group in groups:
         for f in group:
             key = fault_key(f)
             if key not in seen:
-                ordered = {k: f[k] for k in FAULT_KEYS if k in f and f[k] is not None}
+                ordered = {k: f.get(k) for k in FAULT_KEYS}
                 ordered.update({k: v for k, v in f.items() if k not in FAULT_KEYS})
                 seen[key] = ordered
     return [seen[k] for k in sorted(seen)]
