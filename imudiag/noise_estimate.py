@@ -25,6 +25,7 @@ inverse of :meth:`imudiag.certificate.Triad.noise_sigma`.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from statistics import NormalDist
 
@@ -115,7 +116,8 @@ class NoiseMeter:
     ``quantile``: which quantile of the chunk figures is the unit's noise (the
     quietest chunks are noise only; 0.25 ignores up to three quarters of the
     record in motion); ``quantum``: per-channel (6,) output quantisation step,
-    or None.
+    or None; ``max_chunks``: keep only the last so many chunk figures (a
+    running daemon measures over a sliding window of that many chunks).
     """
 
     def __init__(
@@ -124,6 +126,7 @@ class NoiseMeter:
         chunk_s: float = 1.0,
         quantile: float = 0.25,
         quantum: np.ndarray | None = None,
+        max_chunks: int | None = None,
     ) -> None:
         if not rate_hz > 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz!r}")
@@ -132,7 +135,8 @@ class NoiseMeter:
         self.quantile = float(quantile)
         self.quantum = None if quantum is None else np.asarray(quantum, dtype=float)
         self._buf = np.zeros((0, 6))
-        self._chunks: list[np.ndarray] = []
+        #: chunk figures kept: all, or the last ``max_chunks`` (a running daemon's window)
+        self._chunks: deque[np.ndarray] = deque(maxlen=max_chunks)
 
     def update(self, gyro: np.ndarray, accel: np.ndarray, good: np.ndarray | None = None) -> None:
         """Add samples (N, 3) of each triad, output units; ``good`` (N,) marks usable rows."""

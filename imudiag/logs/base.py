@@ -154,6 +154,14 @@ class LogReader:
         self._handles.append(fh)
         return fh
 
+    def _read_head(self, n: int) -> bytes:
+        """The first ``n`` bytes of the file (for a format's magic test); LogError if unreadable."""
+        fh = self._open(open, self.path, "rb")
+        try:
+            return bytes(fh.read(n))
+        finally:
+            self._release(fh)
+
     def _release(self, fh: Any) -> None:
         fh.close()
         if fh in self._handles:

@@ -45,11 +45,7 @@ class DataFlashReader(ColumnsReader):
         super().__init__(path, block_size)
         self.options = options or LogOptions()
         dfreader = require("pymavlink.DFReader", "ardupilot", "ArduPilot DataFlash logs")
-        fh = self._open(open, self.path, "rb")
-        try:
-            head = fh.read(len(DATAFLASH_MAGIC))
-        finally:
-            self._release(fh)
+        head = self._read_head(len(DATAFLASH_MAGIC))
         if not is_dataflash(head):
             raise LogError(self.path, "not a DataFlash log (no FMT message at the start)")
         rows: dict[int, list[tuple[float, ...]]] = {}

@@ -46,11 +46,7 @@ class MatReader(ColumnsReader):
     ) -> None:
         super().__init__(path, block_size)
         self.options = options or LogOptions()
-        fh = self._open(open, self.path, "rb")
-        try:
-            head = fh.read(128)
-        finally:
-            self._release(fh)
+        head = self._read_head(128)
         self.version = "7.3" if head.startswith(V73_TEXT) else "5"
         variables = self._load_v73() if self.version == "7.3" else self._load_v5()
         self.variable, matrix = self._choose(variables)

@@ -60,8 +60,7 @@ class RosbagReader(LogReader):
         if not p.exists():
             raise LogError(self.path, "cannot read: No such file or directory")
         if p.is_file():
-            with open(p, "rb") as fh:
-                head = fh.read(16)
+            head = self._read_head(16)
             ok = {
                 ".bag": head.startswith(ROSBAG1_MAGIC),
                 ".mcap": head.startswith(MCAP_MAGIC),

@@ -53,11 +53,7 @@ class ULogReader(ColumnsReader):
         super().__init__(path, block_size)
         self.options = options or LogOptions()
         pyulog = require("pyulog", "px4", "PX4 ULog files")
-        fh = self._open(open, self.path, "rb")
-        try:
-            head = fh.read(len(ULOG_MAGIC))
-        finally:
-            self._release(fh)
+        head = self._read_head(len(ULOG_MAGIC))
         if not is_ulog(head):
             raise LogError(self.path, "not a ULog file (no ULog header)")
         try:

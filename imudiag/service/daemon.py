@@ -16,17 +16,26 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
+import numpy as np
+
 from .. import certificate as certmod
 from ..certificate import Certificate, CertificateError
 from ..drivers.base import EndOfStream, SourceError
 from ..drivers.reconnect import ReconnectingSource
 from ..monitor import Monitor, MonitorConfig
+from ..noise_estimate import METHOD as WHITE_NOISE_METHOD
+from ..noise_estimate import NoiseMeter, compare
+from ..quasistatic import BAD_FLAGS
 from ..samples import SampleBlock
 from .config import DaemonConfig
 from .sdnotify import Notifier, WatchdogGate
 from .status import StatusSchedule, merge_faults
 
 log = logging.getLogger("imudiag.daemon")
+
+#: s of samples over which the status's measured white noise is taken (1 s chunks, the
+#: quietest quarter of them: motion in most of the window does not inflate it)
+NOISE_WINDOW_S = 600.0
 
 DAEMON_WINDOWS_KEPT = 16  #: past diagnosis windows the live diagnoser keeps in memory
 
@@ -105,6 +114,9 @@ class Daemon:
         self.clock = clock
         self.certificate = self._load_certificate()
         self.monitor = Monitor(self.certificate, settings.monitor)
+        #: the unit's white noise measured live, as every command measures it
+        #: (:mod:`imudiag.noise_estimate`), over the last NOISE_WINDOW_S of samples
+        self.noise = NoiseMeter(self.monitor.rate_hz, max_chunks=int(NOISE_WINDOW_S))
         self.diagnoser = self._make_diagnoser(self.certificate)
         self._diag_blocks: list[SampleBlock] = []  # gathered for the diagnoser
         # the diagnoser's faults and verdict change only when it is fed: kept between feeds
@@ -241,6 +253,31 @@ class Daemon:
             return "degraded"
         return "ok"
 
+    def _feed_noise(self, block: SampleBlock) -> None:
+        good = None
+        if block.flags is not None:
+            good = (np.asarray(block.flags).astype(np.int64) & BAD_FLAGS) == 0
+        self.noise.update(block.gyro, block.accel, good)
+
+    def _noise_status(self) -> dict[str, Any] | None:
+        """The ``noise`` status object: measured white-noise density per triad beside the
+        certificate's, their ratio, and whether they disagree (None before 1 s of data)."""
+        figures = self.noise.result()
+        if figures is None:
+            return None
+        out: dict[str, Any] = {"method": WHITE_NOISE_METHOD, "window_s": NOISE_WINDOW_S}
+        for name, fig in figures.items():
+            tri = self.certificate.triad(name)
+            measured = [_finite_or_none(float(v)) for v in fig.density]
+            entry: dict[str, Any] = {"density": measured, "unit": f"{tri.output_unit}/sqrt(Hz)"}
+            certified = tri.noise.density if tri.noise is not None else None
+            if certified is not None and all(v is not None for v in measured):
+                cmp = compare(fig.density, certified)
+                entry["ratio"] = [round(float(r), 3) for r in cmp["ratio"]]
+                entry["disagrees"] = bool(cmp["disagrees"])
+            out[name] = entry
+        return out
+
     def status(self, now: float) -> dict[str, Any]:
         """The current status object (spec/reports.md keys first)."""
         diag_faults: list[dict[str, Any]] = []
@@ -293,6 +330,9 @@ class Daemon:
                 "reloads": self.reloads,
             },
         }
+        noise = self._noise_status()
+        if noise is not None:
+            status["noise"] = noise
         if self.diagnoser is not None:
             status["diagnosis"] = dict(diagnosis)
         links = [s for s in self.sinks if hasattr(s, "dropped") and hasattr(s, "written")]
@@ -369,6 +409,7 @@ class Daemon:
                     self._last_data_wall = now
                     self.watchdog.frames_arrived(now)
                     self.monitor.update(block)
+                    self._feed_noise(block)
                     self._feed_diagnoser(block)
                 if self.aiding is not None:
                     self.aiding.update(block if len(block) else None)
