@@ -293,3 +293,15 @@ def test_measured_white_noise_is_unbiased_on_still_noise(rate):
     fig = meter.result()
     assert np.allclose(fig["gyro"].sigma, 0.5, rtol=0.02)
     assert np.allclose(fig["accel"].sigma, 1.0, rtol=0.02)
+
+
+def test_calibrate_writes_the_noise_it_measured(xsens_calibrations):
+    """The certificate's noise density is the measured white noise (the figure every command
+    uses), whatever noise the --like certificate had; not the interval variances."""
+    for factor in (1.0, 0.5, 3.0):
+        cert, summary, _ = xsens_calibrations[factor]
+        for triad in ("gyro", "accel"):
+            written = np.asarray(cert.triad(triad).noise.density)
+            measured = np.asarray(summary["noise"][triad]["measured"]["density"])
+            np.testing.assert_allclose(written, measured, rtol=1e-9)
+            np.testing.assert_allclose(written, XSENS_DENSITY[triad], rtol=0.06)

@@ -14,6 +14,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+import numpy as np
+
 from ..certificate import load
 from ..diagnosis.calibrate import calibrate, calibrate_known_rate
 from ..diagnosis.inputs import MagnitudeTable, check_units, log_rate_hz
@@ -100,13 +102,18 @@ def run(args: argparse.Namespace) -> int:
         raise BadInput(f"{args.log}: no quasi-static interval found (the unit never stood "
                        "still long enough): nothing to calibrate from")
     moving = {k: v for k, v in moving.items() if v[0].n > 0}
+    measured = {
+        name: np.asarray(noise_report[name]["measured"]["density"], dtype=float)
+        for name in ("gyro", "accel")
+        if (noise_report.get(name) or {}).get("measured")
+    }
     try:
         if known is not None:
             result = calibrate_known_rate(intervals, like, known, rate, cfg,
-                                          source=str(args.log))
+                                          source=str(args.log), noise_density=measured)
         else:
             result = calibrate(intervals, like, cfg.method, rate, moving or None, cfg,
-                               source=str(args.log))
+                               source=str(args.log), noise_density=measured)
     except ValueError as exc:
         raise BadInput(f"{args.log}: {exc}") from None
     check = result.generalisation or {}

@@ -245,9 +245,18 @@ def _rotation_rms_deg(gyro: TriadModel, pairs: list[RotationPair]) -> float | No
 
 
 def _noise_density(
-    triad: TriadModel, intervals: list[QuasiStaticInterval], rate_hz: float
+    triad: TriadModel,
+    intervals: list[QuasiStaticInterval],
+    rate_hz: float,
+    measured: dict[str, np.ndarray] | None = None,
 ) -> np.ndarray:
-    """White-noise density (3,) output units/sqrt(Hz) from the interval sample variances."""
+    """White-noise density (3,) output units/sqrt(Hz) to write: the one measured from the log
+    (``measured[triad]``, :mod:`imudiag.noise_estimate`, the figure every command uses) where
+    given and finite, else from the interval sample variances (which also hold bias wander
+    and residual motion: 2x the white noise on the MPU-6050's gyros)."""
+    m = None if measured is None else measured.get(triad.name)
+    if m is not None and np.all(np.isfinite(m)) and np.all(np.asarray(m) > 0):
+        return np.asarray(m, dtype=float)
     var = np.median(np.array([np.diag(iv.cov(triad.name)) for iv in intervals]), axis=0)
     return np.sqrt(var) / math.sqrt(rate_hz / 2.0)
 
@@ -269,11 +278,14 @@ def calibrate(
     moving: dict[str, tuple[NormalEquations, float]] | None = None,
     config: DiagnosisConfig | None = None,
     source: str = "",
+    noise_density: dict[str, np.ndarray] | None = None,
 ) -> CalibrationResult:
     """Calibrate from ``intervals`` (time order); returns the new certificate and figures.
 
     ``method``: exact | linear | moving-base (``moving`` then holds each triad's
-    normal equations and reference magnitude m0 in input units).
+    normal equations and reference magnitude m0 in input units). ``noise_density``:
+    the white noise measured from the log per triad (output units/sqrt(Hz)), written
+    to the certificate.
     """
     cfg = config or DiagnosisConfig()
     rate = float(rate_hz or like.sample_rate)
@@ -324,7 +336,9 @@ def calibrate(
     acc_shape = shape_c + np.concatenate([dev[3:6] / acc_like.scale_factor, dev[6:9]])
     acc.bias = acc_fit.estimate[:3].copy()
     acc.scale_factor_error, acc.misalignment = n_symmetric(acc_like, acc_shape)
-    acc.noise = _with_density(acc_like.noise, _noise_density(acc_like, intervals, rate))
+    acc.noise = _with_density(
+        acc_like.noise, _noise_density(acc_like, intervals, rate, noise_density)
+    )
 
     # -- gyros
     gyr_like = like.gyro
@@ -383,7 +397,9 @@ def calibrate(
             n_g = p_matrix(shape_c + dev) @ small_rotation(np.zeros(3) + frame) @ q_c
         gyr.bias = gyr_fit.estimate[:3].copy()
         gyr.scale_factor_error, gyr.misalignment = fields_from_n(n_g, gyr_like.scale_factor)
-    gyr.noise = _with_density(gyr_like.noise, _noise_density(gyr_like, intervals, rate))
+    gyr.noise = _with_density(
+        gyr_like.noise, _noise_density(gyr_like, intervals, rate, noise_density)
+    )
 
     device = dict(like.device)
     device["calibrated"] = _dt.date.today().isoformat()
@@ -434,6 +450,7 @@ def calibrate_known_rate(
     rate_hz: float | None = None,
     config: DiagnosisConfig | None = None,
     source: str = "",
+    noise_density: dict[str, np.ndarray] | None = None,
 ) -> CalibrationResult:
     """Calibrate the gyros from turntable plateaus at a known rate (rad/s); the
     accelerometers are kept from ``like`` (a turntable adds centripetal acceleration, and
@@ -484,7 +501,9 @@ def calibrate_known_rate(
     new.sample_rate = rate
     gyr = new.gyro
     _set_from_fit(gyr, gyr_like, gyr_fit)
-    gyr.noise = _with_density(gyr_like.noise, _noise_density(gyr_like, plateaus, rate))
+    gyr.noise = _with_density(
+        gyr_like.noise, _noise_density(gyr_like, plateaus, rate, noise_density)
+    )
     acc_fit = undetermined_fit(
         like.accel, "kept",
         "known-rate session: the accelerometers are not calibrated from turntable plateaus "
