@@ -22,6 +22,12 @@ def _beyond(dev: np.ndarray, fit: TriadFit, k_sigma: float) -> np.ndarray:
         return (np.abs(dev) > fit.limit) & (np.abs(dev) > k_sigma * fit.std)
 
 
+def _eligible(fit: TriadFit, k_sigma: float) -> np.ndarray:
+    """(9,) bool: beyond the limit and k_sigma std, judged and well determined."""
+    dev = fit.deviation
+    return _beyond(dev, fit, k_sigma) & np.isfinite(fit.std) & fit.judged & fit.determined
+
+
 def candidates(fit: TriadFit, k_sigma: float) -> np.ndarray:
     """Signs (9,) of the parameters beyond their limit and k_sigma std (0 where not).
 
@@ -31,15 +37,8 @@ def candidates(fit: TriadFit, k_sigma: float) -> np.ndarray:
     left out (``fit.loo_deviation``, :mod:`.robust`), so one interval or motion
     cannot make a fault.
     """
-    dev = fit.deviation
-    beyond = (
-        _beyond(dev, fit, k_sigma)
-        & np.isfinite(fit.std)
-        & fit.judged
-        & fit.determined
-        & stable(fit, k_sigma)
-    )
-    return np.where(beyond, np.sign(dev), 0.0)
+    beyond = _eligible(fit, k_sigma) & stable(fit, k_sigma)
+    return np.where(beyond, np.sign(fit.deviation), 0.0)
 
 
 def _stable_rows(fit: TriadFit, k_sigma: float) -> np.ndarray:
@@ -68,11 +67,10 @@ def held_back(fit: TriadFit, k_sigma: float, labels: list[str]) -> list[dict]:
     """Parameters that would be fault candidates but for one point (the first such point):
     ``sensor``, ``cause``, ``estimate``, the estimate without that ``point`` and the
     reason."""
-    dev = fit.deviation
     loo = fit.loo_deviation
     if loo is None or loo.shape[0] == 0:
         return []
-    would = _beyond(dev, fit, k_sigma) & np.isfinite(fit.std) & fit.judged & fit.determined
+    would = _eligible(fit, k_sigma)
     rows = _stable_rows(fit, k_sigma)
     out = []
     for i in np.flatnonzero(would & ~np.all(rows, axis=0)):

@@ -1,7 +1,8 @@
 """What one interval (or one motion) does to a fit: outlier rejection and influence.
 
-Two questions are asked of every weighted least-squares fit of the diagnosis,
-both from the converged fit alone (no refits, exact for a linear model):
+Two questions are asked of every weighted least-squares fit of the diagnosis.
+Both start from the converged fit alone (one Newton step, exact for a linear
+model); a suspected outlier is then confirmed against a real refit without it:
 
 - *Is a point an outlier?* Its deletion residual, the residual it would have
   against the fit to all the others, standardised by the noise of the point
@@ -50,7 +51,8 @@ PROBES = 3
 #: few bad points but a model that does not fit, and is reported as such.
 MAX_REJECT_FRACTION = 0.25
 #: Leverage above which a point is the only evidence for some direction: it cannot be
-#: judged an outlier (nothing predicts it), and a fault resting on it is not stable.
+#: judged an outlier (nothing predicts it), and its shift is NaN (an essential point,
+#: which the predicates do not let hold a fault back).
 MAX_LEVERAGE = 0.99
 #: Median of a chi^2 variable with one degree of freedom.
 _CHI2_1_MEDIAN = 0.454936423119572
@@ -61,7 +63,6 @@ class PointDiagnostics:
     """Per-point figures of a converged fit (internal parameter units)."""
 
     z: np.ndarray  #: (G,) robustly standardised deletion residuals, sigma (NaN: cannot judge)
-    leverage: np.ndarray  #: (G,) largest eigenvalue of the point's hat block, 0..1
     shift: np.ndarray  #: (G, p) parameter change when the point is left out (NaN: unseen)
     excess_var: float  #: robust common excess variance added to every residual
 
@@ -82,37 +83,41 @@ def point_diagnostics(
     weights it used (default ``1 / noise_var``). ``groups``: the rows of each
     point (default one row each).
     """
-    n = r.shape[0]
     w = 1.0 / noise_var if weights is None else weights
+    sw = np.sqrt(w)
+    a_all = jac * sw[:, None]
+    s_all = sw * r
     if groups is None:
-        groups = [np.array([i]) for i in range(n)]
-    g_count = len(groups)
-    p = cov.shape[0]
-    shift = np.full((g_count, p), np.nan)
-    lev = np.ones(g_count)
-    u = np.full(g_count, np.nan)  # squared deletion residual in units of the noise
-    m_rows = np.array([len(g) for g in groups], dtype=float)
-    nv_mean = np.ones(g_count)
-    for k, rows in enumerate(groups):
-        sw = np.sqrt(w[rows])
-        a = jac[rows] * sw[:, None]
-        h = a @ cov @ a.T
-        h = 0.5 * (h + h.T)
-        ev = np.linalg.eigvalsh(h)
-        lev[k] = float(np.clip(ev[-1], 0.0, 1.0))
-        if lev[k] > MAX_LEVERAGE:
-            continue
-        s = sw * r[rows]
-        m = np.eye(len(rows)) - h
-        sol = np.linalg.solve(m, s)
-        shift[k] = cov @ a.T @ sol
-        # squared standardised deletion residual s^T (I - H)^-1 s, in weight units,
-        # rescaled to the noise-only variance
-        u[k] = float(s @ sol) / float(np.mean(noise_var[rows] * w[rows]))
-        nv_mean[k] = float(np.mean(noise_var[rows]))
+        # one row per point: the same formulas with scalars, vectorised (every window fit)
+        h = np.einsum("ij,jk,ik->i", a_all, cov, a_all)
+        ok = h <= MAX_LEVERAGE
+        sol = np.where(ok, s_all / np.where(ok, 1.0 - h, 1.0), np.nan)
+        shift = (a_all @ cov) * sol[:, None]
+        u = np.where(ok, s_all * sol, np.nan) / (noise_var * w)
+        m_rows = np.ones(r.shape[0])
+        nv_mean = np.where(ok, noise_var, 1.0)
+    else:
+        g_count, p = len(groups), cov.shape[0]
+        shift = np.full((g_count, p), np.nan)
+        u = np.full(g_count, np.nan)  # squared deletion residual in units of the noise
+        m_rows = np.array([len(g) for g in groups], dtype=float)
+        nv_mean = np.ones(g_count)
+        for k, rows in enumerate(groups):
+            a = a_all[rows]
+            hk = a @ cov @ a.T
+            hk = 0.5 * (hk + hk.T)
+            if np.linalg.eigvalsh(hk)[-1] > MAX_LEVERAGE:
+                continue
+            s = s_all[rows]
+            sol_k = np.linalg.solve(np.eye(len(rows)) - hk, s)
+            shift[k] = cov @ a.T @ sol_k
+            # squared standardised deletion residual s^T (I - H)^-1 s, in weight units,
+            # rescaled to the noise-only variance
+            u[k] = float(s @ sol_k) / float(np.mean(noise_var[rows] * w[rows]))
+            nv_mean[k] = float(np.mean(noise_var[rows]))
     excess = _robust_excess(u, nv_mean, m_rows)
     z = np.sqrt(u / (m_rows * (1.0 + excess / nv_mean)))
-    return PointDiagnostics(z=z, leverage=lev, shift=shift, excess_var=excess)
+    return PointDiagnostics(z=z, shift=shift, excess_var=excess)
 
 
 def _robust_excess(u: np.ndarray, nv: np.ndarray, m: np.ndarray) -> float:
