@@ -13,6 +13,7 @@ or a dropped socket raises SourceError.
 
 from __future__ import annotations
 
+import os
 import select
 from typing import Any
 
@@ -77,11 +78,28 @@ class SerialSource(ByteSource):
         assert port is not None
         try:
             if self._fd is not None:
-                ready, _, _ = select.select([self._fd], [], [], max(0.0, timeout_s))
-                if not ready:
-                    return b""
-                # at least one byte: a hung-up port then raises instead of returning b""
-                return port.read(min(max(1, port.in_waiting), _MAX_READ))
+                # pyserial opens the port non-blocking: one read takes what is there, and
+                # only when nothing is there does the loop wait for it (pyserial's own read
+                # would ask in_waiting and select as well: three system calls on every turn
+                # of the daemon's loop instead of one)
+                try:
+                    data = os.read(self._fd, _MAX_READ)
+                except BlockingIOError:
+                    data = b""
+                if not data:  # (a tty in raw mode with VMIN 0 reads 0 bytes, not EAGAIN)
+                    ready, _, _ = select.select([self._fd], [], [], max(0.0, timeout_s))
+                    if not ready:
+                        return b""
+                    try:
+                        data = os.read(self._fd, _MAX_READ)
+                    except BlockingIOError:
+                        return b""
+                if not data:  # ready yet nothing to read: the device hung up
+                    raise SourceError(
+                        f"{self.url.url}: device gone: ready to read but no data "
+                        "(device disconnected or multiple access on port?)"
+                    )
+                return data
             if self._timeout != timeout_s:
                 port.timeout = timeout_s
                 self._timeout = timeout_s

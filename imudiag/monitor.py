@@ -79,6 +79,12 @@ class MonitorConfig:
     #: noise beyond ``noise_gross_ratio`` times the certificate's is gross: 3 of 5 checks raise it
     noise_gross_ratio: float = 3.0
     earth_rate_noise_ratio: float = 0.2  #: per-sample Earth-rate F0 needs sigma_f0 < ratio*limit
+    #: s of samples gathered before the checks run on them, when a read can change no F0
+    #: verdict (every sample passes its F0 limit and none failed in the persistence window):
+    #: one call per batch instead of one per read (issue 14). A read with a sample beyond
+    #: the limit runs the quasi-static detector and the F0 checks at once; 0: every read
+    #: runs everything
+    batch_s: float = 0.25
 
 
 @dataclass
@@ -98,6 +104,17 @@ class TriadState:
     noise_ratio_last: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
 
 
+def _beyond(x: np.ndarray, scale: float, limit: float) -> int:
+    """How many rows of ``x`` (N, 3) times ``scale`` have |F0| = |(|row|^2 - 1) / 2| beyond
+    ``limit`` (NaN rows never do, as in the F0 check)."""
+    q = np.einsum("ij,ij->i", x, x)
+    q *= 0.5 * scale * scale
+    q -= 0.5
+    # a hair inside the limit: rounding here (not the F0 check's order of operations) must
+    # never let a sample the check fails pass as harmless
+    return int(np.count_nonzero(np.abs(q) > limit * (1.0 - 1e-9)))
+
+
 class Monitor:
     """Runs the per-sample checks over consecutive blocks of one stream."""
 
@@ -113,23 +130,39 @@ class Monitor:
         self.certificate = certificate
         self.ring = SampleRing(self.config.ring_capacity)
         self.samples = 0  #: samples seen
-        self.adc_errors = 0  #: samples flagged with an ADC error (not checked)
-        self.self_test = 0  #: samples flagged as self-test (deflected on purpose; not checked)
+        self._adc_errors = 0
+        self._self_test = 0
         self.t_last: float | None = None  #: sample time of the last sample, s
-        self.static = False  #: the last sample was quasi-static
-        self.state: dict[str, TriadState] = {}
+        self._static = False
+        self._state: dict[str, TriadState] = {}
+        # reads not yet through the detector and F0 checks; and blocks through them (with
+        # their static flags and corrected rates) waiting for the other checks
+        self._pending: list[SampleBlock] = []
+        self._pending_n = 0
+        self._staged: list[tuple[SampleBlock, np.ndarray, np.ndarray]] = []
+        self._staged_n = 0
+        self._checked_samples = 0  # samples through every check
+        self._beyond = {"accel": 0, "gyro": 0}  # pending samples beyond the F0 limit
+        self._unscreened: list[SampleBlock] = []  # pending reads not looked at yet
+        self._unscreened_n = 0
+        self._faults: list[dict[str, Any]] | None = []  # the faults in force (None: stale)
         self.set_certificate(certificate)
 
     # -- configuration ----------------------------------------------------
 
     def set_certificate(self, certificate: Certificate) -> None:
-        """Use a new certificate from the next block on (persistence restarts)."""
+        """Use a new certificate from the next block on (persistence restarts; the samples
+        read before are checked with the previous one)."""
+        if hasattr(self, "detector"):
+            self.flush()
         self.certificate = certificate
         cfg = self.config
         rate = self._rate_override or certificate.sample_rate
         self.rate_hz = rate
+        self._batch = max(0, int(round(cfg.batch_s * rate)))
         self.detector = QuasiStaticDetector(certificate, rate, window_s=cfg.static_window_s)
-        self.state = {}
+        self._faults = None
+        self._state = {}
         for name in TRIADS:
             st = TriadState()
             st.persistence = Persistence(cfg.persistence_k, cfg.persistence_n)
@@ -138,12 +171,23 @@ class Monitor:
                 Persistence(cfg.noise_persistence_k, cfg.noise_persistence_n) for _ in range(3)
             ]
             st.noise_gross = [Persistence(3, 5) for _ in range(3)]
-            self.state[name] = st
+            self._state[name] = st
         self.gyro_mode = self._gyro_mode(certificate.gyro, rate)
         # per-certificate constants, computed once rather than on every block
         self._n_inv_t = {name: certificate.triad(name).n_inverse_t() for name in TRIADS}
         self._sigma = {name: certificate.triad(name).noise_sigma(rate) for name in TRIADS}
         self._limit = {name: float(certificate.triad(name).limits.f0) for name in TRIADS}
+        #: accelerometer input units -> fractions of gravity
+        self._accel_scale = certificate.accel.unit_to_si / certificate.gravity
+        # a linear accelerometer model (no temperature or nonlinearity block): the F0
+        # screen of every read as bias, one matrix to fractions of g, and the band of
+        # |f|^2 / g^2 - 1 = 2 F0 (a hair inside 2 limits, so rounding never hides a failure)
+        acc = certificate.accel
+        self._accel_linear: tuple[np.ndarray, np.ndarray, float] | None = None
+        if acc.temperature is None and acc.nonlinearity is None:
+            to_g = (self._n_inv_t["accel"] / np.asarray(acc.scale_factor, float)[:, None])
+            self._accel_linear = (np.asarray(acc.bias, float), to_g * self._accel_scale,
+                                  2.0 * self._limit["accel"] * (1.0 - 1e-9))  # fmt: skip
         # stuck outputs: both triads as one (6,) row, gyro then accel (the ring's column order)
         enabled = [
             np.zeros(3, dtype=bool) if sig is None else sig >= cfg.stuck_min_sigma
@@ -165,7 +209,7 @@ class Monitor:
         # the noise check reads its raw samples back from the ring of recent samples
         if self.ring.capacity < self._noise_w + 2:
             self.ring = SampleRing(self._noise_w + 2)
-        self._noise_from = self.samples  # the noise history restarts with the certificate
+        self._noise_from = self._checked_samples  # the noise history restarts with it
         self._noise_sigma: dict[str, np.ndarray | None] = {}
         for name in TRIADS:
             sigma = self._sigma[name]
@@ -195,6 +239,57 @@ class Monitor:
         return "earth_rate" if observable else "rest_rate"
 
     # -- results ----------------------------------------------------------
+    #
+    # Every accessor below first runs the checks on the samples gathered so far
+    # (:meth:`flush`), so what it returns holds for every sample read; the daemon's loop
+    # reads :meth:`faults_in_force` instead, which never runs them.
+
+    @property
+    def state(self) -> dict[str, TriadState]:
+        """Counters and check states per triad (after every sample read)."""
+        self.flush()
+        return self._state
+
+    @state.setter
+    def state(self, value: dict[str, TriadState]) -> None:
+        self._state = value
+
+    @property
+    def static(self) -> bool:
+        """The last sample read was quasi-static."""
+        self.flush()
+        return self._static
+
+    @property
+    def adc_errors(self) -> int:
+        """Samples flagged with an ADC error (not checked)."""
+        self.flush()
+        return self._adc_errors
+
+    @property
+    def self_test(self) -> int:
+        """Samples flagged as self-test (deflected on purpose; not checked)."""
+        self.flush()
+        return self._self_test
+
+    @property
+    def adc_errors_checked(self) -> int:
+        """:attr:`adc_errors` among the samples checked so far (no :meth:`flush`)."""
+        return self._adc_errors
+
+    @property
+    def pending_samples(self) -> int:
+        """Samples read whose checks have not all run yet (at most a batch)."""
+        return self._pending_n + self._staged_n
+
+    def faults_in_force(self) -> list[dict[str, Any]]:
+        """The faults in force without running the gathered samples' checks: exact for F0
+        (a read that could change an F0 verdict runs those checks at once), as of the
+        last batch for the slower ones (stuck, noise, saturation, the gyro rest rate).
+        The same list object until a check has run (the daemon's loop compares it)."""
+        if self._faults is None:
+            self._faults = self._active_faults()
+        return self._faults
 
     def check_mode(self, name: str) -> str:
         """``f0`` (F0 against the known magnitude) or ``rest_rate`` (MEMS gyro at rest)."""
@@ -213,9 +308,13 @@ class Monitor:
     @property
     def active_faults(self) -> list[dict[str, Any]]:
         """Faults in force now: dicts with triad, sensor (where it can be told), cause, t_first."""
+        self.flush()
+        return list(self.faults_in_force())
+
+    def _active_faults(self) -> list[dict[str, Any]]:
         out: list[dict[str, Any]] = []
         for name in TRIADS:
-            st = self.state[name]
+            st = self._state[name]
             if st.persistence is not None and st.persistence.active:
                 # sensor: the worst axis where the check can tell it (a MEMS gyro at rest),
                 # else None (F0 is a triad check); the key is always there (reports.md)
@@ -274,21 +373,110 @@ class Monitor:
     # -- the checks -------------------------------------------------------
 
     def update(self, block: SampleBlock) -> None:
-        """Check every sample of ``block`` (consecutive with the previous block)."""
+        """Check every sample of ``block`` (consecutive with the previous block).
+
+        The F0 verdicts are final when this returns. The samples are gathered and the
+        checks run once per ``batch_s`` of them, unless a sample of ``block`` is beyond
+        its F0 limit or the F0 persistence holds a failure: then the quasi-static detector
+        and the F0 checks run at once (whether the sample counts depends on the unit
+        being still). Gathering changes no result: every check carries its state from
+        sample to sample, whatever the blocks (the noise estimate of a certificate
+        without noise figures is the exception: it takes a quantile per block).
+        """
         n = len(block)
         if n == 0:
             return
-        cert = self.certificate
         self.samples += n
         self.t_last = float(block.t[-1])
+        self._pending.append(block)
+        self._pending_n += n
+        self._unscreened.append(block)
+        self._unscreened_n += n
+        if self._pending_n + self._staged_n >= self._batch:
+            self.flush()
+        elif self._f0_may_change():
+            self._f0_stage()
+
+    def flush(self) -> None:
+        """Run every check on the samples gathered so far."""
+        if self._pending:
+            self._f0_stage()
+        if self._staged:
+            self._slow_stage()
+
+    def _f0_may_change(self) -> bool:
+        """Whether the reads gathered could change an F0 verdict (the test every read makes).
+
+        The samples beyond the F0 limit among the reads gathered since the F0 checks last
+        ran bound the failures they can add, whether or not the unit was still: with the
+        failures already in the persistence window they must stay below ``k``, or the
+        fault could be raised. Reads not yet looked at count as beyond: they are looked
+        at (all at once) only when that bound reaches ``k``, every few reads. A fault in
+        force is checked on every read (passes clear it).
+        """
+        gyro_f0 = self.gyro_mode == "earth_rate"
+        names = ("accel", "gyro") if gyro_f0 else ("accel",)
+        unseen = self._unscreened_n
+        for name in names:
+            p = self._state[name].persistence
+            assert p is not None
+            if p.active:
+                return True
+            if p.tail_failures + self._beyond[name] + unseen >= p.k:
+                break
+        else:
+            return False  # even if every sample not looked at failed
+        parts = self._unscreened
+        self._unscreened = []
+        self._unscreened_n = 0
+        cert = self.certificate
+        if self._accel_linear is not None and not gyro_f0:
+            # bias and (scale factor, N^-1, units, gravity) folded: 4 numpy calls
+            bias, to_g, band = self._accel_linear
+            accel = parts[0].accel if len(parts) == 1 else np.concatenate([b.accel for b in parts])
+            x = (accel - bias) @ to_g
+            q = np.einsum("ij,ij->i", x, x)
+            self._beyond["accel"] += int(np.count_nonzero(np.abs(q - 1.0) > band))
+        else:
+            block = parts[0] if len(parts) == 1 else SampleBlock.concat(parts)
+            accel_in = cert.accel.inverse(block.accel, temp_c=block.temp,
+                                          n_inv_t=self._n_inv_t["accel"])  # fmt: skip
+            self._beyond["accel"] += _beyond(accel_in, self._accel_scale, self._limit["accel"])
+            if gyro_f0:
+                gyro_si = cert.gyro.inverse_si(
+                    block.gyro, temp_c=block.temp, n_inv_t=self._n_inv_t["gyro"],
+                    accel_input=accel_in if cert.gyro.g_sensitivity is not None else None,
+                )  # fmt: skip
+                self._beyond["gyro"] += _beyond(
+                    gyro_si, 1.0 / cert.earth_rate, self._limit["gyro"]
+                )
+        for name in names:
+            p = self._state[name].persistence
+            assert p is not None
+            if p.tail_failures + self._beyond[name] >= p.k:
+                return True
+        return False
+
+    def _f0_stage(self) -> None:
+        """The quasi-static detector and the F0 checks over the reads gathered."""
+        pending = self._pending
+        block = pending[0] if len(pending) == 1 else SampleBlock.concat(pending)
+        self._pending = []
+        self._pending_n = 0
+        self._unscreened = []
+        self._unscreened_n = 0
+        self._beyond = {"accel": 0, "gyro": 0}
+        self._faults = None
+        n = len(block)
+        cert = self.certificate
         flags = block.flags if block.flags is not None else np.zeros(n, dtype=np.uint16)
         flags = flags.astype(np.uint16, copy=False)
         adc_error = (flags & FLAG_ADC_ERROR) != 0
-        self.adc_errors += int(np.count_nonzero(adc_error))
-        self.self_test += int(np.count_nonzero(flags & FLAG_SELF_TEST))
+        self._adc_errors += int(np.count_nonzero(adc_error))
+        self._self_test += int(np.count_nonzero(flags & FLAG_SELF_TEST))
 
         static = self.detector.update(block)
-        self.static = bool(static[-1])
+        self._static = bool(static[-1])
         temp = block.temp
         accel_in = cert.accel.inverse(block.accel, temp_c=temp, n_inv_t=self._n_inv_t["accel"])
         accel_si = accel_in * cert.accel.unit_to_si
@@ -297,18 +485,41 @@ class Monitor:
             else None, n_inv_t=self._n_inv_t["gyro"],
         )
 
+        # accelerometer F0 on quasi-static samples
+        ok_a = static & ~adc_error & ((flags & FLAG_ACCEL_SATURATED) == 0)
+        self._record("accel", f0(accel_si[ok_a] / cert.gravity), block.t[ok_a])
+        if self.gyro_mode == "earth_rate":
+            ok_g = static & ~adc_error & ((flags & FLAG_GYRO_SATURATED) == 0)
+            self._record("gyro", f0(gyro_si[ok_g] / cert.earth_rate), block.t[ok_g])
+        self._staged.append((block, static, gyro_si))
+        self._staged_n += n
+
+    def _slow_stage(self) -> None:
+        """Saturation, the gyro rest rate, stuck outputs and excess noise over the blocks
+        through the F0 stage."""
+        staged = self._staged
+        if len(staged) == 1:
+            block, static, gyro_si = staged[0]
+        else:
+            block = SampleBlock.concat([b for b, _, _ in staged])
+            static = np.concatenate([s for _, s, _ in staged])
+            gyro_si = np.concatenate([g for _, _, g in staged])
+        self._staged = []
+        self._staged_n = 0
+        self._faults = None
+        n = len(block)
+        self._checked_samples += n
+        flags = block.flags if block.flags is not None else np.zeros(n, dtype=np.uint16)
+        flags = flags.astype(np.uint16, copy=False)
+        adc_error = (flags & FLAG_ADC_ERROR) != 0
         sat = {
             "gyro": (flags & FLAG_GYRO_SATURATED) != 0,
             "accel": (flags & FLAG_ACCEL_SATURATED) != 0,
         }
         for name in TRIADS:
-            st = self.state[name]
+            st = self._state[name]
             assert st.saturation is not None
             st.saturation.update(sat[name], block.t)
-
-        # accelerometer F0 on quasi-static samples
-        ok_a = static & ~adc_error & ~sat["accel"]
-        self._record("accel", f0(accel_si[ok_a] / cert.gravity), block.t[ok_a])
 
         # gyro
         rows = np.empty((n, 5))
@@ -322,10 +533,8 @@ class Monitor:
             rows[:, 4] = bad
         now, back, idx = self._prefix.update(rows, self._offsets)
 
-        ok_g = static & ~adc_error & ~sat["gyro"]
-        if self.gyro_mode == "earth_rate":
-            self._record("gyro", f0(gyro_si[ok_g] / cert.earth_rate), block.t[ok_g])
-        else:
+        if self.gyro_mode != "earth_rate":
+            ok_g = static & ~adc_error & ~sat["gyro"]
             self._gyro_rest_rate(now, back, idx, ok_g, block.t)
 
         self._stuck(block)
@@ -343,7 +552,7 @@ class Monitor:
         self.ring.push(block)
 
     def _record(self, name: str, values: np.ndarray, t: np.ndarray) -> None:
-        st = self.state[name]
+        st = self._state[name]
         limit = self._limit[name]
         failed = np.abs(values) > limit
         st.checked += int(values.size)
@@ -382,7 +591,7 @@ class Monitor:
         worst = excess.max(axis=1) if m.shape[0] else np.zeros(0)
         failed = worst > 1.0
         values = worst  # ratio of the worst axis' mean rate to its threshold
-        st = self.state["gyro"]
+        st = self._state["gyro"]
         st.checked += int(m.shape[0])
         st.failed += int(np.count_nonzero(failed))
         st.sum_f0_sq += float(np.sum(values * values))
@@ -412,8 +621,8 @@ class Monitor:
         self._stuck_run = run.astype(np.int64)
         self._stuck_last = raw[-1].astype(float)
         active = self._stuck_enabled & (self._stuck_run >= self.config.stuck_samples - 1)
-        self.state["gyro"].stuck_active = active[:3]
-        self.state["accel"].stuck_active = active[3:]
+        self._state["gyro"].stuck_active = active[:3]
+        self._state["accel"].stuck_active = active[3:]
 
     def _noise(self, block: SampleBlock, calm: np.ndarray) -> None:
         """Excess white noise per channel from second differences, carried across blocks.
@@ -431,7 +640,7 @@ class Monitor:
         w, step = self._noise_w, self._noise_step
         n = len(block)
         # check positions: samples whose index in the stream is a multiple of the step
-        first = self.samples - n
+        first = self._checked_samples - n
         pos = np.arange((-first) % step, n, step)
         # a check needs w second differences, i.e. w + 2 samples since the certificate was set
         seen = first - self._noise_from  # samples before this block, since then
@@ -452,7 +661,7 @@ class Monitor:
             sigma = self._noise_sigma[name]
             if sigma is None:
                 continue
-            st = self.state[name]
+            st = self._state[name]
             ratio = np.sqrt(ratio6[:, 3 * k : 3 * k + 3] / (0.4549 * 6.0)) / sigma
             st.noise_ratio_last = ratio[-1]
             for axis in range(3):

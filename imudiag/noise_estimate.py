@@ -137,6 +137,9 @@ class NoiseMeter:
         self._buf = np.zeros((0, 6))
         #: chunk figures kept: all, or the last ``max_chunks`` (a running daemon's window)
         self._chunks: deque[np.ndarray] = deque(maxlen=max_chunks)
+        #: clean chunks measured so far (also those the window has dropped since): the
+        #: result changes only when this does
+        self.chunks_added = 0
 
     def update(self, gyro: np.ndarray, accel: np.ndarray, good: np.ndarray | None = None) -> None:
         """Add samples (N, 3) of each triad, output units; ``good`` (N,) marks usable rows."""
@@ -149,6 +152,7 @@ class NoiseMeter:
             part = buf[k * self.chunk : (k + 1) * self.chunk]
             if np.isfinite(part).all():
                 self._chunks.append(second_difference_sigma(part))
+                self.chunks_added += 1
         self._buf = buf[n * self.chunk :].copy()
 
     def gap(self) -> None:

@@ -20,14 +20,22 @@ class Persistence:
             raise ValueError(f"persistence needs 0 <= k_clear < k, got k_clear={k_clear}")
         self.k, self.n, self.k_clear = int(k), int(n), int(k_clear)
         self._tail = np.zeros(0, dtype=bool)
+        self._tail_failures = 0
         self.active = False
         self.t_first: float | None = None  #: sample time (s) the condition last became active
         self.raised = 0  #: times the condition became active (even set and cleared in one block)
         self.t_first_raised: float | None = None  #: sample time (s) it first became active
 
+    @property
+    def tail_failures(self) -> int:
+        """Failures among the last ``n - 1`` checks: an inactive condition cannot become
+        active before this plus the failures still to come reaches ``k``."""
+        return self._tail_failures
+
     def reset(self) -> None:
         """Forget all history."""
         self._tail = np.zeros(0, dtype=bool)
+        self._tail_failures = 0
         self.active = False
         self.t_first = None
         self.raised = 0
@@ -69,6 +77,7 @@ class Persistence:
         elif last_clear > last_set:
             self.active = False
         self._tail = seq[-(self.n - 1) :] if self.n > 1 else np.zeros(0, dtype=bool)
+        self._tail_failures = int(np.count_nonzero(self._tail))
         return self.active
 
     def _count_raises(self, sets: np.ndarray, clears: np.ndarray, t: np.ndarray) -> None:

@@ -19,6 +19,9 @@ FLAG_ADC_ERROR = 0x0004
 FLAG_SELF_TEST = 0x0008
 
 
+_F64 = np.dtype(np.float64)
+
+
 @dataclass
 class SampleBlock:
     """N consecutive samples.
@@ -36,19 +39,26 @@ class SampleBlock:
     meta: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.t = np.asarray(self.t, dtype=float)
-        self.gyro = np.asarray(self.gyro, dtype=float).reshape(-1, 3)
-        self.accel = np.asarray(self.accel, dtype=float).reshape(-1, 3)
-        n = self.t.shape[0]
-        if self.gyro.shape[0] != n or self.accel.shape[0] != n:
-            raise ValueError(
-                f"sample block arrays differ in length: t {n}, gyro {self.gyro.shape[0]}, "
-                f"accel {self.accel.shape[0]}"
-            )
+        # arrays already of the right kind (every reader's, the decoder's) are kept as they
+        # are without a numpy call: a daemon builds a block on every read
+        t = self.t
+        if type(t) is not np.ndarray or t.dtype is not _F64 or t.ndim != 1:
+            t = self.t = np.asarray(t, dtype=float)
+        n = t.shape[0]
+        for name in ("gyro", "accel"):
+            a = getattr(self, name)
+            if type(a) is not np.ndarray or a.dtype is not _F64 or a.ndim != 2 or a.shape[1] != 3:
+                a = np.asarray(a, dtype=float).reshape(-1, 3)
+                setattr(self, name, a)
+            if a.shape[0] != n:
+                raise ValueError(
+                    f"sample block arrays differ in length: t {n}, gyro {self.gyro.shape[0]}, "
+                    f"accel {self.accel.shape[0]}"
+                )
         for name in ("temp", "flags", "seq"):
             v = getattr(self, name)
-            if v is not None and np.shape(v)[0] != n:
-                raise ValueError(f"sample block {name} has {np.shape(v)[0]} values, expected {n}")
+            if v is not None and len(v) != n:
+                raise ValueError(f"sample block {name} has {len(v)} values, expected {n}")
 
     def __len__(self) -> int:
         return int(self.t.shape[0])

@@ -13,7 +13,13 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from imudiag.drivers.crc import crc16_ccitt_false
-from imudiag.drivers.wire import Decoder, encode_frame, encode_info, encode_samples
+from imudiag.drivers.wire import (
+    SAMPLE_FRAME_SIZE,
+    Decoder,
+    encode_frame,
+    encode_info,
+    encode_samples,
+)
 
 from imudiag.samples import SampleBlock
 
@@ -208,3 +214,26 @@ def test_adversarial_sync_flood():
     """A buffer of nothing but sync bytes and headers: slow path, still exact."""
     data = (b"\xaa\x55" * 3000) + (b"\xaa\x55\x01\x22" * 500)
     check_against_reference(data, [1, 2, 777, 4001])
+
+
+def test_daemon_sized_reads_match_reference(monkeypatch):
+    """Reads of a few frames (a daemon's, decoded frame by frame in plain Python) give the
+    reference's samples and counters on mutated streams too, and that path is taken."""
+    taken = []
+    few = Decoder._decode_few
+
+    def counting(self, buf):
+        out = few(self, buf)
+        taken.append(out is not None)
+        return out
+
+    monkeypatch.setattr(Decoder, "_decode_few", counting)
+    rng = np.random.default_rng(20261125)
+    for _ in range(150):
+        data = board_stream(rng, int(rng.integers(50, 300)))
+        if rng.random() < 0.7:
+            data = mutate(rng, data)
+        steps = rng.integers(1, 17 * SAMPLE_FRAME_SIZE, size=len(data) // 20 + 1)
+        cuts = np.cumsum(steps)
+        check_against_reference(data, [int(c) for c in cuts if c <= len(data)])
+    assert sum(taken) > 1000 and not all(taken)  # clean reads taken, the others passed on

@@ -9,10 +9,12 @@ identical; the F0 sums and noise ratios agree to rounding (running sums round di
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from imudiag.certificate import load_default
+from imudiag.certificate import load, load_default
 from imudiag.monitor import Monitor
 from imudiag.samples import FLAG_ACCEL_SATURATED, SampleBlock
 from imudiag.sim import Effects, Fault, multi_position, simulate, still
@@ -99,3 +101,80 @@ def test_new_path_matches_the_reference_block_by_block(case):
         assert new.state["accel"].saturation.raised == 1
     if "adc" in case:
         assert new.adc_errors > 0
+
+
+def _f0_view(faults: list[dict], gyro_per_sample: bool) -> list[tuple]:
+    """The faults of the per-sample F0 checks: the accelerometers', and the gyros' where
+    they check Earth rate per sample (a MEMS gyro's rest-rate check is a slower one: a 1 s
+    mean 0.5 s back, run once per batch)."""
+    return [
+        (f["triad"], f.get("sensor"), f.get("t_first"))
+        for f in faults
+        if f["cause"] == "f0" and (f["triad"] == "accel" or gyro_per_sample)
+    ]
+
+
+#: a navigation-grade gyro quiet enough for its F0 on Earth rate per sample (the other
+#: per-sample check the gathered reads must never delay)
+NAV = load(Path(__file__).parent / "data" / "diagnosis" / "nav-grade.yaml")
+NAV.gyro.noise.density = NAV.gyro.noise.density * 0.1
+NAV_CASES = {
+    "nav still, clean": [],
+    "nav still, gx bias 10 limits": [
+        Fault("bias", "gx", 30.0, 10.0 * float(NAV.gyro.limits.bias[0]))
+    ],
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES) + sorted(NAV_CASES))
+def test_gathered_reads_give_the_verdicts_of_checking_every_read(case):
+    """The daemon's path: reads of 4-5 samples are gathered and checked once per batch
+    unless a sample could change an F0 verdict. Without ever running the gathered checks
+    (``faults_in_force``), the F0 faults after every read are the reference's; whenever a
+    batch has run, every fault, counter and raise is; and most reads are only gathered."""
+    seed = 11 + (sorted(CASES) + sorted(NAV_CASES)).index(case)
+    if case in NAV_CASES:
+        cert = NAV
+        traj = still(90.0, rate_hz=NAV.sample_rate, attitude_rpy_deg=(5.0, -10.0, 40.0))
+        block = simulate(NAV, traj, seed=seed, faults=NAV_CASES[case]).samples
+    else:
+        cert = CERT
+        block = _stream(case, seed)
+    rng = np.random.default_rng(seed)
+    sizes = rng.choice([4, 5], size=len(block))
+    new, old = Monitor(cert), OldMonitor(cert)
+    if case in NAV_CASES:
+        assert new.gyro_mode == "earth_rate"
+    stages = {"f0": 0}
+    f0_stage = new._f0_stage
+
+    def counting() -> None:
+        stages["f0"] += 1
+        f0_stage()
+
+    new._f0_stage = counting
+    start = reads = batches = 0
+    while start < len(block):
+        part = block.slice(start, min(len(block), start + int(sizes[reads])))
+        new.update(part)
+        old.update(part)
+        where = f"{case}: read {reads} (samples {start}..)"
+        per_sample = new.gyro_mode == "earth_rate"
+        assert _f0_view(new.faults_in_force(), per_sample) == _f0_view(
+            old.active_faults, per_sample
+        ), where
+        if new.pending_samples == 0:  # a batch has just run: everything agrees
+            batches += 1
+            got = [dict(f, sensor=f.get("sensor")) for f in new.faults_in_force()]
+            assert got == [dict(f, sensor=f.get("sensor")) for f in old.active_faults], where
+        start += len(part)
+        reads += 1
+    assert batches >= len(block) // (new._batch + 5) - 1, "a batch ran every 50-54 samples"
+    a, b = _snapshot(new), _snapshot(old)  # flushes what is left
+    assert a[0] == b[0], case
+    np.testing.assert_allclose(a[1], b[1], rtol=1e-9, atol=1e-12, equal_nan=True)
+    if case in ("still, clean", "nav still, clean"):
+        # a healthy unit at rest, F0 failures rare: most reads are only gathered
+        assert stages["f0"] < 0.5 * reads, f"{case}: F0 checks on {stages['f0']} of {reads} reads"
+    if "bias" in case:
+        assert any(f["cause"] == "f0" for f in new.active_faults), f"{case}: the fault is raised"

@@ -29,7 +29,7 @@ from ..quasistatic import BAD_FLAGS
 from ..samples import SampleBlock
 from .config import DaemonConfig
 from .sdnotify import Notifier, WatchdogGate
-from .status import StatusSchedule, merge_faults
+from .status import StatusSchedule, merge_faults, signature
 
 log = logging.getLogger("imudiag.daemon")
 
@@ -67,8 +67,9 @@ class DaemonSettings:
     #: added latency (docs/benchmarks.md measures the trade-off); no wait while the
     #: source delivers faster than real time
     read_interval_s: float = 0.005
-    #: sample time, s, gathered before the window diagnosis is fed: it needs no low
-    #: latency (a window every few seconds) and costs per call, not per sample
+    #: sample time, s, gathered before the window diagnosis and the noise meter are fed:
+    #: they need no low latency (a window every few seconds, a noise figure a second)
+    #: and cost per call, not per sample
     diagnosis_batch_s: float = 0.5
     reconnect_min_s: float = 0.5  #: first reconnect back-off, s
     reconnect_max_s: float = 10.0  #: longest reconnect back-off, s
@@ -118,10 +119,15 @@ class Daemon:
         #: (:mod:`imudiag.noise_estimate`), over the last NOISE_WINDOW_S of samples
         self.noise = NoiseMeter(self.monitor.rate_hz, max_chunks=int(NOISE_WINDOW_S))
         self.diagnoser = self._make_diagnoser(self.certificate)
-        self._diag_blocks: list[SampleBlock] = []  # gathered for the diagnoser
+        self._diag_blocks: list[SampleBlock] = []  # gathered for the diagnoser and noise meter
+        self._batch_t0 = 0.0  # time of the first sample gathered, s
         # the diagnoser's faults and verdict change only when it is fed: kept between feeds
         # rather than rebuilt on every read
         self._diag_view: tuple[list[dict[str, Any]], dict[str, Any]] | None = None
+        self._noise_view: tuple[tuple[int, int], dict[str, Any] | None] | None = None
+        self._merged: tuple[list[Any], list[Any], list[dict[str, Any]]] | None = None
+        self._signature: tuple[str, list[dict[str, Any]], tuple[Any, ...]] | None = None
+        self._paced: tuple[list[StatusSink], list[StatusSink]] | None = None
         self.source = ReconnectingSource(
             settings.source_url,
             certificate=self.certificate,
@@ -261,7 +267,14 @@ class Daemon:
 
     def _noise_status(self) -> dict[str, Any] | None:
         """The ``noise`` status object: measured white-noise density per triad beside the
-        certificate's, their ratio, and whether they disagree (None before 1 s of data)."""
+        certificate's, their ratio, and whether they disagree (None before 1 s of data).
+        Recomputed only when the meter has measured a new chunk (once a second)."""
+        stamp = (self.noise.chunks_added, self.reloads)
+        if self._noise_view is None or self._noise_view[0] != stamp:
+            self._noise_view = (stamp, self._measure_noise_status())
+        return self._noise_view[1]
+
+    def _measure_noise_status(self) -> dict[str, Any] | None:
         figures = self.noise.result()
         if figures is None:
             return None
@@ -278,38 +291,67 @@ class Daemon:
             out[name] = entry
         return out
 
-    def status(self, now: float) -> dict[str, Any]:
-        """The current status object (spec/reports.md keys first)."""
-        diag_faults: list[dict[str, Any]] = []
-        diagnosis: dict[str, Any] = {}
-        if self.diagnoser is not None:
-            if self._diag_view is None:
-                faults_now = self.diagnoser.faults
-                # the live verdict comes from the faults in force; what was ever raised is a
-                # counter (and the log), not a latch that contradicts "faults" and "state"
-                undetermined = {u["triad"] for u in self.diagnoser.undetermined}
-                view = {
-                    name: "fault" if any(f["triad"] == name for f in faults_now)
-                    else "undetermined" if name in undetermined else "ok"
-                    for name in ("accel", "gyro")
-                }
-                view["raised"] = len(self.diagnoser.tracker.raised)
-                self._diag_view = (faults_now, view)
-            diag_faults, diagnosis = self._diag_view
-        faults = merge_faults(
-            [{k: v for k, v in f.items() if k != "t_first"} for f in self.monitor.active_faults],
-            [{k: f[k] for k in ("triad", "sensor", "cause") if k in f} for f in diag_faults],
-            self.aiding.faults() if self.aiding is not None else [],
-        )
-        counters = self.source.counters.as_dict()
-        errors = counters["crc_errors"] + counters["lost"] + self.monitor.adc_errors
+    def _diagnosis_view(self) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+        """The diagnoser's faults in force and its per-triad verdict (kept between feeds)."""
+        if self.diagnoser is None:
+            return [], {}
+        if self._diag_view is None:
+            faults_now = self.diagnoser.faults
+            # the live verdict comes from the faults in force; what was ever raised is a
+            # counter (and the log), not a latch that contradicts "faults" and "state"
+            undetermined = {u["triad"] for u in self.diagnoser.undetermined}
+            view = {
+                name: "fault" if any(f["triad"] == name for f in faults_now)
+                else "undetermined" if name in undetermined else "ok"
+                for name in ("accel", "gyro")
+            }
+            view["raised"] = len(self.diagnoser.tracker.raised)
+            self._diag_view = (faults_now, view)
+        return self._diag_view
+
+    @property
+    def _paced_sinks(self) -> list[StatusSink]:
+        """The sinks that get every status the loop builds and keep their own cadence."""
+        if self._paced is None or self._paced[0] is not self.sinks:
+            self._paced = (self.sinks, [s for s in self.sinks if getattr(s, "self_paced", False)])
+        return self._paced[1]
+
+    def _faults_and_state(self, now: float) -> tuple[list[dict[str, Any]], str]:
+        """The faults in force (every checker's, merged) and the state: the part of the
+        status every loop turn needs, to see whether a line is due."""
+        diag_faults, _ = self._diagnosis_view()
+        monitor_faults = self.monitor.faults_in_force()
+        aiding = self.aiding.faults() if self.aiding is not None else []
+        cached = self._merged
+        fresh = cached is not None and cached[0] is monitor_faults and cached[1] is diag_faults
+        if aiding or not fresh:
+            # the checkers hand back the same lists until something changed
+            merged = merge_faults(
+                [{k: v for k, v in f.items() if k != "t_first"} for f in monitor_faults],
+                [{k: f[k] for k in ("triad", "sensor", "cause") if k in f} for f in diag_faults],
+                aiding,
+            )
+            self._merged = cached = (monitor_faults, diag_faults, merged)
+        faults = cached[2]
+        c = self.source.counters
+        errors = c.crc_errors + c.lost + self.monitor.adc_errors_checked
         if errors > self._last_errors:
             self._errors_wall = now
             self._last_errors = errors
+        return faults, self._state(now, faults)
+
+    def status(self, now: float) -> dict[str, Any]:
+        """The current status object (spec/reports.md keys first), for every sample read."""
+        self.monitor.flush()
+        return self._status(now, *self._faults_and_state(now))
+
+    def _status(self, now: float, faults: list[dict[str, Any]], state: str) -> dict[str, Any]:
+        _, diagnosis = self._diagnosis_view()
+        counters = self.source.counters.as_dict()
         t = self.monitor.t_last
         status: dict[str, Any] = {
             "t": None if t is None else round(t, 6),
-            "state": self._state(now, faults),
+            "state": state,
             "faults": faults,
             "counters": counters,
             "link": self.source.state,
@@ -370,7 +412,7 @@ class Daemon:
 
     def _publish(self, status: dict[str, Any]) -> None:
         for sink in self.sinks:
-            if not getattr(sink, "self_paced", False):
+            if sink not in self._paced_sinks:
                 sink.publish(status)
         self.statuses += 1
         text = (
@@ -396,11 +438,10 @@ class Daemon:
                     self._reload = False
                     self._start_reload()
                 self._finish_reload()
-                now = self.clock()
                 try:
                     block = self.source.read(self.settings.read_timeout_s)
                 except EndOfStream:
-                    self._feed_diagnoser(None)
+                    self._feed_batch(None)
                     self._emit(self.clock(), force=True)
                     break
                 now = self.clock()
@@ -409,8 +450,7 @@ class Daemon:
                     self._last_data_wall = now
                     self.watchdog.frames_arrived(now)
                     self.monitor.update(block)
-                    self._feed_noise(block)
-                    self._feed_diagnoser(block)
+                    self._feed_batch(block)
                 if self.aiding is not None:
                     self.aiding.update(block if len(block) else None)
                 self.watchdog.tick(now)
@@ -431,28 +471,47 @@ class Daemon:
                 sink.close()
         return 0
 
-    def _feed_diagnoser(self, block: SampleBlock | None) -> None:
-        """Gather ``block``; feed the diagnoser once ``diagnosis_batch_s`` of samples are
-        gathered (``None``: feed what is gathered now, at the end of a stream)."""
-        if self.diagnoser is None:
-            return
+    def _feed_batch(self, block: SampleBlock | None) -> None:
+        """Gather ``block``; feed the noise meter and the diagnoser once
+        ``diagnosis_batch_s`` of samples are gathered (``None``: feed what is gathered
+        now, at the end of a stream). Neither needs a low latency, and both cost per call."""
         if block is not None:
+            if not self._diag_blocks:
+                self._batch_t0 = float(block.t[0])
             self._diag_blocks.append(block)
         pending = self._diag_blocks
         if not pending:
             return
-        if block is None or pending[-1].t[-1] - pending[0].t[0] >= self.settings.diagnosis_batch_s:
+        t_last = self.monitor.t_last  # the last sample's time, s (the monitor has had it)
+        if block is None or t_last - self._batch_t0 >= self.settings.diagnosis_batch_s:
             self._diag_blocks = []
-            self.diagnoser.update(pending[0] if len(pending) == 1 else SampleBlock.concat(pending))
-            self._diag_view = None
+            batch = pending[0] if len(pending) == 1 else SampleBlock.concat(pending)
+            self._feed_noise(batch)
+            if self.diagnoser is not None:
+                self.diagnoser.update(batch)
+                self._diag_view = None
 
     def _emit(self, now: float, force: bool = False) -> None:
-        status = self.status(now)
-        if self.schedule.due(status, now) or force:
+        """Write a status line if one is due; the whole status is built only then (every
+        loop turn computes just the faults and state that decide it: building the rest on
+        every read cost more than the monitor's checks, issue 14)."""
+        faults, state = self._faults_and_state(now)
+        cached = self._signature
+        if cached is None or cached[0] != state or cached[1] is not faults:
+            self._signature = cached = (state, faults, signature(state, faults))
+        key = cached[2]
+        due = self.schedule.due_for(key, self.monitor.t_last, now) or force
+        paced = [s for s in self._paced_sinks if not hasattr(s, "wants") or s.wants(key, now)]
+        if not due and not paced:
+            return
+        if self.monitor.pending_samples:  # a line holds every sample read: check them all
+            self.monitor.flush()
+            faults, state = self._faults_and_state(now)
+        status = self._status(now, faults, state)
+        if due:
             self._publish(status)
-        for sink in self.sinks:
-            if getattr(sink, "self_paced", False):
-                sink.publish(status)  # paces itself (NMEA rate) and never blocks
+        for sink in paced:
+            sink.publish(status)  # paces itself (NMEA rate) and never blocks
 
 
 def settings_from_config(config: DaemonConfig) -> DaemonSettings:

@@ -44,6 +44,7 @@ from urllib.parse import parse_qs, urlsplit
 import serial
 
 from imudiag.errors import BadInput, SinkError
+from imudiag.service.status import signature
 
 log = logging.getLogger(__name__)
 
@@ -311,12 +312,8 @@ def open_status_port(url: str, write_timeout_s: float = 0.5) -> serial.SerialBas
         raise StatusLinkError(f"status link {url}: cannot open: {exc}") from None
 
 
-def _change_key(status: Mapping[str, Any]) -> tuple:
-    faults = status.get("faults") or []
-    return (
-        status.get("state"),
-        tuple((f.get("triad"), f.get("sensor"), f.get("cause")) for f in faults),
-    )
+def _change_key(status: Mapping[str, Any]) -> tuple[Any, ...]:
+    return signature(status.get("state") or "", status.get("faults") or [])
 
 
 class SerialStatusSink:
@@ -373,6 +370,13 @@ class SerialStatusSink:
     def pending(self) -> int:
         """Sentences waiting in the queue."""
         return self._queue.qsize()
+
+    def wants(self, key: tuple[Any, ...], now_s: float) -> bool:
+        """Whether :meth:`publish` would queue a cycle now for a status whose state and
+        fault identities are ``key`` (:func:`imudiag.service.status.signature`): the
+        daemon builds a status for this sink only then."""
+        due = self._last_emit_s is None or now_s - self._last_emit_s >= 1.0 / self.rate_hz
+        return due or key != self._last_key
 
     def publish(self, status: Mapping[str, Any], now_s: float | None = None) -> bool:
         """Queue a cycle for ``status`` if one is due or the state/faults changed.

@@ -22,6 +22,11 @@ def fault_key(fault: dict[str, Any]) -> tuple[str, str, str]:
     return (fault.get("triad") or "", fault.get("sensor") or "", fault.get("cause") or "")
 
 
+def signature(state: str, faults: list[dict[str, Any]]) -> tuple[Any, ...]:
+    """What makes a status line due at once when it changes: the state and the faults."""
+    return (state, tuple(fault_key(f) for f in faults))
+
+
 def merge_faults(*groups: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Faults of several checkers, de-duplicated, in a stable order, contract keys first
     (every fault has ``sensor``: null where the check cannot tell the axis, as for F0 of a
@@ -55,8 +60,11 @@ class StatusSchedule:
 
     def due(self, status: dict[str, Any], wall_s: float) -> bool:
         """True if ``status`` should be written now; records it as written if so."""
-        signature = (status["state"], tuple(fault_key(f) for f in status["faults"]))
-        t = status.get("t")
+        return self.due_for(signature(status["state"], status["faults"]), status.get("t"), wall_s)
+
+    def due_for(self, signature: tuple[Any, ...], t: float | None, wall_s: float) -> bool:
+        """:meth:`due` from the parts it looks at: the status's :func:`signature` and ``t``
+        (sample time, s), so a caller builds the whole status only when it is due."""
         changed = signature != self._last_signature
         by_sample = t is not None and (self._last_t is None or t - self._last_t >= self.period_s)
         by_wall = self._last_wall is None or wall_s - self._last_wall >= self.period_s
