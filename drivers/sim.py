@@ -107,6 +107,9 @@ class SimSource(ByteSource):
         )
         self.rate_hz = rate
         self._t0: float | None = None
+        #: CPU time, s, spent making the simulated board's frames: the board's cost, not the
+        #: monitor's (a real board makes its frames on its own processor)
+        self.board_cpu_s = 0.0
 
     def _open_transport(self) -> None:
         # (re)anchor the pace so that the samples already sent are due now
@@ -123,8 +126,7 @@ class SimSource(ByteSource):
         if board.exhausted:
             raise EndOfStream(f"{self.url.url}: the simulated session has ended")
         if self.speed == 0:
-            n = max(1, int(round(self.chunk_s * self.rate_hz)))
-            return board.generate(n)[0]
+            return self._generate(max(1, int(round(self.chunk_s * self.rate_hz))))
         due = self._due()
         if due <= 0:
             wait = (1 - due) / (self.rate_hz * self.speed)
@@ -132,8 +134,15 @@ class SimSource(ByteSource):
             due = self._due()
             if due <= 0:
                 return b""
-        n = min(due, max(1, int(_MAX_CATCH_UP_S * self.rate_hz * self.speed)))
-        return board.generate(n)[0]
+        return self._generate(min(due, max(1, int(_MAX_CATCH_UP_S * self.rate_hz * self.speed))))
+
+    def _generate(self, n: int) -> bytes:
+        """The next ``n`` frames' bytes, the CPU time they took counted in board_cpu_s."""
+        start = time.thread_time()
+        try:
+            return self.board.generate(n)[0]
+        finally:
+            self.board_cpu_s += time.thread_time() - start
 
     def _close_transport(self) -> None:
         self._t0 = None

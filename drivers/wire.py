@@ -70,7 +70,7 @@ _FRAME_FIELDS = struct.Struct("<4sHI28xH")
 assert _FRAME_FIELDS.size == SAMPLE_FRAME_SIZE
 #: reads up to this many bytes (a daemon's read) are decoded frame by frame in plain
 #: Python when they hold nothing but sample frames: fewer calls than the vectorised path
-_FEW_FRAMES_BYTES = 16 * SAMPLE_FRAME_SIZE
+_FEW_FRAMES_BYTES = 128 * SAMPLE_FRAME_SIZE
 
 _SAMPLE_HEADER_U32 = int.from_bytes(_SAMPLE_HEADER, "little")
 

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -162,3 +165,24 @@ def test_board_through_a_pty_and_the_serial_source(default_certificate):
                 blocks.append(src.read(0.1))
         writer.stop()
     assert_same_samples(SampleBlock.concat(blocks), expected.samples)
+
+
+def test_run_reports_the_simulated_boards_cost_apart_from_the_monitors():
+    """``imudiag run`` on the simulated board (here at full speed) says in its status what
+    the board took to make its frames and what is left for the monitor (issue 14)."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "imudiag", "run", "--source", "sim://static?speed=0&duration=900",
+         "--log-level", "warning"],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    cpu = [json.loads(line)["cpu"] for line in proc.stdout.splitlines() if '"cpu"' in line]
+    assert cpu, "no status line has a cpu object"
+    for c in cpu:
+        assert c["window_s"] >= 0.5
+        assert c["board_percent"] > 0 and c["monitor_percent"] >= 0
+        assert abs(c["percent"] - c["board_percent"] - c["monitor_percent"]) <= 0.02 + max(
+            0.0, c["board_percent"] - c["percent"]
+        )
+    # at full speed the process is busy all the time: the two parts fill a core between them
+    assert cpu[-1]["percent"] > 50

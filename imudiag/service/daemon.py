@@ -12,6 +12,7 @@ import math
 import signal
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -38,6 +39,9 @@ log = logging.getLogger("imudiag.daemon")
 NOISE_WINDOW_S = 600.0
 
 DAEMON_WINDOWS_KEPT = 16  #: past diagnosis windows the live diagnoser keeps in memory
+
+#: status lines over which the status's ``cpu`` figures are taken (about 10 s at 1 Hz)
+CPU_WINDOW_LINES = 10
 
 
 class StatusSink(Protocol):
@@ -147,6 +151,8 @@ class Daemon:
         self.notes: list[str] = []
         self.reloads = 0
         self.statuses = 0
+        #: (monotonic s, process CPU s, simulated board CPU s), one a second
+        self._cpu_marks: deque[tuple[float, float, float]] = deque(maxlen=CPU_WINDOW_LINES + 1)
 
     # -- setup ------------------------------------------------------------
 
@@ -291,6 +297,28 @@ class Daemon:
             out[name] = entry
         return out
 
+    def _cpu_status(self) -> dict[str, Any] | None:
+        """The daemon's CPU share over the last ~10 status lines (% of one core), and for a
+        simulated source the part the board took to make its frames apart from the monitor's
+        (the rest: reading, decoding, the checks, the diagnosis, the status). None at first."""
+        board_cpu = getattr(getattr(self.source, "inner", None), "board_cpu_s", None)
+        now = time.monotonic()
+        cpu_s = time.process_time()
+        marks = self._cpu_marks
+        if not marks or now - marks[-1][0] >= 1.0:  # a mark a second, however many lines
+            marks.append((now, cpu_s, board_cpu or 0.0))
+        wall0, cpu0, board0 = marks[0]
+        span = now - wall0
+        if span < 0.5:
+            return None
+        total = 100.0 * (cpu_s - cpu0) / span
+        out: dict[str, Any] = {"percent": round(total, 2), "window_s": round(span, 1)}
+        if board_cpu is not None:
+            board = 100.0 * (board_cpu - board0) / span
+            out["board_percent"] = round(board, 2)
+            out["monitor_percent"] = round(max(0.0, total - board), 2)
+        return out
+
     def _diagnosis_view(self) -> tuple[list[dict[str, Any]], dict[str, Any]]:
         """The diagnoser's faults in force and its per-triad verdict (kept between feeds)."""
         if self.diagnoser is None:
@@ -375,6 +403,9 @@ class Daemon:
         noise = self._noise_status()
         if noise is not None:
             status["noise"] = noise
+        cpu = self._cpu_status()
+        if cpu is not None:
+            status["cpu"] = cpu
         if self.diagnoser is not None:
             status["diagnosis"] = dict(diagnosis)
         links = [s for s in self.sinks if hasattr(s, "dropped") and hasattr(s, "written")]
