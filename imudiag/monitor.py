@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from .certificate import SENSOR_NAMES, TRIADS, Certificate, TriadModel
 from .persistence import Persistence
@@ -250,10 +251,6 @@ class Monitor:
         self.flush()
         return self._state
 
-    @state.setter
-    def state(self, value: dict[str, TriadState]) -> None:
-        self._state = value
-
     @property
     def static(self) -> bool:
         """The last sample read was quasi-static."""
@@ -323,8 +320,8 @@ class Monitor:
                     fault["sensor"] = SENSOR_NAMES[name][st.worst_axis]
                 fault["t_first"] = st.persistence.t_first
                 out.append(fault)
-            for axis in np.flatnonzero(st.stuck_active):
-                out.append({"triad": name, "sensor": SENSOR_NAMES[name][axis], "cause": "stuck"})
+            for stuck in np.flatnonzero(st.stuck_active):
+                out.append({"triad": name, "sensor": SENSOR_NAMES[name][stuck], "cause": "stuck"})
             for axis, (p, gross) in enumerate(zip(st.noise, st.noise_gross, strict=True)):
                 firsts = [q.t_first for q in (p, gross) if q.active and q.t_first is not None]
                 if p.active or gross.active:
@@ -653,9 +650,13 @@ class Monitor:
         raw_all = np.concatenate([hist[:, 1:7], np.concatenate([block.gyro, block.accel], axis=1)])
         d2sq = np.diff(raw_all, n=2, axis=0) ** 2  # row r ends at raw_all row r + 2
         ends = pos + back - 2 + 1  # d2sq rows end (exclusive) at each check sample
+        # the medians of every check's window in one call per group of checks (the group
+        # bounded to about 2^20 values copied)
+        windows = sliding_window_view(d2sq, w, axis=0)  # (rows, 6, w), row i = d2sq[i:i+w]
         ratio6 = np.empty((pos.size, 6))
-        for j, end in enumerate(ends):
-            ratio6[j] = np.median(d2sq[end - w : end], axis=0)
+        group = max(1, (1 << 20) // (6 * w))
+        for g in range(0, pos.size, group):
+            ratio6[g : g + group] = np.median(windows[ends[g : g + group] - w], axis=2)
         t = block.t[pos]
         for k, name in enumerate(TRIADS_RING):
             sigma = self._noise_sigma[name]

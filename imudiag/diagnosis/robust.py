@@ -127,18 +127,24 @@ def _robust_excess(u: np.ndarray, nv: np.ndarray, m: np.ndarray) -> float:
         return 0.0
     u, nv, m = u[ok], nv[ok], m[ok]
 
-    def med(e: float) -> float:
-        return float(np.median(u / (m * (1.0 + e / nv))))
-
-    if med(0.0) <= _CHI2_1_MEDIAN:
+    a = u / m
+    if float(np.median(a)) <= _CHI2_1_MEDIAN:
         return 0.0
-    lo, hi = 0.0, float(np.max(u / m * nv)) + 1e-300
-    for _ in range(80):
-        mid = 0.5 * (lo + hi)
-        if med(mid) > _CHI2_1_MEDIAN:
-            lo = mid
-        else:
-            hi = mid
+    # the median falls as e grows: bracket the crossing, 15 trial values per round in one
+    # median call (16x narrower a round), to 1e-10 of the answer (was 80 medians one by one)
+    lo, hi = 0.0, float(np.max(a * nv)) + 1e-300
+    steps = np.arange(1, 16) / 16.0
+    inv_nv = 1.0 / nv
+    for _ in range(40):
+        trial = lo + (hi - lo) * steps
+        below = np.median(a / (1.0 + trial[:, None] * inv_nv), axis=1) <= _CHI2_1_MEDIAN
+        k = int(np.argmax(below)) if below.any() else trial.size
+        if k > 0:
+            lo = float(trial[k - 1])
+        if k < trial.size:
+            hi = float(trial[k])
+        if hi - lo <= 1e-10 * hi:
+            break
     return hi
 
 

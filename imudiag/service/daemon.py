@@ -292,7 +292,9 @@ class Daemon:
             certified = tri.noise.density if tri.noise is not None else None
             if certified is not None and all(v is not None for v in measured):
                 cmp = compare(fig.density, certified)
-                entry["ratio"] = [round(float(r), 3) for r in cmp["ratio"]]
+                ratios = cmp["ratio"]
+                assert isinstance(ratios, list)
+                entry["ratio"] = [round(float(r), 3) for r in ratios]
                 entry["disagrees"] = bool(cmp["disagrees"])
             out[name] = entry
         return out
@@ -328,7 +330,7 @@ class Daemon:
             # the live verdict comes from the faults in force; what was ever raised is a
             # counter (and the log), not a latch that contradicts "faults" and "state"
             undetermined = {u["triad"] for u in self.diagnoser.undetermined}
-            view = {
+            view: dict[str, Any] = {
                 name: "fault" if any(f["triad"] == name for f in faults_now)
                 else "undetermined" if name in undetermined else "ok"
                 for name in ("accel", "gyro")
@@ -351,15 +353,17 @@ class Daemon:
         monitor_faults = self.monitor.faults_in_force()
         aiding = self.aiding.faults() if self.aiding is not None else []
         cached = self._merged
-        fresh = cached is not None and cached[0] is monitor_faults and cached[1] is diag_faults
-        if aiding or not fresh:
+        if aiding or cached is None or cached[0] is not monitor_faults or (
+            cached[1] is not diag_faults
+        ):
             # the checkers hand back the same lists until something changed
             merged = merge_faults(
                 [{k: v for k, v in f.items() if k != "t_first"} for f in monitor_faults],
                 [{k: f[k] for k in ("triad", "sensor", "cause") if k in f} for f in diag_faults],
                 aiding,
             )
-            self._merged = cached = (monitor_faults, diag_faults, merged)
+            cached = (monitor_faults, diag_faults, merged)
+            self._merged = cached
         faults = cached[2]
         c = self.source.counters
         errors = c.crc_errors + c.lost + self.monitor.adc_errors_checked
@@ -514,7 +518,8 @@ class Daemon:
         if not pending:
             return
         t_last = self.monitor.t_last  # the last sample's time, s (the monitor has had it)
-        if block is None or t_last - self._batch_t0 >= self.settings.diagnosis_batch_s:
+        ready = t_last is not None and t_last - self._batch_t0 >= self.settings.diagnosis_batch_s
+        if block is None or ready:
             self._diag_blocks = []
             batch = pending[0] if len(pending) == 1 else SampleBlock.concat(pending)
             self._feed_noise(batch)

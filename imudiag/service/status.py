@@ -76,7 +76,7 @@ class StatusSchedule:
             self._last_signature = signature
             self._last_wall = wall_s
             self._last_written_t = t
-            if by_sample:
+            if by_sample and t is not None:
                 # keep to the period's grid, so a line per period on average whatever the
                 # read size (reads of 0.06 s would otherwise drift to one line per 1.06 s)
                 if self._last_t is None or t - self._last_t >= 2 * self.period_s:
