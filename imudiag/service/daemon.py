@@ -391,6 +391,7 @@ class Daemon:
             "f0": {
                 name: {
                     "check": self.monitor.check_mode(name),
+                    "samples_per_check": self.monitor.samples_per_check(name),
                     "checked": st.checked,
                     "failed": st.failed,
                     "last": _finite_or_none(st.last_f0),
