@@ -48,6 +48,7 @@ from .samples import (
     FLAG_SELF_TEST,
     SampleBlock,
 )
+from .trailing import PrefixSums
 
 #: Flag bits that make a sample unusable for the static check (and so for F0 and the
 #: diagnosis intervals): saturation, ADC errors, and self-test, whose outputs are
@@ -147,8 +148,7 @@ class QuasiStaticDetector:
             else:
                 self._noise_var[name] = None
                 self._noise_fixed[name] = False
-        self._tail = np.zeros((0, 6))
-        self._tail_bad = np.zeros(0, dtype=bool)
+        self.reset()
         # the certificate's inverse matrices, once (inverting them per block cost more than
         # the detection itself on a daemon's small blocks)
         self._n_inv_t = {name: certificate.triad(name).n_inverse_t() for name in ("gyro", "accel")}
@@ -199,20 +199,31 @@ class QuasiStaticDetector:
                                enumerate(("gyro", "accel")) if name in self.triads])
         bad_new |= ~np.all(np.isfinite(x_new[:, cols]), axis=1)
         x_new = np.where(np.isfinite(x_new), x_new, 0.0)
-        x = np.concatenate([self._tail, x_new])
-        bad = np.concatenate([self._tail_bad, bad_new])
         w = self.window
+        # running sums of the window: prefix sums of the outputs (centred on the stream's
+        # first sample, so squares of ADC counts stay small), their squares and the bad
+        # flags; each window's sums are two rows of them, whatever the window's length
+        if self._ref is None:
+            self._ref = x_new[0].copy()
+        xc = x_new - self._ref
+        rows = np.empty((n, 13))
+        rows[:, :6] = xc
+        np.multiply(xc, xc, out=rows[:, 6:12])
+        rows[:, 12] = bad_new
+        now, back, idx = self._prefix.update(rows, self._offsets)
+        sums = now - back[:, 0, :]
         out = np.zeros(n, dtype=bool)
-        m = x.shape[0]
-        if m >= w:
-            mean, var = _windowed_mean_var(x, w)
-            nbad = np.concatenate([[0], np.cumsum(bad)])
-            bad_win = (nbad[w:] - nbad[:-w]) > 0
-            ok = ~bad_win
+        full = idx + 1 >= w  # the first w - 1 samples of a stream have no whole window
+        if full.any():
+            sums = sums[full] if not full.all() else sums
+            s1 = sums[:, :6]
+            mean_c = s1 / w
+            var = np.maximum((sums[:, 6:12] - s1 * mean_c) / (w - 1), 0.0)
+            mean = mean_c + self._ref
+            ok = sums[:, 12] < 0.5  # no bad sample in the window
             for k, name in enumerate(("gyro", "accel")):
                 v = var[:, 3 * k : 3 * k + 3]
                 self._update_noise_estimate(name, v[ok] if ok.any() else v[:0])
-            ok = ok.copy()
             for k, name in enumerate(("gyro", "accel")):
                 if name not in self.triads:
                     continue
@@ -225,21 +236,14 @@ class QuasiStaticDetector:
                 ok &= np.sum(v / ref, axis=1) <= self.variance_ratio_limit
                 if name == "gyro" and self.bias_margin is not None and "accel" in self.triads:
                     ok &= self._vertical_rate_ok(mean, sigma2)
-            # row i of the window arrays ends at concat index i + w - 1
-            first_end = w - 1
-            start_in_concat = m - n
-            idx = np.arange(start_in_concat, m) - first_end
-            valid = idx >= 0
-            out[valid] = ok[idx[valid]]
-        keep = min(w - 1, m)
-        self._tail = x[m - keep :].copy()
-        self._tail_bad = bad[m - keep :].copy()
+            out[full] = ok
         return out
 
     def reset(self) -> None:
         """Forget the carried samples (after a gap in the stream); the noise estimate stays."""
-        self._tail = np.zeros((0, 6))
-        self._tail_bad = np.zeros(0, dtype=bool)
+        self._prefix = PrefixSums(13, self.window)
+        self._offsets = np.array([self.window])
+        self._ref: np.ndarray | None = None
 
 
 def static_mask(
