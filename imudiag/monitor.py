@@ -197,14 +197,12 @@ class Monitor:
         #: accelerometer input units -> fractions of gravity
         self._accel_scale = certificate.accel.unit_to_si / certificate.gravity
         # a linear accelerometer model (no temperature or nonlinearity block): the F0
-        # screen of every read as bias, one matrix to fractions of g, and the band of
-        # |f|^2 / g^2 - 1 = 2 F0 (a hair inside 2 limits, so rounding never hides a failure)
+        # screen of every read as the bias and one matrix to fractions of g
         acc = certificate.accel
-        self._accel_linear: tuple[np.ndarray, np.ndarray, float] | None = None
+        self._accel_linear: tuple[np.ndarray, np.ndarray] | None = None
         if acc.temperature is None and acc.nonlinearity is None:
-            to_g = (self._n_inv_t["accel"] / np.asarray(acc.scale_factor, float)[:, None])
-            self._accel_linear = (np.asarray(acc.bias, float), to_g * self._accel_scale,
-                                  2.0 * self._limit["accel"] * (1.0 - 1e-9))  # fmt: skip
+            to_g = self._n_inv_t["accel"] / np.asarray(acc.scale_factor, float)[:, None]
+            self._accel_linear = (np.asarray(acc.bias, float), to_g * self._accel_scale)
         # stuck outputs: both triads as one (6,) row, gyro then accel (the ring's column order)
         enabled = [
             np.zeros(3, dtype=bool) if sig is None else sig >= cfg.stuck_min_sigma
@@ -461,12 +459,10 @@ class Monitor:
         self._unscreened_n = 0
         cert = self.certificate
         if self._accel_linear is not None and not gyro_f0:
-            # bias and (scale factor, N^-1, units, gravity) folded: 4 numpy calls
-            bias, to_g, band = self._accel_linear
+            # bias and (scale factor, N^-1, units, gravity) folded into one matrix
+            bias, to_g = self._accel_linear
             accel = parts[0].accel if len(parts) == 1 else np.concatenate([b.accel for b in parts])
-            x = (accel - bias) @ to_g
-            q = np.einsum("ij,ij->i", x, x)
-            self._beyond["accel"] += int(np.count_nonzero(np.abs(q - 1.0) > band))
+            self._beyond["accel"] += _beyond((accel - bias) @ to_g, 1.0, self._limit["accel"])
         else:
             block = parts[0] if len(parts) == 1 else SampleBlock.concat(parts)
             accel_in = cert.accel.inverse(block.accel, temp_c=block.temp,

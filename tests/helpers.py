@@ -1,4 +1,4 @@
-"""Helpers shared by the transport tests."""
+"""Helpers shared by the transport and daemon tests."""
 
 from __future__ import annotations
 
@@ -18,3 +18,16 @@ def read_samples(src: Source, n: int, timeout_s: float = 5.0) -> SampleBlock:
         blocks.append(b)
         got += len(b)
     return SampleBlock.concat(blocks)
+
+
+class CollectSink:
+    """A daemon status sink that keeps every status it is given, in order."""
+
+    def __init__(self) -> None:
+        self.lines: list[dict] = []
+
+    def publish(self, status: dict) -> None:
+        self.lines.append(status)
+
+    def close(self) -> None:
+        pass

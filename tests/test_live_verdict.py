@@ -10,17 +10,7 @@ from imudiag.logs import open_writer
 from imudiag.samples import SampleBlock
 from imudiag.service.daemon import Daemon, DaemonSettings
 from imudiag.sim import Fault, multi_position, simulate
-
-
-class _Collect:
-    def __init__(self) -> None:
-        self.lines: list[dict] = []
-
-    def publish(self, status: dict) -> None:
-        self.lines.append(status)
-
-    def close(self) -> None:
-        pass
+from tests.helpers import CollectSink
 
 
 def test_a_cleared_diagnosis_fault_leaves_the_live_verdict(tmp_path):
@@ -45,7 +35,7 @@ def test_a_cleared_diagnosis_fault_leaves_the_live_verdict(tmp_path):
     ) as w:
         w.write(bad)
         w.write(good)
-    sink = _Collect()
+    sink = CollectSink()
     daemon = Daemon(DaemonSettings(source_url=f"replay://{log}?speed=0"), [sink])
     assert daemon.run() == 0
     lines = [s for s in sink.lines if s["t"] is not None]

@@ -12,17 +12,7 @@ from imudiag.noise_estimate import METHOD, NoiseMeter
 from imudiag.service.daemon import NOISE_WINDOW_S, Daemon, DaemonSettings
 from imudiag.sim import multi_position, simulate
 from imudiag.sim.scenarios import parse_effects
-
-
-class _Collect:
-    def __init__(self) -> None:
-        self.lines: list[dict] = []
-
-    def publish(self, status: dict) -> None:
-        self.lines.append(status)
-
-    def close(self) -> None:
-        pass
+from tests.helpers import CollectSink
 
 
 def _last_status(tmp_path, noise_scale: float) -> dict:
@@ -39,7 +29,7 @@ def _last_status(tmp_path, noise_scale: float) -> dict:
         log, {"sample_rate": cert.sample_rate, "units": "gyro=count accel=count"}
     ) as w:
         w.write(s)
-    sink = _Collect()
+    sink = CollectSink()
     daemon = Daemon(DaemonSettings(source_url=f"replay://{log}?speed=0"), [sink])
     assert daemon.run() == 0
     return [x for x in sink.lines if "noise" in x][-1]

@@ -386,8 +386,7 @@ class SerialStatusSink:
         """
         now_s = time.monotonic() if now_s is None else now_s
         key = _change_key(status)
-        due = self._last_emit_s is None or now_s - self._last_emit_s >= 1.0 / self.rate_hz
-        if not due and key == self._last_key:
+        if not self.wants(key, now_s):
             return False
         try:
             lines = status_sentences(status)
