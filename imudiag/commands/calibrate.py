@@ -14,19 +14,12 @@ from __future__ import annotations
 import argparse
 import sys
 
-import numpy as np
-
 from ..certificate import load
-from ..diagnosis.calibrate import calibrate, calibrate_known_rate
-from ..diagnosis.inputs import MagnitudeTable, check_units, log_rate_hz
-from ..diagnosis.intervals import IntervalCollector
-from ..diagnosis.known_rate import PLATEAU_DETECTOR
-from ..diagnosis.scalar_fit import NormalEquations, sample_rows
+from ..diagnosis.session import calibrate_recording
 from ..errors import BadInput
-from ..logs import open_log
 from ..logs.options import log_options
 from .diagnose import add_common_arguments, make_config, write_json
-from .noise import noise_for_detector, noise_lines
+from .noise import noise_lines
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -53,69 +46,12 @@ def run(args: argparse.Namespace) -> int:
     """Calibrate from the log and write the certificate."""
     like = load(args.like)
     cfg = make_config(args)
-    table = MagnitudeTable(args.magnitude) if args.magnitude else None
-    if cfg.method == "moving-base" and table is None:
-        raise BadInput("--method moving-base: calibration needs independent magnitudes "
-                       "(--magnitude FILE); the triad's own magnitude cannot calibrate it")
-    if table is not None and cfg.method != "moving-base":
-        raise BadInput("--magnitude: only the moving-base method uses independent magnitudes")
-    known = cfg.known_rate_rad_s
-    if known is not None and table is not None:
-        raise BadInput("--known-rate: only the exact method (no --magnitude) uses a known rate")
-    certificate_noise, noise_report = noise_for_detector(args, like, args.rate)
-    detector_options = {"certificate_noise": certificate_noise}
-    if known is not None:
-        detector_options.update(PLATEAU_DETECTOR)
-    collector = None
-    intervals = []
-    moving: dict[str, tuple[NormalEquations, float]] = {}
-    rate = None
-    with open_log(args.log, block_size=args.block_size, options=log_options(args)) as reader:
-        for block in reader:
-            if collector is None:
-                check_units(args.log, reader.meta, like)
-                rate = args.rate or log_rate_hz(reader.meta, block, like)
-                collector = IntervalCollector(
-                    like, rate, detector_window_s=cfg.detector_window_s,
-                    min_interval_s=cfg.min_interval_s, max_interval_s=cfg.max_interval_s,
-                    trim_s=cfg.trim_s, max_motion_s=cfg.max_motion_s,
-                    detector_options=detector_options,
-                )
-                if table is not None:
-                    moving = {
-                        "accel": (NormalEquations(), like.gravity / like.accel.unit_to_si),
-                        "gyro": (NormalEquations(), 1.0 / like.gyro.unit_to_si),
-                    }
-            intervals.extend(collector.update(block))
-            if table is not None:
-                mags = table.at(block.t)
-                for triad, (ne, m0) in moving.items():
-                    if triad in mags:
-                        tri = like.triad(triad)
-                        sigma = collector.detector.noise_sigma(triad)
-                        nv = None if sigma is None else (sigma / (tri.scale_factor * m0)) ** 2
-                        ne.add(*sample_rows(tri, block.triad(triad),
-                                            mags[triad] / tri.unit_to_si, m0, nv))
-    assert collector is not None
-    intervals.extend(collector.flush())
-    if not intervals:
-        raise BadInput(f"{args.log}: no quasi-static interval found (the unit never stood "
-                       "still long enough): nothing to calibrate from")
-    moving = {k: v for k, v in moving.items() if v[0].n > 0}
-    measured = {
-        name: np.asarray(noise_report[name]["measured"]["density"], dtype=float)
-        for name in ("gyro", "accel")
-        if (noise_report.get(name) or {}).get("measured")
-    }
-    try:
-        if known is not None:
-            result = calibrate_known_rate(intervals, like, known, rate, cfg,
-                                          source=str(args.log), noise_density=measured)
-        else:
-            result = calibrate(intervals, like, cfg.method, rate, moving or None, cfg,
-                               source=str(args.log), noise_density=measured)
-    except ValueError as exc:
-        raise BadInput(f"{args.log}: {exc}") from None
+    result = calibrate_recording(
+        args.log, like, cfg, rate_hz=args.rate, magnitude=args.magnitude,
+        certificate_noise=args.certificate_noise, options=log_options(args),
+        block_size=args.block_size,
+    )
+    noise_report = result.noise or {}
     check = result.generalisation or {}
     refused = check.get("generalises") is False
     if refused:

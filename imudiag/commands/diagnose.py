@@ -20,14 +20,13 @@ from typing import Any
 from ..atomic import write_text_atomic
 from ..certificate import Certificate, load, load_default
 from ..diagnosis.config import GYRO_MODES, METHODS, DiagnosisConfig
-from ..diagnosis.inputs import MagnitudeTable, check_units, log_rate_hz
 from ..diagnosis.known_rate import parse_known_rate
-from ..diagnosis.stream import StreamingDiagnoser
+from ..diagnosis.session import diagnose_recording
 from ..errors import BadInput
 from ..logs import open_log
 from ..logs.options import add_log_options, log_options
 from .gnss import add_gnss_arguments, check_gnss_options, moving_base_lines, moving_base_section
-from .noise import add_noise_argument, noise_for_detector, noise_lines
+from .noise import add_noise_argument, noise_lines
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -152,74 +151,31 @@ def summary_lines(report: dict) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Run the diagnosis over the log and write the report."""
-    from ..monitor import Monitor
-
     cert = load_certificate(args.certificate)
     if cert.device.get("warning"):
         print(f"imudiag diagnose: warning: {cert.source}: {cert.device['warning']}",
               file=sys.stderr)
     cfg = make_config(args)
-    table = MagnitudeTable(args.magnitude) if args.magnitude else None
-    if table is not None and cfg.method != "moving-base":
+    if args.magnitude and cfg.method != "moving-base":
         raise BadInput("--magnitude: only the moving-base method uses independent magnitudes")
     if args.block_size < 1:
         raise BadInput(f"--block-size: must be >= 1, got {args.block_size}")
-    if cfg.method == "moving-base" and table is None:
+    if cfg.method == "moving-base" and not args.magnitude:
         print("imudiag diagnose: warning: moving-base without --magnitude uses the magnitude "
               "estimated from the triad itself (the paper's eqs. 17-18), which cannot see "
               "faults", file=sys.stderr)
     check_gnss_options(args)
-    certificate_noise, noise_report = noise_for_detector(args, cert, args.rate)
-    monitor = None
-    diag = None
-    kept: list = []  # the blocks, for the moving-base diagnosis (--gnss)
-    with open_log(args.log, block_size=args.block_size, options=log_options(args)) as reader:
-        for block in reader:
-            if diag is None:
-                check_units(args.log, reader.meta, cert)
-                rate = args.rate or log_rate_hz(reader.meta, block, cert)
-                monitor = Monitor(cert, rate_hz=rate)
-                diag = StreamingDiagnoser(
-                    cert, cfg, rate_hz=rate, certificate_noise=certificate_noise
-                )
-            monitor.update(block)
-            diag.update(block, table.at(block.t) if table is not None else None)
-            if args.gnss:
-                kept.append(block)
-    assert diag is not None and monitor is not None  # an empty log raises LogError
-    diag.finish()
-    f0 = {
-        t: {"checked": int(monitor.f0_checked[t]), "failed": int(monitor.f0_failed[t])}
-        for t in ("accel", "gyro")
-    }
-    known_fault = None
-    if cfg.known_rate_rad_s is not None:
-        # on a turntable the gyro F0 is checked per plateau against the table's rate
-        st = diag.plateau_f0
-        f0["gyro"] = {"checked": st["checked"], "failed": st["failed"], "check": "known_rate"}
-        known_fault = diag.plateau_f0_fault()
-    report = diag.report(f0=f0, windows=not args.no_windows)
-    # persistent F0 failures are faults, by the daemon's own k-of-n persistence
-    # (``explained_by``: the parameter faults the window diagnosis names on that triad)
-    verdict = report["verdict"]
-    named = list(verdict["faults"])
-    for fault in monitor.f0_faults() + ([known_fault] if known_fault else []):
-        fault["explained_by"] = [
-            {"sensor": f["sensor"], "cause": f["cause"]} for f in named
-            if f["triad"] == fault["triad"]
-        ]
-        verdict["faults"].append(fault)
-        verdict[fault["triad"]] = "fault"
+    report = diagnose_recording(
+        args.log, cert, cfg, rate_hz=args.rate, magnitude=args.magnitude,
+        certificate_noise=args.certificate_noise, options=log_options(args),
+        block_size=args.block_size, windows=not args.no_windows,
+    )
     report["log"] = str(args.log)
-    report["certificate"] = cert.source or "(bundled)"
-    if cert.device.get("warning"):
-        report["certificate_warning"] = str(cert.device["warning"])
-    report["sample_rate"] = diag.rate_hz
-    report["noise"] = noise_report
-    report["self_test"] = monitor.self_test  # samples excluded: deflected on purpose
-    report["adc_errors"] = monitor.adc_errors
+    noise_report = report["noise"]
     if args.gnss:
-        report["moving_base"] = moving_base_section(args, kept, cert, diag.rate_hz)
+        with open_log(args.log, block_size=args.block_size, options=log_options(args)) as reader:
+            kept = list(reader)
+        report["moving_base"] = moving_base_section(args, kept, cert, report["sample_rate"])
     if args.json:
         write_json(report, args.json)
     out = sys.stderr if args.json == "-" else sys.stdout

@@ -153,6 +153,9 @@ class CalibrationResult:
     generalisation: dict[str, Any] | None = None
     #: the known-rate route: rate (rad/s), plateaus used and set aside, |w|/rate - 1 spreads
     known_rate: dict[str, Any] | None = None
+    #: the unit's white noise measured from the recording beside the certificate's (the
+    #: reports' ``noise`` object), where the caller measured it
+    noise: dict[str, Any] | None = None
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary of the calibration."""

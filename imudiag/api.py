@@ -1,0 +1,116 @@
+"""The library API: what a user's own Python code needs, importable as ``imudiag.<name>``.
+
+See docs/api.md. The functions here are the code path of the commands:
+:func:`diagnose` is ``imudiag diagnose`` and :func:`calibrate` is ``imudiag calibrate``
+without the printing and the file writing.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from .certificate import Certificate, load, load_default
+from .diagnosis.calibrate import CalibrationResult
+from .diagnosis.config import DiagnosisConfig
+from .diagnosis.inputs import MagnitudeTable
+from .diagnosis.session import (
+    DEFAULT_BLOCK_SIZE,
+    Recording,
+    calibrate_recording,
+    diagnose_recording,
+)
+from .errors import BadInput
+from .logs.options import LogOptions
+
+#: A certificate argument: a loaded one, a YAML file's path, or None for the bundled one.
+CertificateLike = Certificate | str | Path | None
+
+
+def load_certificate(path: str | Path | None = None) -> Certificate:
+    """The certificate in the YAML file at ``path`` (None: the bundled one of the simulated
+    board). Raises :class:`~imudiag.errors.CertificateError` naming the key and the reason."""
+    return load_default() if path is None else load(path)
+
+
+def _certificate(cert: CertificateLike) -> Certificate:
+    return cert if isinstance(cert, Certificate) else load_certificate(cert)
+
+
+def _config(config: DiagnosisConfig | dict[str, Any] | None) -> DiagnosisConfig:
+    if isinstance(config, DiagnosisConfig):
+        return config
+    try:
+        return DiagnosisConfig.from_dict(dict(config or {}))
+    except ValueError as exc:
+        raise BadInput(f"config: {exc}") from None
+
+
+def diagnose(
+    data: Recording,
+    certificate: CertificateLike = None,
+    *,
+    config: DiagnosisConfig | dict[str, Any] | None = None,
+    rate_hz: float | None = None,
+    magnitude: MagnitudeTable | str | Path | None = None,
+    certificate_noise: bool = False,
+    log_options: LogOptions | None = None,
+    block_size: int = DEFAULT_BLOCK_SIZE,
+    windows: bool = True,
+) -> dict[str, Any]:
+    """Diagnose a recording against a certificate: the report of ``imudiag diagnose --json``.
+
+    ``data``: a log file's path (any format ``imudiag diagnose`` reads; ``log_options``
+    say how to read a text table) or a :class:`~imudiag.samples.SampleBlock` (t in s,
+    outputs in the certificate's units). ``config``: a
+    :class:`~imudiag.diagnosis.DiagnosisConfig` or a dict of its fields. ``rate_hz``:
+    the sample rate, Hz (default: the log's, else from ``t``). The verdict is in
+    ``report["verdict"]`` (``ok`` / ``fault`` / ``undetermined`` per triad, the faults
+    with sensor, cause and value, and what the data could not determine).
+    """
+    return diagnose_recording(
+        data,
+        _certificate(certificate),
+        _config(config),
+        rate_hz=rate_hz,
+        magnitude=magnitude,
+        certificate_noise=certificate_noise,
+        options=log_options,
+        block_size=block_size,
+        windows=windows,
+    )
+
+
+def calibrate(
+    data: Recording,
+    like: CertificateLike = None,
+    *,
+    config: DiagnosisConfig | dict[str, Any] | None = None,
+    rate_hz: float | None = None,
+    magnitude: MagnitudeTable | str | Path | None = None,
+    certificate_noise: bool = False,
+    log_options: LogOptions | None = None,
+    block_size: int = DEFAULT_BLOCK_SIZE,
+) -> CalibrationResult:
+    """Calibrate both triads from a multi-position recording, as ``imudiag calibrate``.
+
+    ``like`` gives scale factors, units, limits and starting values. Returns a
+    :class:`~imudiag.diagnosis.calibrate.CalibrationResult`: ``.certificate`` (save it
+    with ``.save(path)``), ``.summary()`` (the ``--json`` summary) and
+    ``.generalisation`` (the held-out check; ``generalises`` False means the command
+    would refuse to write it). Raises :class:`~imudiag.errors.BadInput` when the
+    recording cannot calibrate.
+    """
+    return calibrate_recording(
+        data,
+        _certificate(like),
+        _config(config),
+        rate_hz=rate_hz,
+        magnitude=magnitude,
+        certificate_noise=certificate_noise,
+        options=log_options,
+        block_size=block_size,
+    )
+
+
+__all__ = ["CertificateLike", "calibrate", "diagnose", "load_certificate"]

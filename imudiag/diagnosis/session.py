@@ -1,0 +1,316 @@
+"""One diagnosis or calibration of a whole recording: the code path of ``imudiag diagnose``,
+``imudiag calibrate`` and of the library's :func:`imudiag.diagnose` / :func:`imudiag.calibrate`.
+
+A recording is a log file (any format :func:`imudiag.logs.open_log` reads) or a
+:class:`~imudiag.samples.SampleBlock` already in memory; it is streamed in blocks
+twice: once to measure the unit's white noise (at most the first
+:data:`NOISE_SECONDS`), once through the monitor and the diagnosis (or the
+interval collector of the calibration).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..certificate import Certificate
+from ..errors import BadInput
+from ..logs import open_log
+from ..logs.options import LogOptions
+from ..noise_estimate import NOISE_MISMATCH_FACTOR, NoiseMeter, compare
+from ..quasistatic import BAD_FLAGS
+from ..samples import FLAG_SELF_TEST, SampleBlock
+from .calibrate import CalibrationResult, calibrate, calibrate_known_rate
+from .config import DiagnosisConfig
+from .inputs import MagnitudeTable, check_units, log_rate_hz
+from .intervals import IntervalCollector
+from .known_rate import PLATEAU_DETECTOR
+from .scalar_fit import NormalEquations, sample_rows
+from .stream import StreamingDiagnoser
+
+#: Longest stretch of a recording read to measure its white noise (s of sample time).
+NOISE_SECONDS = 600.0
+#: Samples per block streamed from a recording.
+DEFAULT_BLOCK_SIZE = 65536
+
+#: A recording: a log file's path or samples in memory.
+Recording = str | Path | SampleBlock
+
+
+def recording_name(data: Recording) -> str:
+    """How reports name a recording: the path, or ``(samples)`` for one in memory."""
+    return "(samples)" if isinstance(data, SampleBlock) else str(data)
+
+
+@contextmanager
+def blocks(
+    data: Recording, block_size: int = DEFAULT_BLOCK_SIZE, options: LogOptions | None = None
+) -> Iterator[tuple[dict[str, Any], Iterator[SampleBlock]]]:
+    """The recording's metadata and its samples in blocks of at most ``block_size``."""
+    if block_size < 1:
+        raise BadInput(f"block size: must be >= 1, got {block_size}")
+    if isinstance(data, SampleBlock):
+        if options is not None and options.given():
+            raise BadInput("log options (columns, units, rate, ...) apply to log files only")
+        n = len(data)
+        yield data.meta, (data.slice(i, i + block_size) for i in range(0, n, block_size))
+        return
+    with open_log(data, block_size=block_size, options=options) as reader:
+        yield reader.meta, iter(reader)
+
+
+def measure_noise(
+    data: Recording,
+    cert: Certificate,
+    rate_hz: float | None = None,
+    block_size: int = DEFAULT_BLOCK_SIZE,
+    options: LogOptions | None = None,
+    certificate_noise: bool = False,
+) -> dict[str, Any]:
+    """The report's ``noise`` part: the unit's white noise beside the certificate's.
+
+    Measured with :class:`~imudiag.noise_estimate.NoiseMeter` over at most the first
+    :data:`NOISE_SECONDS`; each triad says which noise the still detector uses
+    (``detector_noise``: ``data`` unless ``certificate_noise`` and the certificate has one).
+    """
+    meter = None
+    t0 = None
+    with blocks(data, block_size, options) as (meta, stream):
+        for block in stream:
+            if meter is None:
+                meter = NoiseMeter(rate_hz or log_rate_hz(meta, block, cert))
+                t0 = float(block.t[0]) if len(block) else None
+            good = None
+            if block.flags is not None:
+                flags = np.asarray(block.flags).astype(np.int64)
+                good = (flags & (BAD_FLAGS | FLAG_SELF_TEST)) == 0
+            meter.update(block.gyro, block.accel, good)
+            if t0 is not None and len(block) and float(block.t[-1]) - t0 > NOISE_SECONDS:
+                break
+    figures = meter.result() if meter is not None else None
+    report: dict[str, Any] = {"method": None, "mismatch_factor": NOISE_MISMATCH_FACTOR}
+    for name, fig in (figures or {}).items():
+        tri = cert.triad(name)
+        certified = tri.noise.density if tri.noise is not None else None
+        if not np.all(np.isfinite(fig.density)):
+            # a gyro-only log (known rate): nothing to measure on that triad
+            report[name] = {"measured": None, "unit": f"{tri.output_unit}/sqrt(Hz)"}
+            continue
+        entry: dict[str, Any] = {"measured": fig.as_dict(), "unit": f"{tri.output_unit}/sqrt(Hz)"}
+        entry.update(compare(fig.density, certified))
+        report[name] = entry
+        report["method"] = fig.method
+    for name in ("gyro", "accel"):
+        noise = cert.triad(name).noise
+        has_cert = noise is not None and noise.density is not None
+        used = "certificate" if certificate_noise and has_cert else "data"
+        report.setdefault(name, {"measured": None})["detector_noise"] = used
+    return report
+
+
+def _magnitudes(magnitude: MagnitudeTable | str | Path | None) -> MagnitudeTable | None:
+    if magnitude is None or isinstance(magnitude, MagnitudeTable):
+        return magnitude
+    return MagnitudeTable(magnitude)
+
+
+def diagnose_recording(
+    data: Recording,
+    cert: Certificate,
+    config: DiagnosisConfig,
+    *,
+    rate_hz: float | None = None,
+    magnitude: MagnitudeTable | str | Path | None = None,
+    certificate_noise: bool = False,
+    options: LogOptions | None = None,
+    block_size: int = DEFAULT_BLOCK_SIZE,
+    windows: bool = True,
+) -> dict[str, Any]:
+    """The diagnosis report of spec/reports.md for a whole recording (``imudiag diagnose``).
+
+    ``rate_hz``: the sample rate (default the log's ``sample_rate``, else from ``t``).
+    ``magnitude``: independent magnitudes for ``config.method == "moving-base"``
+    (a :class:`~imudiag.diagnosis.inputs.MagnitudeTable` or its CSV path).
+    ``windows``: include the per-window estimates. Raises :class:`~imudiag.errors.BadInput`
+    (or a subclass: LogError, CertificateError) for input it cannot use.
+    """
+    from ..monitor import Monitor
+
+    table = _magnitudes(magnitude)
+    if table is not None and config.method != "moving-base":
+        raise BadInput("--magnitude: only the moving-base method uses independent magnitudes")
+    name = recording_name(data)
+    noise_report = measure_noise(data, cert, rate_hz, block_size, options, certificate_noise)
+    monitor = None
+    diag = None
+    with blocks(data, block_size, options) as (meta, stream):
+        for block in stream:
+            if diag is None:
+                check_units(name, meta, cert)
+                rate = rate_hz or log_rate_hz(meta, block, cert)
+                monitor = Monitor(cert, rate_hz=rate)
+                diag = StreamingDiagnoser(
+                    cert, config, rate_hz=rate, certificate_noise=certificate_noise
+                )
+            assert monitor is not None
+            monitor.update(block)
+            diag.update(block, table.at(block.t) if table is not None else None)
+    if diag is None or monitor is None:
+        raise BadInput(f"{name}: no samples")
+    diag.finish()
+    f0: dict[str, Any] = {
+        t: {"checked": int(monitor.f0_checked[t]), "failed": int(monitor.f0_failed[t])}
+        for t in ("accel", "gyro")
+    }
+    known_fault = None
+    if config.known_rate_rad_s is not None:
+        # on a turntable the gyro F0 is checked per plateau against the table's rate
+        st = diag.plateau_f0
+        f0["gyro"] = {"checked": st["checked"], "failed": st["failed"], "check": "known_rate"}
+        known_fault = diag.plateau_f0_fault()
+    report = diag.report(f0=f0, windows=windows)
+    # persistent F0 failures are faults, by the daemon's own k-of-n persistence
+    # (``explained_by``: the parameter faults the window diagnosis names on that triad)
+    verdict = report["verdict"]
+    named = list(verdict["faults"])
+    for fault in monitor.f0_faults() + ([known_fault] if known_fault else []):
+        fault["explained_by"] = [
+            {"sensor": f["sensor"], "cause": f["cause"]}
+            for f in named
+            if f["triad"] == fault["triad"]
+        ]
+        verdict["faults"].append(fault)
+        verdict[fault["triad"]] = "fault"
+    report["log"] = name
+    report["certificate"] = cert.source or "(bundled)"
+    if cert.device.get("warning"):
+        report["certificate_warning"] = str(cert.device["warning"])
+    report["sample_rate"] = diag.rate_hz
+    report["noise"] = noise_report
+    report["self_test"] = monitor.self_test  # samples excluded: deflected on purpose
+    report["adc_errors"] = monitor.adc_errors
+    return report
+
+
+def calibrate_recording(
+    data: Recording,
+    like: Certificate,
+    config: DiagnosisConfig,
+    *,
+    rate_hz: float | None = None,
+    magnitude: MagnitudeTable | str | Path | None = None,
+    certificate_noise: bool = False,
+    options: LogOptions | None = None,
+    block_size: int = DEFAULT_BLOCK_SIZE,
+) -> CalibrationResult:
+    """Calibrate from a whole recording (``imudiag calibrate``); the result's ``noise``
+    holds the unit's white noise measured from the recording.
+
+    ``like`` gives scale factors, units, limits and starting values. The result's
+    ``generalisation`` says whether the held-out check accepts the calibration;
+    nothing is written here. Raises :class:`~imudiag.errors.BadInput` when the
+    recording cannot calibrate (no still interval, too few attitudes).
+    """
+    table = _magnitudes(magnitude)
+    if config.method == "moving-base" and table is None:
+        raise BadInput(
+            "--method moving-base: calibration needs independent magnitudes "
+            "(--magnitude FILE); the triad's own magnitude cannot calibrate it"
+        )
+    if table is not None and config.method != "moving-base":
+        raise BadInput("--magnitude: only the moving-base method uses independent magnitudes")
+    known = config.known_rate_rad_s
+    if known is not None and table is not None:
+        raise BadInput("--known-rate: only the exact method (no --magnitude) uses a known rate")
+    name = recording_name(data)
+    noise_report = measure_noise(data, like, rate_hz, block_size, options, certificate_noise)
+    detector_options: dict[str, Any] = {"certificate_noise": certificate_noise}
+    if known is not None:
+        detector_options.update(PLATEAU_DETECTOR)
+    collector = None
+    intervals = []
+    moving: dict[str, tuple[NormalEquations, float]] = {}
+    rate = None
+    with blocks(data, block_size, options) as (meta, stream):
+        for block in stream:
+            if collector is None:
+                check_units(name, meta, like)
+                rate = rate_hz or log_rate_hz(meta, block, like)
+                collector = IntervalCollector(
+                    like,
+                    rate,
+                    detector_window_s=config.detector_window_s,
+                    min_interval_s=config.min_interval_s,
+                    max_interval_s=config.max_interval_s,
+                    trim_s=config.trim_s,
+                    max_motion_s=config.max_motion_s,
+                    detector_options=detector_options,
+                )
+                if table is not None:
+                    moving = {
+                        "accel": (NormalEquations(), like.gravity / like.accel.unit_to_si),
+                        "gyro": (NormalEquations(), 1.0 / like.gyro.unit_to_si),
+                    }
+            intervals.extend(collector.update(block))
+            if table is not None:
+                mags = table.at(block.t)
+                for triad, (ne, m0) in moving.items():
+                    if triad in mags:
+                        tri = like.triad(triad)
+                        sigma = collector.detector.noise_sigma(triad)
+                        nv = None if sigma is None else (sigma / (tri.scale_factor * m0)) ** 2
+                        ne.add(
+                            *sample_rows(
+                                tri, block.triad(triad), mags[triad] / tri.unit_to_si, m0, nv
+                            )
+                        )
+    if collector is None:
+        raise BadInput(f"{name}: no samples")
+    intervals.extend(collector.flush())
+    if not intervals:
+        raise BadInput(
+            f"{name}: no quasi-static interval found (the unit never stood "
+            "still long enough): nothing to calibrate from"
+        )
+    moving = {k: v for k, v in moving.items() if v[0].n > 0}
+    measured = {
+        triad: np.asarray(noise_report[triad]["measured"]["density"], dtype=float)
+        for triad in ("gyro", "accel")
+        if (noise_report.get(triad) or {}).get("measured")
+    }
+    try:
+        if known is not None:
+            result = calibrate_known_rate(
+                intervals, like, known, rate, config, source=name, noise_density=measured
+            )
+        else:
+            result = calibrate(
+                intervals,
+                like,
+                config.method,
+                rate,
+                moving or None,
+                config,
+                source=name,
+                noise_density=measured,
+            )
+    except ValueError as exc:
+        raise BadInput(f"{name}: {exc}") from None
+    result.noise = noise_report
+    return result
+
+
+__all__ = [
+    "DEFAULT_BLOCK_SIZE",
+    "NOISE_SECONDS",
+    "Recording",
+    "blocks",
+    "calibrate_recording",
+    "diagnose_recording",
+    "measure_noise",
+    "recording_name",
+]
