@@ -4,7 +4,7 @@ The daemon runs unmodified as a subprocess (``python -m imudiag run --source
 serial:///dev/pts/N``) on a certificate whose ``sample_rate`` is the board's
 rate. The simulated board's bytes (static scenario, a device-info frame every
 1000 frames) are generated before the run and written to the pty master by
-:class:`imudiag.drivers.pty.BoardWriter`, one sample frame per write at the
+:class:`imudiag.bench.pty.BoardWriter`, one sample frame per write at the
 board's rate, as a CDC-ACM board delivers them. After a warm-up the daemon's
 user + system CPU time (``/proc/PID/stat``) over the wall time gives its share
 of one core; its resident set (``/proc/PID/statm``) is sampled every second.
@@ -34,10 +34,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from imudiag.drivers.pty import BoardWriter, PtyPair
-from imudiag.drivers.wire import HEADER_SIZE, SAMPLE_FRAME_SIZE, TYPE_SAMPLE
 
+from imudiag.bench.pty import BoardWriter, PtyPair
 from imudiag.certificate import Certificate, load_default
+from imudiag.drivers.wire import HEADER_SIZE, SAMPLE_FRAME_SIZE, TYPE_SAMPLE
 from imudiag.sim.board import SimulatedBoard
 from imudiag.sim.faults import Fault
 from imudiag.sim.scenarios import scenario_motion

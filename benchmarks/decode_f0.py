@@ -28,10 +28,10 @@ import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 
 import numpy as np  # noqa: E402
-from imudiag.drivers.crc import crc16_rows  # noqa: E402
-from imudiag.drivers.wire import FRAME_DTYPE, SAMPLE_FRAME_SIZE, Decoder, encode_samples  # noqa: E402
 
 from imudiag.certificate import Certificate, load_default  # noqa: E402
+from imudiag.drivers.crc import crc16_rows  # noqa: E402
+from imudiag.drivers.wire import FRAME_DTYPE, SAMPLE_FRAME_SIZE, Decoder, encode_samples  # noqa: E402
 from imudiag.scalar import f0_raw  # noqa: E402
 
 TARGET_SAMPLES_PER_S = 5e6  #: decode + CRC + F0, one core

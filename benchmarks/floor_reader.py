@@ -27,9 +27,9 @@ import tty
 from collections.abc import Sequence
 
 import numpy as np
-from imudiag.drivers.wire import FRAME_DTYPE, SAMPLE_FRAME_SIZE, SAMPLE_LENGTH, SYNC, TYPE_SAMPLE
 
 from imudiag.certificate import load
+from imudiag.drivers.wire import FRAME_DTYPE, SAMPLE_FRAME_SIZE, SAMPLE_LENGTH, SYNC, TYPE_SAMPLE
 
 _HEADER = SYNC + bytes([TYPE_SAMPLE, SAMPLE_LENGTH])
 

@@ -39,8 +39,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from imudiag.drivers.pty import PtyPair, _write_all
 
+from imudiag.bench.pty import PtyPair, _write_all
 from imudiag.certificate import load_default
 
 from .daemon_live import BoardStream, board_stream, rate_certificate

@@ -34,9 +34,9 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
-from imudiag.drivers.wire import SAMPLE_FRAME_SIZE, Decoder, encode_samples  # noqa: E402
 
 from imudiag.certificate import Certificate, default_certificate_path, load_default  # noqa: E402
+from imudiag.drivers.wire import SAMPLE_FRAME_SIZE, Decoder, encode_samples  # noqa: E402
 from imudiag.logs import open_log, open_writer  # noqa: E402
 from imudiag.monitor import Monitor  # noqa: E402
 from imudiag.scalar import f0_raw  # noqa: E402

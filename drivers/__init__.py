@@ -9,6 +9,10 @@ python-can's interface registry::
     usb://VID:PID                       raw USB bulk-IN endpoint (pyusb)
     replay://PATH?speed=1               a recorded log (.csv, .csv.gz, .npz, .bin)
     sim://SCENARIO?seed=N               the simulated board
+
+``replay://`` and ``sim://`` live above this layer (:mod:`imudiag.sources`) and are found
+through the ``imudiag.sources`` entry points; the test and bench harness of pty pairs is
+:mod:`imudiag.bench.pty`, outside the production driver package.
 """
 
 from .base import (

@@ -6,35 +6,18 @@ import importlib
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
+from importlib.metadata import EntryPoint, entry_points
 from typing import Any, ClassVar
 from urllib.parse import parse_qs, urlsplit
 
 from imudiag.errors import SourceError
 from imudiag.samples import SampleBlock
 
+from .wire import Counters
+
 
 class EndOfStream(Exception):
     """A finite source (a replayed log, a finite scenario) has delivered everything."""
-
-
-@dataclass
-class Counters:
-    """Receiver counters of spec/wire-protocol.md, cumulative since the source was made."""
-
-    bytes: int = 0  #: bytes read from the transport
-    frames: int = 0  #: good sample frames delivered
-    crc_errors: int = 0  #: frames dropped for a bad CRC
-    skipped_bytes: int = 0  #: bytes skipped while resynchronising
-    lost: int = 0  #: frames missing by seq
-    duplicates: int = 0  #: repeated seq, dropped
-
-    def as_dict(self) -> dict[str, int]:
-        """The counters as the status JSON ``counters`` object."""
-        # built by hand: dataclasses.asdict deep-copies recursively and was a tenth of
-        # the daemon's per-turn cost (benchmarks/latency.py profile)
-        return {"bytes": self.bytes, "frames": self.frames, "crc_errors": self.crc_errors,
-                "skipped_bytes": self.skipped_bytes, "lost": self.lost,
-                "duplicates": self.duplicates}
 
 
 @dataclass(frozen=True)
@@ -118,9 +101,36 @@ _BUILTIN_MODULES: dict[str, str] = {
     "socket": "imudiag.drivers.serial_port",
     "hid": "imudiag.drivers.hid",
     "usb": "imudiag.drivers.usb",
-    "replay": "imudiag.drivers.replay",
-    "sim": "imudiag.drivers.sim",
 }
+#: Entry-point group of the sources that live above the driver layer (``sim://`` and
+#: ``replay://`` in :mod:`imudiag.sources`, and any plug-in package's): name = scheme,
+#: value = ``module:SourceClass``. The driver layer never imports them by name.
+ENTRY_POINT_GROUP = "imudiag.sources"
+_entry_points_cache: dict[str, EntryPoint] | None = None
+
+
+def _entry_points() -> dict[str, EntryPoint]:
+    global _entry_points_cache
+    if _entry_points_cache is None:
+        _entry_points_cache = {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+    return _entry_points_cache
+
+
+def _load_entry_point(scheme: str, ep: EntryPoint) -> None:
+    """Import the source an entry point names and register it for ``scheme``."""
+    try:
+        cls = ep.load()
+    except Exception as exc:  # a broken plug-in must say so, not vanish
+        raise SourceError(
+            f"{scheme}://: the source {ep.value!r} (entry point {ENTRY_POINT_GROUP}) "
+            f"cannot be loaded: {type(exc).__name__}: {exc}"
+        ) from exc
+    if not (isinstance(cls, type) and issubclass(cls, Source)):
+        raise SourceError(
+            f"{scheme}://: the entry point {ep.value!r} ({ENTRY_POINT_GROUP}) is not a Source class"
+        )
+    if scheme not in _REGISTRY:
+        register(scheme)(cls)
 
 
 def register(scheme: str) -> Callable[[type[Source]], type[Source]]:
@@ -136,18 +146,28 @@ def register(scheme: str) -> Callable[[type[Source]], type[Source]]:
 
 def registered_schemes() -> list[str]:
     """Every scheme ``open_source`` accepts."""
-    return sorted(set(_REGISTRY) | set(_BUILTIN_MODULES))
+    return sorted(set(_REGISTRY) | set(_BUILTIN_MODULES) | set(_entry_points()))
 
 
 def source_class(scheme: str) -> type[Source]:
-    """The transport class for ``scheme``, importing its module on first use."""
-    if scheme not in _REGISTRY and scheme in _BUILTIN_MODULES:
-        importlib.import_module(_BUILTIN_MODULES[scheme])
+    """The transport class for ``scheme``, importing its module on first use (a driver
+    module of this package, else the ``imudiag.sources`` entry point of that name)."""
+    if scheme not in _REGISTRY:
+        if scheme in _BUILTIN_MODULES:
+            importlib.import_module(_BUILTIN_MODULES[scheme])
+        elif scheme in _entry_points():
+            _load_entry_point(scheme, _entry_points()[scheme])
     try:
         return _REGISTRY[scheme]
     except KeyError:
+        hint = ""
+        if scheme in ("sim", "replay"):
+            hint = (
+                " (imudiag's own sim:// and replay:// are found through its entry points: "
+                "install the package, e.g. pip install -e .)"
+            )
         raise SourceError(
-            f"unknown source scheme {scheme!r}; known: {', '.join(registered_schemes())}"
+            f"unknown source scheme {scheme!r}; known: {', '.join(registered_schemes())}{hint}"
         ) from None
 
 

@@ -13,10 +13,9 @@ import sys
 import atheris
 
 with atheris.instrument_imports(include=["imudiag"]):
+    import imudiag.certificate  # noqa: F401
     import imudiag.drivers.crc  # noqa: F401
     import imudiag.drivers.wire  # noqa: F401
-
-    import imudiag.certificate  # noqa: F401
     import imudiag.logs  # noqa: F401
     import imudiag.samples  # noqa: F401
 

@@ -36,13 +36,13 @@ from typing import Any
 
 import numpy as np
 import yaml
-from imudiag.drivers.wire import Decoder, encode_frame, encode_info, encode_samples
 
 from imudiag.certificate import (
     CertificateError,
     default_certificate_path,
     loads,
 )
+from imudiag.drivers.wire import Decoder, encode_frame, encode_info, encode_samples
 from imudiag.logs import LogError, open_log
 from imudiag.samples import SampleBlock
 

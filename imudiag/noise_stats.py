@@ -314,7 +314,7 @@ def identify_noise(allan: AllanResult, min_terms: int = 8, floor_terms: int = 10
     )
 
 
-def _nnls_small(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def nnls_small(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Non-negative least squares for a few columns: the best feasible subset solution."""
     k = a.shape[1]
     best, best_cost = np.zeros(k), float(np.dot(b, b))
@@ -340,7 +340,7 @@ def fit_allan_terms(allan: AllanResult, min_terms: int = 8) -> dict[str, float]:
     tau, var = allan.tau[ok], allan.adev[ok] ** 2
     w = np.sqrt(allan.independent[ok].astype(float)) / var  # ~ 1 / error of var
     basis = np.stack([1.0 / tau, np.full_like(tau, FLICKER_FACTOR**2), tau / 3.0, 3.0 / tau**2], 1)
-    coef = _nnls_small(basis * w[:, None], var * w)
+    coef = nnls_small(basis * w[:, None], var * w)
     return {
         "white_noise": math.sqrt(coef[0]),
         "bias_instability": math.sqrt(coef[1]),
@@ -364,7 +364,7 @@ def fit_gauss_markov(
         if with_white:
             cols.append(1.0 / tau)
         a = np.stack(cols, 1)
-        coef = _nnls_small(a * w[:, None], var * w)
+        coef = nnls_small(a * w[:, None], var * w)
         cost = float(np.sum(((a @ coef) - var) ** 2 * w**2))
         return cost, math.sqrt(coef[0]), float(tc), math.sqrt(coef[1]) if with_white else 0.0
 

@@ -12,10 +12,10 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from imudiag.drivers.base import EndOfStream, SourceError, SourceURL, register
-from imudiag.drivers.bytesource import ByteSource
 
 from imudiag.certificate import load_default
+from imudiag.drivers.base import EndOfStream, SourceError, SourceURL, register
+from imudiag.drivers.bytesource import ByteSource
 
 from .stream import Injected, SoakStream, Unplug
 

@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from imudiag.drivers.wire import SAMPLE_FRAME_SIZE, SYNC, encode_info, encode_samples
 
 from imudiag.certificate import Certificate
+from imudiag.drivers.wire import SAMPLE_FRAME_SIZE, SYNC, encode_info, encode_samples
 from imudiag.samples import FLAG_ADC_ERROR
 from imudiag.sim.effects import Effects
 from imudiag.sim.scenarios import scenario_motion

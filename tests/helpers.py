@@ -5,7 +5,6 @@ from __future__ import annotations
 import time
 
 from imudiag.drivers.base import Source
-
 from imudiag.samples import SampleBlock
 
 

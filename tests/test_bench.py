@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from imudiag.drivers.wire import SYNC, Decoder
 
 from imudiag.bench import (
     BenchError,
@@ -35,6 +34,7 @@ from imudiag.bench.transport import (
     last_frame,
 )
 from imudiag.certificate import load_default
+from imudiag.drivers.wire import SYNC, Decoder
 from imudiag.sim.board import SimulatedBoard
 from imudiag.sim.scenarios import scenario_motion
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from imudiag.drivers.crc import crc16_ccitt_false, crc16_ccitt_false_python, crc16_rows
 from imudiag.drivers.wire import (
     FRAME_DTYPE,
@@ -14,7 +15,6 @@ from imudiag.drivers.wire import (
     encode_info,
     encode_samples,
 )
-
 from imudiag.samples import SampleBlock
 
 RATE_US = 5000  # 200 Hz

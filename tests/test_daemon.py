@@ -14,9 +14,9 @@ import time
 from pathlib import Path
 
 import pytest
-from imudiag.drivers.pty import BoardWriter, PtyPair
 
 from imudiag.bench.daemon_process import DaemonProcess
+from imudiag.bench.pty import BoardWriter, PtyPair
 from imudiag.certificate import load_default
 from imudiag.sim.board import SimulatedBoard
 from imudiag.sim.faults import Fault

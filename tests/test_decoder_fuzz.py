@@ -12,6 +12,7 @@ import json
 import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+
 from imudiag.drivers.crc import crc16_ccitt_false
 from imudiag.drivers.wire import (
     SAMPLE_FRAME_SIZE,
@@ -20,7 +21,6 @@ from imudiag.drivers.wire import (
     encode_info,
     encode_samples,
 )
-
 from imudiag.samples import SampleBlock
 
 

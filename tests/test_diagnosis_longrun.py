@@ -18,7 +18,7 @@ import pytest
 
 from imudiag.certificate import load_default
 from imudiag.diagnosis import DiagnosisConfig, diagnose_samples
-from imudiag.diagnosis.gyro_fit import _predict, _stack_pairs
+from imudiag.diagnosis.gyro_fit import predict_end_directions, stack_pairs
 from imudiag.diagnosis.intervals import IntervalCollector
 from imudiag.diagnosis.window import rotation_pairs
 from imudiag.samples import SampleBlock
@@ -62,8 +62,8 @@ def test_motion_segments_hold_the_whole_turn(quiet_session):
     ivs = col.update(quiet_session) + col.flush()
     pairs = rotation_pairs(cert, cert.accel, ivs)
     assert len(pairs) >= 20
-    stack = _stack_pairs(cert.gyro, pairs)
-    pred = _predict(stack, np.linalg.inv(cert.gyro.n_matrix())[None],
+    stack = stack_pairs(cert.gyro, pairs)
+    pred = predict_end_directions(stack, np.linalg.inv(cert.gyro.n_matrix())[None],
                     np.array([p.up0 for p in pairs]))[0]
     err = np.linalg.norm(np.array([p.up1 for p in pairs]) - pred, axis=1)
     assert err.max() < 1.5e-3, err.max()

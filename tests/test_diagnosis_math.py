@@ -10,16 +10,12 @@ import pytest
 
 from imudiag.certificate import load_default
 from imudiag.diagnosis.gauge import n_symmetric, p_matrix, polar, shape_of_p, shape_of_triad
-from imudiag.diagnosis.gyro_fit import (
-    earth_rate_observable,
-    ordered_product,
-    quat_matrix,
-    rotvec_quat,
-)
+from imudiag.diagnosis.gyro_fit import earth_rate_observable
 from imudiag.diagnosis.params import TriadFit, certificate_vector, limit_vector
 from imudiag.diagnosis.predicates import PredicateTracker, candidates
 from imudiag.diagnosis.scalar_fit import exact_fit, linear_fit
 from imudiag.diagnosis.window import clipped, distinct_attitudes, model_with
+from imudiag.rotations import ordered_product, quat_matrix, rotvec_quat
 from imudiag.sim.rotations import axis_angle_matrix
 from imudiag.sim.trajectories import spread_up_directions
 

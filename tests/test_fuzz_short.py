@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
-from imudiag.drivers.wire import Decoder, encode_samples
 
 from fuzz.strategies import PROPERTIES
 from fuzz.targets import (
@@ -38,6 +37,7 @@ from fuzz.targets import (
     seed_stream,
 )
 from imudiag.certificate import CertificateError, default_certificate_path, loads
+from imudiag.drivers.wire import Decoder, encode_samples
 from imudiag.logs import LogError, open_log
 
 CRASH_DIR = Path(__file__).resolve().parent.parent / "fuzz" / "crashes"

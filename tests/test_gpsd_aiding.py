@@ -14,10 +14,10 @@ import time
 from pathlib import Path
 
 import pytest
-from imudiag.drivers.pty import BoardWriter, PtyPair
 
 from imudiag.aiding.gpsd_client import GpsdClient, parse_gpsd_url
 from imudiag.bench.daemon_process import DaemonProcess
+from imudiag.bench.pty import BoardWriter, PtyPair
 from imudiag.certificate import load_default
 from imudiag.errors import BadInput
 from imudiag.sim.board import SimulatedBoard

@@ -8,10 +8,10 @@ import time
 import numpy as np
 import pytest
 import serial
-from imudiag.drivers import SourceError, open_source
-from imudiag.drivers.pty import BoardWriter, PtyPair, chunked
-from imudiag.drivers.wire import encode_samples
 
+from imudiag.bench.pty import BoardWriter, PtyPair, chunked
+from imudiag.drivers import SourceError, open_source
+from imudiag.drivers.wire import encode_samples
 from tests.helpers import read_samples
 
 

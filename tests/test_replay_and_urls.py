@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
+
 from imudiag.drivers.base import SourceError, open_source
 
 REAL = Path(__file__).parent / "data" / "real"

@@ -21,9 +21,8 @@ import os
 import textwrap
 import time
 
-from imudiag.drivers.pty import PtyPair
-
 from imudiag.bench import BenchRun, loads, run_scenario
+from imudiag.bench.pty import PtyPair
 
 NO_DATA_TIMEOUT_S = 0.5  #: the bench's daemon configuration (monitor.no_data_timeout_s)
 RECONNECT_MAX_S = 0.4  #: the bench's daemon configuration (reconnect.max_s)

@@ -9,10 +9,10 @@ import time
 
 import numpy as np
 import pytest
-from imudiag.drivers import EndOfStream, SourceError, open_source
-from imudiag.drivers.pty import BoardWriter, PtyPair
-from imudiag.drivers.wire import Decoder
 
+from imudiag.bench.pty import BoardWriter, PtyPair
+from imudiag.drivers import EndOfStream, SourceError, open_source
+from imudiag.drivers.wire import Decoder
 from imudiag.samples import SampleBlock
 from imudiag.sim import Effects, Fault, simulate
 from imudiag.sim.board import SimulatedBoard, wire_seq

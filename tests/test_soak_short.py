@@ -13,9 +13,9 @@ import json
 
 import numpy as np
 import pytest
-from imudiag.drivers.wire import Decoder, encode_info
 
 from imudiag.certificate import load_default
+from imudiag.drivers.wire import Decoder, encode_info
 from soak.run import EpisodeJudge, run_soak
 from soak.status_check import StatusLineError, StatusStream, check_status_line
 from soak.stream import BIAS_EPISODE_COUNTS, GROUP_SAMPLES, SoakStream, Unplug

@@ -179,7 +179,6 @@ def test_log_options_refuse_bad_values_with_exit_2(session, imudiag_cli) -> None
 
 def test_replay_url_reads_a_text_table_with_query_keys(tmp_path: Path) -> None:
     from imudiag.drivers import EndOfStream, SourceError, open_source
-
     from imudiag.samples import SampleBlock
 
     path = tmp_path / "imu.txt"

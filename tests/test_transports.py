@@ -8,11 +8,11 @@ import time
 
 import numpy as np
 import pytest
+
+from imudiag.bench.pty import BoardWriter, PtyPair, chunked
 from imudiag.drivers import EndOfStream, SourceError, open_source, registered_schemes
-from imudiag.drivers.pty import BoardWriter, PtyPair, chunked
 from imudiag.drivers.reconnect import ReconnectingSource
 from imudiag.drivers.wire import encode_info, encode_samples
-
 from imudiag.samples import SampleBlock
 from tests.helpers import read_samples
 

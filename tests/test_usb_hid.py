@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 import usb.backend
 import usb.core
+
 from imudiag.drivers import SourceError, open_source
 from imudiag.drivers.hid import HID_REPORT_SIZE, pack_reports, unpack_reports
 from imudiag.drivers.reconnect import ReconnectingSource
 from imudiag.drivers.wire import Decoder, encode_info, encode_samples
-
 from tests.helpers import read_samples
 
 VID, PID = 0x0483, 0x5740

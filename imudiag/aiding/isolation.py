@@ -33,9 +33,9 @@ from ..certificate import TriadModel
 from ..diagnosis.params import CAUSES, certificate_vector, internal_scale, sensor_of
 from ..diagnosis.scalar_fit import (
     RESIDUAL_FLOOR,
-    _certificate_internal,
-    _internal_limits,
-    _residuals_and_jacobian,
+    certificate_internal,
+    internal_limits,
+    residuals_and_jacobian,
 )
 
 
@@ -117,13 +117,13 @@ def isolate(
     v = means / (s * m0)
     var_v = np.asarray(mean_var, dtype=float) / (s * m0) ** 2
     mu = mag / m0
-    theta_c, _ = _certificate_internal(triad, m0)
-    r, jac, w = _residuals_and_jacobian(theta_c, v, mu)
+    theta_c, _ = certificate_internal(triad, m0)
+    r, jac, w = residuals_and_jacobian(theta_c, v, mu)
     sig2 = np.einsum("kj,kj->k", w * w, var_v) + RESIDUAL_FLOOR**2
     sw = 1.0 / np.sqrt(sig2)
     jw = jac * sw[:, None]
     rw = r * sw
-    lim = _internal_limits(triad, m0)
+    lim = internal_limits(triad, m0)
     scale = internal_scale(triad, m0)
     norms = np.maximum(np.linalg.norm(jw, axis=0), 1e-300)
     corr = (jw.T @ jw) / np.outer(norms, norms)

@@ -1,7 +1,7 @@
 """The simulated board behind a pty, with transport faults spliced into its byte stream.
 
 :class:`BoardFeeder` writes the :class:`~imudiag.sim.board.SimulatedBoard`'s
-frames into the master side of a :class:`~imudiag.drivers.pty.PtyPair` whose
+frames into the master side of a :class:`~imudiag.bench.pty.PtyPair` whose
 slave is reached through a stable symlink (like udev's ``/dev/imu0``), paced
 at ``speed`` times real time by sample index. Transport injections are
 inserted at their sample index:
@@ -36,7 +36,7 @@ from typing import Protocol
 
 import numpy as np
 
-from imudiag.drivers.pty import PtyPair
+from imudiag.bench.pty import PtyPair
 from imudiag.errors import BenchError
 from imudiag.sim.board import SimulatedBoard
 

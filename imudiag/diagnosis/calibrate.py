@@ -39,8 +39,8 @@ from .config import DiagnosisConfig
 from .gauge import n_symmetric, p_matrix, shape_of_triad, small_rotation
 from .gyro_fit import (
     RotationPair,
-    _predict,
     earth_rate_observable,
+    predict_end_directions,
     rest_bias,
     rotation_fit,
 )
@@ -237,12 +237,12 @@ def accel_norm_spread(
 def _rotation_rms_deg(gyro: TriadModel, pairs: list[RotationPair]) -> float | None:
     if not pairs:
         return None
-    from .gyro_fit import _stack_pairs
+    from .gyro_fit import stack_pairs
 
-    stack = _stack_pairs(gyro, pairs)
+    stack = stack_pairs(gyro, pairs)
     up0 = np.array([p.up0 for p in pairs])
     up1 = np.array([p.up1 for p in pairs])
-    pred = _predict(stack, np.linalg.inv(gyro.n_matrix())[None], up0)[0]
+    pred = predict_end_directions(stack, np.linalg.inv(gyro.n_matrix())[None], up0)[0]
     r = np.linalg.norm(up1 - pred, axis=1)
     return float(math.degrees(float(np.sqrt(np.mean(r * r)))))
 

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..certificate import Certificate, TriadModel
+from ..rotations import ordered_product, quat_matrix, rotvec_quat
 from .gauge import p_matrix, shape_of_triad
 from .params import limit_vector
 from .robust import point_diagnostics
@@ -38,63 +39,6 @@ MAX_STEP_DEG = 3.0
 #: Largest shape deviation (relative scale error, misalignment in rad) a fit may reach:
 #: beyond it the model is not a small-error model any more and the step is refused.
 MAX_SHAPE = 0.5
-
-
-# ---------------------------------------------------------------------------
-# quaternions (w, x, y, z), Hamilton convention: R(a * b) = R(a) R(b)
-
-
-def qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton products of quaternion arrays (..., 4)."""
-    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = aw * bw - ax * bx - ay * by - az * bz
-    out[..., 1] = aw * bx + ax * bw + ay * bz - az * by
-    out[..., 2] = aw * by - ax * bz + ay * bw + az * bx
-    out[..., 3] = aw * bz + ax * by - ay * bx + az * bw
-    return out
-
-
-def rotvec_quat(theta: np.ndarray) -> np.ndarray:
-    """Quaternions (..., 4) of rotation vectors (..., 3), rad."""
-    a2 = np.einsum("...i,...i->...", theta, theta)
-    a = np.sqrt(a2)
-    half = 0.5 * a
-    # sin(a/2)/a with its series near zero
-    big = a > 1e-4
-    k = np.where(big, np.sin(half) / np.where(big, a, 1.0), 0.5 - a2 / 48.0)
-    out = np.empty(theta.shape[:-1] + (4,))
-    out[..., 0] = np.cos(half)
-    out[..., 1:] = theta * k[..., None]
-    return out
-
-
-def quat_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) of unit quaternions (..., 4)."""
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=-2,
-    )
-
-
-def ordered_product(q: np.ndarray) -> np.ndarray:
-    """q_0 * q_1 * ... * q_{L-1} along axis -2 of (..., L, 4), by pairwise reduction."""
-    length = q.shape[-2]
-    size = 1 << max(0, (length - 1).bit_length())
-    if size != length:
-        pad = np.zeros(q.shape[:-2] + (size - length, 4))
-        pad[..., 0] = 1.0
-        q = np.concatenate([q, pad], axis=-2)
-    while q.shape[-2] > 1:
-        q = qmul(q[..., 0::2, :], q[..., 1::2, :])
-    return q[..., 0, :]
 
 
 # ---------------------------------------------------------------------------
@@ -199,7 +143,7 @@ def _block_increments(inc: np.ndarray, block_rad: float) -> np.ndarray:
     return np.add.reduceat(inc, starts, axis=0)
 
 
-def _stack_pairs(
+def stack_pairs(
     gyro: TriadModel, pairs: list[RotationPair], block_deg: float = 1.0
 ) -> dict[str, np.ndarray]:
     """Rotation increments of every motion before N^-1 (trapezoid rule, rad), padded.
@@ -220,7 +164,7 @@ def _stack_pairs(
     return {"inc": out, "path": path}
 
 
-def _predict(
+def predict_end_directions(
     stack: dict[str, np.ndarray], ninv: np.ndarray, up0: np.ndarray
 ) -> np.ndarray:
     """Predicted end directions (P, n, 3) for parameter sets with N^-1 (P, 3, 3)."""
@@ -253,7 +197,7 @@ def rotation_fit(
     npar = 9 if fit_frame else 6
     prior_sd = np.concatenate([np.broadcast_to(prior_factor, (6,)) * lim, np.full(3, 0.1)])
     prior_prec = 1.0 / prior_sd[:npar] ** 2
-    stack = _stack_pairs(gyro, pairs)
+    stack = stack_pairs(gyro, pairs)
     up0 = np.array([p.up0 for p in pairs])
     up1 = np.array([p.up1 for p in pairs])
     durations = np.array([p.t[-1] - p.t[0] for p in pairs])
@@ -289,7 +233,7 @@ def rotation_fit(
     def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Residuals (3 n,), Jacobian of the prediction (3 n, npar), cost at x."""
         sets = np.vstack([x, x + h * np.eye(npar)])
-        pred = _predict(stack, ninv_of(sets), up0)
+        pred = predict_end_directions(stack, ninv_of(sets), up0)
         r = (up1 - pred[0]).ravel()
         j = ((pred[1:] - pred[0][None]) / h).reshape(npar, -1).T
         return r, j, float(np.sum(r * r * wgt) + np.sum(prior_prec * x * x))
@@ -357,8 +301,5 @@ __all__ = [
     "rotation_fit",
     "rest_bias",
     "earth_rate_observable",
-    "qmul",
-    "rotvec_quat",
-    "quat_matrix",
-    "ordered_product",
+    "stack_pairs",
 ]

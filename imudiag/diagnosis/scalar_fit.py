@@ -63,11 +63,11 @@ def _regressor_jacobian(y: np.ndarray) -> np.ndarray:
     return jac
 
 
-def _internal_limits(triad: TriadModel, m0: float) -> np.ndarray:
+def internal_limits(triad: TriadModel, m0: float) -> np.ndarray:
     return limit_vector(triad) / internal_scale(triad, m0)
 
 
-def _certificate_internal(triad: TriadModel, m0: float) -> tuple[np.ndarray, np.ndarray]:
+def certificate_internal(triad: TriadModel, m0: float) -> tuple[np.ndarray, np.ndarray]:
     """theta_c (9,) = (B / (S m0), shape of P) and the rotation Q of the certificate's N."""
     shape, q = shape_of_triad(triad)
     return np.concatenate([triad.bias / (triad.scale_factor * m0), shape]), q
@@ -132,7 +132,7 @@ def _scaled_condition(info: np.ndarray, lim: np.ndarray) -> float:
 # exact model
 
 
-def _residuals_and_jacobian(
+def residuals_and_jacobian(
     theta: np.ndarray, v: np.ndarray, mu: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Residuals |P^-1 (v - beta)| - mu (K,), Jacobian (K, 9) and w = P^-1 x_hat (K, 3)."""
@@ -188,8 +188,8 @@ def exact_fit(
     v = means / (s * m0)
     var_v = np.asarray(mean_var, dtype=float).reshape(-1, 3) / (s * m0) ** 2
     mu = mag / m0
-    theta_c, _ = _certificate_internal(triad, m0)
-    lim = _internal_limits(triad, m0)
+    theta_c, _ = certificate_internal(triad, m0)
+    lim = internal_limits(triad, m0)
     pf = np.broadcast_to(np.asarray(prior_factor, dtype=float), (9,))
     prior_prec = np.where(np.isfinite(pf), 1.0 / (pf * lim) ** 2, 0.0)
 
@@ -207,7 +207,7 @@ def exact_fit(
     def cost(
         th: np.ndarray, extra: float
     ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-        r, jac, w = _residuals_and_jacobian(th, v, mu)
+        r, jac, w = residuals_and_jacobian(th, v, mu)
         sig2 = np.einsum("kj,kj->k", w * w, var_v) + RESIDUAL_FLOOR**2 + extra
         c = float(np.sum(r * r / sig2) + np.sum(prior_prec * (th - theta_c) ** 2))
         return c, r, jac, sig2
@@ -290,7 +290,7 @@ def exact_fit(
         w_rob = 1.0 / (noise + e_rob)
         cov_rob = np.linalg.pinv(jac.T @ (jac * w_rob[:, None]) + np.diag(prior_prec))
         pm, pv, pmag = (np.asarray(x, dtype=float) for x in predict)
-        rp, jp, wp = _residuals_and_jacobian(
+        rp, jp, wp = residuals_and_jacobian(
             theta, pm.reshape(-1, 3) / (s * m0), np.atleast_1d(pmag) / m0
         )
         nvp = np.einsum("kj,kj->k", wp * wp, pv.reshape(-1, 3) / (s * m0) ** 2)
@@ -420,7 +420,7 @@ def corrected_normalised(
     triad: TriadModel, raw: np.ndarray, m0: float
 ) -> np.ndarray:
     """Certificate-corrected outputs (N, 3) in units of ``m0`` (input units)."""
-    theta_c, q = _certificate_internal(triad, m0)
+    theta_c, q = certificate_internal(triad, m0)
     p = p_matrix(theta_c[3:])
     return (np.asarray(raw, dtype=float) / (triad.scale_factor * m0) - theta_c[:3]) @ np.linalg.inv(
         p
@@ -492,7 +492,7 @@ def interval_normal_equations(
     k = means.shape[0]
     mu = np.broadcast_to(np.asarray(magnitude, dtype=float), (k,)) / m0
     y = corrected_normalised(triad, means, m0)
-    theta_c, _ = _certificate_internal(triad, m0)
+    theta_c, _ = certificate_internal(triad, m0)
     pinv = np.linalg.inv(p_matrix(theta_c[3:]))
     scale = 1.0 / (triad.scale_factor * m0)
     cy = pinv @ (np.asarray(covs) * np.outer(scale, scale)) @ pinv.T  # (K, 3, 3)
@@ -527,7 +527,7 @@ def normal_equation_fit(
     """Least squares from normal equations in chi^2 units, with the same weak prior at the
     certificate as the exact fit (``prior_factor`` limits), covariance scaled by
     chi^2 / dof when above 1."""
-    lim = _internal_limits(triad, m0)
+    lim = internal_limits(triad, m0)
     if ne.n <= 9 or not np.any(ne.a):
         from .params import undetermined_fit
 

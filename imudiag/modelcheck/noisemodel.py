@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..certificate import FLICKER_FACTOR, markov_allan_shape
-from ..noise_stats import AllanResult, _nnls_small, overlapping_allan
+from ..noise_stats import AllanResult, nnls_small, overlapping_allan
 
 #: candidate models, simplest first, with the terms beyond white noise each adds
 CANDIDATES: dict[str, tuple[str, ...]] = {
@@ -100,12 +100,12 @@ def fit(name: str, allan: AllanResult, sel: np.ndarray) -> NoiseFit:
         keys.append("rate_ramp")
     if name != "gauss_markov":
         a = np.stack(cols, 1)
-        coef = _nnls_small(a * w[:, None], var * w)
+        coef = nnls_small(a * w[:, None], var * w)
         return NoiseFit(name, {k: math.sqrt(c) for k, c in zip(keys, coef, strict=True)})
     best: tuple[float, dict[str, float]] = (math.inf, {"density": 0.0})
     for tc in np.logspace(math.log10(tau.min() / 3.0), math.log10(tau.max() * 3.0), 49):
         a = np.stack([cols[0], markov_allan_shape(tau / tc)], 1)
-        coef = _nnls_small(a * w[:, None], var * w)
+        coef = nnls_small(a * w[:, None], var * w)
         cost = float(np.sum(((a @ coef) - var) ** 2 * w**2))
         if cost < best[0]:
             best = (

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..certificate import Certificate, TriadModel
-from ..diagnosis.gyro_fit import ordered_product, quat_matrix, rotvec_quat
+from ..rotations import ordered_product, quat_matrix, rotvec_quat
 from .config import ModelCheckConfig
 from .residuals import Candidate, Channel
 from .summaries import Chunks

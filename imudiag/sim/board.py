@@ -138,7 +138,7 @@ class SimulatedBoard:
 
     def iter_bytes(self, chunk_s: float = 0.05) -> Iterator[bytes]:
         """Byte chunks of ``chunk_s`` seconds of samples until the session ends (endless
-        motions never end): feed for :class:`imudiag.drivers.pty.BoardWriter`."""
+        motions never end): feed for :class:`imudiag.bench.pty.BoardWriter`."""
         n = max(1, int(round(chunk_s * self.rate_hz)))
         while not self.exhausted:
             data, _ = self.generate(n)

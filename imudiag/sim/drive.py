@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..aiding.earth import coriolis_term, earth_rate_ned, normal_gravity, radii, transport_rate_ned
-from .trajectories import Motion, Trajectory, _smooth_step
+from .trajectories import Motion, Trajectory, smooth_step
 
 DRIVE_SCENARIOS = ("urban", "highway", "hilly", "aircraft")
 #: Unix time of the simulated drives' t = 0 (2026-01-01T00:00:00Z).
@@ -63,7 +63,7 @@ class _Steps:
         ddx = np.zeros(t.shape)
         for t0, dur, delta in self.steps:
             tau = (t - t0) / dur
-            s, ds = _smooth_step(tau)
+            s, ds = smooth_step(tau)
             x += delta * s
             dx += delta * ds / dur
             inside = (tau > 0) & (tau < 1)

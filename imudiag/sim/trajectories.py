@@ -138,7 +138,7 @@ class Motion(ABC):
         return self.evaluate(t, rate_hz)
 
 
-def _smooth_step(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def smooth_step(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Raised-cosine step: s = tau - sin(2 pi tau)/(2 pi) in [0, 1], ds/dtau = 1 - cos(2 pi tau)."""
     tau = np.clip(tau, 0.0, 1.0)
     two_pi_tau = 2.0 * math.pi * tau
@@ -211,7 +211,7 @@ class PoseSchedule(Motion):
         i = np.clip(np.searchsorted(self.seg_t0, tl, side="right") - 1, 0, len(self.seg_t0) - 1)
         dur = self.seg_dur[i]
         safe = np.where(dur > 0, dur, 1.0)
-        s, ds = _smooth_step((tl - self.seg_t0[i]) / safe)
+        s, ds = smooth_step((tl - self.seg_t0[i]) / safe)
         angle = self.seg_angle[i] * s
         axis = self.seg_axis[i]
         c = self.seg_start[i] @ axis_angle_matrix(axis, angle)
@@ -296,10 +296,10 @@ class VehicleRun(Motion):
 
     def kinematics(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         t = np.asarray(t, dtype=float)
-        sv, dsv = _smooth_step((t - self.still_s) / self.accel_s)
+        sv, dsv = smooth_step((t - self.still_s) / self.accel_s)
         v = self.speed * sv
         dv = self.speed * dsv / self.accel_s
-        sp, dsp = _smooth_step((t - self.turn_t0) / self.turn_s)
+        sp, dsp = smooth_step((t - self.turn_t0) / self.turn_s)
         psi = self.heading0 + self.turn * sp
         dpsi = self.turn * dsp / self.turn_s
         cp, spsi = np.cos(psi), np.sin(psi)

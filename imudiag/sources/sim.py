@@ -42,6 +42,8 @@ from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from imudiag.certificate import Certificate, load_default
+from imudiag.drivers.base import EndOfStream, SourceError, SourceURL, register
+from imudiag.drivers.bytesource import ByteSource
 from imudiag.sim.board import SimulatedBoard
 from imudiag.sim.scenarios import (
     canonical_scenario,
@@ -51,9 +53,6 @@ from imudiag.sim.scenarios import (
     scenario_params,
     split_list,
 )
-
-from .base import EndOfStream, SourceError, SourceURL, register
-from .bytesource import ByteSource
 
 _OWN_KEYS = ("seed", "speed", "rate", "duration", "chunk", "fault", "effect")
 _MAX_CATCH_UP_S = 2.0  #: seconds of samples generated per read at most when behind

@@ -26,13 +26,12 @@ from typing import Any
 
 import numpy as np
 
+from imudiag.drivers.base import EndOfStream, Source, SourceError, SourceURL, register
+from imudiag.drivers.wire import SAMPLE_FRAME_SIZE, Decoder
 from imudiag.errors import BadInput
 from imudiag.logs.options import URL_KEYS as LOG_URL_KEYS
 from imudiag.logs.options import options_from_query
 from imudiag.samples import SampleBlock
-
-from .base import EndOfStream, Source, SourceError, SourceURL, register
-from .wire import SAMPLE_FRAME_SIZE, Decoder
 
 DEFAULT_BLOCK_SIZE = 16384  #: samples per block read from the file
 DEFAULT_STEP_S = 0.05  #: sample time returned per read at speed 0, s

@@ -1,0 +1,67 @@
+"""Quaternions (w, x, y, z), Hamilton convention: R(a * b) = R(a) R(b).
+
+The helpers the gyro rotation fit (:mod:`imudiag.diagnosis.gyro_fit`) and the model
+check's rotation channel (:mod:`imudiag.modelcheck.rotations`) share: products of
+quaternion arrays, quaternions of rotation vectors (rad), rotation matrices, and the
+ordered product of a sequence by pairwise reduction (no loop over samples).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products of quaternion arrays (..., 4)."""
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = aw * bw - ax * bx - ay * by - az * bz
+    out[..., 1] = aw * bx + ax * bw + ay * bz - az * by
+    out[..., 2] = aw * by - ax * bz + ay * bw + az * bx
+    out[..., 3] = aw * bz + ax * by - ay * bx + az * bw
+    return out
+
+
+def rotvec_quat(theta: np.ndarray) -> np.ndarray:
+    """Quaternions (..., 4) of rotation vectors (..., 3), rad."""
+    a2 = np.einsum("...i,...i->...", theta, theta)
+    a = np.sqrt(a2)
+    half = 0.5 * a
+    # sin(a/2)/a with its series near zero
+    big = a > 1e-4
+    k = np.where(big, np.sin(half) / np.where(big, a, 1.0), 0.5 - a2 / 48.0)
+    out = np.empty(theta.shape[:-1] + (4,))
+    out[..., 0] = np.cos(half)
+    out[..., 1:] = theta * k[..., None]
+    return out
+
+
+def quat_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit quaternions (..., 4)."""
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=-2,
+    )
+
+
+def ordered_product(q: np.ndarray) -> np.ndarray:
+    """q_0 * q_1 * ... * q_{L-1} along axis -2 of (..., L, 4), by pairwise reduction."""
+    length = q.shape[-2]
+    size = 1 << max(0, (length - 1).bit_length())
+    if size != length:
+        pad = np.zeros(q.shape[:-2] + (size - length, 4))
+        pad[..., 0] = 1.0
+        q = np.concatenate([q, pad], axis=-2)
+    while q.shape[-2] > 1:
+        q = qmul(q[..., 0::2, :], q[..., 1::2, :])
+    return q[..., 0, :]
+
+
+__all__ = ["ordered_product", "qmul", "quat_matrix", "rotvec_quat"]

@@ -1,0 +1,242 @@
+"""The shape of the house (README "What it does"): data flows one way, bytes -> frames ->
+samples -> monitor -> verdicts -> status, and no import runs back up.
+
+Every module of the package is parsed and its imports (function-level ones too) are
+resolved to modules of the package; a test fails on an import cycle between modules, on an
+arrow running up a floor, and on a module that no floor claims.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Installed package -> its directory in the tree (pyproject's package-dir).
+PACKAGE_DIRS = {
+    "imudiag": ROOT / "imudiag",
+    "imudiag.drivers": ROOT / "drivers",
+    "imudiag.config": ROOT / "config",
+}
+
+#: Floors, bottom up: a module imports only from its own floor or below. Each entry is a
+#: module or a package prefix; the longest matching prefix decides.
+FLOORS: list[tuple[str, ...]] = [
+    # 0 ground: errors, the YAML loader, atomic files, bundled configuration
+    ("imudiag.errors", "imudiag.yamlio", "imudiag.atomic", "imudiag.config"),
+    # 1 data: samples with units, the certificate model, rotations
+    ("imudiag.samples", "imudiag.certificate", "imudiag.rotations"),
+    # 2 wire: bytes <-> frames <-> samples
+    ("imudiag.drivers.wire", "imudiag.drivers.crc"),
+    # 3 transports: byte sources by URL
+    ("imudiag.drivers",),
+    # 4 logs
+    ("imudiag.logs",),
+    # 5 checks and analysis
+    (
+        "imudiag.scalar",
+        "imudiag.stats",
+        "imudiag.ringbuffer",
+        "imudiag.trailing",
+        "imudiag.persistence",
+        "imudiag.quasistatic",
+        "imudiag.noise_estimate",
+        "imudiag.noise_stats",
+        "imudiag.monitor",
+        "imudiag.sim",
+        "imudiag.diagnosis",
+        "imudiag.modelcheck",
+        "imudiag.aiding",
+    ),
+    # 6 sources above the transports: sim://, replay://
+    ("imudiag.sources",),
+    # 7 service: the daemon
+    ("imudiag.service",),
+    # 8 faces: the library API, the command line, the bench
+    (
+        "imudiag",
+        "imudiag.api",
+        "imudiag.cli",
+        "imudiag.__main__",
+        "imudiag.commands",
+        "imudiag.bench",
+    ),
+]
+
+
+def _modules() -> dict[str, Path]:
+    mods: dict[str, Path] = {}
+    for base, directory in PACKAGE_DIRS.items():
+        for path in directory.rglob("*.py"):
+            parts = list(path.relative_to(directory).with_suffix("").parts)
+            if base == "imudiag" and parts[0] in ("drivers", "config"):
+                continue
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            mods[".".join([base, *parts])] = path
+    return mods
+
+
+MODULES = _modules()
+
+
+def _is_module(name: str) -> bool:
+    return name in MODULES or (name.startswith("drivers.") and "imudiag." + name in MODULES)
+
+
+def _imports(name: str, path: Path) -> set[str]:
+    """The package's modules that ``name`` imports anywhere in its text."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    tree = ast.parse(path.read_text(), str(path))
+    type_only = {  # `if TYPE_CHECKING:` blocks run under a type checker only
+        id(n)
+        for block in ast.walk(tree)
+        if isinstance(block, ast.If) and ast.unparse(block.test).endswith("TYPE_CHECKING")
+        for stmt in block.body
+        for n in ast.walk(stmt)
+    }
+    for node in ast.walk(tree):
+        if id(node) in type_only:
+            continue
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package
+                for _ in range(node.level - 1):
+                    base = base.rpartition(".")[0]
+                base = f"{base}.{node.module}" if node.module else base
+            else:
+                base = node.module or ""
+            names = [f"{base}.{a.name}" for a in node.names]
+            # `from pkg import module` imports the module; `from pkg import name`, the package
+            candidates = names + ([base] if not all(_is_module(n) for n in names) else [])
+        elif isinstance(node, ast.Import):
+            candidates = [a.name for a in node.names]
+        else:
+            continue
+        for c in candidates:
+            if c == "drivers" or c.startswith("drivers."):
+                c = "imudiag." + c  # the tree's own name for imudiag.drivers
+            if c in MODULES and c != name:
+                found.add(c)
+    return found
+
+
+GRAPH = {name: _imports(name, path) for name, path in MODULES.items()}
+
+
+def floor(name: str) -> int:
+    """The floor of a module: the one whose longest entry is a prefix of its name."""
+    best, best_len = -1, -1
+    for level, entries in enumerate(FLOORS):
+        for entry in entries:
+            if (name == entry or name.startswith(entry + ".")) and len(entry) > best_len:
+                best, best_len = level, len(entry)
+    return best
+
+
+def test_the_walk_sees_the_package():
+    assert len(MODULES) > 100
+    assert "imudiag.drivers.wire" in MODULES and "imudiag.sources.sim" in MODULES
+    assert "imudiag.logs" in GRAPH["imudiag.sources.replay"]  # function-level imports count
+
+
+def test_every_module_has_a_floor():
+    assert [m for m in MODULES if floor(m) < 0] == []
+
+
+def test_no_import_runs_up_a_floor():
+    up = sorted(
+        f"{m} (floor {floor(m)}) imports {d} (floor {floor(d)})"
+        for m, deps in GRAPH.items()
+        for d in deps
+        if floor(d) > floor(m)
+    )
+    assert up == []
+
+
+def test_no_import_cycle():
+    """Tarjan's strongly connected components of the module graph: none of two or more."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    cycles: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(GRAPH[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for v in sorted(GRAPH):
+        if v not in index:
+            visit(v)
+    assert cycles == []
+
+
+@pytest.mark.parametrize("bottom", ["imudiag.drivers.wire", "imudiag.drivers.crc"])
+def test_the_wire_codec_is_the_bottom(bottom):
+    """The codec imports nothing of the package but the ground and data floors."""
+    assert {d for d in GRAPH[bottom] if floor(d) >= floor(bottom) and d != bottom} <= {
+        "imudiag.drivers.crc"
+    }
+
+
+def test_sources_above_the_drivers_come_through_entry_points():
+    """sim:// and replay:// are found through the installed package's entry points, so the
+    driver layer names no module above it; a broken plug-in says what broke."""
+    from importlib.metadata import EntryPoint
+
+    from imudiag.drivers import base
+
+    eps = base._entry_points()
+    assert eps["sim"].value == "imudiag.sources.sim:SimSource"
+    assert eps["replay"].value == "imudiag.sources.replay:ReplaySource"
+    assert base.source_class("sim").__module__ == "imudiag.sources.sim"
+    broken = EntryPoint("nosuch", "imudiag.sources.nosuch:NoSource", base.ENTRY_POINT_GROUP)
+    with pytest.raises(base.SourceError, match="nosuch://.*cannot be loaded.*ModuleNotFound"):
+        base._load_entry_point("nosuch", broken)
+    not_a_source = EntryPoint("notsrc", "imudiag.samples:SampleBlock", base.ENTRY_POINT_GROUP)
+    with pytest.raises(base.SourceError, match="not a Source class"):
+        base._load_entry_point("notsrc", not_a_source)
+    assert "notsrc" not in base._REGISTRY
+
+
+def test_no_module_imports_another_modules_private_names():
+    private = []
+    for name, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom) and (
+                node.level or "imudiag" in (node.module or "")
+            ):
+                private += [
+                    f"{name} imports {node.module}.{a.name}"
+                    for a in node.names
+                    if a.name.startswith("_") and not a.name.startswith("__")
+                ]
+    assert private == []
+
+
+def test_quaternion_helpers_live_in_one_module():
+    """The gyro fit and the model check's rotation channel share imudiag.rotations."""
+    assert "imudiag.rotations" in GRAPH["imudiag.diagnosis.gyro_fit"]
+    assert "imudiag.rotations" in GRAPH["imudiag.modelcheck.rotations"]
+    assert "imudiag.diagnosis.gyro_fit" not in GRAPH["imudiag.modelcheck.rotations"]
