@@ -7,6 +7,7 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+from imudiag.reports import STATUS_FORMAT
 from imudiag.service.status import STATES
 
 COUNTER_KEYS = ("bytes", "frames", "crc_errors", "skipped_bytes", "lost", "duplicates")
@@ -22,6 +23,11 @@ def check_status_line(status: Any, where: str = "status") -> None:
     """Raise StatusLineError unless ``status`` has the keys and types of spec/reports.md."""
     if not isinstance(status, dict):
         raise StatusLineError(f"{where}: not a JSON object: {status!r}")
+    if status.get("class") != "STATUS" or status.get("format") != STATUS_FORMAT:
+        raise StatusLineError(
+            f"{where}: class/format {status.get('class')!r}/{status.get('format')!r}, "
+            f"not 'STATUS'/{STATUS_FORMAT!r}"
+        )
     for key in ("t", "state", "faults", "counters"):
         if key not in status:
             raise StatusLineError(f"{where}: no key {key!r}")

@@ -90,13 +90,16 @@ def test_bias_episode_is_in_the_samples() -> None:
 
 
 def test_status_checker_rejects_malformed_lines() -> None:
-    good = {"t": 1.0, "state": "ok", "faults": [], "counters": {
+    good = {"class": "STATUS", "format": "imudiag-status/1",
+            "t": 1.0, "state": "ok", "faults": [], "counters": {
         k: 0 for k in ("bytes", "frames", "crc_errors", "skipped_bytes", "lost", "duplicates")}}
     check_status_line(good)
     for bad in ({**good, "state": "fine"}, {**good, "t": "1"},
                 {**good, "faults": [{"cause": "f0"}]},
                 {**good, "counters": {**good["counters"], "lost": -1}},
-                {k: v for k, v in good.items() if k != "counters"}):
+                {k: v for k, v in good.items() if k != "counters"},
+                {k: v for k, v in good.items() if k != "class"},
+                {**good, "format": "imudiag-status/2"}):
         with pytest.raises(StatusLineError):
             check_status_line(bad)
     stream = StatusStream()

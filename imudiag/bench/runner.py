@@ -22,6 +22,7 @@ import yaml
 
 from imudiag import certificate as certmod
 from imudiag.errors import BenchError
+from imudiag.reports import BENCH_FORMAT, header
 from imudiag.sim.board import SimulatedBoard
 from imudiag.sim.scenarios import parse_effects, scenario_motion
 
@@ -30,7 +31,7 @@ from .evaluate import Evaluation
 from .feeder import BoardFeeder
 from .scenario import BenchScenario
 
-REPORT_FORMAT = "imudiag-bench/1"
+REPORT_FORMAT = BENCH_FORMAT
 
 
 def diagnosis_available() -> bool:
@@ -167,7 +168,7 @@ def run_scenario(
     if daemon.bad_lines:
         problems.append(f"{len(daemon.bad_lines)} status lines were not JSON objects")
     report: dict[str, Any] = {
-        "format": REPORT_FORMAT,
+        **header(REPORT_FORMAT),
         "scenario": scenario.name,
         "source": scenario.source,
         "description": scenario.description,

@@ -28,9 +28,10 @@ from ..logs.timing import timing_report
 from ..noise_estimate import METHOD as WHITE_NOISE_METHOD
 from ..noise_estimate import NoiseMeter
 from ..noise_stats import identify_noise, overlapping_allan, welch_psd
+from ..reports import ALLAN_FORMAT, header
 
 SENSORS = ("gx", "gy", "gz", "ax", "ay", "az")
-FORMAT = "imudiag-allan/1"
+FORMAT = ALLAN_FORMAT
 #: Cross-check readings of the white noise further than this from the measured density
 #: (as a ratio) are named on the console and in ``white_noise_note``.
 CROSS_CHECK_TOLERANCE = 1.25
@@ -155,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
         raise BadInput(f"--rate: must be > 0 Hz, got {rate}")
     gaps = int(np.count_nonzero(dt > 1.5 / rate))
     report = {
-        "format": FORMAT,
+        **header(FORMAT),
         "log": args.log,
         "samples": int(t.shape[0]),
         "rate_hz": rate,

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from ..certificate import Certificate, Noise, TriadModel
+from ..reports import CALIBRATION_FORMAT, header
 from .config import DiagnosisConfig
 from .gauge import n_symmetric, p_matrix, shape_of_triad, small_rotation
 from .gyro_fit import (
@@ -160,7 +161,7 @@ class CalibrationResult:
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary of the calibration."""
         return {
-            "format": "imudiag-calibration/1",
+            **header(CALIBRATION_FORMAT),
             "method": self.method,
             "intervals": self.intervals,
             "attitudes": self.attitudes,

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..certificate import Certificate
+from ..reports import DIAGNOSIS_FORMAT, header
 from ..samples import SampleBlock
 from .config import DiagnosisConfig
 from .intervals import IntervalCollector, QuasiStaticInterval
@@ -27,7 +28,7 @@ from .predicates import PredicateTracker
 from .scalar_fit import NormalEquations, corrected_normalised, normal_equation_fit, sample_rows
 from .window import WindowResult, diagnose_window, distinct_attitudes
 
-REPORT_FORMAT = "imudiag-diagnosis/1"
+REPORT_FORMAT = DIAGNOSIS_FORMAT
 TRIADS = ("accel", "gyro")
 
 
@@ -356,7 +357,7 @@ class StreamingDiagnoser:
         verdict = {"accel": v["accel"], "gyro": v["gyro"], "faults": v["faults"],
                    "undetermined": v["undetermined"]}
         return {
-            "format": REPORT_FORMAT,
+            **header(REPORT_FORMAT),
             "samples": int(self.samples if samples is None else samples),
             "f0": f0 if f0 is not None else {},
             "verdict": verdict,

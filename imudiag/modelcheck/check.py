@@ -23,6 +23,7 @@ import numpy as np
 
 from ..certificate import Certificate, TriadModel
 from ..noise_estimate import METHOD as WHITE_NOISE_METHOD
+from ..reports import MODEL_CHECK_FORMAT, header
 from ..samples import SampleBlock
 from .config import ModelCheckConfig
 from .detectors import ChannelResult, analyse_channel, k_on_rows
@@ -69,7 +70,7 @@ from .spectral import Line, find_lines
 from .streams import F0Check, Segments, SegmentStats, allan_m_grid, make_segments, stream_measured
 from .summaries import DEFAULT_BLOCK_SIZE, BlockSource, Session, block_source, collect
 
-FORMAT = "imudiag-model-check/1"
+FORMAT = MODEL_CHECK_FORMAT
 ALL_SENSORS = SENSORS["gyro"] + SENSORS["accel"]
 CATALOGUE = ("bias_drift", "bias_instability", "gauss_markov_bias", "rate_ramp", "temperature_bias",
              "temperature_scale", "g_sensitivity", "scale_nonlinearity", "bias_step",
@@ -170,7 +171,7 @@ def model_check(
     out_units = {"gyro": certificate.gyro.output_unit, "accel": certificate.accel.output_unit}
     in_units = {"gyro": certificate.gyro.input_unit, "accel": certificate.accel.input_unit}
     base_report: dict[str, Any] = {
-        "format": FORMAT,
+        **header(FORMAT),
         "log": str(log) if isinstance(log, (str, Path)) else None,
         "certificate": certificate.source,
         "samples": session.samples,

@@ -27,6 +27,7 @@ from ..monitor import Monitor, MonitorConfig
 from ..noise_estimate import METHOD as WHITE_NOISE_METHOD
 from ..noise_estimate import NoiseMeter, compare
 from ..quasistatic import BAD_FLAGS
+from ..reports import CLASSES, STATUS_FORMAT
 from ..samples import SampleBlock
 from .config import DaemonConfig
 from .sdnotify import Notifier, WatchdogGate
@@ -42,6 +43,9 @@ DAEMON_WINDOWS_KEPT = 16  #: past diagnosis windows the live diagnoser keeps in 
 
 #: status lines over which the status's ``cpu`` figures are taken (about 10 s at 1 Hz)
 CPU_WINDOW_LINES = 10
+
+
+STATUS_CLASS = CLASSES[STATUS_FORMAT]  #: "STATUS" (imudiag/reports.py)
 
 
 class StatusSink(Protocol):
@@ -382,6 +386,8 @@ class Daemon:
         counters = self.source.counters.as_dict()
         t = self.monitor.t_last
         status: dict[str, Any] = {
+            "class": STATUS_CLASS,
+            "format": STATUS_FORMAT,
             "t": None if t is None else round(t, 6),
             "state": state,
             "faults": faults,

@@ -1,6 +1,7 @@
 """The daemon's status: one JSON object per line (spec/reports.md), and when to write it.
 
-Keys required by the contract: ``t`` (sample time, s), ``state`` (ok,
+Every line starts with ``class`` (``STATUS``) and ``format`` (``imudiag-status/1``),
+:mod:`imudiag.reports`. Keys required by the contract: ``t`` (sample time, s), ``state`` (ok,
 degraded, fault, no_data), ``faults`` (triad, sensor where it can be told,
 cause), ``counters`` (the receiver counters). Added keys: ``link``,
 ``static``, ``f0``, ``diagnosis``, ``certificate``, ``adc_errors``, ``notes``,

@@ -1,0 +1,44 @@
+"""The ``class`` and ``format`` of every JSON object imudiag writes.
+
+As gpsd tags each report with its ``class`` (TPV, SKY, VERSION), every top-level JSON
+object imudiag writes (a daemon status line, a command's report) starts with ``class``,
+what kind of object it is, and ``format``, the name and version of its contract; a
+consumer reading a mixed stream tells them apart by ``class`` and refuses a ``format``
+version it does not know. A contract that changes incompatibly gets a new version here.
+"""
+
+from __future__ import annotations
+
+STATUS_FORMAT = "imudiag-status/1"  #: a daemon status line (spec/reports.md)
+DIAGNOSIS_FORMAT = "imudiag-diagnosis/1"  #: imudiag diagnose --json
+CALIBRATION_FORMAT = "imudiag-calibration/1"  #: imudiag calibrate --json
+MODEL_CHECK_FORMAT = "imudiag-model-check/1"  #: imudiag model-check --json
+ALLAN_FORMAT = "imudiag-allan/1"  #: imudiag allan --json
+BENCH_FORMAT = "imudiag-bench/1"  #: imudiag bench --json
+
+#: format -> class: one entry per kind of JSON object.
+CLASSES: dict[str, str] = {
+    STATUS_FORMAT: "STATUS",
+    DIAGNOSIS_FORMAT: "DIAGNOSIS",
+    CALIBRATION_FORMAT: "CALIBRATION",
+    MODEL_CHECK_FORMAT: "MODEL_CHECK",
+    ALLAN_FORMAT: "ALLAN",
+    BENCH_FORMAT: "BENCH",
+}
+
+
+def header(fmt: str) -> dict[str, str]:
+    """The first two keys of a JSON object of format ``fmt``: ``class`` and ``format``."""
+    return {"class": CLASSES[fmt], "format": fmt}
+
+
+__all__ = [
+    "ALLAN_FORMAT",
+    "BENCH_FORMAT",
+    "CALIBRATION_FORMAT",
+    "CLASSES",
+    "DIAGNOSIS_FORMAT",
+    "MODEL_CHECK_FORMAT",
+    "STATUS_FORMAT",
+    "header",
+]
