@@ -93,7 +93,11 @@ def board_stream(
 ) -> BoardStream:
     """``duration_s`` seconds of the simulated board (static scenario) at ``rate_hz``."""
     board = SimulatedBoard(
-        certificate, scenario_motion("static", seed), rate_hz, seed, faults=faults,
+        certificate,
+        scenario_motion("static", seed),
+        rate_hz,
+        seed,
+        faults=faults,
         duration_s=duration_s,
     )
     parts = []
@@ -145,8 +149,18 @@ class StatusReader(threading.Thread):
 
 def daemon_command(source: str, certificate: Path, diagnosis: bool) -> list[str]:
     """The ``imudiag run`` command line for a source URL and certificate file."""
-    cmd = [sys.executable, "-m", "imudiag", "run", "--source", source,
-           "--certificate", str(certificate), "--log-level", "warning"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "imudiag",
+        "run",
+        "--source",
+        source,
+        "--certificate",
+        str(certificate),
+        "--log-level",
+        "warning",
+    ]
     if not diagnosis:
         cmd.append("--no-diagnosis")
     return cmd

@@ -79,9 +79,11 @@ def fault_catalogue(grade: str) -> list[tuple[str, str]]:
         for kind in ("bias", "scale_factor", "misalignment"):
             if t == "g" and kind == "misalignment" and grade == "mems":
                 continue  # MEMS gyro misalignment: not part of the evidence list
-            sensors = [p.format(t=t) for p in PAIRS] if kind == "misalignment" else [
-                f"{t}{a}" for a in AXES
-            ]
+            sensors = (
+                [p.format(t=t) for p in PAIRS]
+                if kind == "misalignment"
+                else [f"{t}{a}" for a in AXES]
+            )
             out.extend((kind, s) for s in sensors)
     return out
 
@@ -110,11 +112,9 @@ def session(case: Case):  # noqa: ANN201 - SimResult
     100 Hz)."""
     cert = certificate_for(case.grade)
     if case.grade == "mems":
-        traj = multi_position(n_attitudes=16, dwell_s=3.0, turn_s=1.5, rate_hz=200,
-                              seed=case.seed)
+        traj = multi_position(n_attitudes=16, dwell_s=3.0, turn_s=1.5, rate_hz=200, seed=case.seed)
     else:
-        traj = multi_position(n_attitudes=20, dwell_s=20.0, turn_s=2.0, rate_hz=100,
-                              seed=case.seed)
+        traj = multi_position(n_attitudes=20, dwell_s=20.0, turn_s=2.0, rate_hz=100, seed=case.seed)
     faults = []
     if case.kind is not None and case.index is not None and case.sensor is not None:
         limit = limit_vector(cert.triad(case.triad))[case.index]
@@ -186,8 +186,9 @@ def variants(n_faulty: int, n_clean: int, seed: int, methods: tuple[str, ...]) -
             for m in methods:
                 res = judge(case, run_method(case, sim, m))
                 for triad, r in res.items():
-                    row = table.setdefault((grade, m, triad), {
-                        "faulty": 0, "clean": 0, "outcomes": {}, "errors": []})
+                    row = table.setdefault(
+                        (grade, m, triad), {"faulty": 0, "clean": 0, "outcomes": {}, "errors": []}
+                    )
                     row["faulty" if r["faulty"] else "clean"] += 1
                     row["outcomes"][r["outcome"]] = row["outcomes"].get(r["outcome"], 0) + 1
                     if "error_limits" in r:
@@ -197,17 +198,21 @@ def variants(n_faulty: int, n_clean: int, seed: int, methods: tuple[str, ...]) -
 
 def print_variants(table: dict) -> None:
     """Markdown table of the variants, one row per grade, method and triad."""
-    print("| grade | method | triad | faulty sessions: isolated / found+extra / misattributed "
-          "/ missed | estimate error, limits (median, 90 %) | sessions without a fault in "
-          "the triad: false alarms |")
+    print(
+        "| grade | method | triad | faulty sessions: isolated / found+extra / misattributed "
+        "/ missed | estimate error, limits (median, 90 %) | sessions without a fault in "
+        "the triad: false alarms |"
+    )
     print("|---|---|---|---|---|---|")
     for (grade, m, triad), row in sorted(table.items()):
         o = row["outcomes"]
         err = np.array(row["errors"]) if row["errors"] else np.array([np.nan])
-        print(f"| {grade} | {m} | {triad} | {o.get('isolated', 0)} / {o.get('found + extra', 0)}"
-              f" / {o.get('misattributed', 0)} / {o.get('missed', 0)} of {row['faulty']} | "
-              f"{np.nanmedian(err):.2f}, {np.nanpercentile(err, 90):.2f} | "
-              f"{o.get('false alarm', 0)} of {row['clean']} |")
+        print(
+            f"| {grade} | {m} | {triad} | {o.get('isolated', 0)} / {o.get('found + extra', 0)}"
+            f" / {o.get('misattributed', 0)} / {o.get('missed', 0)} of {row['faulty']} | "
+            f"{np.nanmedian(err):.2f}, {np.nanpercentile(err, 90):.2f} | "
+            f"{o.get('false alarm', 0)} of {row['clean']} |"
+        )
 
 
 # ---------------------------------------------------------------------------
@@ -264,8 +269,11 @@ def throughput(n_samples: int = 1_000_000) -> dict:
                 written += take
         out = os.path.join(tmp, "report.json")
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "imudiag", "diagnose", path, "--json", out],
-                       check=True, stdout=subprocess.DEVNULL)
+        subprocess.run(
+            [sys.executable, "-m", "imudiag", "diagnose", path, "--json", out],
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
         wall = time.perf_counter() - t0
         rep = json.loads(Path(out).read_text())
     return {

@@ -84,8 +84,12 @@ def _child(argv: Sequence[str]) -> int:
     p.add_argument("--certificate", required=True)
     p.add_argument("--trace", required=True, help="output .npz")
     p.add_argument("--no-diagnosis", action="store_true")
-    p.add_argument("--read-interval", type=float, default=None,
-                   help="daemon read interval, s (default: the daemon's)")
+    p.add_argument(
+        "--read-interval",
+        type=float,
+        default=None,
+        help="daemon read interval, s (default: the daemon's)",
+    )
     a = p.parse_args(argv)
 
     from imudiag.service.config import default_config, merge_cli
@@ -157,15 +161,29 @@ def measure_latency(
     with tempfile.TemporaryDirectory() as tmp, PtyPair() as pair:
         cert_path = rate_certificate(rate_hz, Path(tmp))
         trace_path = Path(tmp) / "trace.npz"
-        cmd = [sys.executable, "-m", "benchmarks.latency", "child",
-               "--source", f"serial://{pair.slave_path}", "--certificate", str(cert_path),
-               "--trace", str(trace_path)]
+        cmd = [
+            sys.executable,
+            "-m",
+            "benchmarks.latency",
+            "child",
+            "--source",
+            f"serial://{pair.slave_path}",
+            "--certificate",
+            str(cert_path),
+            "--trace",
+            str(trace_path),
+        ]
         if not diagnosis:
             cmd.append("--no-diagnosis")
         if read_interval_s is not None:
             cmd += ["--read-interval", str(read_interval_s)]
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                cwd=Path(__file__).resolve().parent.parent)
+        proc = subprocess.Popen(
+            cmd,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=Path(__file__).resolve().parent.parent,
+        )
         try:
             assert proc.stdout is not None
             if proc.stdout.readline().strip() != "ready":
@@ -187,9 +205,13 @@ def measure_latency(
             trace = {k: z[k] for k in z.files}
     keep = stream.time_us * 1e-6 >= warm
     lat = match_latency(
-        BoardStream([c for c, k in zip(stream.chunks, keep, strict=True) if k],
-                    stream.time_us[keep], rate_hz),
-        writer.done[keep], trace,
+        BoardStream(
+            [c for c, k in zip(stream.chunks, keep, strict=True) if k],
+            stream.time_us[keep],
+            rate_hz,
+        ),
+        writer.done[keep],
+        trace,
     )
     ms = 1e3 * lat
     return {
@@ -216,8 +238,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--rate", type=float, action="append", help="board rate, Hz (repeatable)")
     p.add_argument("--duration", type=float, default=60.0, help="seconds per run")
     p.add_argument("--no-diagnosis", action="store_true", help="per-sample checks only")
-    p.add_argument("--read-interval", type=float, action="append",
-                   help="daemon read interval(s) to compare, s")
+    p.add_argument(
+        "--read-interval", type=float, action="append", help="daemon read interval(s) to compare, s"
+    )
     a = p.parse_args(argv)
     for rate in a.rate or [1000.0]:
         for interval in a.read_interval or [None]:

@@ -53,25 +53,36 @@ def run(duration_s: float, rate_hz: float, effect: str, seed: int = 0) -> dict:
         model_check(path, cert, seed=seed)
         _cur, peak = tracemalloc.get_traced_memory()
         tracemalloc.stop()
-    return {"samples": n, "wall_s": wall, "peak_mb": peak / 1e6,
-            "effects": result.report["effects"], "gain": result.report["gain"]}
+    return {
+        "samples": n,
+        "wall_s": wall,
+        "peak_mb": peak / 1e6,
+        "effects": result.report["effects"],
+        "gain": result.report["gain"],
+    }
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--duration", type=float, default=1800.0, help="session length, s")
     p.add_argument("--rate", type=float, default=100.0, help="sample rate, Hz")
-    p.add_argument("--effect", default="temperature_bias:gx:2.0",
-                   help="hidden effect, as `imudiag simulate --effect` (default %(default)s)")
+    p.add_argument(
+        "--effect",
+        default="temperature_bias:gx:2.0",
+        help="hidden effect, as `imudiag simulate --effect` (default %(default)s)",
+    )
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args()
     r = run(a.duration, a.rate, a.effect, a.seed)
-    print(f"model check of a {a.duration:g} s {a.rate:g} Hz session ({r['samples']} samples, "
-          f"hidden {a.effect}): {r['wall_s']:.2f} s wall, peak traced memory "
-          f"{r['peak_mb']:.0f} MB")
+    print(
+        f"model check of a {a.duration:g} s {a.rate:g} Hz session ({r['samples']} samples, "
+        f"hidden {a.effect}): {r['wall_s']:.2f} s wall, peak traced memory "
+        f"{r['peak_mb']:.0f} MB"
+    )
     for e in r["effects"]:
-        print(f"  named {e['name']} {e['sensor']}: {e['value']} {e['unit']} "
-              f"(z={e['significance']})")
+        print(
+            f"  named {e['name']} {e['sensor']}: {e['value']} {e['unit']} (z={e['significance']})"
+        )
     print(f"  gain: {r['gain']}")
 
 

@@ -66,8 +66,9 @@ TARGET_RSS_GROWTH_MB = 5.0  #: MB, resident growth over the accelerated replay
 # -- decode + CRC + F0 ------------------------------------------------------------
 
 
-def write_capture(path: Path, n: int, cert: Certificate, rate_hz: float = 200.0,
-                  seed: int = 0) -> None:
+def write_capture(
+    path: Path, n: int, cert: Certificate, rate_hz: float = 200.0, seed: int = 0
+) -> None:
     """A raw capture of ``n`` sample frames: the simulated board still in a few attitudes.
 
     Sample frames only (seq +1 each), the layout the floor's ``frombuffer`` assumes.
@@ -155,12 +156,16 @@ def bench_decode(n: int, chunk_frames: int = 16384, repeat: int = 3) -> dict[str
 def write_logs(directory: Path, n: int, rate_hz: float = 200.0, seed: int = 0) -> dict[str, Path]:
     """``n`` samples of the simulated board (static scenario) as .csv, .npz and .bin."""
     cert = load_default()
-    board = SimulatedBoard(cert, scenario_motion("static", seed), rate_hz, seed,
-                           duration_s=n / rate_hz)
+    board = SimulatedBoard(
+        cert, scenario_motion("static", seed), rate_hz, seed, duration_s=n / rate_hz
+    )
     paths = {ext: directory / f"session{ext}" for ext in (".csv", ".npz", ".bin")}
     meta = {"sample_rate": rate_hz, "source": "benchmarks.run simulated static scenario"}
-    with open_writer(paths[".csv"], meta) as csv, open_writer(paths[".npz"], meta) as npz, \
-            open(paths[".bin"], "wb") as raw:
+    with (
+        open_writer(paths[".csv"], meta) as csv,
+        open_writer(paths[".npz"], meta) as npz,
+        open(paths[".bin"], "wb") as raw,
+    ):
         done = 0
         while not board.exhausted:
             _, block = board.generate(1 << 16)
@@ -178,8 +183,7 @@ def write_logs(directory: Path, n: int, rate_hz: float = 200.0, seed: int = 0) -
 def run_child(cmd: Sequence[str]) -> tuple[float, int, int, str]:
     """Run ``cmd``; wall time (s), exit status, peak resident memory (bytes), stderr tail."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen(list(cmd), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            cwd=ROOT)
+    proc = subprocess.Popen(list(cmd), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=ROOT)
     assert proc.stderr is not None
     err = proc.stderr.read()
     _, status, usage = os.wait4(proc.pid, 0)
@@ -253,8 +257,17 @@ def bench_diagnose(n: int) -> dict[str, Any]:
         paths = write_logs(Path(tmp), n)
         for ext, path in paths.items():
             report = Path(tmp) / f"report{ext}.json"
-            cmd = [sys.executable, "-m", "imudiag", "diagnose", str(path), "--certificate",
-                   str(default_certificate_path()), "--json", str(report)]
+            cmd = [
+                sys.executable,
+                "-m",
+                "imudiag",
+                "diagnose",
+                str(path),
+                "--certificate",
+                str(default_certificate_path()),
+                "--json",
+                str(report),
+            ]
             wall, code, peak, err = run_child(cmd)
             row: dict[str, Any] = {
                 "bytes": path.stat().st_size,
@@ -274,9 +287,13 @@ def bench_diagnose(n: int) -> dict[str, Any]:
         # issue 14: the command on the raw capture over a whole process doing the least
         # (python -m benchmarks.floor_process: start, frombuffer, table CRC, norms)
         floor_wall, code, peak, err = run_child(
-            [sys.executable, "-m", "benchmarks.floor_process", str(paths[".bin"])])
-        out["floor_process"] = {"wall_s": floor_wall, "exit_status": code,
-                                "peak_rss_mb": peak / 2**20}
+            [sys.executable, "-m", "benchmarks.floor_process", str(paths[".bin"])]
+        )
+        out["floor_process"] = {
+            "wall_s": floor_wall,
+            "exit_status": code,
+            "peak_rss_mb": peak / 2**20,
+        }
         raw = out.get("bin", {})
         if code == 0 and raw.get("exit_status") == 0:
             out["bin_floor_ratio"] = raw["wall_s"] / floor_wall
@@ -340,7 +357,8 @@ def bench_latency(duration_s: float, sweep: Sequence[float] = ()) -> dict[str, A
             out[f"{rate:g}hz"]["note"] = f"diagnosis off: with it the daemon failed: {exc}"
     for interval in sweep:
         out[f"1000hz_interval_{interval:g}s"] = measure_latency(
-            1000.0, duration_s, read_interval_s=interval)
+            1000.0, duration_s, read_interval_s=interval
+        )
     r = out["1000hz"]
     out["met"] = r["p99_ms"] is not None and r["p99_ms"] < TARGET_P99_MS
     return out
@@ -352,9 +370,21 @@ def bench_soak(hours: float) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "soak.json"
         proc = subprocess.run(
-            [sys.executable, "-m", "soak", "--hours", repr(hours), "--seed", "1",
-             "--json", str(out)],
-            cwd=ROOT, capture_output=True, text=True, check=False,
+            [
+                sys.executable,
+                "-m",
+                "soak",
+                "--hours",
+                repr(hours),
+                "--seed",
+                "1",
+                "--json",
+                str(out),
+            ],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            check=False,
         )
         if not out.exists():
             return {"error": f"soak exited {proc.returncode}: {proc.stderr[-1500:]}"}
@@ -376,11 +406,17 @@ def table(results: dict[str, Any]) -> list[str]:
     d = results.get("decode")
     if d:
         rows += [
-            ("decode+CRC+F0 (raw capture)", f"{_f(d['decode_f0_samples_per_s'])} samples/s",
-             f"{d['decode_f0_floor_ratio']:.2f}x floor (target <= {TARGET_FLOOR_RATIO:g}x)"),
+            (
+                "decode+CRC+F0 (raw capture)",
+                f"{_f(d['decode_f0_samples_per_s'])} samples/s",
+                f"{d['decode_f0_floor_ratio']:.2f}x floor (target <= {TARGET_FLOOR_RATIO:g}x)",
+            ),
             ("  floor: frombuffer+CRC+norm", f"{_f(d['floor_samples_per_s'])} samples/s", ""),
-            ("  decode+all monitor checks", f"{_f(d['decode_monitor_samples_per_s'])} samples/s",
-             f"{d['decode_monitor_floor_ratio']:.2f}x floor"),
+            (
+                "  decode+all monitor checks",
+                f"{_f(d['decode_monitor_samples_per_s'])} samples/s",
+                f"{d['decode_monitor_floor_ratio']:.2f}x floor",
+            ),
         ]
     g = results.get("diagnose")
     if g:
@@ -389,21 +425,39 @@ def table(results: dict[str, Any]) -> list[str]:
         for fmt in ("csv", "npz", "bin"):
             r = g.get(fmt)
             if r:
-                fig = (f"{_f(r.get('samples_per_s'))} samples/s" if "samples_per_s" in r
-                       else f"exit {r['exit_status']}")
-                rows.append((f"imudiag diagnose {g['samples']:.0e} {fmt}", fig,
-                             f"peak RSS {r['peak_rss_mb']:.0f} MB; reader alone "
-                             f"{_f(r['read_only_samples_per_s'])}/s"))
+                fig = (
+                    f"{_f(r.get('samples_per_s'))} samples/s"
+                    if "samples_per_s" in r
+                    else f"exit {r['exit_status']}"
+                )
+                rows.append(
+                    (
+                        f"imudiag diagnose {g['samples']:.0e} {fmt}",
+                        fig,
+                        f"peak RSS {r['peak_rss_mb']:.0f} MB; reader alone "
+                        f"{_f(r['read_only_samples_per_s'])}/s",
+                    )
+                )
         w = g.get("window")
         if w and "error" not in w:
-            rows.append(("window diagnosis", f"{_f(w['window_ms_median'])} ms median",
-                         f"p99 {_f(w['window_ms_p99'])} ms, {w['windows']} windows"))
+            rows.append(
+                (
+                    "window diagnosis",
+                    f"{_f(w['window_ms_median'])} ms median",
+                    f"p99 {_f(w['window_ms_p99'])} ms, {w['windows']} windows",
+                )
+            )
         elif w:
             rows.append(("window diagnosis", "error", w["error"][:60]))
     s = results.get("simulate")
     if s:
-        rows.append(("simulator (1 kHz, all effects)", f"{_f(s['samples_per_s'])} samples/s",
-                     f"{s['real_time_ratio']:.0f}x real time"))
+        rows.append(
+            (
+                "simulator (1 kHz, all effects)",
+                f"{_f(s['samples_per_s'])} samples/s",
+                f"{s['real_time_ratio']:.0f}x real time",
+            )
+        )
     live = results.get("live")
     if live:
         for key, r in live.items():
@@ -413,28 +467,42 @@ def table(results: dict[str, Any]) -> list[str]:
                 rows.append((f"daemon live {key}", "error", r["error"][-60:]))
                 continue
             ratio = r.get("cpu_ratio_to_floor")
-            rows.append((f"daemon live {key}", f"{r['cpu_percent_of_one_core']:.2f} % of a core",
-                         f"floor reader {r.get('floor_cpu_percent_of_one_core', float('nan')):.2f} "
-                         f"% (same run): {_f(ratio, '{:.2f}')}x floor; "
-                         f"RSS {r['rss_mb_after_warmup']:.1f}->{r['rss_mb_end']:.1f} MB, "
-                         f"frames {r['frames_received']}/{r['frames_written']}"))
+            rows.append(
+                (
+                    f"daemon live {key}",
+                    f"{r['cpu_percent_of_one_core']:.2f} % of a core",
+                    f"floor reader {r.get('floor_cpu_percent_of_one_core', float('nan')):.2f} "
+                    f"% (same run): {_f(ratio, '{:.2f}')}x floor; "
+                    f"RSS {r['rss_mb_after_warmup']:.1f}->{r['rss_mb_end']:.1f} MB, "
+                    f"frames {r['frames_received']}/{r['frames_written']}",
+                )
+            )
     lat = results.get("latency")
     if lat:
         for key, r in lat.items():
             if isinstance(r, dict):
                 fig = f"p50 {_f(r['p50_ms'])} ms, p99 {_f(r['p99_ms'])} ms"
-                rows.append((f"latency {key}", fig,
-                             f"cpu {r['cpu_percent_of_one_core']:.2f} %, "
-                             f"{r['frames']} frames" + (" (diagnosis off)" if not r["diagnosis"]
-                                                          else "")))
+                rows.append(
+                    (
+                        f"latency {key}",
+                        fig,
+                        f"cpu {r['cpu_percent_of_one_core']:.2f} %, "
+                        f"{r['frames']} frames"
+                        + (" (diagnosis off)" if not r["diagnosis"] else ""),
+                    )
+                )
     sk = results.get("soak")
     if sk and "error" in sk:
         rows.append(("soak", "error", sk["error"][-60:]))
     elif sk:
-        rows.append((f"soak {sk['hours']:g} h accelerated",
-                     f"RSS growth {sk['rss_growth_mb']:.2f} MB",
-                     f"{sk['samples']:.3g} samples at {_f(sk['samples_per_s'])}/s, "
-                     f"{'PASS' if sk['passed'] else 'FAIL'}"))
+        rows.append(
+            (
+                f"soak {sk['hours']:g} h accelerated",
+                f"RSS growth {sk['rss_growth_mb']:.2f} MB",
+                f"{sk['samples']:.3g} samples at {_f(sk['samples_per_s'])}/s, "
+                f"{'PASS' if sk['passed'] else 'FAIL'}",
+            )
+        )
     w0 = max((len(r[0]) for r in rows), default=10)
     w1 = max((len(r[1]) for r in rows), default=10)
     return [f"{a:<{w0}}  {b:<{w1}}  {c}" for a, b, c in rows]
@@ -463,13 +531,19 @@ def machine() -> dict[str, Any]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true",
-                   help="10 s live runs, 2x10^5-sample logs, 6-minute soak")
+    p.add_argument(
+        "--quick", action="store_true", help="10 s live runs, 2x10^5-sample logs, 6-minute soak"
+    )
     p.add_argument("--duration", type=float, help="seconds per live/latency run (default 60)")
     p.add_argument("--samples", type=int, help="samples per log/capture (default 10^6)")
     p.add_argument("--soak-hours", type=float, help="hours replayed by the soak (default 1)")
-    p.add_argument("--sweep", type=float, action="append", metavar="S",
-                   help="also measure latency/CPU with this daemon read interval, s")
+    p.add_argument(
+        "--sweep",
+        type=float,
+        action="append",
+        metavar="S",
+        help="also measure latency/CPU with this daemon read interval, s",
+    )
     p.add_argument("--only", action="append", choices=SECTIONS, help="run only these sections")
     p.add_argument("--out", type=Path, default=OUT_DIR / "results.json", help="JSON output")
     a = p.parse_args(argv)
@@ -478,8 +552,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     soak_hours = a.soak_hours or (0.1 if a.quick else 1.0)
     sections = a.only or list(SECTIONS)
     results: dict[str, Any] = {
-        "command": " ".join(["python -m benchmarks",
-                             *(argv if argv is not None else sys.argv[1:])]),
+        "command": " ".join(
+            ["python -m benchmarks", *(argv if argv is not None else sys.argv[1:])]
+        ),
         "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "machine": machine(),
     }
@@ -500,8 +575,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(results, indent=1) + "\n")
     m = results["machine"]
-    print(f"imudiag benchmarks on {m['cpu']} ({m['cores']} cores), Python {m['python']}, "
-          f"numpy {m['numpy']}")
+    print(
+        f"imudiag benchmarks on {m['cpu']} ({m['cores']} cores), Python {m['python']}, "
+        f"numpy {m['numpy']}"
+    )
     for line in table(results):
         print(line)
     print(f"JSON: {a.out}")

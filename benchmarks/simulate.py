@@ -49,8 +49,10 @@ def main() -> None:
     a = p.parse_args()
     r = run(a.duration, a.rate, a.chunk)
     print(f"simulated {r['samples']:.0f} samples ({a.duration:g} s at {a.rate:g} Hz, all effects)")
-    print(f"wall time {r['wall_s']:.2f} s: {r['samples_per_s']:.3g} samples/s, "
-          f"{r['real_time_ratio']:.0f}x faster than real time")
+    print(
+        f"wall time {r['wall_s']:.2f} s: {r['samples_per_s']:.3g} samples/s, "
+        f"{r['real_time_ratio']:.0f}x faster than real time"
+    )
 
 
 if __name__ == "__main__":

@@ -52,9 +52,14 @@ class Counters:
         """The counters as the status JSON ``counters`` object."""
         # built by hand: dataclasses.asdict deep-copies recursively and was a tenth of
         # the daemon's per-turn cost (benchmarks/latency.py profile)
-        return {"bytes": self.bytes, "frames": self.frames, "crc_errors": self.crc_errors,
-                "skipped_bytes": self.skipped_bytes, "lost": self.lost,
-                "duplicates": self.duplicates}
+        return {
+            "bytes": self.bytes,
+            "frames": self.frames,
+            "crc_errors": self.crc_errors,
+            "skipped_bytes": self.skipped_bytes,
+            "lost": self.lost,
+            "duplicates": self.duplicates,
+        }
 
 
 SYNC = b"\xaa\x55"

@@ -69,22 +69,35 @@ def run_hypothesis(target: str, seconds: float, seed: int = 0) -> dict[str, Any]
     batch = 0
     crash = None
     while time.monotonic() - start < seconds:
-        test = hseed(seed * 1_000_003 + batch)(settings(
-            max_examples=BATCH, deadline=None, database=None, derandomize=False,
-            suppress_health_check=list(HealthCheck), print_blob=False,
-        )(given(strategy)(wrapped)))
+        test = hseed(seed * 1_000_003 + batch)(
+            settings(
+                max_examples=BATCH,
+                deadline=None,
+                database=None,
+                derandomize=False,
+                suppress_health_check=list(HealthCheck),
+                print_blob=False,
+            )(given(strategy)(wrapped))
+        )
         batch += 1
         try:
             test()
         except Exception as exc:  # hypothesis re-raises the shrunk example's error
             x = failing.get("x")
             text = f"target {target}, hypothesis\nexample: {x!r}\n\n" + "".join(
-                traceback.format_exception(exc))
-            crash = str(save_crash(target, "hypothesis", to_bytes(x) if x is not None else b"",
-                                   text))
+                traceback.format_exception(exc)
+            )
+            crash = str(
+                save_crash(target, "hypothesis", to_bytes(x) if x is not None else b"", text)
+            )
             break
-    return {"engine": "hypothesis", "target": target, "seconds": time.monotonic() - start,
-            "calls": calls[0], "crash": crash}
+    return {
+        "engine": "hypothesis",
+        "target": target,
+        "seconds": time.monotonic() - start,
+        "calls": calls[0],
+        "crash": crash,
+    }
 
 
 def write_corpus(target: str, directory: Path) -> None:
@@ -124,13 +137,24 @@ def run_atheris(target: str, seconds: float, seed: int = 0) -> dict[str, Any]:
         write_corpus(target, corpus)
         artifacts = Path(tmp) / "artifacts"
         artifacts.mkdir()
-        cmd = [sys.executable, "-m", "fuzz.atheris_target", target,
-               f"-max_total_time={max(1, int(seconds))}", f"-seed={seed + 1}",
-               f"-artifact_prefix={artifacts}/", "-timeout=20", "-rss_limit_mb=4096",
-               "-print_final_stats=1", "-max_len=8192", str(corpus)]
+        cmd = [
+            sys.executable,
+            "-m",
+            "fuzz.atheris_target",
+            target,
+            f"-max_total_time={max(1, int(seconds))}",
+            f"-seed={seed + 1}",
+            f"-artifact_prefix={artifacts}/",
+            "-timeout=20",
+            "-rss_limit_mb=4096",
+            "-print_final_stats=1",
+            "-max_len=8192",
+            str(corpus),
+        ]
         t0 = time.monotonic()
-        proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT,
-                              timeout=seconds + 120, check=False)
+        proc = subprocess.run(
+            cmd, capture_output=True, text=True, cwd=ROOT, timeout=seconds + 120, check=False
+        )
         wall = time.monotonic() - t0
         log = proc.stderr
         execs = re.findall(r"stat::number_of_executed_units:\s*(\d+)", log)
@@ -139,22 +163,38 @@ def run_atheris(target: str, seconds: float, seed: int = 0) -> dict[str, Any]:
         found = sorted(artifacts.iterdir())
         if found:
             data = found[0].read_bytes()
-            crash = str(save_crash(target, "atheris", data,
-                                   f"target {target}, atheris\n\n{replay(target, data)}\n"
-                                   f"libFuzzer log (end):\n{log[-1500:]}"))
+            crash = str(
+                save_crash(
+                    target,
+                    "atheris",
+                    data,
+                    f"target {target}, atheris\n\n{replay(target, data)}\n"
+                    f"libFuzzer log (end):\n{log[-1500:]}",
+                )
+            )
         elif proc.returncode != 0:
             crash = f"atheris exited {proc.returncode}: {log[-1500:]}"
-    return {"engine": "atheris", "target": target, "seconds": wall,
-            "calls": int(execs[-1]) if execs else None,
-            "coverage": int(cov[-1]) if cov else None, "crash": crash}
+    return {
+        "engine": "atheris",
+        "target": target,
+        "seconds": wall,
+        "calls": int(execs[-1]) if execs else None,
+        "coverage": int(cov[-1]) if cov else None,
+        "crash": crash,
+    }
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m fuzz", description=__doc__.splitlines()[0])
-    p.add_argument("--seconds", type=float, default=60.0,
-                   help="seconds per target and engine (default 60)")
-    p.add_argument("--target", action="append", choices=sorted(TARGETS),
-                   help="fuzz only this target (repeatable; default all)")
+    p.add_argument(
+        "--seconds", type=float, default=60.0, help="seconds per target and engine (default 60)"
+    )
+    p.add_argument(
+        "--target",
+        action="append",
+        choices=sorted(TARGETS),
+        help="fuzz only this target (repeatable; default all)",
+    )
     p.add_argument("--engine", choices=("hypothesis", "atheris", "both"), default="both")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     a = p.parse_args(argv)
@@ -170,8 +210,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             r = run(target, a.seconds, a.seed)
             extra = f", coverage {r['coverage']}" if r.get("coverage") is not None else ""
             status = f"CRASH -> {r['crash']}" if r["crash"] else "clean"
-            print(f"{engine:10s} {target:11s} {r['seconds']:6.1f} s  "
-                  f"{r['calls'] if r['calls'] is not None else '?':>9} inputs{extra}  {status}",
-                  flush=True)
+            print(
+                f"{engine:10s} {target:11s} {r['seconds']:6.1f} s  "
+                f"{r['calls'] if r['calls'] is not None else '?':>9} inputs{extra}  {status}",
+                flush=True,
+            )
             found += bool(r["crash"])
     return 1 if found else 0

@@ -37,18 +37,22 @@ from .targets import (
 )
 
 byte_ops = st.lists(
-    st.tuples(st.integers(0, N_BYTE_OPS - 1), st.floats(0, 1), st.integers(0, 255),
-              st.integers(1, 64)),
+    st.tuples(
+        st.integers(0, N_BYTE_OPS - 1), st.floats(0, 1), st.integers(0, 255), st.integers(1, 64)
+    ),
     max_size=8,
 )
 text_ops = st.lists(
-    st.tuples(st.integers(0, N_TEXT_OPS - 1), st.floats(0, 1), st.floats(0, 1),
-              st.integers(0, 100)),
-    min_size=1, max_size=6,
+    st.tuples(
+        st.integers(0, N_TEXT_OPS - 1), st.floats(0, 1), st.floats(0, 1), st.integers(0, 100)
+    ),
+    min_size=1,
+    max_size=6,
 )
 doc_ops = st.lists(
     st.tuples(st.integers(0, 4), st.floats(0, 1), st.integers(0, len(BAD_VALUES) - 1)),
-    min_size=1, max_size=4,
+    min_size=1,
+    max_size=4,
 )
 seeds = st.integers(0, 2**32 - 1)
 
@@ -128,7 +132,8 @@ def npz_arrays(draw: Callable[..., Any]) -> dict[str, Any]:
                 warnings.simplefilter("ignore")
                 arr = np.array(cols[name], dtype=float).reshape(-1)
             arr[draw(st.integers(0, arr.size - 1))] = draw(
-                st.sampled_from([np.nan, np.inf, -1.0, 1e300]))
+                st.sampled_from([np.nan, np.inf, -1.0, 1e300])
+            )
             cols[name] = arr
         elif op == 5:
             cols[name + draw(st.sampled_from(["", "_x", ".npy"]))] = np.zeros(3)
@@ -152,8 +157,9 @@ def npz_inputs(draw: Callable[..., Any]) -> tuple[bytes, int]:
         data = npz_bytes(draw(npz_arrays()), draw(st.booleans()))
     elif kind == 1:
         rng = np.random.default_rng(draw(seeds))
-        data = mutate_bytes(seed_npz(rng, draw(st.integers(1, 10)), draw(st.booleans())),
-                            draw(byte_ops))
+        data = mutate_bytes(
+            seed_npz(rng, draw(st.integers(1, 10)), draw(st.booleans())), draw(byte_ops)
+        )
     else:
         data = draw(st.binary(max_size=400))
     return data, draw(st.integers(1, 5))

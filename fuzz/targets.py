@@ -75,22 +75,37 @@ def check_decoder(data: bytes, cuts: Sequence[int] = ()) -> None:
     dec, out = _decode(data, cuts)
     c = dec.counters
     _require(c.bytes == len(data), f"bytes {c.bytes} != {len(data)} fed")
-    _require(c.bytes == dec.frame_bytes + c.skipped_bytes,
-             f"accounting: bytes {c.bytes} != frame {dec.frame_bytes} + skipped {c.skipped_bytes}")
+    _require(
+        c.bytes == dec.frame_bytes + c.skipped_bytes,
+        f"accounting: bytes {c.bytes} != frame {dec.frame_bytes} + skipped {c.skipped_bytes}",
+    )
     _require(min(c.as_dict().values()) >= 0, f"negative counter: {c}")
     _require(c.frames == len(out), f"frames {c.frames} != samples out {len(out)}")
     if len(out):
-        _require(out.seq is not None and bool(np.all(np.diff(out.seq) > 0)),
-                 "seq not strictly increasing")
+        _require(
+            out.seq is not None and bool(np.all(np.diff(out.seq) > 0)),
+            "seq not strictly increasing",
+        )
         _require(bool(np.all(np.diff(out.t) >= 0)), "t goes backwards")
-        _require(bool(np.all(np.isfinite(out.gyro)) and np.all(np.isfinite(out.accel))),
-                 "non-finite outputs")
+        _require(
+            bool(np.all(np.isfinite(out.gyro)) and np.all(np.isfinite(out.accel))),
+            "non-finite outputs",
+        )
     if cuts:
         dec1, whole = _decode(data, ())
         _require(dec1.counters == c, f"counters depend on chunking: {dec1.counters} vs {c}")
-        _require(len(whole) == len(out) and (not len(out) or (
-            np.array_equal(whole.t, out.t) and np.array_equal(whole.gyro, out.gyro)
-            and np.array_equal(whole.accel, out.accel))), "samples depend on chunking")
+        _require(
+            len(whole) == len(out)
+            and (
+                not len(out)
+                or (
+                    np.array_equal(whole.t, out.t)
+                    and np.array_equal(whole.gyro, out.gyro)
+                    and np.array_equal(whole.accel, out.accel)
+                )
+            ),
+            "samples depend on chunking",
+        )
 
 
 def seed_stream(rng: np.random.Generator, n: int = 60) -> bytes:
@@ -99,12 +114,14 @@ def seed_stream(rng: np.random.Generator, n: int = 60) -> bytes:
     seq = int(rng.integers(0, 65536))
     t0 = int(rng.integers(0, 2**32))
     k = n // 2
-    return b"".join([
-        encode_samples(seq, t0 + 5000 * np.arange(k), raw[:k], rng.normal(25, 5, k)),
-        encode_info(seq + k, t0 + 5000 * k, {"serial": "0001", "rate_hz": 200}),
-        encode_frame(0x7E, seq + k + 1, t0 + 5000 * k + 1, rng.bytes(8)),
-        encode_samples(seq + k + 2, t0 + 5000 * (k + 1 + np.arange(n - k)), raw[k:]),
-    ])
+    return b"".join(
+        [
+            encode_samples(seq, t0 + 5000 * np.arange(k), raw[:k], rng.normal(25, 5, k)),
+            encode_info(seq + k, t0 + 5000 * k, {"serial": "0001", "rate_hz": 200}),
+            encode_frame(0x7E, seq + k + 1, t0 + 5000 * k + 1, rng.bytes(8)),
+            encode_samples(seq + k + 2, t0 + 5000 * (k + 1 + np.arange(n - k)), raw[k:]),
+        ]
+    )
 
 
 # -- byte and text mutations ------------------------------------------------------------
@@ -141,13 +158,40 @@ def mutate_bytes(data: bytes, ops: Sequence[Mutation]) -> bytes:
 
 def random_mutations(rng: np.random.Generator, k: int) -> list[Mutation]:
     """``k`` random byte mutations (the seeded, non-hypothesis form)."""
-    return [(int(rng.integers(0, N_BYTE_OPS)), float(rng.random()), int(rng.integers(0, 256)),
-             int(rng.integers(1, 65))) for _ in range(k)]
+    return [
+        (
+            int(rng.integers(0, N_BYTE_OPS)),
+            float(rng.random()),
+            int(rng.integers(0, 256)),
+            int(rng.integers(1, 65)),
+        )
+        for _ in range(k)
+    ]
 
 
 #: Tokens that break a numeric CSV field in interesting ways.
-BAD_TOKENS = ("nan", "NaN", "inf", "-inf", "", "x", "1e999", "-1e999", "0x10", " 1", "+1",
-              "1.5.2", "1,5", "\u00e9", "1e", "--1", "1_000", "True", "\x00", "9" * 400)
+BAD_TOKENS = (
+    "nan",
+    "NaN",
+    "inf",
+    "-inf",
+    "",
+    "x",
+    "1e999",
+    "-1e999",
+    "0x10",
+    " 1",
+    "+1",
+    "1.5.2",
+    "1,5",
+    "\u00e9",
+    "1e",
+    "--1",
+    "1_000",
+    "True",
+    "\x00",
+    "9" * 400,
+)
 
 #: A text mutation: (op, line fraction, field fraction, token index).
 TextMutation = tuple[int, float, float, int]
@@ -211,8 +255,10 @@ def _read_all(path: Path, block_size: int) -> tuple[str, Any]:
                     _require(b.flags.dtype == np.uint16, f"flags dtype {b.flags.dtype}")
                 if b.seq is not None:
                     _require(bool(np.all(b.seq >= 0)), "accepted negative seq")
-                _require(float(b.t[0]) > last_t and bool(np.all(np.diff(b.t) > 0)),
-                         "accepted t not strictly increasing")
+                _require(
+                    float(b.t[0]) > last_t and bool(np.all(np.diff(b.t) > 0)),
+                    "accepted t not strictly increasing",
+                )
                 last_t = float(b.t[-1])
                 blocks.append(b)
             meta = dict(reader.meta)
@@ -242,8 +288,10 @@ def check_log_file(path: Path, block_size: int) -> None:
     """A log file read with ``block_size`` and with the default: same outcome, valid data."""
     small = _read_all(path, max(1, block_size))
     big = _read_all(path, 65536)
-    _require(_same(small, big),
-             f"outcome depends on block size: {small[0]} (block {block_size}) vs {big[0]}")
+    _require(
+        _same(small, big),
+        f"outcome depends on block size: {small[0]} (block {block_size}) vs {big[0]}",
+    )
 
 
 def check_log_bytes(data: bytes, suffix: str, block_size: int) -> None:
@@ -283,16 +331,23 @@ def seed_columns(rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
     }
 
 
-def csv_text(cols: dict[str, np.ndarray], order: Sequence[str] | None = None,
-             meta: dict[str, str] | None = None) -> str:
+def csv_text(
+    cols: dict[str, np.ndarray],
+    order: Sequence[str] | None = None,
+    meta: dict[str, str] | None = None,
+) -> str:
     """CSV text of ``cols`` with the header in ``order`` and ``# key: value`` metadata."""
     names = list(order or cols)
     lines = [f"# {k}: {v}" for k, v in (meta or {}).items()]
     lines.append(",".join(names))
     n = len(next(iter(cols.values())))
     for i in range(n):
-        lines.append(",".join(repr(float(cols[c][i])) if cols[c].dtype.kind == "f"
-                              else str(int(cols[c][i])) for c in names))
+        lines.append(
+            ",".join(
+                repr(float(cols[c][i])) if cols[c].dtype.kind == "f" else str(int(cols[c][i]))
+                for c in names
+            )
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -314,8 +369,9 @@ def npz_bytes(arrays: dict[str, Any], compressed: bool = False) -> bytes:
 def seed_npz(rng: np.random.Generator, n: int = 12, compressed: bool = False) -> bytes:
     """A valid NPZ log with a JSON meta array."""
     cols = seed_columns(rng, n)
-    arrays: dict[str, Any] = {k: v for k, v in cols.items()
-                              if k in COLUMNS[:7] or rng.random() < 0.7}
+    arrays: dict[str, Any] = {
+        k: v for k, v in cols.items() if k in COLUMNS[:7] or rng.random() < 0.7
+    }
     arrays["meta"] = np.array(json.dumps({"sample_rate": 200, "device": "fuzz"}))
     return npz_bytes(arrays, compressed)
 
@@ -365,9 +421,35 @@ def doc_paths(doc: Any, prefix: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
 
 #: Replacement values for certificate fields.
 BAD_VALUES: tuple[Any, ...] = (
-    None, True, "x", "", [], {}, [1.0, 2.0], [1.0, 2.0, 3.0, 4.0], [[1.0]], float("nan"),
-    float("inf"), -float("inf"), 0, -1, 1e308, -1e308, 5e-324, "1.0", 10**400, {"a": 1},
-    [None, None, None], ["a", "b", "c"], 1e6, -1e6, "deg/s", "rad/s", "g", "m/s^2", 0.5,
+    None,
+    True,
+    "x",
+    "",
+    [],
+    {},
+    [1.0, 2.0],
+    [1.0, 2.0, 3.0, 4.0],
+    [[1.0]],
+    float("nan"),
+    float("inf"),
+    -float("inf"),
+    0,
+    -1,
+    1e308,
+    -1e308,
+    5e-324,
+    "1.0",
+    10**400,
+    {"a": 1},
+    [None, None, None],
+    ["a", "b", "c"],
+    1e6,
+    -1e6,
+    "deg/s",
+    "rad/s",
+    "g",
+    "m/s^2",
+    0.5,
 )
 
 #: A certificate mutation: (op, path fraction, value index).
@@ -397,8 +479,9 @@ def mutate_doc(doc: Any, ops: Sequence[DocMutation]) -> Any:
             parent[f"unknown_{vi}"] = value
         elif op == 3 and isinstance(parent, list):
             parent.append(copy.deepcopy(parent[key]))
-        elif op == 4 and isinstance(parent[key], (int, float)) and not isinstance(
-                parent[key], bool):
+        elif (
+            op == 4 and isinstance(parent[key], (int, float)) and not isinstance(parent[key], bool)
+        ):
             parent[key] = -parent[key] if vi % 2 else parent[key] * 1e12
     return doc
 
@@ -416,6 +499,8 @@ TARGETS: dict[str, tuple[Callable[[bytes], None], str]] = {
     "decoder": (lambda b: check_decoder(b, [len(b) // 3, len(b) // 2]), "wire frame decoder"),
     "csv": (lambda b: check_csv(b), "CSV log reader"),
     "npz": (lambda b: check_npz(b), "NPZ log reader"),
-    "certificate": (lambda b: check_certificate(b.decode("utf-8", "replace")),
-                    "certificate loader"),
+    "certificate": (
+        lambda b: check_certificate(b.decode("utf-8", "replace")),
+        "certificate loader",
+    ),
 }

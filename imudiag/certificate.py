@@ -129,19 +129,28 @@ FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)
 #: The noise fields of a certificate (``<triad>.noise``), each a per-axis vector, with
 #: their units ("u" = the triad's output unit) and the IEEE Std 952 / 1554 term they hold.
 NOISE_FIELDS: dict[str, tuple[str, str]] = {
-    "density": ("u/sqrt(Hz)", "white noise, one-sided density (angle / velocity random "
-                "walk N = density / sqrt(2), u sqrt(s); per-sample sigma = density "
-                "sqrt(rate / 2))"),
+    "density": (
+        "u/sqrt(Hz)",
+        "white noise, one-sided density (angle / velocity random "
+        "walk N = density / sqrt(2), u sqrt(s); per-sample sigma = density "
+        "sqrt(rate / 2))",
+    ),
     "bias_random_walk": ("u/sqrt(s)", "rate random walk K: Allan variance K^2 tau / 3"),
-    "quantization": ("u s", "quantisation noise Q: Allan variance 3 Q^2 / tau^2 (an output "
-                     "quantised in steps q at rate f has Q = q / (f sqrt(12)))"),
-    "bias_instability": ("u", "bias instability (flicker floor) B: Allan deviation "
-                         "0.664 B, flat"),
+    "quantization": (
+        "u s",
+        "quantisation noise Q: Allan variance 3 Q^2 / tau^2 (an output "
+        "quantised in steps q at rate f has Q = q / (f sqrt(12)))",
+    ),
+    "bias_instability": ("u", "bias instability (flicker floor) B: Allan deviation 0.664 B, flat"),
     "rate_ramp": ("u/s", "rate ramp R: Allan variance R^2 tau^2 / 2"),
-    "gauss_markov_sigma": ("u", "first-order Gauss-Markov bias, steady-state standard "
-                           "deviation (needs gauss_markov_time)"),
-    "gauss_markov_time": ("s", "correlation time of the Gauss-Markov bias, > 0 "
-                          "(needs gauss_markov_sigma)"),
+    "gauss_markov_sigma": (
+        "u",
+        "first-order Gauss-Markov bias, steady-state standard deviation (needs gauss_markov_time)",
+    ),
+    "gauss_markov_time": (
+        "s",
+        "correlation time of the Gauss-Markov bias, > 0 (needs gauss_markov_sigma)",
+    ),
 }
 
 
@@ -428,9 +437,7 @@ class _FlowListDumper(yaml.SafeDumper):
 
 
 def _represent_list(dumper: yaml.SafeDumper, data: list) -> yaml.Node:
-    flow = all(isinstance(v, (int, float)) for v in data) or all(
-        isinstance(v, list) for v in data
-    )
+    flow = all(isinstance(v, (int, float)) for v in data) or all(isinstance(v, list) for v in data)
     return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
 
 
@@ -446,8 +453,15 @@ def _parse_triad(node: Any, name: str) -> TriadModel:
     _check_keys(
         node,
         name,
-        ("input_unit", "output_unit", "scale_factor", "scale_factor_error", "bias",
-         "misalignment", "limits"),
+        (
+            "input_unit",
+            "output_unit",
+            "scale_factor",
+            "scale_factor_error",
+            "bias",
+            "misalignment",
+            "limits",
+        ),
         ("noise", "temperature", "nonlinearity", "g_sensitivity"),
     )
     unit = node["input_unit"]
@@ -480,8 +494,9 @@ def _parse_triad(node: Any, name: str) -> TriadModel:
     if "noise" in node:
         nn = _mapping(node["noise"], f"{name}.noise")
         _check_keys(nn, f"{name}.noise", (), tuple(NOISE_FIELDS))
-        noise = Noise(**{key: _vector(nn[key], f"{name}.noise.{key}")
-                         for key in NOISE_FIELDS if key in nn})
+        noise = Noise(
+            **{key: _vector(nn[key], f"{name}.noise.{key}") for key in NOISE_FIELDS if key in nn}
+        )
         for key in NOISE_FIELDS:
             vals = getattr(noise, key)
             if vals is not None:
@@ -491,9 +506,10 @@ def _parse_triad(node: Any, name: str) -> TriadModel:
         has_s, has_t = "gauss_markov_sigma" in nn, "gauss_markov_time" in nn
         if has_s != has_t:
             missing = "gauss_markov_time" if has_s else "gauss_markov_sigma"
-            raise CertificateError(f"{name}.noise.{missing}",
-                                   "a Gauss-Markov bias needs both gauss_markov_sigma (u) "
-                                   "and gauss_markov_time (s)")
+            raise CertificateError(
+                f"{name}.noise.{missing}",
+                "a Gauss-Markov bias needs both gauss_markov_sigma (u) and gauss_markov_time (s)",
+            )
         if noise.gauss_markov_time is not None:
             for i, v in enumerate(noise.gauss_markov_time):
                 _positive(v, f"{name}.noise.gauss_markov_time[{i}]")

@@ -105,9 +105,7 @@ class TriadState:
     sum_f0_sq: float = 0.0  #: sum of the squared checked values (their RMS is the estimate)
     worst_axis: int | None = None  #: axis of the last gyro rest-rate failure
     #: checked F0 values (dimensionless) and their sample times (s) not yet in a mean
-    carry: tuple[np.ndarray, np.ndarray] = field(
-        default_factory=lambda: (np.zeros(0), np.zeros(0))
-    )
+    carry: tuple[np.ndarray, np.ndarray] = field(default_factory=lambda: (np.zeros(0), np.zeros(0)))
     persistence: Persistence | None = None
     saturation: Persistence | None = None
     stuck_active: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=bool))
@@ -356,13 +354,15 @@ class Monitor:
                 firsts = [q.t_first for q in (p, gross) if q.active and q.t_first is not None]
                 if p.active or gross.active:
                     out.append(
-                        {"triad": name, "sensor": SENSOR_NAMES[name][axis], "cause": "noise",
-                         "t_first": min(firsts) if firsts else None}
+                        {
+                            "triad": name,
+                            "sensor": SENSOR_NAMES[name][axis],
+                            "cause": "noise",
+                            "t_first": min(firsts) if firsts else None,
+                        }
                     )
             if st.saturation is not None and st.saturation.active:
-                out.append(
-                    {"triad": name, "cause": "saturation", "t_first": st.saturation.t_first}
-                )
+                out.append({"triad": name, "cause": "saturation", "t_first": st.saturation.t_first})
         return out
 
     def f0_faults(self) -> list[dict[str, Any]]:
@@ -382,20 +382,24 @@ class Monitor:
             sensor = None
             if rest_rate and st.worst_axis is not None:
                 sensor = SENSOR_NAMES[name][st.worst_axis]
-            out.append({
-                "triad": name,
-                "sensor": sensor,
-                "cause": "f0",
-                "check": "rest_rate" if rest_rate else "f0",
-                "estimate": math.sqrt(st.sum_f0_sq / st.checked) if st.checked else float("nan"),
-                "certificate": 0.0,
-                "limit": 1.0 if rest_rate else float(self.certificate.triad(name).limits.f0),
-                "samples_per_check": self._per_check[name],
-                "t_first": p.t_first_raised,
-                "raised": p.raised,
-                "failed": st.failed,
-                "checked": st.checked,
-            })
+            out.append(
+                {
+                    "triad": name,
+                    "sensor": sensor,
+                    "cause": "f0",
+                    "check": "rest_rate" if rest_rate else "f0",
+                    "estimate": math.sqrt(st.sum_f0_sq / st.checked)
+                    if st.checked
+                    else float("nan"),
+                    "certificate": 0.0,
+                    "limit": 1.0 if rest_rate else float(self.certificate.triad(name).limits.f0),
+                    "samples_per_check": self._per_check[name],
+                    "t_first": p.t_first_raised,
+                    "raised": p.raised,
+                    "failed": st.failed,
+                    "checked": st.checked,
+                }
+            )
         return out
 
     # -- the checks -------------------------------------------------------
@@ -473,9 +477,7 @@ class Monitor:
                     block.gyro, temp_c=block.temp, n_inv_t=self._n_inv_t["gyro"],
                     accel_input=accel_in if cert.gyro.g_sensitivity is not None else None,
                 )  # fmt: skip
-                self._beyond["gyro"] += _beyond(
-                    gyro_si, 1.0 / cert.earth_rate, self._limit["gyro"]
-                )
+                self._beyond["gyro"] += _beyond(gyro_si, 1.0 / cert.earth_rate, self._limit["gyro"])
         for name in names:
             p = self._state[name].persistence
             assert p is not None
@@ -507,8 +509,10 @@ class Monitor:
         accel_in = cert.accel.inverse(block.accel, temp_c=temp, n_inv_t=self._n_inv_t["accel"])
         accel_si = accel_in * cert.accel.unit_to_si
         gyro_si = cert.gyro.inverse_si(
-            block.gyro, temp_c=temp, accel_input=accel_in if cert.gyro.g_sensitivity is not None
-            else None, n_inv_t=self._n_inv_t["gyro"],
+            block.gyro,
+            temp_c=temp,
+            accel_input=accel_in if cert.gyro.g_sensitivity is not None else None,
+            n_inv_t=self._n_inv_t["gyro"],
         )
 
         # accelerometer F0 on quasi-static samples

@@ -49,8 +49,9 @@ class AllanResult:
         return np.maximum(self.samples // np.maximum(m, 1) - 1, 1)
 
 
-def allan_m_values(n_samples: int, points_per_decade: int = 10, max_fraction: float = 0.5
-                   ) -> np.ndarray:
+def allan_m_values(
+    n_samples: int, points_per_decade: int = 10, max_fraction: float = 0.5
+) -> np.ndarray:
     """Log-spaced distinct cluster sizes m (tau = m / rate) from 1 to max_fraction * N."""
     m_max = max(1, int((n_samples - 1) * max_fraction))
     if m_max <= 1:
@@ -90,7 +91,7 @@ def overlapping_allan(
     adev = np.empty(m.shape[0])
     nterms = np.empty(m.shape[0], dtype=np.int64)
     for i, mj in enumerate(m.tolist()):  # one vectorised pass per tau
-        d = x[2 * mj:] - 2.0 * x[mj:-mj] + x[:-2 * mj]
+        d = x[2 * mj :] - 2.0 * x[mj:-mj] + x[: -2 * mj]
         nterms[i] = d.shape[0]
         adev[i] = math.sqrt(float(np.dot(d, d)) / (2.0 * d.shape[0])) / (mj * tau0)
     return AllanResult(
@@ -162,7 +163,7 @@ def welch_psd(y: np.ndarray, rate_hz: float, nperseg: int | None = None) -> PSDR
     acc = np.zeros(nperseg // 2 + 1)
     batch = max(1, (1 << 22) // nperseg)  # bound the memory of one batch
     for b0 in range(0, starts.shape[0], batch):
-        idx = starts[b0:b0 + batch, None] + k[None, :]
+        idx = starts[b0 : b0 + batch, None] + k[None, :]
         seg = y[idx]
         seg = seg - seg.mean(axis=1, keepdims=True)
         spec = np.fft.rfft(seg * window, axis=1)
@@ -230,8 +231,9 @@ def local_slopes(allan: AllanResult, half_width: int = 2) -> np.ndarray:
     return out
 
 
-def _line_reading(allan: AllanResult, mask: np.ndarray, slope: float, tau_read: float
-                  ) -> tuple[float, tuple[float, float]] | None:
+def _line_reading(
+    allan: AllanResult, mask: np.ndarray, slope: float, tau_read: float
+) -> tuple[float, tuple[float, float]] | None:
     """Value at ``tau_read`` of the line of fixed ``slope`` through the masked points
     (log-domain mean weighted by the number of terms)."""
     if not np.any(mask):
@@ -243,9 +245,9 @@ def _line_reading(allan: AllanResult, mask: np.ndarray, slope: float, tau_read: 
     return value, (float(allan.tau[mask].min()), float(allan.tau[mask].max()))
 
 
-def _random_walk_reading(allan: AllanResult, ok: np.ndarray, slopes: np.ndarray,
-                         white: float | None, floor_var: float
-                         ) -> tuple[float, tuple[float, float]] | None:
+def _random_walk_reading(
+    allan: AllanResult, ok: np.ndarray, slopes: np.ndarray, white: float | None, floor_var: float
+) -> tuple[float, tuple[float, float]] | None:
     """K from the rising part of the curve: points with slope >= 0.2 where, after removing
     the white-noise variance N^2/tau and the flicker floor ``floor_var``, at least half the
     variance is left; each gives K = sqrt(3 rest / tau) (the +1/2 line read at tau = 3 s)."""
@@ -260,8 +262,7 @@ def _random_walk_reading(allan: AllanResult, ok: np.ndarray, slopes: np.ndarray,
     return value, (float(allan.tau[mask].min()), float(allan.tau[mask].max()))
 
 
-def identify_noise(allan: AllanResult, min_terms: int = 8, floor_terms: int = 100
-                   ) -> NoiseTerms:
+def identify_noise(allan: AllanResult, min_terms: int = 8, floor_terms: int = 100) -> NoiseTerms:
     """Read N, B and K from an Allan curve (IEEE Std 952), plus a least-squares model fit.
 
     N: the slope -1/2 region (local slope within +-0.1 of -1/2), read at tau = 1 s.
@@ -285,8 +286,13 @@ def identify_noise(allan: AllanResult, min_terms: int = 8, floor_terms: int = 10
     elif fit["white_noise"] ** 2 / tau_lo >= 0.5 * var_lo:  # white dominates the short end
         white = fit["white_noise"], (float(tau_lo), float(tau_lo))
         sources["white_noise"] = "fit"
-    walk = _random_walk_reading(allan, ok, slopes, None if white is None else white[0],
-                                (FLICKER_FACTOR * fit["bias_instability"]) ** 2)
+    walk = _random_walk_reading(
+        allan,
+        ok,
+        slopes,
+        None if white is None else white[0],
+        (FLICKER_FACTOR * fit["bias_instability"]) ** 2,
+    )
     if walk is not None:
         sources["random_walk"] = "slope"
     elif fit["random_walk"] ** 2 * tau_hi / 3.0 >= 0.5 * var_hi:  # and the walk the long end
@@ -358,6 +364,7 @@ def fit_gauss_markov(
     ok = allan.independent >= min_terms
     tau, var = allan.tau[ok], allan.adev[ok] ** 2
     w = np.sqrt(allan.independent[ok].astype(float)) / var
+
     def trial(tc: float) -> tuple[float, float, float, float]:
         """(cost, B, tau_c, white) of the fit at correlation time ``tc`` s."""
         cols = [_markov_shape(tau / tc)]

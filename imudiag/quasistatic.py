@@ -195,8 +195,13 @@ class QuasiStaticDetector:
         bad_new = np.zeros(n, dtype=bool)
         if block.flags is not None:
             bad_new = (np.asarray(block.flags).astype(np.int64) & BAD_FLAGS) != 0
-        cols = np.concatenate([np.arange(3 * k, 3 * k + 3) for k, name in
-                               enumerate(("gyro", "accel")) if name in self.triads])
+        cols = np.concatenate(
+            [
+                np.arange(3 * k, 3 * k + 3)
+                for k, name in enumerate(("gyro", "accel"))
+                if name in self.triads
+            ]
+        )
         bad_new |= ~np.all(np.isfinite(x_new[:, cols]), axis=1)
         x_new = np.where(np.isfinite(x_new), x_new, 0.0)
         w = self.window

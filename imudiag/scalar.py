@@ -37,8 +37,10 @@ def f0_raw(
 ) -> np.ndarray:
     """F0 of raw outputs (N, 3) against ``magnitude_si`` (scalar or (N,), SI units)."""
     mag = np.asarray(magnitude_si, dtype=float)
-    linear = triad.nonlinearity is None and (triad.temperature is None or temp_c is None) and (
-        triad.g_sensitivity is None or accel_input is None
+    linear = (
+        triad.nonlinearity is None
+        and (triad.temperature is None or temp_c is None)
+        and (triad.g_sensitivity is None or accel_input is None)
     )
     if linear and mag.ndim == 0:
         # one matrix folds N^-1, 1/S, the unit and the magnitude: a single pass over U

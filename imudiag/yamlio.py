@@ -58,7 +58,9 @@ def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> LineD
         line = key_node.start_mark.line + 1
         if key in out.key_lines:
             raise yaml.constructor.ConstructorError(
-                None, None, f"duplicate key {key!r} (first on line {out.key_lines[key]})",
+                None,
+                None,
+                f"duplicate key {key!r} (first on line {out.key_lines[key]})",
                 key_node.start_mark,
             )
         out.key_lines[key] = line
@@ -78,8 +80,9 @@ def parse(text: str) -> Any:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         problem = getattr(exc, "problem", None) or str(exc)
-        raise YamlError(f"not valid YAML: {problem}", None if mark is None else mark.line + 1) \
-            from None
+        raise YamlError(
+            f"not valid YAML: {problem}", None if mark is None else mark.line + 1
+        ) from None
     except (ValueError, OverflowError, RecursionError) as exc:
         # a value YAML cannot build, e.g. the date 2026-13-01
         raise YamlError(f"not valid YAML: {exc}") from None

@@ -143,12 +143,14 @@ class EpisodeJudge:
         for i, ep in enumerate(self.episodes):
             if not self.detected[i] and ep.t_start <= t <= ep.t_end + DETECT_MARGIN_S:
                 self.detected[i] = any(_fault_matches(ep, f) for f in faults)
-        now = {(f["triad"], f.get("sensor", ""), f["cause"]) for f in faults
-               if f["cause"] in MONITOR_CAUSES}
+        now = {
+            (f["triad"], f.get("sensor", ""), f["cause"])
+            for f in faults
+            if f["cause"] in MONITOR_CAUSES
+        }
         onsets = now - self._active
         self._active = now
-        if onsets and not any(ep.t_start <= t <= ep.t_end + CLEAR_MARGIN_S
-                              for ep in self.episodes):
+        if onsets and not any(ep.t_start <= t <= ep.t_end + CLEAR_MARGIN_S for ep in self.episodes):
             self.false_alarms += len(onsets)
 
 
@@ -163,8 +165,10 @@ def run_soak(
     rss_limit_mb: float = RSS_LIMIT_MB,
 ) -> SoakResult:
     """Replay ``hours`` of ``rate_hz`` data with injected faults through the daemon; judge it."""
-    url = (f"soak://?hours={hours!r}&seed={seed}&rate={rate_hz!r}&errors={error_rate!r}"
-           f"&episodes={episode_every_s!r}")
+    url = (
+        f"soak://?hours={hours!r}&seed={seed}&rate={rate_hz!r}&errors={error_rate!r}"
+        f"&episodes={episode_every_s!r}"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         cert = load_default()
         cert.sample_rate = float(rate_hz)
@@ -218,16 +222,33 @@ def run_soak(
         ts = np.array([t for t, _ in after]) / 3600.0
         slope = float(np.polyfit(ts, np.array([m for _, m in after]), 1)[0])
     if not growth <= rss_limit_mb:
-        failures.append(f"resident memory grew {growth:.2f} MB after the warm-up "
-                        f"(limit {rss_limit_mb} MB)")
+        failures.append(
+            f"resident memory grew {growth:.2f} MB after the warm-up (limit {rss_limit_mb} MB)"
+        )
     return SoakResult(
-        hours=hours, rate_hz=rate_hz, samples=stream.total_samples, wall_s=wall,
-        samples_per_s=stream.total_samples / wall, status_lines=lines.lines,
-        status_errors=lines.errors[:10], counters=counters, expected_counters=expected,
-        adc_errors=daemon.monitor.adc_errors, expected_adc_errors=inj.adc_errors,
-        reconnects=reconnects, expected_reconnects=inj.reconnects, events=dict(inj.events),
-        t_last=t_last, expected_t_last=t_last_expected, episodes=len(stream.episodes),
-        episodes_detected=detected, monitor_false_alarms=false_alarms,
-        rss_mb_start=start_mb, rss_mb_end=rss[-1][1] if rss else float("nan"),
-        rss_growth_mb=growth, rss_slope_mb_per_h=slope, rss_samples=rss, failures=failures,
+        hours=hours,
+        rate_hz=rate_hz,
+        samples=stream.total_samples,
+        wall_s=wall,
+        samples_per_s=stream.total_samples / wall,
+        status_lines=lines.lines,
+        status_errors=lines.errors[:10],
+        counters=counters,
+        expected_counters=expected,
+        adc_errors=daemon.monitor.adc_errors,
+        expected_adc_errors=inj.adc_errors,
+        reconnects=reconnects,
+        expected_reconnects=inj.reconnects,
+        events=dict(inj.events),
+        t_last=t_last,
+        expected_t_last=t_last_expected,
+        episodes=len(stream.episodes),
+        episodes_detected=detected,
+        monitor_false_alarms=false_alarms,
+        rss_mb_start=start_mb,
+        rss_mb_end=rss[-1][1] if rss else float("nan"),
+        rss_growth_mb=growth,
+        rss_slope_mb_per_h=slope,
+        rss_samples=rss,
+        failures=failures,
     )

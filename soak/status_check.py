@@ -49,7 +49,8 @@ def check_status_line(status: Any, where: str = "status") -> None:
     counters = status["counters"]
     if not isinstance(counters, dict) or set(counters) != set(COUNTER_KEYS):
         raise StatusLineError(
-            f"{where}: counters keys {sorted(counters)} != {sorted(COUNTER_KEYS)}")
+            f"{where}: counters keys {sorted(counters)} != {sorted(COUNTER_KEYS)}"
+        )
     for key, value in counters.items():
         if not isinstance(value, int) or isinstance(value, bool) or value < 0:
             raise StatusLineError(f"{where}: counters.{key} not a non-negative integer: {value!r}")

@@ -48,8 +48,14 @@ BIAS_EPISODE_COUNTS = 800.0  #: counts added to az (about 1.9 m/s^2)
 STUCK_EPISODE_S = 3.0  #: s
 
 #: Mean events per minute of data at error_rate 1.
-EVENT_RATES_PER_MIN = {"crc": 2.0, "drop": 1.0, "dup": 1.0, "garbage": 1.0, "unplug": 0.5,
-                       "adc": 3.0}
+EVENT_RATES_PER_MIN = {
+    "crc": 2.0,
+    "drop": 1.0,
+    "dup": 1.0,
+    "garbage": 1.0,
+    "unplug": 0.5,
+    "adc": 3.0,
+}
 
 
 class Unplug:
@@ -75,9 +81,14 @@ class Injected:
 
     def counters(self) -> dict[str, int]:
         """The six wire-protocol counters, as the status ``counters`` object."""
-        return {"bytes": self.bytes, "frames": self.frames, "crc_errors": self.crc_errors,
-                "skipped_bytes": self.skipped_bytes, "lost": self.lost,
-                "duplicates": self.duplicates}
+        return {
+            "bytes": self.bytes,
+            "frames": self.frames,
+            "crc_errors": self.crc_errors,
+            "skipped_bytes": self.skipped_bytes,
+            "lost": self.lost,
+            "duplicates": self.duplicates,
+        }
 
 
 @dataclass(frozen=True)
@@ -122,8 +133,12 @@ class SoakStream:
         self._p = {k: min(1.0, r * error_rate * group_min) for k, r in EVENT_RATES_PER_MIN.items()}
         self.episodes = self._episodes(duration_s, episode_every_s)
         self._base_raw, self._base_temp = self._simulate_base(certificate, seed)
-        self._info = {"model": "soak", "serial": str(certificate.device.get("serial", "")),
-                      "fw": "soak-1", "rate_hz": rate_hz}
+        self._info = {
+            "model": "soak",
+            "serial": str(certificate.device.get("serial", "")),
+            "fw": "soak-1",
+            "rate_hz": rate_hz,
+        }
         self.next_group = 0
 
     @property
@@ -187,8 +202,11 @@ class SoakStream:
                 if ep.kind == "bias":
                     raw[sel, 5] += int(BIAS_EPISODE_COUNTS)
                 else:
-                    frozen = int(self._base_raw[int(round(ep.t_start * self.rate_hz))
-                                                % self._base_raw.shape[0], 0])
+                    frozen = int(
+                        self._base_raw[
+                            int(round(ep.t_start * self.rate_hz)) % self._base_raw.shape[0], 0
+                        ]
+                    )
                     raw[sel, 0] = frozen
         time_us = k * self.period_us
         flags = np.zeros(n, dtype=np.int64)
@@ -244,8 +262,9 @@ class SoakStream:
         """Events of one group: slot events (row, kind, argument) and ADC-flag rows."""
         rng = self.rng
         slots_free = max((n - FIRST_SLOT_ROW - SLOT_ROWS) // SLOT_ROWS, 0)
-        kinds = [k for k in ("crc", "drop", "dup", "garbage", "unplug")
-                 if rng.random() < self._p[k]]
+        kinds = [
+            k for k in ("crc", "drop", "dup", "garbage", "unplug") if rng.random() < self._p[k]
+        ]
         chosen = rng.permutation(slots_free)[: len(kinds)] if slots_free else []
         out: list[tuple[int, str, Any]] = []
         for kind, slot in zip(kinds, chosen, strict=False):

@@ -83,8 +83,10 @@ def draw(seed: int) -> tuple[Hidden, Effects]:
     name = HIDDEN[seed % len(HIDDEN)]
     sign = float(rng.choice([-1.0, 1.0]))
     temp = TemperatureProfile(
-        start_c=float(rng.uniform(20.0, 24.0)), warmup_c=float(rng.uniform(10.0, 14.0)),
-        warmup_tau_s=float(rng.uniform(120.0, 180.0)), swing_c=float(rng.uniform(2.0, 3.0)),
+        start_c=float(rng.uniform(20.0, 24.0)),
+        warmup_c=float(rng.uniform(10.0, 14.0)),
+        warmup_tau_s=float(rng.uniform(120.0, 180.0)),
+        swing_c=float(rng.uniform(2.0, 3.0)),
         swing_period_s=float(rng.uniform(90.0, 130.0)),
     )
     kw: dict = {"temperature": temp}
@@ -132,15 +134,22 @@ def draw(seed: int) -> tuple[Hidden, Effects]:
     return hidden, Effects.board(**kw)
 
 
-def session(certificate: Certificate, seed: int, effects: Effects, duration_s: float = DURATION_S,
-            rate_hz: float = RATE_HZ, turns: bool = False):
+def session(
+    certificate: Certificate,
+    seed: int,
+    effects: Effects,
+    duration_s: float = DURATION_S,
+    rate_hz: float = RATE_HZ,
+    turns: bool = False,
+):
     """Simulate the cyclic multi-position session with ``effects`` (``turns``: short dwells,
     many turns); returns the SimResult."""
     dwell, turn = (5.0, 1.5) if turns else (16.0, 2.0)
     # a gyro-scale session needs turns about every axis in both senses: a fixed schedule
     # that has them (the turn axes depend on the motion seed), the noise still seeded
-    motion = multi_position_motion(14, dwell, turn, seed=TURNS_MOTION_SEED if turns else seed,
-                                   cyclic=True)
+    motion = multi_position_motion(
+        14, dwell, turn, seed=TURNS_MOTION_SEED if turns else seed, cyclic=True
+    )
     traj = motion.sample(rate_hz, n=int(duration_s * rate_hz))
     return simulate(certificate, traj, seed=seed, effects=effects)
 

@@ -109,7 +109,8 @@ def test_transport_scenario_counts_exactly_and_survives_unplug() -> None:
 
 def test_cli_prints_table_and_writes_json(tmp_path: Path, imudiag_cli) -> None:
     scenario = tmp_path / "short.yaml"
-    scenario.write_text(textwrap.dedent("""\
+    scenario.write_text(
+        textwrap.dedent("""\
         format: imudiag-bench-scenario/1
         name: short
         description: one stuck channel and a burst of garbage
@@ -120,10 +121,22 @@ def test_cli_prints_table_and_writes_json(tmp_path: Path, imudiag_cli) -> None:
         injections:
           - {t: 1.0, kind: garbage, bytes: 64}
           - {t: 2.0, kind: stuck, sensor: az, also: [{triad: accel, cause: f0}]}
-    """))
+    """)
+    )
     out = tmp_path / "report.json"
-    proc = imudiag_cli("bench", "--scenario", str(scenario), "--json", str(out),
-                       "--speed", "8", "--seed", "4", "--no-diagnosis", "--strict")
+    proc = imudiag_cli(
+        "bench",
+        "--scenario",
+        str(scenario),
+        "--json",
+        str(out),
+        "--speed",
+        "8",
+        "--seed",
+        "4",
+        "--no-diagnosis",
+        "--strict",
+    )
     assert proc.returncode == 0, proc.stderr
     report = json.loads(out.read_text())
     assert report["scenario"] == "short" and report["speed"] == 8.0 and report["seed"] == 4
@@ -143,7 +156,8 @@ def test_bench_reports_a_wrong_expectation_as_missed_and_the_real_one_as_false_a
 ) -> None:
     """The judge is not a rubber stamp: expecting the wrong axis fails, and says why."""
     scenario = tmp_path / "wrong.yaml"
-    scenario.write_text(textwrap.dedent("""\
+    scenario.write_text(
+        textwrap.dedent("""\
         name: wrong-axis
         motion: static
         duration: 5.0
@@ -155,9 +169,11 @@ def test_bench_reports_a_wrong_expectation_as_missed_and_the_real_one_as_false_a
             sensor: gz
             value: 150.0
             expect: [{triad: gyro, sensor: gx, cause: f0, within: 1.0}]
-    """))
-    proc = imudiag_cli("bench", "--scenario", str(scenario), "--json", "-", "--strict",
-                       "--no-diagnosis")
+    """)
+    )
+    proc = imudiag_cli(
+        "bench", "--scenario", str(scenario), "--json", "-", "--strict", "--no-diagnosis"
+    )
     assert proc.returncode == 1, proc.stderr  # --strict: a failed expectation
     report = json.loads(proc.stdout)
     r = report["faults"][0]
@@ -198,34 +214,68 @@ def test_bundled_scenarios_load_and_are_package_data() -> None:
         assert scenario.name == name and scenario.description
         kinds |= {i.kind for i in scenario.injections}
     # every sensor and transport fault kind is exercised by some bundled scenario
-    assert kinds >= {"bias", "scale_factor", "misalignment", "stuck", "noise", "dead",
-                     "garbage", "crc", "lost", "duplicate", "unplug"}
+    assert kinds >= {
+        "bias",
+        "scale_factor",
+        "misalignment",
+        "stuck",
+        "noise",
+        "dead",
+        "garbage",
+        "crc",
+        "lost",
+        "duplicate",
+        "unplug",
+    }
 
 
 @pytest.mark.parametrize(
     ("text", "where", "reason"),
     [
-        ("duration: 5\ninjections:\n  - {t: 1, kind: bias, sensor: qx, value: 3}\n",
-         ":3: injections[0].sensor", "unknown sensor 'qx'"),
-        ("duration: 5\ninjections:\n  - {t: 1, kind: bias, sensor: ax}\n",
-         ":3: injections[0].value", "needs a finite value"),
-        ("duration: 5\ninjections:\n  - {t: 6, kind: stuck, sensor: ax}\n",
-         ":3: injections[0].t", "out of range"),
-        ("duration: 5\ninjections:\n  - t: 2\n    kind: stuck\n    sensor: gx\n"
-         "    expect:\n      - {triad: gyro, cause: stuk}\n",
-         ":7: injections[0].expect[0].cause", "got 'stuk'"),
-        ("duration: 5\ninjections:\n  - {t: 2, kind: lost, frames: 3}\n"
-         "  - {t: 2.2, kind: garbage, bytes: 9}\n",
-         ":4: injections[1].t", "closer than 0.5 s"),
-        ("duration: 5\ninjections:\n  - {t: 4.8, kind: lost, frames: 3}\n",
-         ":3: injections[0].t", "0.5 s of samples after it"),
-        ("duration: 5\ndaemon:\n  monitor:\n    stuck_samples: 1\n",
-         ":4: daemon.monitor.stuck_samples", "out of range"),
-        ("duration: 5\ndaemon:\n  source: serial:///dev/x\n",
-         ":3: daemon.source", "set by the bench"),
+        (
+            "duration: 5\ninjections:\n  - {t: 1, kind: bias, sensor: qx, value: 3}\n",
+            ":3: injections[0].sensor",
+            "unknown sensor 'qx'",
+        ),
+        (
+            "duration: 5\ninjections:\n  - {t: 1, kind: bias, sensor: ax}\n",
+            ":3: injections[0].value",
+            "needs a finite value",
+        ),
+        (
+            "duration: 5\ninjections:\n  - {t: 6, kind: stuck, sensor: ax}\n",
+            ":3: injections[0].t",
+            "out of range",
+        ),
+        (
+            "duration: 5\ninjections:\n  - t: 2\n    kind: stuck\n    sensor: gx\n"
+            "    expect:\n      - {triad: gyro, cause: stuk}\n",
+            ":7: injections[0].expect[0].cause",
+            "got 'stuk'",
+        ),
+        (
+            "duration: 5\ninjections:\n  - {t: 2, kind: lost, frames: 3}\n"
+            "  - {t: 2.2, kind: garbage, bytes: 9}\n",
+            ":4: injections[1].t",
+            "closer than 0.5 s",
+        ),
+        (
+            "duration: 5\ninjections:\n  - {t: 4.8, kind: lost, frames: 3}\n",
+            ":3: injections[0].t",
+            "0.5 s of samples after it",
+        ),
+        (
+            "duration: 5\ndaemon:\n  monitor:\n    stuck_samples: 1\n",
+            ":4: daemon.monitor.stuck_samples",
+            "out of range",
+        ),
+        (
+            "duration: 5\ndaemon:\n  source: serial:///dev/x\n",
+            ":3: daemon.source",
+            "set by the bench",
+        ),
         ("duration: 5\nmotion: wobble\n", ":2: motion", "unknown scenario 'wobble'"),
-        ("duration: 5\nmotion_params: {dwel: 3}\n", ":2: motion_params.dwel",
-         "unknown parameter"),
+        ("duration: 5\nmotion_params: {dwel: 3}\n", ":2: motion_params.dwel", "unknown parameter"),
         ("duration: 5\nspeed: 0\n", ":2: speed", "out of range"),
         ("duration: 5\nspeeed: 2\n", ":2: speeed", "unknown key"),
         ("name: a\nname: b\nduration: 5\n", ":2: (document)", "duplicate key 'name'"),
@@ -259,8 +309,9 @@ def test_a_daemon_that_dies_is_a_bench_error_with_its_message() -> None:
 def test_injected_bytes_give_the_counters_they_promise() -> None:
     """The byte-level faults against the real wire decoder, without the daemon."""
     rng = np.random.default_rng(0)
-    board = SimulatedBoard(load_default(), scenario_motion("static", seed=1), seed=1,
-                           duration_s=30.0)
+    board = SimulatedBoard(
+        load_default(), scenario_motion("static", seed=1), seed=1, duration_s=30.0
+    )
     first, _ = board.generate(500)  # starts with the power-up device-info frame
     middle, _ = board.generate(1000)  # crosses the info frame at seq 1000
     last, _ = board.generate(10)

@@ -43,22 +43,37 @@ def sim_session(tmp_path_factory):
     with open_writer(log, {"sample_rate": 200, "units": "gyro=count accel=count"}) as w:
         w.write(sim.samples)
     mags = d / "mags.csv"
-    write_magnitudes(mags, traj.t, np.linalg.norm(traj.specific_force, axis=1),
-                     np.linalg.norm(traj.omega, axis=1))
+    write_magnitudes(
+        mags,
+        traj.t,
+        np.linalg.norm(traj.specific_force, axis=1),
+        np.linalg.norm(traj.omega, axis=1),
+    )
     return log, mags, true, d
 
 
 def _errors(cert_path: Path, true) -> dict[str, np.ndarray]:
     cal = load(cert_path)
-    return {t: (certificate_vector(cal.triad(t)) - certificate_vector(true.triad(t)))
-            / limit_vector(true.triad(t)) for t in ("accel", "gyro")}
+    return {
+        t: (certificate_vector(cal.triad(t)) - certificate_vector(true.triad(t)))
+        / limit_vector(true.triad(t))
+        for t in ("accel", "gyro")
+    }
 
 
 def test_calibration_recovers_the_true_board(sim_session, imudiag_cli):
     log, _, true, d = sim_session
     out, summary = d / "exact.yaml", d / "exact.json"
-    r = imudiag_cli("calibrate", str(log), "--like", "config/default-certificate.yaml",
-                    "--out", str(out), "--json", str(summary))
+    r = imudiag_cli(
+        "calibrate",
+        str(log),
+        "--like",
+        "config/default-certificate.yaml",
+        "--out",
+        str(out),
+        "--json",
+        str(summary),
+    )
     assert r.returncode == 0, r.stderr
     err = _errors(out, true)
     assert np.all(np.abs(err["accel"]) < 0.1), err["accel"]
@@ -93,8 +108,16 @@ def test_linear_and_moving_base_variants(sim_session, imudiag_cli):
     worst = {}
     for method in ("exact", "linear", "moving-base"):
         out = d / f"{method}.yaml"
-        args = ["calibrate", str(log), "--like", "config/default-certificate.yaml",
-                "--out", str(out), "--method", method]
+        args = [
+            "calibrate",
+            str(log),
+            "--like",
+            "config/default-certificate.yaml",
+            "--out",
+            str(out),
+            "--method",
+            method,
+        ]
         if method == "moving-base":
             args += ["--magnitude", str(mags)]
         r = imudiag_cli(*args)
@@ -102,8 +125,16 @@ def test_linear_and_moving_base_variants(sim_session, imudiag_cli):
         worst[method] = float(np.max(np.abs(_errors(out, true)["accel"])))
     assert worst["linear"] > 2 * worst["exact"]
     assert worst["moving-base"] < 1.0
-    r = imudiag_cli("calibrate", str(log), "--like", "config/default-certificate.yaml",
-                    "--out", str(d / "x.yaml"), "--method", "moving-base")
+    r = imudiag_cli(
+        "calibrate",
+        str(log),
+        "--like",
+        "config/default-certificate.yaml",
+        "--out",
+        str(d / "x.yaml"),
+        "--method",
+        "moving-base",
+    )
     assert r.returncode == 2 and "--magnitude" in r.stderr
 
 
@@ -116,8 +147,12 @@ REAL_CASES = [
     # the MPU-6050 run has 11 still intervals in 9 attitudes: little redundancy, and
     # a single window that sees them all; the defaults (3 degrees of freedom, 2 windows)
     # leave its accelerometers undetermined (checked below), these options judge it
-    ("mpu6050/calibration.csv.gz", "like-mpu6050.yaml", ("accel", 1),
-     ("--min-dof", "1", "--persist", "1")),
+    (
+        "mpu6050/calibration.csv.gz",
+        "like-mpu6050.yaml",
+        ("accel", 1),
+        ("--min-dof", "1", "--persist", "1"),
+    ),
 ]
 #: 11 holds in 9 attitudes: an interval left out is predicted 40x worse than in sample
 #: (rms 3.4e-3 against 8.5e-5; 7.7e-2 uncalibrated)
@@ -131,8 +166,16 @@ def _calibrate(recording: str, like: str, d: Path, imudiag_cli) -> tuple[Path, d
     out = d / (recording.replace("/", "_") + ".yaml")
     summary = d / (recording.replace("/", "_") + ".json")
     if not out.exists():
-        args = ("calibrate", str(REAL / recording), "--like", str(LIKE / like),
-                "--out", str(out), "--json", str(summary))
+        args = (
+            "calibrate",
+            str(REAL / recording),
+            "--like",
+            str(LIKE / like),
+            "--out",
+            str(out),
+            "--json",
+            str(summary),
+        )
         if recording in OVERFIT:
             # too few redundant holds: the held-out check refuses it, --force writes it flagged
             r = imudiag_cli(*args)
@@ -156,24 +199,37 @@ def real_dir(tmp_path_factory):
     return tmp_path_factory.mktemp("real")
 
 
-@pytest.mark.parametrize("recording, like, perturbed, options", REAL_CASES,
-                         ids=[f"{c[0].split('/')[0]}-{c[2][0]}{c[2][1]}" for c in REAL_CASES])
+@pytest.mark.parametrize(
+    "recording, like, perturbed, options",
+    REAL_CASES,
+    ids=[f"{c[0].split('/')[0]}-{c[2][0]}{c[2][1]}" for c in REAL_CASES],
+)
 def test_real_recording(recording, like, perturbed, options, real_dir, imudiag_cli):
     cert_path, summary = _calibrate(recording, like, real_dir, imudiag_cli)
     spread = summary["accel_norm_spread"]
     # |a| over the still intervals: at least tenfold tighter after calibration
     assert spread["after"]["rms"] < spread["before"]["rms"] / 10
     # with its own calibration: no fault (some parameters may stay undetermined)
-    r = imudiag_cli("diagnose", str(REAL / recording), "--certificate", str(cert_path),
-                    "--json", "-", "--no-windows", *options)
+    r = imudiag_cli(
+        "diagnose",
+        str(REAL / recording),
+        "--certificate",
+        str(cert_path),
+        "--json",
+        "-",
+        "--no-windows",
+        *options,
+    )
     assert r.returncode == 0, r.stderr
     v = json.loads(r.stdout)["verdict"]
     assert v["faults"] == []
     assert v["accel"] in ("ok", "undetermined") and v["gyro"] in ("ok", "undetermined")
     # perturb one parameter the session determines by 3 limits: exactly that fault
     triad, index = perturbed
-    und = {(u["triad"], u["sensor"] if index < 6 else None, u["cause"])
-           for u in summary["undetermined"]}
+    und = {
+        (u["triad"], u["sensor"] if index < 6 else None, u["cause"])
+        for u in summary["undetermined"]
+    }
     assert (triad, SENSORS[triad][index % 3], CAUSES[index // 3]) not in und
     cert = load(cert_path)
     t = cert.triad(triad)
@@ -184,8 +240,16 @@ def test_real_recording(recording, like, perturbed, options, real_dir, imudiag_c
         t.scale_factor_error = t.scale_factor_error + np.eye(3)[index - 3] * 3 * lim
     bad = real_dir / f"perturbed-{triad}{index}-{Path(recording).parent.name}.yaml"
     cert.save(bad)
-    r = imudiag_cli("diagnose", str(REAL / recording), "--certificate", str(bad),
-                    "--json", "-", "--no-windows", *options)
+    r = imudiag_cli(
+        "diagnose",
+        str(REAL / recording),
+        "--certificate",
+        str(bad),
+        "--json",
+        "-",
+        "--no-windows",
+        *options,
+    )
     v = json.loads(r.stdout)["verdict"]
     raised = [(f["triad"], f["sensor"], f["cause"]) for f in v["faults"] if f["cause"] != "f0"]
     assert raised == [(triad, SENSORS[triad][index % 3], CAUSES[index // 3])]
@@ -194,14 +258,23 @@ def test_real_recording(recording, like, perturbed, options, real_dir, imudiag_c
         if f["cause"] == "f0":
             assert f["triad"] == triad
             assert {"sensor": SENSORS[triad][index % 3], "cause": CAUSES[index // 3]} in f[
-                "explained_by"]
+                "explained_by"
+            ]
     assert v[triad] == "fault"
     if options:
         # with the defaults the short session cannot name the cause, never a wrong name; the
         # persistent F0 failure is a fault (as the daemon raises it) that nothing explains
-        r = imudiag_cli("diagnose", str(REAL / recording), "--certificate", str(bad),
-                        "--json", "-", "--no-windows")
+        r = imudiag_cli(
+            "diagnose",
+            str(REAL / recording),
+            "--certificate",
+            str(bad),
+            "--json",
+            "-",
+            "--no-windows",
+        )
         v = json.loads(r.stdout)["verdict"]
         assert v[triad] == "fault"
         assert [(f["triad"], f["cause"], f["explained_by"]) for f in v["faults"]] == [
-            (triad, "f0", [])]
+            (triad, "f0", [])
+        ]

@@ -24,7 +24,12 @@ from imudiag.certificate import (
 )
 
 TRIAD_REQUIRED = (
-    "input_unit", "output_unit", "scale_factor", "scale_factor_error", "bias", "misalignment",
+    "input_unit",
+    "output_unit",
+    "scale_factor",
+    "scale_factor_error",
+    "bias",
+    "misalignment",
     "limits",
 )
 MISALIGNMENT_KEYS = ("xz", "xy", "yz", "yx", "zy", "zx")
@@ -123,10 +128,18 @@ def test_missing_required_key(doc: dict[str, Any], path: str) -> None:
         ("gyro.noise.density", [1.0, 1.0], "gyro.noise.density", "expected 3 values"),
         ("gyro.nonlinearity", [0.1, 0.2], "gyro.nonlinearity", "expected 3 values"),
         ("gyro.g_sensitivity", [[0, 0, 0], [0, 0, 0]], "gyro.g_sensitivity", "3 rows"),
-        ("gyro.g_sensitivity", [[0, 0, 0], [0, 0], [0, 0, 0]], "gyro.g_sensitivity[1]",
-         "expected 3 values, got 2"),
-        ("accel.temperature", {"bias_coefficient": [0.1]}, "accel.temperature.bias_coefficient",
-         "expected 3 values, got 1"),
+        (
+            "gyro.g_sensitivity",
+            [[0, 0, 0], [0, 0], [0, 0, 0]],
+            "gyro.g_sensitivity[1]",
+            "expected 3 values, got 2",
+        ),
+        (
+            "accel.temperature",
+            {"bias_coefficient": [0.1]},
+            "accel.temperature.bias_coefficient",
+            "expected 3 values, got 1",
+        ),
     ],
 )
 def test_wrong_length(doc: dict[str, Any], path: str, value: Any, key: str, reason: str) -> None:
@@ -184,8 +197,14 @@ def test_non_positive_scale_factor(doc: dict[str, Any], path: str, value: float)
 
 @pytest.mark.parametrize(
     ("triad", "value"),
-    [("gyro", "rad/h"), ("gyro", "m/s^2"), ("accel", "deg/s"), ("accel", "G"),
-     ("accel", ["g"]), ("gyro", None)],
+    [
+        ("gyro", "rad/h"),
+        ("gyro", "m/s^2"),
+        ("accel", "deg/s"),
+        ("accel", "G"),
+        ("accel", ["g"]),
+        ("gyro", None),
+    ],
 )
 def test_bad_input_unit(doc: dict[str, Any], triad: str, value: Any) -> None:
     doc[triad]["input_unit"] = value
@@ -281,8 +300,13 @@ def assert_same_numbers(a: Certificate, b: Certificate) -> None:
     assert a.to_dict() == b.to_dict()  # every number, exactly (floats compare by value)
     for name in ("gyro", "accel"):
         ta, tb = a.triad(name), b.triad(name)
-        for field in ("scale_factor", "scale_factor_error", "bias", "nonlinearity",
-                      "g_sensitivity"):
+        for field in (
+            "scale_factor",
+            "scale_factor_error",
+            "bias",
+            "nonlinearity",
+            "g_sensitivity",
+        ):
             va, vb = getattr(ta, field), getattr(tb, field)
             assert (va is None and vb is None) or np.array_equal(va, vb)
         assert np.array_equal(ta.n_matrix(), tb.n_matrix())
@@ -303,8 +327,9 @@ def test_round_trip_extended(tmp_path: Path, default_certificate: Certificate, s
     cert.save(path)
     back = load(path)
     assert_same_numbers(cert, back)
-    assert np.array_equal(back.gyro.temperature.scale_coefficient,
-                          cert.gyro.temperature.scale_coefficient)
+    assert np.array_equal(
+        back.gyro.temperature.scale_coefficient, cert.gyro.temperature.scale_coefficient
+    )
     assert back.gyro.temperature.reference == cert.gyro.temperature.reference
     assert back.sample_rate == 204.8
     assert back.dumps() == cert.dumps()  # writing again gives the same text
@@ -349,7 +374,9 @@ def test_forward_matches_the_spec_formula_by_hand(doc: dict[str, Any]) -> None:
 
 def test_forward_extended_blocks_by_hand(doc: dict[str, Any]) -> None:
     doc["gyro"]["temperature"] = {
-        "reference": 25.0, "bias_coefficient": [0.1, 0.0, 0.0], "scale_coefficient": [0.01, 0, 0]
+        "reference": 25.0,
+        "bias_coefficient": [0.1, 0.0, 0.0],
+        "scale_coefficient": [0.01, 0, 0],
     }
     doc["gyro"]["nonlinearity"] = [0.5, 0.0, 0.0]
     doc["gyro"]["g_sensitivity"] = [[0.0, 0.0, 0.3], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
@@ -402,4 +429,3 @@ def test_default_certificate_loads() -> None:
     # at rest, level, the accelerometer reads gravity on z and the model inverts to it
     u = cert.accel.forward_si(np.array([[0.0, 0.0, cert.gravity]]))
     np.testing.assert_allclose(np.linalg.norm(cert.accel.inverse_si(u)), cert.gravity)
-

@@ -56,14 +56,24 @@ def test_daemon_flags_gross_accel_fault_and_obeys_signals(board_pty, tmp_path: P
     cert = load_default()
     cert.save(cert_path)
     d = DaemonProcess(
-        ["--source", f"serial://{pair.slave_path}", "--certificate", str(cert_path),
-         "--no-diagnosis"]
+        [
+            "--source",
+            f"serial://{pair.slave_path}",
+            "--certificate",
+            str(cert_path),
+            "--no-diagnosis",
+        ]
     )
     try:
         first = d.wait_for(lambda s: s["t"] is not None and s["static"])
         assert set(first) >= {"t", "state", "faults", "counters"}
         assert set(first["counters"]) == {
-            "bytes", "frames", "crc_errors", "skipped_bytes", "lost", "duplicates"
+            "bytes",
+            "frames",
+            "crc_errors",
+            "skipped_bytes",
+            "lost",
+            "duplicates",
         }
         healthy = d.wait_for(lambda s: s["t"] is not None and s["t"] >= 2.0)
         assert healthy["state"] == "ok" and healthy["faults"] == []
@@ -128,7 +138,9 @@ def test_daemon_reports_no_data_when_stream_stalls_and_exits_on_sigint(board_pty
 def test_daemon_bad_source_is_bad_input():
     proc = subprocess.run(
         [sys.executable, "-m", "imudiag", "run", "--source", "nosuch://x"],
-        capture_output=True, text=True, timeout=30,
+        capture_output=True,
+        text=True,
+        timeout=30,
     )
     assert proc.returncode == 2
     assert "nosuch" in proc.stderr
@@ -145,9 +157,20 @@ def test_daemon_speaks_sd_notify_and_pings_watchdog_only_while_frames_flow(board
     sock.settimeout(0.2)
     env = dict(os.environ, NOTIFY_SOCKET=str(sock_path), WATCHDOG_USEC="400000")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "imudiag", "run", "--source", f"serial://{pair.slave_path}",
-         "--no-diagnosis", "--no-data-timeout", "0.5"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
+        [
+            sys.executable,
+            "-m",
+            "imudiag",
+            "run",
+            "--source",
+            f"serial://{pair.slave_path}",
+            "--no-diagnosis",
+            "--no-data-timeout",
+            "0.5",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        env=env,
     )
     got: list[tuple[float, str]] = []
 
@@ -200,8 +223,15 @@ def test_daemon_writes_nmea_status_to_a_serial_link(board_pty):
     pair, _writer = board_pty
     with PtyPair() as link:  # the status link: the daemon writes the slave, we read the master
         d = DaemonProcess(
-            ["--source", f"serial://{pair.slave_path}", "--no-diagnosis",
-             "--status", "-", "--status", f"serial://{link.slave_path}?baud=115200"]
+            [
+                "--source",
+                f"serial://{pair.slave_path}",
+                "--no-diagnosis",
+                "--status",
+                "-",
+                "--status",
+                f"serial://{link.slave_path}?baud=115200",
+            ]
         )
         try:
             buf, sentences = b"", []

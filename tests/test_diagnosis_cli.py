@@ -35,16 +35,21 @@ def faulty_log(tmp_path_factory):
     d = tmp_path_factory.mktemp("diag")
     log = _write(d / "faulty.npz", sim)
     mags = d / "magnitudes.csv"
-    write_magnitudes(mags, traj.t, np.linalg.norm(traj.specific_force, axis=1),
-                     np.linalg.norm(traj.omega, axis=1))
+    write_magnitudes(
+        mags,
+        traj.t,
+        np.linalg.norm(traj.specific_force, axis=1),
+        np.linalg.norm(traj.omega, axis=1),
+    )
     return log, mags, sim
 
 
 def test_report_shape_and_verdict(faulty_log, imudiag_cli, tmp_path):
     log, _, sim = faulty_log
     out = tmp_path / "report.json"
-    r = imudiag_cli("diagnose", str(log), "--certificate", "config/default-certificate.yaml",
-                    "--json", str(out))
+    r = imudiag_cli(
+        "diagnose", str(log), "--certificate", "config/default-certificate.yaml", "--json", str(out)
+    )
     assert r.returncode == 0, r.stderr
     rep = json.loads(out.read_text())
     assert rep["format"] == "imudiag-diagnosis/1"
@@ -120,8 +125,11 @@ def test_no_still_period_is_undetermined(tmp_path, imudiag_cli):
 
 def test_bad_certificate_and_log(tmp_path, imudiag_cli, faulty_log):
     bad = tmp_path / "bad.yaml"
-    bad.write_text(Path("config/default-certificate.yaml").read_text().replace(
-        "bias: [21.0, 21.0, 21.0]", "bias: [21.0, 21.0]"))
+    bad.write_text(
+        Path("config/default-certificate.yaml")
+        .read_text()
+        .replace("bias: [21.0, 21.0, 21.0]", "bias: [21.0, 21.0]")
+    )
     r = imudiag_cli("diagnose", str(faulty_log[0]), "--certificate", str(bad))
     assert r.returncode == 2 and "accel.limits.bias" in r.stderr
     broken = tmp_path / "broken.csv"
@@ -145,7 +153,8 @@ def test_other_methods_run(faulty_log, imudiag_cli, method):
     assert all(w["method"] in (method, "linear") for w in rep["windows"])
     # both variants see the large accelerometer scale fault (with or without company)
     assert ("accel", "az", "scale_factor") in {
-        (f["triad"], f["sensor"], f["cause"]) for f in rep["verdict"]["faults"]}
+        (f["triad"], f["sensor"], f["cause"]) for f in rep["verdict"]["faults"]
+    }
 
 
 def test_moving_base_without_magnitude_warns(faulty_log, imudiag_cli):

@@ -43,12 +43,23 @@ def _cases(grade: str, n_faulty: int, n_clean: int, seed: int) -> list:
     for k in pick:
         kind, sensor, index = cat[k]
         factor = float(rng.uniform(3.0, 6.0)) * float(rng.choice([-1.0, 1.0]))
-        cases.append(pytest.param(grade, kind, sensor, index, round(factor, 2),
-                                  int(rng.integers(10_000)),
-                                  id=f"{grade}-{kind}-{sensor}-{factor:+.1f}x"))
+        cases.append(
+            pytest.param(
+                grade,
+                kind,
+                sensor,
+                index,
+                round(factor, 2),
+                int(rng.integers(10_000)),
+                id=f"{grade}-{kind}-{sensor}-{factor:+.1f}x",
+            )
+        )
     for k in range(n_clean):
-        cases.append(pytest.param(grade, None, None, None, 0.0, int(rng.integers(10_000)),
-                                  id=f"{grade}-clean-{k}"))
+        cases.append(
+            pytest.param(
+                grade, None, None, None, 0.0, int(rng.integers(10_000)), id=f"{grade}-clean-{k}"
+            )
+        )
     return cases
 
 

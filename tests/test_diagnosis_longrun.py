@@ -32,9 +32,14 @@ RATE_HZ = 200.0
 def _session(duration_s: float, seed: int, noise_scale: float = 1.0) -> SampleBlock:
     """The healthy simulated board, static scenario, ``duration_s`` s at 200 Hz (seeded)."""
     cert = load_default()
-    board = SimulatedBoard(cert, scenario_motion("static", 0), RATE_HZ, seed,
-                           effects=Effects.board(noise_scale=noise_scale),
-                           duration_s=duration_s)
+    board = SimulatedBoard(
+        cert,
+        scenario_motion("static", 0),
+        RATE_HZ,
+        seed,
+        effects=Effects.board(noise_scale=noise_scale),
+        duration_s=duration_s,
+    )
     blocks = []
     while not board.exhausted:
         blocks.append(board.generate(1 << 16)[1])
@@ -55,16 +60,23 @@ def test_motion_segments_hold_the_whole_turn(quiet_session):
     """
     cert = load_default()
     cfg = DiagnosisConfig()
-    col = IntervalCollector(cert, RATE_HZ, detector_window_s=cfg.detector_window_s,
-                            min_interval_s=cfg.min_interval_s, max_interval_s=cfg.max_interval_s,
-                            trim_s=cfg.trim_s, motion_margin_s=cfg.motion_margin_s,
-                            max_motion_s=cfg.max_motion_s)
+    col = IntervalCollector(
+        cert,
+        RATE_HZ,
+        detector_window_s=cfg.detector_window_s,
+        min_interval_s=cfg.min_interval_s,
+        max_interval_s=cfg.max_interval_s,
+        trim_s=cfg.trim_s,
+        motion_margin_s=cfg.motion_margin_s,
+        max_motion_s=cfg.max_motion_s,
+    )
     ivs = col.update(quiet_session) + col.flush()
     pairs = rotation_pairs(cert, cert.accel, ivs)
     assert len(pairs) >= 20
     stack = stack_pairs(cert.gyro, pairs)
-    pred = predict_end_directions(stack, np.linalg.inv(cert.gyro.n_matrix())[None],
-                    np.array([p.up0 for p in pairs]))[0]
+    pred = predict_end_directions(
+        stack, np.linalg.inv(cert.gyro.n_matrix())[None], np.array([p.up0 for p in pairs])
+    )[0]
     err = np.linalg.norm(np.array([p.up1 for p in pairs]) - pred, axis=1)
     assert err.max() < 1.5e-3, err.max()
 

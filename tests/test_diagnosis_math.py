@@ -67,8 +67,9 @@ def test_gauge_symmetric_n_reproduces_the_observable(cert):
 
 def test_model_with_certificate_estimate_is_the_certificate(cert):
     t = model_with(cert.accel, certificate_vector(cert.accel))
-    np.testing.assert_allclose(t.n_matrix() @ t.n_matrix().T,
-                               cert.accel.n_matrix() @ cert.accel.n_matrix().T, atol=1e-15)
+    np.testing.assert_allclose(
+        t.n_matrix() @ t.n_matrix().T, cert.accel.n_matrix() @ cert.accel.n_matrix().T, atol=1e-15
+    )
     np.testing.assert_allclose(t.bias, cert.accel.bias)
 
 
@@ -162,9 +163,15 @@ def _fit_with(dev: float, std: float, cert) -> TriadFit:
     c = certificate_vector(cert.accel)
     est = c.copy()
     est[0] += dev
-    return TriadFit(triad="accel", method="exact", estimate=est, std=np.full(9, std),
-                    certificate=c, limit=limit_vector(cert.accel),
-                    determined=np.full(9, std <= 10.5))
+    return TriadFit(
+        triad="accel",
+        method="exact",
+        estimate=est,
+        std=np.full(9, std),
+        certificate=c,
+        limit=limit_vector(cert.accel),
+        determined=np.full(9, std <= 10.5),
+    )
 
 
 def test_predicates_need_limit_sigma_and_persistence(cert):

@@ -75,7 +75,9 @@ def test_a_command_that_fails_to_import_is_an_error(monkeypatch: pytest.MonkeyPa
 def test_source_error_from_the_command_line_exits_2() -> None:
     proc = subprocess.run(
         [sys.executable, "-m", "imudiag", "run", "--source", "sim://?nonsense=1"],
-        capture_output=True, text=True, timeout=120,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.count("\n") == 1 and "nonsense" in proc.stderr

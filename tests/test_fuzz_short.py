@@ -49,7 +49,10 @@ EXAMPLES = {"decoder": 80, "csv": 60, "npz": 60, "certificate": 40}
 def test_seeded_hypothesis_pass(target: str) -> None:
     strategy, prop, _ = PROPERTIES[target]
     test = settings(
-        max_examples=EXAMPLES[target], deadline=None, database=None, derandomize=True,
+        max_examples=EXAMPLES[target],
+        deadline=None,
+        database=None,
+        derandomize=True,
         suppress_health_check=list(HealthCheck),
     )(given(strategy)(prop))
     test()
@@ -64,12 +67,24 @@ def test_seeded_mutation_pass_every_target() -> None:
         stream = seed_stream(rng, int(rng.integers(1, 50)))
         check_decoder(mutate_bytes(stream, muts), sorted(rng.integers(0, len(stream), 3).tolist()))
         text = seed_csv(rng, int(rng.integers(1, 8)))
-        text_ops = [(int(rng.integers(0, 10)), float(rng.random()), float(rng.random()),
-                     int(rng.integers(0, 100))) for _ in range(2)]
-        check_csv(mutate_csv(text, text_ops).encode("utf-8"), block_size=int(rng.integers(1, 4)),
-                  gz=bool(i % 2))
-        check_npz(mutate_bytes(seed_npz(rng, 5, compressed=bool(i % 2)), muts),
-                  block_size=int(rng.integers(1, 4)))
+        text_ops = [
+            (
+                int(rng.integers(0, 10)),
+                float(rng.random()),
+                float(rng.random()),
+                int(rng.integers(0, 100)),
+            )
+            for _ in range(2)
+        ]
+        check_csv(
+            mutate_csv(text, text_ops).encode("utf-8"),
+            block_size=int(rng.integers(1, 4)),
+            gz=bool(i % 2),
+        )
+        check_npz(
+            mutate_bytes(seed_npz(rng, 5, compressed=bool(i % 2)), muts),
+            block_size=int(rng.integers(1, 4)),
+        )
         check_certificate(mutate_bytes(cert_text, muts).decode("utf-8", "replace"))
 
 

@@ -132,7 +132,7 @@ def test_csv_columns_any_order_unknown_columns_comments_crlf(tmp_path: Path) -> 
     text = (
         "# sample_rate: 100\r\n"
         "# note without key\r\n"
-        "# sections: {\"x_p\": {\"start\": 0, \"end\": 2}}\r\n"
+        '# sections: {"x_p": {"start": 0, "end": 2}}\r\n'
         "# broken: {not json\r\n"
         "\r\n"
         "label,az,ay,ax,gz,gy,gx,t,temp,extra\r\n"
@@ -230,10 +230,13 @@ def with_row(i: int, row: str) -> list[str]:
         (with_row(2, "0.02,1,2,3,4,5,6,"), HEADER, 6, "ragged row: 8 fields, header has 7"),
         (with_row(0, "   "), HEADER, 4, "ragged row: 1 fields, header has 7"),
         # the first bad line wins whatever the kinds of fault after it
-        (["0.00,1,2,3,4,5,6", "0.01,1,2,x,4,5,6", "0.00,1,2", "0.03,nan,2,3,4,5,6"],
-         HEADER, 5, "not a number"),
-        (["0.00,1,2,3,4,5,6", "0.01,1,2,3,4,5,6,9", "0.00,x,2,3,4,5,6"],
-         HEADER, 5, "ragged row"),
+        (
+            ["0.00,1,2,3,4,5,6", "0.01,1,2,x,4,5,6", "0.00,1,2", "0.03,nan,2,3,4,5,6"],
+            HEADER,
+            5,
+            "not a number",
+        ),
+        (["0.00,1,2,3,4,5,6", "0.01,1,2,3,4,5,6,9", "0.00,x,2,3,4,5,6"], HEADER, 5, "ragged row"),
         (["0.00,1,2,3,4,5,6", "0.00,1,2,3,4,5,nan"], HEADER, 5, "column 'az': non-finite"),
         ([], HEADER, None, "empty log: no samples"),
     ],
@@ -301,8 +304,13 @@ def test_unreadable_files(tmp_path: Path) -> None:
 def npz_with(tmp_path: Path, **changes: object) -> Path:
     block = random_block(20, optional=False)
     arrays: dict[str, object] = {
-        "t": block.t, "gx": block.gyro[:, 0], "gy": block.gyro[:, 1], "gz": block.gyro[:, 2],
-        "ax": block.accel[:, 0], "ay": block.accel[:, 1], "az": block.accel[:, 2],
+        "t": block.t,
+        "gx": block.gyro[:, 0],
+        "gy": block.gyro[:, 1],
+        "gz": block.gyro[:, 2],
+        "ax": block.accel[:, 0],
+        "ay": block.accel[:, 1],
+        "az": block.accel[:, 2],
     }
     arrays.update(changes)
     arrays = {k: v for k, v in arrays.items() if v is not None}
@@ -315,9 +323,15 @@ def test_npz_reads_numpy_savez_files(tmp_path: Path) -> None:
     block = random_block(50, optional=False)
     path = tmp_path / "numpy.npz"
     np.savez(
-        path, t=block.t, gx=np.arange(50, dtype=np.int16), gy=block.gyro[:, 1],
-        gz=block.gyro[:, 2], ax=block.accel[:, 0], ay=block.accel[:, 1].astype(">f8"),
-        az=block.accel[:, 2].astype(np.float32), label=np.zeros(3),
+        path,
+        t=block.t,
+        gx=np.arange(50, dtype=np.int16),
+        gy=block.gyro[:, 1],
+        gz=block.gyro[:, 2],
+        ax=block.accel[:, 0],
+        ay=block.accel[:, 1].astype(">f8"),
+        az=block.accel[:, 2].astype(np.float32),
+        label=np.zeros(3),
         meta=np.array('{"sample_rate": "100"}'),
     )
     back = read_log(path)
@@ -338,8 +352,10 @@ def test_npz_rejections(tmp_path: Path) -> None:
         ({"gz": np.zeros((20, 2))}, "array 'gz' must be 1-D"),
         ({"gz": np.array(["x"] * 20)}, "array 'gz' is not numeric"),
         ({"meta": np.array("[1, 2]")}, "array 'meta' is not a JSON object"),
-        ({"t": np.zeros(0), **{k: np.zeros(0) for k in ("gx", "gy", "gz", "ax", "ay", "az")}},
-         "empty log: no samples"),
+        (
+            {"t": np.zeros(0), **{k: np.zeros(0) for k in ("gx", "gy", "gz", "ax", "ay", "az")}},
+            "empty log: no samples",
+        ),
     ]
     for changes, reason in cases:
         err = rejection(npz_with(tmp_path, **changes), block_size=8)

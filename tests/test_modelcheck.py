@@ -46,18 +46,23 @@ def test_segment_allan_and_psd_match_references() -> None:
     n, rate = 8192, 100.0
     y = np.cumsum(rng.normal(0, 0.05, (n, 6)), axis=0) + rng.normal(0, 1.0, (n, 6))
     m = allan_m_grid(n, 8)
-    st = SegmentStats(m=m, rate_hz=rate, nperseg=512, n_chunks=1,
-                      predictors={"raw": lambda t, temp, c: np.zeros((t.shape[0], 6))})
+    st = SegmentStats(
+        m=m,
+        rate_hz=rate,
+        nperseg=512,
+        n_chunks=1,
+        predictors={"raw": lambda t, temp, c: np.zeros((t.shape[0], 6))},
+    )
     st.add(np.arange(n) / rate, y, None, np.zeros(n, dtype=int), 0)
     tau, adev, _ind = st.allan("raw", (0,))
-    ref_tau, ref_adev, *_ = allantools.oadev(y[:, 2], rate=rate, data_type="freq",
-                                             taus=m / rate)
+    ref_tau, ref_adev, *_ = allantools.oadev(y[:, 2], rate=rate, data_type="freq", taus=m / rate)
     common = np.isin(np.round(tau * rate), np.round(ref_tau * rate))
     assert common.sum() == ref_tau.shape[0] >= tau.shape[0] - 1
     assert np.allclose(adev[common, 2], ref_adev, rtol=1e-9)
     f, p, k = st.psd("raw", 0)
-    fr, pr = signal.welch(y[:, 4], fs=rate, window="hann", nperseg=512, noverlap=256,
-                          detrend="constant")
+    fr, pr = signal.welch(
+        y[:, 4], fs=rate, window="hann", nperseg=512, noverlap=256, detrend="constant"
+    )
     assert np.allclose(f, fr) and k == (n - 512) // 256 + 1
     assert np.allclose(p[:, 4], pr, rtol=1e-9)
 
@@ -85,8 +90,9 @@ def test_kalman_without_walk_is_weighted_least_squares() -> None:
 def _temperature_session(effects_kw: dict, seed: int = 4, duration_s: float = 300.0):
     cert = load_default()
     temp = TemperatureProfile(22.0, 12.0, 150.0, swing_c=2.5, swing_period_s=110.0)
-    return cert, session(cert, seed, Effects.board(temperature=temp, **effects_kw),
-                         duration_s=duration_s)
+    return cert, session(
+        cert, seed, Effects.board(temperature=temp, **effects_kw), duration_s=duration_s
+    )
 
 
 def test_result_does_not_depend_on_block_boundaries() -> None:
@@ -150,9 +156,20 @@ def test_command_line_writes_report_certificate_and_plots(tmp_path: Path) -> Non
     out = tmp_path / "mc.json"
     ext = tmp_path / "extended.yaml"
     plots = tmp_path / "plots"
-    proc = run_imudiag("model-check", str(log), "--certificate",
-                       "config/default-certificate.yaml", "--json", str(out),
-                       "--extended-certificate", str(ext), "--plots", str(plots), "--seed", "3")
+    proc = run_imudiag(
+        "model-check",
+        str(log),
+        "--certificate",
+        "config/default-certificate.yaml",
+        "--json",
+        str(out),
+        "--extended-certificate",
+        str(ext),
+        "--plots",
+        str(plots),
+        "--seed",
+        "3",
+    )
     assert proc.returncode == 0, proc.stderr
     rep = json.loads(out.read_text())
     check_report(rep)
@@ -180,23 +197,31 @@ def test_command_line_writes_report_certificate_and_plots(tmp_path: Path) -> Non
 
 def test_command_line_bad_input(tmp_path: Path) -> None:
     bad_cert = tmp_path / "bad.yaml"
-    bad_cert.write_text(Path("config/default-certificate.yaml").read_text().replace(
-        "f0: 0.01", "f0: -1", 1))
+    bad_cert.write_text(
+        Path("config/default-certificate.yaml").read_text().replace("f0: 0.01", "f0: -1", 1)
+    )
     log = tmp_path / "s.csv"
-    write_log(log, SampleBlock(t=np.arange(10) / 100.0, gyro=np.zeros((10, 3)),
-                               accel=np.zeros((10, 3))))
+    write_log(
+        log, SampleBlock(t=np.arange(10) / 100.0, gyro=np.zeros((10, 3)), accel=np.zeros((10, 3)))
+    )
     proc = run_imudiag("model-check", str(log), "--certificate", str(bad_cert))
     assert proc.returncode == 2 and "gyro.limits.f0" in proc.stderr
     broken = tmp_path / "broken.csv"
     broken.write_text("t,gx,gy,gz,ax,ay,az\n0,1,2,3,4,5,6\n0.01,1,2,x,4,5,6\n")
-    proc = run_imudiag("model-check", str(broken), "--certificate",
-                       "config/default-certificate.yaml")
+    proc = run_imudiag(
+        "model-check", str(broken), "--certificate", "config/default-certificate.yaml"
+    )
     assert proc.returncode == 2 and "broken.csv:3" in proc.stderr and "gz" in proc.stderr
-    proc = run_imudiag("model-check", str(tmp_path / "missing.csv"), "--certificate",
-                       "config/default-certificate.yaml")
+    proc = run_imudiag(
+        "model-check",
+        str(tmp_path / "missing.csv"),
+        "--certificate",
+        "config/default-certificate.yaml",
+    )
     assert proc.returncode == 2 and "missing.csv" in proc.stderr
-    proc = run_imudiag("model-check", str(log), "--certificate",
-                       "config/default-certificate.yaml", "--chunk", "0")
+    proc = run_imudiag(
+        "model-check", str(log), "--certificate", "config/default-certificate.yaml", "--chunk", "0"
+    )
     assert proc.returncode == 2 and "--chunk" in proc.stderr
 
 
@@ -247,11 +272,23 @@ def test_filter_products_equal_sums_of_whitened_innovations() -> None:
     q = np.array([[0.01, 0.3], [0.0, 0.0]])
     rows = rng.random(n) < 0.7
     steps_axis, steps_at = np.array([1, 0]), np.array([40, 90])
-    p = filter_products(t, h, r, head, q, rows[None], cand=cand, step_axis=steps_axis,
-                        step_at=steps_at, block_k=2, buffer_rows=16)
+    p = filter_products(
+        t,
+        h,
+        r,
+        head,
+        q,
+        rows[None],
+        cand=cand,
+        step_axis=steps_axis,
+        step_at=steps_at,
+        block_k=2,
+        buffer_rows=16,
+    )
     idx = np.arange(n)
-    steps = np.stack([h[:, a] * (idx >= b)
-                      for a, b in zip(steps_axis, steps_at, strict=True)], axis=1)
+    steps = np.stack(
+        [h[:, a] * (idx >= b) for a, b in zip(steps_axis, steps_at, strict=True)], axis=1
+    )
     z = np.concatenate([head, cand, steps], axis=1)
     inn = run_filter(t, h, r, z, q)
     for b in range(2):

@@ -29,7 +29,8 @@ def test_hidden_effect_is_named(seed: int) -> None:
                 assert g is None or g == pytest.approx(1.0), (metric, triad, g)
         return
     assert len(named) == 1 and named[0][0] == hidden.name, (
-        f"hid {hidden.name} on {hidden.sensor} ({hidden.value}), named {report['effects']}")
+        f"hid {hidden.name} on {hidden.sensor} ({hidden.value}), named {report['effects']}"
+    )
     effect = report["effects"][0]
     assert effect["significance"] >= 5.0
     assert effect["heldout_loglik_gain_nats"] > 0.0

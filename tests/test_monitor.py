@@ -117,7 +117,6 @@ def test_temperature_block_of_the_certificate_is_applied():
     assert extended.active_faults == [] and extended.f0_failed["accel"] == 0
 
 
-
 def test_noise_increase_is_named_even_when_it_hides_the_rest():
     block = _session([Fault("noise", "ay", 6.0, 5.0)], duration_s=12.0)
     m = Monitor(CERT)

@@ -205,8 +205,25 @@ def test_real_drive_moving_base():
 
 def test_simulate_drive_with_gnss_log(tmp_path, capsys):
     log, gnss = tmp_path / "hilly.csv", tmp_path / "hilly.tpv.json"
-    assert main(["simulate", "hilly", "--param", "length=120", "--rate", "100", "--seed", "4",
-                 "--out", str(log), "--gnss", str(gnss)]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "hilly",
+                "--param",
+                "length=120",
+                "--rate",
+                "100",
+                "--seed",
+                "4",
+                "--out",
+                str(log),
+                "--gnss",
+                str(gnss),
+            ]
+        )
+        == 0
+    )
     block = read_log(log)
     track = read_gpspipe_log(gnss)
     # the same clock: UTC Unix seconds from EPOCH_UNIX; GNSS at 5 Hz tagged 0.12 s late
@@ -216,6 +233,19 @@ def test_simulate_drive_with_gnss_log(tmp_path, capsys):
     assert abs(track.t[-1] - block.t[-1]) < 1.0
     lines = gnss.read_text().splitlines()
     assert [json.loads(x)["class"] for x in lines[:4]] == ["VERSION", "DEVICES", "WATCH", "TPV"]
-    assert main(["simulate", "static", "--duration", "5", "--out", str(tmp_path / "s.csv"),
-                 "--gnss", str(tmp_path / "s.json")]) == 2
+    assert (
+        main(
+            [
+                "simulate",
+                "static",
+                "--duration",
+                "5",
+                "--out",
+                str(tmp_path / "s.csv"),
+                "--gnss",
+                str(tmp_path / "s.json"),
+            ]
+        )
+        == 2
+    )
     assert "--gnss: only the drive scenarios" in capsys.readouterr().err

@@ -26,8 +26,11 @@ from imudiag.sim import Effects, simulate, still
 def white_plus_walk(n: int, rate: float, white: float, walk: float, seed: int) -> np.ndarray:
     """Rate samples with Allan N = white (u sqrt(s)) and random walk K = walk (u/sqrt(s))."""
     rng = np.random.default_rng(seed)
-    return (rng.standard_normal(n) * white * math.sqrt(rate)
-            + np.cumsum(rng.standard_normal(n)) * walk / math.sqrt(rate) + 1000.0)
+    return (
+        rng.standard_normal(n) * white * math.sqrt(rate)
+        + np.cumsum(rng.standard_normal(n)) * walk / math.sqrt(rate)
+        + 1000.0
+    )
 
 
 def test_oadev_matches_allantools():
@@ -86,10 +89,17 @@ def test_allan_curve_of_white_plus_random_walk_matches_theory():
 def test_simulated_allan_curve_matches_theory(default_certificate):
     """The simulator's white noise (certificate density) plus bias drift against theory."""
     k = 1.0
-    r = simulate(default_certificate, still(3600.0, rate_hz=50), seed=21,
-                 effects=Effects(bias_drift={"gz": k}))
-    a = overlapping_allan(r.samples.gyro[:, 2], 50.0,
-                          m=allan_m_values(180_000, points_per_decade=8, max_fraction=0.02))
+    r = simulate(
+        default_certificate,
+        still(3600.0, rate_hz=50),
+        seed=21,
+        effects=Effects(bias_drift={"gz": k}),
+    )
+    a = overlapping_allan(
+        r.samples.gyro[:, 2],
+        50.0,
+        m=allan_m_values(180_000, points_per_decade=8, max_fraction=0.02),
+    )
     n_white = default_certificate.gyro.noise.density[2] / math.sqrt(2.0)  # IEEE N
     ratio = a.adev / theoretical_adev(a.tau, white=n_white, random_walk=k)
     # tau up to 72 s (at least 50 independent differences): one record, within 20 %
@@ -127,8 +137,9 @@ def flicker_noise(n: int, rate: float, b: float, seed: int) -> np.ndarray:
 
 def test_identify_bias_instability_floor():
     rate, n = 20.0, 1 << 18  # 3.6 hours
-    y = flicker_noise(n, rate, 0.3, seed=7) + np.random.default_rng(8).standard_normal(n) * 0.1 \
-        * math.sqrt(rate)
+    y = flicker_noise(n, rate, 0.3, seed=7) + np.random.default_rng(8).standard_normal(
+        n
+    ) * 0.1 * math.sqrt(rate)
     terms = identify_noise(overlapping_allan(y, rate))
     assert terms.bias_floor
     assert abs(terms.bias_instability / 0.3 - 1) < 0.15
@@ -148,11 +159,16 @@ def test_theoretical_terms():
     # Gauss-Markov: a random walk K^2 = 2 sigma^2 / T at short tau, white N^2 = 2 sigma^2 T at long
     s, t_c = 2.0, 50.0
     short, long_ = np.array([1e-4]), np.array([1e6])
-    np.testing.assert_allclose(theoretical_adev(short, markov=(s, t_c)),
-                               theoretical_adev(short, random_walk=math.sqrt(2 * s**2 / t_c)),
-                               rtol=1e-3)
-    np.testing.assert_allclose(theoretical_adev(long_, markov=(s, t_c)),
-                               theoretical_adev(long_, white=math.sqrt(2 * s**2 * t_c)), rtol=1e-3)
+    np.testing.assert_allclose(
+        theoretical_adev(short, markov=(s, t_c)),
+        theoretical_adev(short, random_walk=math.sqrt(2 * s**2 / t_c)),
+        rtol=1e-3,
+    )
+    np.testing.assert_allclose(
+        theoretical_adev(long_, markov=(s, t_c)),
+        theoretical_adev(long_, white=math.sqrt(2 * s**2 * t_c)),
+        rtol=1e-3,
+    )
 
 
 def test_fit_gauss_markov_on_a_clean_curve():
@@ -160,14 +176,21 @@ def test_fit_gauss_markov_on_a_clean_curve():
     adev = theoretical_adev(tau, white=0.5, markov=(3.0, 40.0))
     from imudiag.noise_stats import AllanResult
 
-    a = AllanResult(tau=tau, adev=adev, error=adev * 0.01, n=np.full(40, 10**6), rate_hz=10.0,
-                    samples=10**8)
+    a = AllanResult(
+        tau=tau, adev=adev, error=adev * 0.01, n=np.full(40, 10**6), rate_hz=10.0, samples=10**8
+    )
     s, t_c, n_w = fit_gauss_markov(a)
     assert abs(s / 3.0 - 1) < 0.01 and abs(t_c / 40.0 - 1) < 0.02 and abs(n_w / 0.5 - 1) < 0.01
-    terms = fit_allan_terms(AllanResult(tau=tau, adev=theoretical_adev(tau, white=1.0,
-                                                                       random_walk=0.2),
-                                        error=adev, n=np.full(40, 10**6), rate_hz=10.0,
-                                        samples=10**8))
+    terms = fit_allan_terms(
+        AllanResult(
+            tau=tau,
+            adev=theoretical_adev(tau, white=1.0, random_walk=0.2),
+            error=adev,
+            n=np.full(40, 10**6),
+            rate_hz=10.0,
+            samples=10**8,
+        )
+    )
     assert abs(terms["white_noise"] - 1.0) < 1e-6 and abs(terms["random_walk"] - 0.2) < 1e-6
 
 

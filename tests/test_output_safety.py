@@ -228,8 +228,9 @@ def test_temporary_names_are_unique(tmp_path: Path):
 
 
 def test_unwritable_output_is_bad_input(tmp_path: Path):
-    with pytest.raises(BadInput, match="no-such-dir"), atomic.atomic_open(
-        tmp_path / "no-such-dir" / "r.json"
+    with (
+        pytest.raises(BadInput, match="no-such-dir"),
+        atomic.atomic_open(tmp_path / "no-such-dir" / "r.json"),
     ):
         pass
 

@@ -21,8 +21,6 @@ def frames(n: int, seq_start: int = 0, seed: int = 0) -> tuple[bytes, np.ndarray
     return encode_samples(seq_start, 5000 * (seq_start + np.arange(n)), raw), raw
 
 
-
-
 def test_pyserial_reads_pty_fed_in_real_time():
     data, _ = frames(100)
     with PtyPair() as pair:

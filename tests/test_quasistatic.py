@@ -60,8 +60,10 @@ def test_noise_estimated_when_certificate_has_none(cert, session):
     bare.accel.noise = None
     det = QuasiStaticDetector(bare, 200.0)
     mask = np.concatenate(
-        [det.update(session.samples.slice(i, i + 2000)) for i in range(0, len(session.samples),
-                                                                        2000)]
+        [
+            det.update(session.samples.slice(i, i + 2000))
+            for i in range(0, len(session.samples), 2000)
+        ]
     )
     sigma_true = cert.accel.noise_sigma(200.0)
     est = det.noise_sigma("accel")

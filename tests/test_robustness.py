@@ -29,8 +29,9 @@ RECONNECT_MAX_S = 0.4  #: the bench's daemon configuration (reconnect.max_s)
 
 
 def _run(text: str, extra_args: tuple[str, ...] = ()) -> BenchRun:
-    return run_scenario(loads(textwrap.dedent(text), "robustness.yaml"), diagnosis=False,
-                        extra_args=extra_args)
+    return run_scenario(
+        loads(textwrap.dedent(text), "robustness.yaml"), diagnosis=False, extra_args=extra_args
+    )
 
 
 def _fill(fd: int) -> int:
@@ -84,8 +85,9 @@ def test_unplug_and_replug_behind_the_same_symlink() -> None:
         starved = after[first:back]
         assert len(starved) >= 4  # still reported at the steady rate (10 Hz wall) while starved
         assert all(r.status["state"] == "no_data" for r in starved)
-        assert all(r.status["link"] == "reconnecting" for r in starved
-                   if r.wall_s < rec.wall_replug_s)
+        assert all(
+            r.status["link"] == "reconnecting" for r in starved if r.wall_s < rec.wall_replug_s
+        )
         (frozen,) = {r.status["t"] for r in starved}  # sample time stands still
         assert len({r.status["counters"]["frames"] for r in starved}) == 1
         if rec.drained:  # it had every sample; after an abrupt unplug a few were in flight
@@ -127,8 +129,9 @@ def test_stalled_stream_turns_no_data_after_the_timeout_and_recovers() -> None:
     (rec,) = run.feeder.records
     # no_data not before the timeout after the last frame was written, and soon after it
     assert NO_DATA_TIMEOUT_S - 0.1 <= stall["wall_latency_s"] <= NO_DATA_TIMEOUT_S + 0.4
-    first_no_data = next(r for r in run.records
-                         if r.wall_s > rec.wall_s and r.status["state"] == "no_data")
+    first_no_data = next(
+        r for r in run.records if r.wall_s > rec.wall_s and r.status["state"] == "no_data"
+    )
     # the port stayed open: the link never reconnects, counters do not move
     starved = [s for s in _between(run, first_no_data.wall_s, rec.wall_replug_s)]
     assert len(starved) >= 5  # steady lines (10 Hz wall) while starved
@@ -176,7 +179,8 @@ def test_slow_status_receiver_never_blocks_sampling() -> None:
         fd = os.open(status_pty.slave_path, os.O_WRONLY | os.O_NONBLOCK | os.O_NOCTTY)
         try:
             assert _fill(fd) > 0
-            run = _run("""
+            run = _run(
+                """
                 name: slow-status-receiver
                 motion: static
                 duration: 10.0
@@ -187,7 +191,9 @@ def test_slow_status_receiver_never_blocks_sampling() -> None:
                 injections:
                   - {t: 4.0, kind: bias, sensor: az, value: 800,
                      expect: [{triad: accel, cause: f0, within: 1.0}]}
-            """, extra_args=("--status", f"serial://{status_pty.slave_path}"))
+            """,
+                extra_args=("--status", f"serial://{status_pty.slave_path}"),
+            )
         finally:
             os.close(fd)
     report = run.report

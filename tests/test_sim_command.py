@@ -21,9 +21,24 @@ PROJECT_DIR = Path(__file__).parent.parent
 @pytest.mark.parametrize("ext", [".csv", ".csv.gz", ".npz", ".bin"])
 def test_simulate_writes_every_format(tmp_path, imudiag_cli, default_certificate, ext):
     out = tmp_path / f"session{ext}"
-    r = imudiag_cli("simulate", "multiposition", "--seed", "4", "--out", str(out),
-                    "--param", "n=6", "--param", "dwell=1", "--fault", "bias:ax:3:150",
-                    "--effect", "temperature:20:5:30", "--effect", "temperature_bias:gx:1.5")
+    r = imudiag_cli(
+        "simulate",
+        "multiposition",
+        "--seed",
+        "4",
+        "--out",
+        str(out),
+        "--param",
+        "n=6",
+        "--param",
+        "dwell=1",
+        "--fault",
+        "bias:ax:3:150",
+        "--effect",
+        "temperature:20:5:30",
+        "--effect",
+        "temperature_bias:gx:1.5",
+    )
     assert r.returncode == 0, r.stderr
     assert "samples" in r.stdout
     with open_log(out) as reader:
@@ -33,8 +48,13 @@ def test_simulate_writes_every_format(tmp_path, imudiag_cli, default_certificate
     assert len(got) == sum(len(b) for b in blocks)
     motion = scenario_motion("multiposition", 4, {"n": "6", "dwell": "1"})
     eff = parse_effects(["temperature:20:5:30", "temperature_bias:gx:1.5"])
-    exp = simulate(default_certificate, motion.sample(200), seed=4, effects=eff,
-                   faults=[Fault("bias", "ax", 3.0, 150.0)]).samples
+    exp = simulate(
+        default_certificate,
+        motion.sample(200),
+        seed=4,
+        effects=eff,
+        faults=[Fault("bias", "ax", 3.0, 150.0)],
+    ).samples
     assert len(got) == len(exp) == int(round(motion.duration_s * 200))
     np.testing.assert_array_equal(got.gyro, exp.gyro)
     np.testing.assert_array_equal(got.accel, exp.accel)
@@ -50,29 +70,52 @@ def test_simulate_writes_every_format(tmp_path, imudiag_cli, default_certificate
 
 def test_simulate_true_certificate_and_duration(tmp_path, imudiag_cli, default_certificate):
     out, cert = tmp_path / "s.npz", tmp_path / "true.yaml"
-    r = imudiag_cli("simulate", "static", "--duration", "12.5", "--seed", "1", "--rate", "100",
-                    "--out", str(out), "--fault", "scale_factor:gz:5:0.5",
-                    "--effect", "g_sensitivity:gx:1:0:0", "--true-certificate", str(cert))
+    r = imudiag_cli(
+        "simulate",
+        "static",
+        "--duration",
+        "12.5",
+        "--seed",
+        "1",
+        "--rate",
+        "100",
+        "--out",
+        str(out),
+        "--fault",
+        "scale_factor:gz:5:0.5",
+        "--effect",
+        "g_sensitivity:gx:1:0:0",
+        "--true-certificate",
+        str(cert),
+    )
     assert r.returncode == 0, r.stderr
     assert len(read_log(out)) == 1250
     true = load(cert)
     assert true.gyro.scale_factor_error[2] == pytest.approx(
-        default_certificate.gyro.scale_factor_error[2] + 0.5)
+        default_certificate.gyro.scale_factor_error[2] + 0.5
+    )
     np.testing.assert_array_equal(true.gyro.g_sensitivity[0], [1.0, 0.0, 0.0])
 
 
-@pytest.mark.parametrize("args,msg", [
-    (["static", "--out", "x.csv"], "--duration: required"),
-    (["static", "--duration", "5", "--out", "x.csv", "--effect", "foo:1"], "unknown effect"),
-    (["static", "--duration", "5", "--out", "x.csv", "--fault", "bias:qx:1:2"],
-     "unknown sensor 'qx'"),
-    (["nowhere", "--duration", "5", "--out", "x.csv"], "unknown scenario"),
-    (["static", "--duration", "5", "--out", "x.txt"], "unknown log format"),
-    (["static", "--duration", "-1", "--out", "x.csv"], "--duration: must be > 0"),
-    (["vehicle", "--out", "x.csv", "--param", "speed=fast"], "speed must be a number"),
-    (["still", "--duration", "1", "--out", "x.csv", "--certificate", "missing.yaml"],
-     "missing.yaml"),
-])
+@pytest.mark.parametrize(
+    "args,msg",
+    [
+        (["static", "--out", "x.csv"], "--duration: required"),
+        (["static", "--duration", "5", "--out", "x.csv", "--effect", "foo:1"], "unknown effect"),
+        (
+            ["static", "--duration", "5", "--out", "x.csv", "--fault", "bias:qx:1:2"],
+            "unknown sensor 'qx'",
+        ),
+        (["nowhere", "--duration", "5", "--out", "x.csv"], "unknown scenario"),
+        (["static", "--duration", "5", "--out", "x.txt"], "unknown log format"),
+        (["static", "--duration", "-1", "--out", "x.csv"], "--duration: must be > 0"),
+        (["vehicle", "--out", "x.csv", "--param", "speed=fast"], "speed must be a number"),
+        (
+            ["still", "--duration", "1", "--out", "x.csv", "--certificate", "missing.yaml"],
+            "missing.yaml",
+        ),
+    ],
+)
 def test_simulate_bad_input_exit_2(tmp_path, imudiag_cli, args, msg):
     args = [a if a not in ("x.csv", "x.txt") else str(tmp_path / a) for a in args]
     r = imudiag_cli("simulate", *args)
@@ -83,8 +126,20 @@ def test_simulate_bad_input_exit_2(tmp_path, imudiag_cli, args, msg):
 
 def test_allan_command_identifies_noise(tmp_path, imudiag_cli, default_certificate):
     log = tmp_path / "still.npz"
-    r = imudiag_cli("simulate", "still", "--duration", "1800", "--rate", "50", "--seed", "2",
-                    "--out", str(log), "--effect", "bias_drift:gy:2")
+    r = imudiag_cli(
+        "simulate",
+        "still",
+        "--duration",
+        "1800",
+        "--rate",
+        "50",
+        "--seed",
+        "2",
+        "--out",
+        str(log),
+        "--effect",
+        "bias_drift:gy:2",
+    )
     assert r.returncode == 0, r.stderr
     out = tmp_path / "allan.json"
     r = imudiag_cli("allan", str(log), "--json", str(out))
@@ -120,25 +175,56 @@ def test_allan_bad_input(tmp_path, imudiag_cli):
 
 
 def test_effect_text_forms():
-    e = parse_effects(["none", "bias_instability:gx:2:100", "periodic_disturbance:ay:3:50:0.5",
-                       "bias_step:gz:10:5", "saturation:100:60000", "adc_error:0.001",
-                       "drop:0.01", "jitter:0.0001", "noise:2", "scale_nonlinearity:ax:0.01",
-                       "temperature_scale:gy:1e-4"])
+    e = parse_effects(
+        [
+            "none",
+            "bias_instability:gx:2:100",
+            "periodic_disturbance:ay:3:50:0.5",
+            "bias_step:gz:10:5",
+            "saturation:100:60000",
+            "adc_error:0.001",
+            "drop:0.01",
+            "jitter:0.0001",
+            "noise:2",
+            "scale_nonlinearity:ax:0.01",
+            "temperature_scale:gy:1e-4",
+        ]
+    )
     assert not e.quantize and e.white_noise and e.noise_scale == 2.0
     assert e.bias_instability == {"gx": (2.0, 100.0)}
     assert e.periodic_disturbance[0].phase_rad == 0.5 and e.bias_step[0].size == 5.0
     assert e.saturation == (100.0, 60000.0) and e.drop_rate == 0.01
     assert parse_effects(["all"]).bias_drift == Effects.all_on().bias_drift
     assert parse_effects(["noise:0"]).white_noise is False
-    for bad in ["bias_drift:gx", "saturation:5:1", "drop:2", "temperature:20:5:0",
-                "g_sensitivity:ax:1:2:3", "bias_instability:gx:1:0"]:
+    for bad in [
+        "bias_drift:gx",
+        "saturation:5:1",
+        "drop:2",
+        "temperature:20:5:0",
+        "g_sensitivity:ax:1:2:3",
+        "bias_instability:gx:1:0",
+    ]:
         with pytest.raises(ValueError):
             parse_effects([bad])
 
 
 def test_benchmark_script_runs():
-    r = subprocess.run([sys.executable, "benchmarks/simulate.py", "--duration", "20",
-                        "--rate", "1000", "--chunk", "5"], cwd=PROJECT_DIR, capture_output=True,
-                       text=True, timeout=60, check=False)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "benchmarks/simulate.py",
+            "--duration",
+            "20",
+            "--rate",
+            "1000",
+            "--chunk",
+            "5",
+        ],
+        cwd=PROJECT_DIR,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
     assert r.returncode == 0, r.stderr
     assert "20000 samples" in r.stdout and "faster than real time" in r.stdout

@@ -36,8 +36,9 @@ def outputs(block: SampleBlock) -> np.ndarray:
 def test_noise_free_model_is_the_certificate(default_certificate):
     tr = multi_position(n_attitudes=8, dwell_s=1.0, turn_s=1.0, rate_hz=100, seed=1)
     r = simulate(default_certificate, tr, effects=Effects.none())
-    np.testing.assert_allclose(outputs(r.samples), model_si(default_certificate, tr), rtol=0,
-                               atol=1e-8)
+    np.testing.assert_allclose(
+        outputs(r.samples), model_si(default_certificate, tr), rtol=0, atol=1e-8
+    )
     assert r.samples.temp is not None and np.all(r.samples.temp == 25.0)
     np.testing.assert_array_equal(r.samples.seq, np.arange(len(tr)))
     assert np.all(r.samples.flags == 0)
@@ -52,8 +53,9 @@ def test_white_noise_sigma_and_reproducibility(default_certificate):
     np.testing.assert_array_equal(outputs(a.samples), outputs(b.samples))
     assert not np.array_equal(outputs(a.samples), outputs(c.samples))
     resid = outputs(a.samples) - model_si(default_certificate, tr)
-    sigma = np.concatenate([default_certificate.gyro.noise_sigma(200),
-                            default_certificate.accel.noise_sigma(200)])
+    sigma = np.concatenate(
+        [default_certificate.gyro.noise_sigma(200), default_certificate.accel.noise_sigma(200)]
+    )
     # 40000 samples: the sample std is within 2 % of sigma (about 6 standard errors)
     np.testing.assert_allclose(resid.std(axis=0), sigma, rtol=0.02)
     assert np.all(np.abs(resid.mean(axis=0)) < 4 * sigma / math.sqrt(len(tr)))
@@ -68,8 +70,9 @@ def test_white_noise_sigma_and_reproducibility(default_certificate):
 def test_chunked_simulator_equals_one_call(default_certificate):
     m = multi_position_motion(n_attitudes=6, dwell_s=1.0, turn_s=1.0, seed=2)
     tr = m.sample(200)
-    eff = Effects.all_on(bias_step=[BiasStep("gz", 4.0, 15.0)], drop_rate=0.01, jitter_s=1e-4,
-                         adc_error_rate=0.01)
+    eff = Effects.all_on(
+        bias_step=[BiasStep("gz", 4.0, 15.0)], drop_rate=0.01, jitter_s=1e-4, adc_error_rate=0.01
+    )
     whole = simulate(default_certificate, tr, seed=9, effects=eff).samples
     sim = Simulator(default_certificate, eff, (), 9)
     rng = np.random.default_rng(1)
@@ -148,8 +151,9 @@ def test_scale_nonlinearity_by_regression(default_certificate):
 
 def test_bias_step_size_and_time(default_certificate):
     tr = still(60.0, rate_hz=200)
-    r = simulate(default_certificate, tr, seed=8,
-                 effects=Effects(bias_step=[BiasStep("az", 37.3, 20.0)]))
+    r = simulate(
+        default_certificate, tr, seed=8, effects=Effects(bias_step=[BiasStep("az", 37.3, 20.0)])
+    )
     y = r.samples.accel[:, 2]  # noise 8.2 counts a sample
     n = y.shape[0]
     # change point: the split maximising the between-segment contrast (vectorised CUSUM)
@@ -208,8 +212,9 @@ def test_bias_instability_gauss_markov(default_certificate):
     a_hat = np.dot(x[1:], x[:-1]) / np.dot(x[:-1], x[:-1])
     assert abs(-0.05 / math.log(a_hat) / tau - 1) < 0.15
     # and its Allan curve with white noise on: fitted sigma within 20 %, tau within 30 %
-    r2 = simulate(default_certificate, tr, seed=12,
-                  effects=Effects(bias_instability={"ay": (sigma, tau)}))
+    r2 = simulate(
+        default_certificate, tr, seed=12, effects=Effects(bias_instability={"ay": (sigma, tau)})
+    )
     s_fit, t_fit, _ = fit_gauss_markov(overlapping_allan(r2.samples.accel[:, 1], 20.0))
     assert abs(s_fit / sigma - 1) < 0.2
     assert abs(t_fit / tau - 1) < 0.3
@@ -230,8 +235,9 @@ def test_quantisation_and_saturation(default_certificate):
     below = clean[:, 0] < 65535 - 50
     assert not np.any(r.samples.flags[below] & FLAG_GYRO_SATURATED)
     # per-triad ranges
-    r2 = simulate(default_certificate, tr, seed=1,
-                  effects=Effects(saturation={"accel": (0.0, 36000.0)}))
+    r2 = simulate(
+        default_certificate, tr, seed=1, effects=Effects(saturation={"accel": (0.0, 36000.0)})
+    )
     assert np.all(r2.samples.flags & FLAG_ACCEL_SATURATED)  # +g on x: 33078 + 4096 counts
     assert not np.any(r2.samples.flags & FLAG_GYRO_SATURATED)
 
@@ -261,8 +267,7 @@ def test_dropped_frames_and_jitter(default_certificate):
     assert abs(jitter.std() / 1e-4 - 1) < 0.05
     assert np.all(np.abs(jitter) <= 0.45 / 200 + 1e-9)
     # samples carry the truth row they came from
-    np.testing.assert_allclose(s.accel[:, 2],
-                               model_si(default_certificate, tr)[s.seq, 5], atol=60)
+    np.testing.assert_allclose(s.accel[:, 2], model_si(default_certificate, tr)[s.seq, 5], atol=60)
 
 
 def test_effects_validation():

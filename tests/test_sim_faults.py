@@ -38,11 +38,14 @@ def test_scale_factor_fault_follows_true_certificate(default_certificate):
     after = tr.t >= 4.0
     faulted = r.certificate
     assert faulted.gyro.scale_factor_error[2] == pytest.approx(
-        default_certificate.gyro.scale_factor_error[2] + 0.9)
-    np.testing.assert_allclose(r.samples.gyro[after], faulted.gyro.forward_si(tr.omega[after]),
-                               atol=1e-8)
-    np.testing.assert_allclose(r.samples.gyro[~after],
-                               default_certificate.gyro.forward_si(tr.omega[~after]), atol=1e-8)
+        default_certificate.gyro.scale_factor_error[2] + 0.9
+    )
+    np.testing.assert_allclose(
+        r.samples.gyro[after], faulted.gyro.forward_si(tr.omega[after]), atol=1e-8
+    )
+    np.testing.assert_allclose(
+        r.samples.gyro[~after], default_certificate.gyro.forward_si(tr.omega[~after]), atol=1e-8
+    )
     # the size: U_z grows by value * x_z (x in deg/s), about 0.9 * 50 = 45 counts
     base = clean_run(default_certificate, tr, [])
     dz = r.samples.gyro[after, 2] - base.samples.gyro[after, 2]
@@ -61,22 +64,31 @@ def test_misalignment_fault_changes_its_difference(default_certificate, pair, in
     expected[index] += 0.004
     np.testing.assert_allclose(d1, expected, atol=1e-15)
     after = tr.t >= 5.0
-    np.testing.assert_allclose(r.samples.accel[after],
-                               r.certificate.accel.forward_si(tr.specific_force[after]), atol=1e-8)
-    np.testing.assert_allclose(r.samples.accel[~after],
-                               default_certificate.accel.forward_si(tr.specific_force[~after]),
-                               atol=1e-8)
+    np.testing.assert_allclose(
+        r.samples.accel[after], r.certificate.accel.forward_si(tr.specific_force[after]), atol=1e-8
+    )
+    np.testing.assert_allclose(
+        r.samples.accel[~after],
+        default_certificate.accel.forward_si(tr.specific_force[~after]),
+        atol=1e-8,
+    )
     # a gyro pair works the same way
-    g = clean_run(default_certificate, tr, [Fault("misalignment", pair.replace("a", "g"), 0.0,
-                                                  -0.002)])
+    g = clean_run(
+        default_certificate, tr, [Fault("misalignment", pair.replace("a", "g"), 0.0, -0.002)]
+    )
     assert g.certificate.gyro.misalignment_differences[index] == pytest.approx(
-        default_certificate.gyro.misalignment_differences[index] - 0.002)
+        default_certificate.gyro.misalignment_differences[index] - 0.002
+    )
 
 
 def test_stuck_dead_and_noise_faults(default_certificate):
     tr = still(40.0, rate_hz=100)
-    faults = [Fault("stuck", "gy", 10.0), Fault("dead", "ax", 20.0),
-              Fault("noise", "az", 15.0, 4.0), Fault("stuck", "gz", 5.0, 1234.0)]
+    faults = [
+        Fault("stuck", "gy", 10.0),
+        Fault("dead", "ax", 20.0),
+        Fault("noise", "az", 15.0, 4.0),
+        Fault("stuck", "gz", 5.0, 1234.0),
+    ]
     base = simulate(default_certificate, tr, seed=2, effects=Effects.board())
     r = simulate(default_certificate, tr, seed=2, effects=Effects.board(), faults=faults)
     t = r.samples.t
@@ -92,7 +104,8 @@ def test_stuck_dead_and_noise_faults(default_certificate):
     before, after = r.samples.accel[(t > 2) & (t < 15), 2], r.samples.accel[t >= 15, 2]
     assert abs(after.std() / before.std() / 4.0 - 1) < 0.05
     assert r.certificate.accel.noise.density[2] == pytest.approx(
-        4.0 * default_certificate.accel.noise.density[2])
+        4.0 * default_certificate.accel.noise.density[2]
+    )
     # untouched sensors are identical
     np.testing.assert_array_equal(r.samples.gyro[:, 0], base.samples.gyro[:, 0])
     np.testing.assert_array_equal(r.samples.accel[:, 1], base.samples.accel[:, 1])
@@ -103,10 +116,16 @@ def test_parse_fault_and_errors():
     assert parse_fault("stuck:gy:5") == Fault("stuck", "gy", 5.0, None)
     assert parse_fault("misalignment:gx/gz:1:0.01").pair_key == (1, "zy")
     assert Fault("bias", "ax", 30.0, 150.0).to_text() == "bias:ax:30:150"
-    for bad, msg in [("bias:ax:30", "needs a finite value"), ("bias:qx:1:2", "unknown sensor"),
-                     ("wobble:ax:1:2", "unknown fault kind"), ("bias:ax:x:2", "numbers"),
-                     ("misalignment:ax:1:0.1", "pair"), ("misalignment:ax/gy:1:0.1", "pair"),
-                     ("bias:ax/ay:1:2", "one sensor"), ("bias:ax", "expected kind")]:
+    for bad, msg in [
+        ("bias:ax:30", "needs a finite value"),
+        ("bias:qx:1:2", "unknown sensor"),
+        ("wobble:ax:1:2", "unknown fault kind"),
+        ("bias:ax:x:2", "numbers"),
+        ("misalignment:ax:1:0.1", "pair"),
+        ("misalignment:ax/gy:1:0.1", "pair"),
+        ("bias:ax/ay:1:2", "one sensor"),
+        ("bias:ax", "expected kind"),
+    ]:
         with pytest.raises(ValueError, match=msg):
             parse_fault(bad)
 

@@ -39,14 +39,20 @@ def assert_same_samples(decoded: SampleBlock, simulated: SampleBlock) -> None:
 
 
 def test_sim_source_decodes_to_simulate(default_certificate):
-    url = ("sim://multiposition?seed=3&speed=0&n=8&dwell=2&fault=bias:ax:10:150"
-           "&effect=drop:0.002,jitter:0.0001&fault=stuck:gy:12")
+    url = (
+        "sim://multiposition?seed=3&speed=0&n=8&dwell=2&fault=bias:ax:10:150"
+        "&effect=drop:0.002,jitter:0.0001&fault=stuck:gy:12"
+    )
     src = open_source(url)
     decoded = read_all(src)
     motion = multi_position_motion(n_attitudes=8, dwell_s=2.0, seed=3)
-    sim = simulate(default_certificate, motion.sample(200), seed=3,
-                   effects=Effects.board(drop_rate=0.002, jitter_s=1e-4),
-                   faults=[Fault("bias", "ax", 10.0, 150.0), Fault("stuck", "gy", 12.0)])
+    sim = simulate(
+        default_certificate,
+        motion.sample(200),
+        seed=3,
+        effects=Effects.board(drop_rate=0.002, jitter_s=1e-4),
+        faults=[Fault("bias", "ax", 10.0, 150.0), Fault("stuck", "gy", 12.0)],
+    )
     assert len(decoded) == len(sim.samples) > 0
     assert_same_samples(decoded, sim.samples)
     c = src.counters
@@ -61,8 +67,14 @@ def test_sim_source_decodes_to_simulate(default_certificate):
 
 def test_board_bytes_round_trip_in_odd_chunks(default_certificate):
     motion = scenario_motion("vehicle", 0)
-    board = SimulatedBoard(default_certificate, motion, 200, seed=1,
-                           effects=Effects.all_on(drop_rate=0.01), duration_s=12.0)
+    board = SimulatedBoard(
+        default_certificate,
+        motion,
+        200,
+        seed=1,
+        effects=Effects.all_on(drop_rate=0.01),
+        duration_s=12.0,
+    )
     data, blocks = [], []
     while not board.exhausted:
         d, b = board.generate(137)
@@ -75,7 +87,7 @@ def test_board_bytes_round_trip_in_odd_chunks(default_certificate):
     out, pos = [], 0
     while pos < len(stream):  # feed in random pieces, frames straddle them
         n = int(rng.integers(1, 300))
-        out.append(dec.feed(stream[pos:pos + n]))
+        out.append(dec.feed(stream[pos : pos + n]))
         pos += n
     decoded = SampleBlock.concat(out)
     assert_same_samples(decoded, SampleBlock.concat(blocks))
@@ -123,8 +135,11 @@ def test_sim_source_answers_info_without_losing_samples():
 def test_sim_source_options(default_certificate):
     cert = default_certificate.copy()
     cert.accel.bias[:] = 30000.0
-    src = open_source("sim://still?speed=0&effect=none&rate=100", certificate=cert,
-                      faults=[Fault("dead", "gz", 0.0)])
+    src = open_source(
+        "sim://still?speed=0&effect=none&rate=100",
+        certificate=cert,
+        faults=[Fault("dead", "gz", 0.0)],
+    )
     with src:
         b = src.read()
     assert np.all(b.gyro[:, 2] == 0.0)
@@ -133,16 +148,19 @@ def test_sim_source_options(default_certificate):
     np.testing.assert_array_equal(b.accel, expected)  # noise off, whole counts on the wire
 
 
-@pytest.mark.parametrize("url,msg", [
-    ("sim://nowhere", "unknown scenario"),
-    ("sim://static?sped=1", "unknown query key 'sped'"),
-    ("sim://static?fault=bias:ax:1", "needs a finite value"),
-    ("sim://static?effect=bias_drift:gq:1", "unknown sensor"),
-    ("sim://static?seed=x", "bad value for 'seed'"),
-    ("sim://static?speed=-1", "bad value for 'speed'"),
-    ("sim://turntable?n=3", "unknown query key 'n'"),
-    ("sim://vehicle?speed=fast", "bad value"),
-])
+@pytest.mark.parametrize(
+    "url,msg",
+    [
+        ("sim://nowhere", "unknown scenario"),
+        ("sim://static?sped=1", "unknown query key 'sped'"),
+        ("sim://static?fault=bias:ax:1", "needs a finite value"),
+        ("sim://static?effect=bias_drift:gq:1", "unknown sensor"),
+        ("sim://static?seed=x", "bad value for 'seed'"),
+        ("sim://static?speed=-1", "bad value for 'speed'"),
+        ("sim://turntable?n=3", "unknown query key 'n'"),
+        ("sim://vehicle?speed=fast", "bad value"),
+    ],
+)
 def test_sim_source_bad_urls(url, msg):
     with pytest.raises(SourceError, match=msg):
         open_source(url)

@@ -94,36 +94,45 @@ def test_integrated_gyro_reproduces_attitude_change(builder):
     """Integrating omega (incl. Earth rate) carries the attitude to < 1e-6 rad."""
     if builder == "multi":
         tr = multi_position(n_attitudes=6, dwell_s=0.5, turn_s=1.5, rate_hz=200, seed=2)
-        pairs = [(b - 1, c) for (_, b), (c, _) in zip(tr.static_intervals()[:-1],
-                                                      tr.static_intervals()[1:], strict=True)]
+        pairs = [
+            (b - 1, c)
+            for (_, b), (c, _) in zip(
+                tr.static_intervals()[:-1], tr.static_intervals()[1:], strict=True
+            )
+        ]
     elif builder == "turntable":
         tr = turntable(90.0, axis="x", duration_s=6.0, rate_hz=200, ramp_s=1.0)
         # end points where the rate is steady (inside the spin-up the test's own
         # trapezoid rule errs by h^2/12 * d(rate)/dt, 5e-6 rad at 200 Hz)
         pairs = [(0, len(tr) - 1), (300, 1000)]
     else:
-        tr = vehicle_run(still_s=1.0, accel_s=3.0, cruise_s=1.0, turn_s=2.0, final_s=1.0,
-                         rate_hz=200)
+        tr = vehicle_run(
+            still_s=1.0, accel_s=3.0, cruise_s=1.0, turn_s=2.0, final_s=1.0, rate_hz=200
+        )
         pairs = [(0, len(tr) - 1)]
     for i, j in pairs:
         phi = relative_rotation(tr, i, j)
-        r = integrate_gyro(tr.omega[i:j + 1], 1.0 / tr.rate_hz)
+        r = integrate_gyro(tr.omega[i : j + 1], 1.0 / tr.rate_hz)
         err = np.linalg.norm(rotation_vector(phi.T @ r))
         assert err < 1e-6, (builder, i, j, err)
         # and Earth rate matters at this level: without it the change is off by Omega dt
     if builder == "multi":
         i, j = pairs[0]
         r_no_earth = tr.attitude[i].T @ tr.attitude[j]
-        r = integrate_gyro(tr.omega[i:j + 1], 1.0 / tr.rate_hz)
+        r = integrate_gyro(tr.omega[i : j + 1], 1.0 / tr.rate_hz)
         assert np.linalg.norm(rotation_vector(r_no_earth.T @ r)) > 1e-5
 
 
 def test_turntable_rate_and_gravity():
     tr = turntable(30.0, axis="y", duration_s=4.0, rate_hz=100)
-    w_ie_body = np.einsum("nji,j->ni", tr.attitude, EARTH_RATE * np.array(
-        [math.cos(math.radians(45)), 0, -math.sin(math.radians(45))]))
-    np.testing.assert_allclose(tr.omega - w_ie_body, np.tile([0, math.radians(30), 0], (400, 1)),
-                               atol=1e-12)
+    w_ie_body = np.einsum(
+        "nji,j->ni",
+        tr.attitude,
+        EARTH_RATE * np.array([math.cos(math.radians(45)), 0, -math.sin(math.radians(45))]),
+    )
+    np.testing.assert_allclose(
+        tr.omega - w_ie_body, np.tile([0, math.radians(30), 0], (400, 1)), atol=1e-12
+    )
     # the table axis is vertical: gravity stays on +y
     np.testing.assert_allclose(tr.specific_force, np.tile([0, G, 0], (400, 1)), atol=1e-9)
     assert not tr.static.any()
@@ -132,7 +141,7 @@ def test_turntable_rate_and_gravity():
 def test_vehicle_run_kinematics():
     tr = vehicle_run(rate_hz=100)  # defaults: 10 s still, 0->20 m/s in 8 s, 90 deg in 4 s
     assert abs(tr.duration_s - 32.0) < 1e-9
-    assert tr.static[: 1000].all() and not tr.static[1000:].any()
+    assert tr.static[:1000].all() and not tr.static[1000:].any()
     f = tr.specific_force
     assert abs(f[:, 0].max() - 2 * 20.0 / 8.0) < 1e-3  # peak forward 5 m/s^2
     peak_rate = 2 * math.pi / 2 / 4.0
@@ -173,10 +182,15 @@ def test_attitude_with_up_and_rotation_vector():
     # rotation vectors round trip, including angles near pi
     axes = rng.standard_normal((50, 3))
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
-    angles = np.concatenate([rng.uniform(0, math.pi, 45), [0.0, 1e-8, math.pi - 1e-6,
-                                                           math.pi - 1e-3, 3.0]])
+    angles = np.concatenate(
+        [rng.uniform(0, math.pi, 45), [0.0, 1e-8, math.pi - 1e-6, math.pi - 1e-3, 3.0]]
+    )
     r = axis_angle_matrix(axes, angles)
     rv = rotation_vector(r)
-    np.testing.assert_allclose(axis_angle_matrix(rv / np.maximum(np.linalg.norm(rv, axis=1),
-                                                                 1e-300)[:, None],
-                                                 np.linalg.norm(rv, axis=1)), r, atol=1e-9)
+    np.testing.assert_allclose(
+        axis_angle_matrix(
+            rv / np.maximum(np.linalg.norm(rv, axis=1), 1e-300)[:, None], np.linalg.norm(rv, axis=1)
+        ),
+        r,
+        atol=1e-9,
+    )

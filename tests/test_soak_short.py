@@ -24,8 +24,14 @@ from soak.stream import BIAS_EPISODE_COUNTS, GROUP_SAMPLES, SoakStream, Unplug
 @pytest.fixture(scope="module")
 def soak_result():
     """Four simulated minutes at 1 kHz, every event kind at 20x the default rate."""
-    return run_soak(hours=4 / 60, rate_hz=1000.0, seed=3, error_rate=20.0,
-                    episode_every_s=50.0, rss_every_s=10.0)
+    return run_soak(
+        hours=4 / 60,
+        rate_hz=1000.0,
+        seed=3,
+        error_rate=20.0,
+        episode_every_s=50.0,
+        rss_every_s=10.0,
+    )
 
 
 def test_soak_passes_with_exact_counters(soak_result) -> None:
@@ -54,8 +60,14 @@ def test_soak_exercised_every_fault_kind(soak_result) -> None:
 
 def test_stream_tally_matches_its_own_bytes() -> None:
     """Unit check of the generator: frames and bytes add up to what it emitted."""
-    s = SoakStream(load_default(), duration_s=30.0, rate_hz=1000.0, seed=5, error_rate=50.0,
-                   episode_every_s=None)
+    s = SoakStream(
+        load_default(),
+        duration_s=30.0,
+        rate_hz=1000.0,
+        seed=5,
+        error_rate=50.0,
+        episode_every_s=None,
+    )
     total = unplugs = 0
     while not s.exhausted:
         for piece in s.next_pieces():
@@ -72,8 +84,14 @@ def test_stream_tally_matches_its_own_bytes() -> None:
 
 
 def test_bias_episode_is_in_the_samples() -> None:
-    s = SoakStream(load_default(), duration_s=80.0, rate_hz=1000.0, seed=0, error_rate=0.0,
-                   episode_every_s=30.0)
+    s = SoakStream(
+        load_default(),
+        duration_s=80.0,
+        rate_hz=1000.0,
+        seed=0,
+        error_rate=0.0,
+        episode_every_s=30.0,
+    )
     assert len(s.episodes) == 1
     ep = s.episodes[0]
     assert ep.kind == "bias" and ep.t_start == 30.0
@@ -90,16 +108,26 @@ def test_bias_episode_is_in_the_samples() -> None:
 
 
 def test_status_checker_rejects_malformed_lines() -> None:
-    good = {"class": "STATUS", "format": "imudiag-status/1",
-            "t": 1.0, "state": "ok", "faults": [], "counters": {
-        k: 0 for k in ("bytes", "frames", "crc_errors", "skipped_bytes", "lost", "duplicates")}}
+    good = {
+        "class": "STATUS",
+        "format": "imudiag-status/1",
+        "t": 1.0,
+        "state": "ok",
+        "faults": [],
+        "counters": {
+            k: 0 for k in ("bytes", "frames", "crc_errors", "skipped_bytes", "lost", "duplicates")
+        },
+    }
     check_status_line(good)
-    for bad in ({**good, "state": "fine"}, {**good, "t": "1"},
-                {**good, "faults": [{"cause": "f0"}]},
-                {**good, "counters": {**good["counters"], "lost": -1}},
-                {k: v for k, v in good.items() if k != "counters"},
-                {k: v for k, v in good.items() if k != "class"},
-                {**good, "format": "imudiag-status/2"}):
+    for bad in (
+        {**good, "state": "fine"},
+        {**good, "t": "1"},
+        {**good, "faults": [{"cause": "f0"}]},
+        {**good, "counters": {**good["counters"], "lost": -1}},
+        {k: v for k, v in good.items() if k != "counters"},
+        {k: v for k, v in good.items() if k != "class"},
+        {**good, "format": "imudiag-status/2"},
+    ):
         with pytest.raises(StatusLineError):
             check_status_line(bad)
     stream = StatusStream()

@@ -41,8 +41,11 @@ def write_session(directory: Path, n: int) -> dict[str, Path]:
     board = SimulatedBoard(cert, motion, RATE_HZ, seed=4, duration_s=n / RATE_HZ)
     paths = {ext: directory / f"session{ext}" for ext in (".csv", ".npz", ".bin")}
     meta = {"sample_rate": RATE_HZ}
-    with open_writer(paths[".csv"], meta) as csv, open_writer(paths[".npz"], meta) as npz, \
-            open(paths[".bin"], "wb") as raw:
+    with (
+        open_writer(paths[".csv"], meta) as csv,
+        open_writer(paths[".npz"], meta) as npz,
+        open(paths[".bin"], "wb") as raw,
+    ):
         while not board.exhausted:
             data, block = board.generate(1 << 15)
             raw.write(data)
@@ -121,9 +124,17 @@ def test_diagnose_streams_in_bounded_memory(sessions, tmp_path: Path) -> None:
     peaks = {}
     for n in (N_SHORT, N_LONG):
         out = tmp_path / f"report-{n}.json"
-        args = ["diagnose", str(sessions[n][ext]), "--certificate",
-                str(default_certificate_path()), "--json", str(out), "--block-size", str(BLOCK),
-                "--no-windows"]
+        args = [
+            "diagnose",
+            str(sessions[n][ext]),
+            "--certificate",
+            str(default_certificate_path()),
+            "--json",
+            str(out),
+            "--block-size",
+            str(BLOCK),
+            "--no-windows",
+        ]
         codes: list[int] = []
         peaks[n] = peak_traced_bytes(lambda a=args, c=codes: c.append(cli_main(a)))
         assert codes == [0]
@@ -138,8 +149,14 @@ def test_model_check_streams_in_bounded_memory(sessions, tmp_path: Path) -> None
     peaks = {}
     for n in (N_SHORT, N_LONG):
         out = tmp_path / f"model-{n}.json"
-        args = ["model-check", str(sessions[n][".npz"]), "--certificate",
-                str(default_certificate_path()), "--json", str(out)]
+        args = [
+            "model-check",
+            str(sessions[n][".npz"]),
+            "--certificate",
+            str(default_certificate_path()),
+            "--json",
+            str(out),
+        ]
         codes: list[int] = []
         peaks[n] = peak_traced_bytes(lambda a=args, c=codes: c.append(cli_main(a)))
         assert codes == [0] and out.stat().st_size > 0

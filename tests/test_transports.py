@@ -26,8 +26,6 @@ def board_bytes(n: int, seq_start: int = 0, seed: int = 0) -> tuple[bytes, np.nd
     return encode_samples(seq_start, t, raw, np.full(n, 30.25)), raw
 
 
-
-
 def test_schemes_registered():
     assert {"serial", "loop", "socket", "hid", "usb", "replay"} <= set(registered_schemes())
     with pytest.raises(SourceError, match="bad device id"):

@@ -160,8 +160,6 @@ class EmulatedBoardBackend(usb.backend.IBackend):
         return len(data)
 
 
-
-
 # -- usb:// -------------------------------------------------------------------------
 
 

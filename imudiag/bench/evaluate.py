@@ -104,8 +104,9 @@ class Evaluation:
                 fa = seen.setdefault(key, {**_entry(key), "t_first": t, "t_last": t, "lines": 0})
                 fa["t_last"] = t
                 fa["lines"] += 1
-        return [{**v, "t_first": _r(v["t_first"]), "t_last": _r(v["t_last"])}
-                for v in seen.values()]
+        return [
+            {**v, "t_first": _r(v["t_first"]), "t_last": _r(v["t_last"])} for v in seen.values()
+        ]
 
     # -- per injection ------------------------------------------------------
 
@@ -135,19 +136,27 @@ class Evaluation:
             if found is not None:
                 break
         bound = max(e.within_s for e in active)
-        wrong = [fa for fa in false_alarms
-                 if fa["triad"] == inj.fault().triad
-                 and inj.t_s <= fa["t_first"] <= inj.t_s + bound]
+        wrong = [
+            fa
+            for fa in false_alarms
+            if fa["triad"] == inj.fault().triad and inj.t_s <= fa["t_first"] <= inj.t_s + bound
+        ]
         out["premature_t"] = _r(premature)
         out["wrong"] = wrong
         if found is None:
-            out.update(detected=False, latency_s=None, bound_s=bound,
-                       result="premature" if premature is not None else "missed")
+            out.update(
+                detected=False,
+                latency_s=None,
+                bound_s=bound,
+                result="premature" if premature is not None else "missed",
+            )
             return out
         t, entry, e = found
         latency = t - inj.t_s
         out.update(
-            detected=True, t_detected=_r(t), latency_s=_r(latency),
+            detected=True,
+            t_detected=_r(t),
+            latency_s=_r(latency),
             matched={k: entry[k] for k in ("triad", "sensor", "cause") if k in entry},
             bound_s=e.within_s,
         )
@@ -178,8 +187,9 @@ class Evaluation:
         before = self._counters_at(lambda t: t <= t0 - BASELINE_GAP_S)
         limit = next_t - BASELINE_GAP_S if next_t is not None else float("inf")
         after = self._counters_at(lambda t: t <= limit)
-        out["expected"] = {k: ("any" if v is None else v) for k, v in expected.items()
-                           if v is None or v}
+        out["expected"] = {
+            k: ("any" if v is None else v) for k, v in expected.items() if v is None or v
+        }
         out["frames_affected"] = rec.frames_affected
         if before is None or after is None:
             out.update(result="no_baseline", detected=False, latency_s=None)
@@ -190,14 +200,20 @@ class Evaluation:
         t_det = None
         for r in self.timed:
             t = float(r.status["t"])
-            if t > t0 - BASELINE_GAP_S and all(r.status["counters"][k] >= v
-                                               for k, v in target.items()):
+            if t > t0 - BASELINE_GAP_S and all(
+                r.status["counters"][k] >= v for k, v in target.items()
+            ):
                 t_det = t
                 break
         exact = all(observed[k] == expected[k] for k in checked)
         latency = None if t_det is None else max(0.0, t_det - t0)
-        out.update(detected=t_det is not None, t_detected=_r(t_det), latency_s=_r(latency),
-                   bound_s=inj.within_s, exact=exact)
+        out.update(
+            detected=t_det is not None,
+            t_detected=_r(t_det),
+            latency_s=_r(latency),
+            bound_s=inj.within_s,
+            exact=exact,
+        )
         if not exact:
             out["result"] = "inexact" if t_det is not None else "missed"
         elif latency is None or latency > inj.within_s + 1e-9:
@@ -208,9 +224,15 @@ class Evaluation:
 
     def outage_result(self, inj: Injection) -> dict[str, Any]:
         rec = self.injected.get(inj.number)
-        out: dict[str, Any] = {**inj.as_dict(), "category": "outage",
-                               "expected": {"state": "no_data", "within_wall_s": inj.within_s,
-                                            "recover_within_wall_s": inj.recover_within_s}}
+        out: dict[str, Any] = {
+            **inj.as_dict(),
+            "category": "outage",
+            "expected": {
+                "state": "no_data",
+                "within_wall_s": inj.within_s,
+                "recover_within_wall_s": inj.recover_within_s,
+            },
+        }
         if rec is None or rec.wall_s is None:
             out.update(result="not_injected", detected=False, latency_s=None)
             return out
@@ -225,9 +247,14 @@ class Evaluation:
             if r.wall_s < pulled:
                 before = s
                 continue
-            if (replug is not None and r.wall_s >= replug and s.get("state") != "no_data"
-                    and s.get("t") is not None and rec.t_last_s is not None
-                    and s["t"] > rec.t_last_s + 1e-9):
+            if (
+                replug is not None
+                and r.wall_s >= replug
+                and s.get("state") != "no_data"
+                and s.get("t") is not None
+                and rec.t_last_s is not None
+                and s["t"] > rec.t_last_s + 1e-9
+            ):
                 recovered = r
                 break
             if s.get("link") == "reconnecting":
@@ -262,8 +289,9 @@ class Evaluation:
                 if recovered.wall_s - replug > inj.recover_within_s:
                     problems.append("recovery late")
                 if before is not None:
-                    cont = all(s["counters"][k] >= before["counters"][k]
-                               for k in before["counters"])
+                    cont = all(
+                        s["counters"][k] >= before["counters"][k] for k in before["counters"]
+                    )
                     grew = s["counters"]["frames"] > before["counters"]["frames"]
                     out["counters_continued"] = cont and grew
                     if not (cont and grew):
@@ -300,12 +328,14 @@ class Evaluation:
                 monotonic = False
             prev = c
         observed = {k: final.get(k) for k in expected}
-        checkable = all(r.drained for r in self.injected.values()
-                        if r.injection.kind == "unplug")
+        checkable = all(r.drained for r in self.injected.values() if r.injection.kind == "unplug")
         exact = all(observed[k] == v for k, v in expected.items() if v is not None)
-        return {"expected": {k: ("any" if v is None else v) for k, v in expected.items()},
-                "observed": observed, "exact": exact if checkable else None,
-                "monotonic": monotonic}
+        return {
+            "expected": {k: ("any" if v is None else v) for k, v in expected.items()},
+            "observed": observed,
+            "exact": exact if checkable else None,
+            "monotonic": monotonic,
+        }
 
     def max_delay_wall_s(self, pace: Sequence[tuple[float, int]]) -> float | None:
         """Longest wall time (s) from a board write until a status line shows its samples
@@ -347,8 +377,12 @@ class Evaluation:
         for r in results:
             tally[r["result"]] = tally.get(r["result"], 0) + 1
         checked = [r for r in results if r["result"] != "pending"]
-        passed = (all(r["result"] == PASS for r in checked) and not false_alarms
-                  and counters["exact"] is not False and counters["monotonic"])
+        passed = (
+            all(r["result"] == PASS for r in checked)
+            and not false_alarms
+            and counters["exact"] is not False
+            and counters["monotonic"]
+        )
         return {
             "faults": results,
             "false_alarms": false_alarms,

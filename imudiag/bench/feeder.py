@@ -181,8 +181,9 @@ class BoardFeeder:
         assert self.host is not None
         wall = self.host.wait_connected(after, self.connect_timeout_s)
         if wall is None:
-            raise FeederError(f"the reader did not open {self.link} within "
-                              f"{self.connect_timeout_s:g} s")
+            raise FeederError(
+                f"the reader did not open {self.link} within {self.connect_timeout_s:g} s"
+            )
         return wall
 
     def _feed(self) -> None:
@@ -236,10 +237,12 @@ class BoardFeeder:
             self._last_piece = data
         return data
 
-    def _record(self, inj: Injection, index: int, expected: dict[str, int | None],
-                affected: int) -> InjectionRecord:
-        rec = InjectionRecord(inj, index, index / self.rate_hz, expected, affected,
-                              wall_s=time.monotonic())
+    def _record(
+        self, inj: Injection, index: int, expected: dict[str, int | None], affected: int
+    ) -> InjectionRecord:
+        rec = InjectionRecord(
+            inj, index, index / self.rate_hz, expected, affected, wall_s=time.monotonic()
+        )
         self.records.append(rec)
         return rec
 
@@ -310,8 +313,10 @@ class BoardFeeder:
             self.host.wait_bytes_read(self.bytes_sent, drain_timeout) if inj.drain else False
         )
         if inj.drain and not rec.drained:
-            raise FeederError(f"injection {inj.number}: the reader did not read the "
-                              f"{self.bytes_sent} bytes sent within {drain_timeout:g} s")
+            raise FeederError(
+                f"injection {inj.number}: the reader did not read the "
+                f"{self.bytes_sent} bytes sent within {drain_timeout:g} s"
+            )
         rec.wall_s = time.monotonic()
         self.unplug()
         assert inj.outage_s is not None

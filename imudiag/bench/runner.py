@@ -47,7 +47,8 @@ def diagnosis_available() -> bool:
     settings.diagnosis = True
     # no except: a diagnoser that cannot be built is a defect to see, not "pending"
     diagnoser = Daemon._make_diagnoser(
-        SimpleNamespace(settings=settings), certmod.load_default()  # type: ignore[arg-type]
+        SimpleNamespace(settings=settings),
+        certmod.load_default(),  # type: ignore[arg-type]
     )
     return hasattr(diagnoser, "faults") and callable(getattr(diagnoser, "verdict", None))
 
@@ -63,20 +64,24 @@ class DaemonHost:
         """Wall time of the first status after ``after_wall_s`` with link ``connected``."""
         found = self.daemon.wait_record(
             lambda r: r.wall_s >= after_wall_s and r.status.get("link") == "connected",
-            timeout_s, since=0,
+            timeout_s,
+            since=0,
         )
         return None if found is None else found[1].wall_s
 
     def wait_bytes_read(self, n: int, timeout_s: float) -> bool:
         """True once a status shows at least ``n`` bytes read."""
         found = self.daemon.wait_record(
-            lambda r: r.status["counters"]["bytes"] >= n, timeout_s, since=0,
+            lambda r: r.status["counters"]["bytes"] >= n,
+            timeout_s,
+            since=0,
         )
         return found is not None
 
 
-def daemon_args(config_path: Path, link: Path, certificate: str | None,
-                diagnosis: bool) -> list[str]:
+def daemon_args(
+    config_path: Path, link: Path, certificate: str | None, diagnosis: bool
+) -> list[str]:
     """Command-line arguments of ``imudiag run`` for a bench run."""
     args = ["--config", str(config_path), "--source", f"serial://{link}", "--status", "-"]
     if certificate:
@@ -131,8 +136,10 @@ def run_scenario(
     """
     available = diagnosis_available()
     if diagnosis and not available:
-        raise BenchError("the streaming diagnosis (imudiag.diagnosis.StreamingDiagnoser) is "
-                         "not available to the daemon in this build")
+        raise BenchError(
+            "the streaming diagnosis (imudiag.diagnosis.StreamingDiagnoser) is "
+            "not available to the daemon in this build"
+        )
     use_diagnosis = available if diagnosis is None else bool(diagnosis)
     with tempfile.TemporaryDirectory(prefix="imudiag-bench-", dir=workdir) as tmp:
         tmp_path = Path(tmp)
@@ -140,14 +147,19 @@ def run_scenario(
         config_path.write_text(yaml.safe_dump(scenario.daemon, sort_keys=False))
         link = tmp_path / "imu0"
         board = make_board(scenario)
-        feeder = BoardFeeder(board, link, scenario.transport_injections, scenario.speed,
-                             chunk_s=scenario.chunk_s, seed=scenario.seed)
+        feeder = BoardFeeder(
+            board,
+            link,
+            scenario.transport_injections,
+            scenario.speed,
+            chunk_s=scenario.chunk_s,
+            seed=scenario.seed,
+        )
         t_start = time.monotonic()
         feeder.plug()
         try:
             daemon = DaemonProcess(
-                [*daemon_args(config_path, link, scenario.certificate, use_diagnosis),
-                 *extra_args],
+                [*daemon_args(config_path, link, scenario.certificate, use_diagnosis), *extra_args],
                 python=python,
             )
             try:
@@ -158,7 +170,11 @@ def run_scenario(
             feeder.close()
         wall_s = time.monotonic() - t_start
     result = Evaluation(
-        scenario, daemon.records, feeder.records, use_diagnosis, board.rate_hz,
+        scenario,
+        daemon.records,
+        feeder.records,
+        use_diagnosis,
+        board.rate_hz,
         sent={"bytes": feeder.bytes_sent, "frames": feeder.sample_frames_sent},
         pace=feeder.pace,
     ).report()
@@ -179,8 +195,11 @@ def run_scenario(
         "diagnosis_available": available,
         "wall_s": round(wall_s, 2),
         "status_lines": len(daemon.records),
-        "daemon": {"exit_status": exit_status, "problems": problems,
-                   "stderr_tail": daemon.stderr_tail(1000) if problems else ""},
+        "daemon": {
+            "exit_status": exit_status,
+            "problems": problems,
+            "stderr_tail": daemon.stderr_tail(1000) if problems else "",
+        },
         **result,
     }
     report["passed"] = bool(result["passed"] and not problems)
@@ -198,25 +217,32 @@ def run_bench(
 
 def _play(scenario: BenchScenario, feeder: BoardFeeder, daemon: DaemonProcess) -> int:
     """Feed the whole session, wait for the daemon to process it, stop it; its exit status."""
-    wall_budget = scenario.duration_s / scenario.speed + sum(
-        i.outage_s or 0.0 for i in scenario.transport_injections
-    ) + 30.0
+    wall_budget = (
+        scenario.duration_s / scenario.speed
+        + sum(i.outage_s or 0.0 for i in scenario.transport_injections)
+        + 30.0
+    )
     feeder.start(DaemonHost(daemon))
     deadline = time.monotonic() + wall_budget
     while not feeder.join(0.2):
         if daemon.proc.poll() is not None:
             feeder.stop()
-            raise BenchError(f"the daemon exited with status {daemon.proc.returncode} "
-                             f"during the run; stderr: {daemon.stderr_tail()}")
+            raise BenchError(
+                f"the daemon exited with status {daemon.proc.returncode} "
+                f"during the run; stderr: {daemon.stderr_tail()}"
+            )
         if time.monotonic() > deadline:
             raise BenchError(f"the board did not finish within {wall_budget:.0f} s")
     if feeder.error is not None:
-        raise BenchError(f"board feeder: {feeder.error}; daemon exit status "
-                         f"{daemon.proc.poll()}; stderr: {daemon.stderr_tail()}")
+        raise BenchError(
+            f"board feeder: {feeder.error}; daemon exit status "
+            f"{daemon.proc.poll()}; stderr: {daemon.stderr_tail()}"
+        )
     t_last = feeder.t_end_s
     done = daemon.wait_record(  # the last sample is the last frame sent
         lambda r: r.status.get("t") is not None and r.status["t"] >= t_last - 1e-6,
-        timeout_s=15.0, since=0,
+        timeout_s=15.0,
+        since=0,
     )
     if done is None:
         raise BenchError(
@@ -228,5 +254,13 @@ def _play(scenario: BenchScenario, feeder: BoardFeeder, daemon: DaemonProcess) -
     return daemon.stop(signal.SIGTERM)
 
 
-__all__ = ["BenchError", "BenchRun", "DaemonHost", "daemon_args", "diagnosis_available",
-           "make_board", "run_bench", "run_scenario"]
+__all__ = [
+    "BenchError",
+    "BenchRun",
+    "DaemonHost",
+    "daemon_args",
+    "diagnosis_available",
+    "make_board",
+    "run_bench",
+    "run_scenario",
+]

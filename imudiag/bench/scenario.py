@@ -217,8 +217,7 @@ class BenchScenario:
     @property
     def transport_injections(self) -> list[Injection]:
         """Injections handled by the byte feeder, in time order."""
-        return sorted((i for i in self.injections if i.category != "sensor"),
-                      key=lambda i: i.t_s)
+        return sorted((i for i in self.injections if i.category != "sensor"), key=lambda i: i.t_s)
 
     def with_options(self, seed: int | None = None, speed: float | None = None) -> BenchScenario:
         """A copy with a different seed or board speed."""
@@ -258,8 +257,12 @@ class _Reader:
         return f"{self.path}.{key}" if self.path else key
 
     def fail(self, key: str | None, reason: str) -> ScenarioError:
-        return ScenarioError(self.source, self.line(key), self.key(key) if key else
-                             (self.path or "(document)"), reason)
+        return ScenarioError(
+            self.source,
+            self.line(key),
+            self.key(key) if key else (self.path or "(document)"),
+            reason,
+        )
 
     def check_keys(self, known: tuple[str, ...]) -> None:
         for k in self.doc:
@@ -269,8 +272,15 @@ class _Reader:
     def get(self, key: str, default: Any = None) -> Any:
         return self.doc.get(key, default)
 
-    def number(self, key: str, default: float | None = None, lo: float = -math.inf,
-               hi: float = math.inf, lo_open: bool = False, required: bool = False) -> float:
+    def number(
+        self,
+        key: str,
+        default: float | None = None,
+        lo: float = -math.inf,
+        hi: float = math.inf,
+        lo_open: bool = False,
+        required: bool = False,
+    ) -> float:
         if key not in self.doc or self.doc[key] is None:
             if required or default is None:
                 raise self.fail(key, "required number missing")
@@ -283,8 +293,7 @@ class _Reader:
             raise self.fail(key, f"{v!r} is out of range {left}{lo:g}, {hi:g}]")
         return float(v)
 
-    def integer(self, key: str, default: int | None = None, lo: int = 0,
-                hi: int = 10**9) -> int:
+    def integer(self, key: str, default: int | None = None, lo: int = 0, hi: int = 10**9) -> int:
         if key not in self.doc or self.doc[key] is None:
             if default is None:
                 raise self.fail(key, "required integer missing")
@@ -334,8 +343,21 @@ class _Reader:
 # parsing
 
 
-_TOP_KEYS = ("format", "name", "description", "motion", "motion_params", "duration", "seed",
-             "speed", "effects", "certificate", "daemon", "injections", "chunk")
+_TOP_KEYS = (
+    "format",
+    "name",
+    "description",
+    "motion",
+    "motion_params",
+    "duration",
+    "seed",
+    "speed",
+    "effects",
+    "certificate",
+    "daemon",
+    "injections",
+    "chunk",
+)
 _EXPECT_KEYS = ("triad", "sensor", "cause", "within", "requires")
 _SENSOR_NAMES = {"gyro": ("gx", "gy", "gz"), "accel": ("ax", "ay", "az")}
 
@@ -352,8 +374,9 @@ def _default_expectations(kind: str, sensor: str) -> tuple[Expectation, ...]:
     return (Expectation(triad, kind, sensor, DEFAULT_DIAGNOSIS_WITHIN_S, "diagnosis"),)
 
 
-def _expectation(item: Any, reader: _Reader, key: str, index: int,
-                 default_within: float) -> Expectation:
+def _expectation(
+    item: Any, reader: _Reader, key: str, index: int, default_within: float
+) -> Expectation:
     path = f"{key}[{index}]"
     if not isinstance(item, Mapping):
         raise reader.fail(key, f"{path}: expected a mapping like {{triad: accel, cause: f0}}")
@@ -369,8 +392,11 @@ def _expectation(item: Any, reader: _Reader, key: str, index: int,
             "/" in sensor and all(p in names for p in sensor.split("/")) and len(sensor) == 5
         )
         if not ok:
-            raise r.fail("sensor", f"{sensor!r} is not a {triad} sensor or pair "
-                                   f"({', '.join(names)}, or a pair like {names[0]}/{names[1]})")
+            raise r.fail(
+                "sensor",
+                f"{sensor!r} is not a {triad} sensor or pair "
+                f"({', '.join(names)}, or a pair like {names[0]}/{names[1]})",
+            )
     requires = r.text("requires", choices=REQUIRES) if r.get("requires") is not None else None
     if requires and default_within == DEFAULT_WITHIN_S:
         default_within = DEFAULT_DIAGNOSIS_WITHIN_S
@@ -396,38 +422,63 @@ def _injection(item: Any, reader: _Reader, index: int, duration: float) -> Injec
         try:
             Fault(kind, sensor, t, value)
         except ValueError as exc:
-            raise r.fail("sensor" if "sensor" in str(exc) or "pair" in str(exc) else "value",
-                         str(exc)) from None
+            raise r.fail(
+                "sensor" if "sensor" in str(exc) or "pair" in str(exc) else "value", str(exc)
+            ) from None
         within = r.number("within", DEFAULT_WITHIN_S, lo=0.0, lo_open=True)
         items = r.sequence("expect")
         expect = (
             tuple(_expectation(e, r, "expect", k, within) for k, e in enumerate(items))
-            if items else _default_expectations(kind, sensor)
+            if items
+            else _default_expectations(kind, sensor)
         )
-        also = tuple(_expectation(e, r, "also", k, within)
-                     for k, e in enumerate(r.sequence("also")))
-        return Injection(number, t, kind, sensor=sensor, value=value, within_s=within,
-                         expect=expect, also=also, line=line)
+        also = tuple(
+            _expectation(e, r, "also", k, within) for k, e in enumerate(r.sequence("also"))
+        )
+        return Injection(
+            number,
+            t,
+            kind,
+            sensor=sensor,
+            value=value,
+            within_s=within,
+            expect=expect,
+            also=also,
+            line=line,
+        )
     if kind in OUTAGE_KINDS:
         keys = ("t", "kind", "outage", "within", "recover_within")
         r.check_keys((*keys, "drain") if kind == "unplug" else keys)
         outage = r.number("outage", 1.0, lo=0.0, hi=600.0, lo_open=True)
         return Injection(
-            number, t, kind, outage_s=outage,
+            number,
+            t,
+            kind,
+            outage_s=outage,
             drain=r.boolean("drain", True) if kind == "unplug" else True,
             within_s=r.number("within", 2.0, lo=0.0, lo_open=True),
-            recover_within_s=r.number("recover_within", 3.0, lo=0.0, lo_open=True), line=line,
+            recover_within_s=r.number("recover_within", 3.0, lo=0.0, lo_open=True),
+            line=line,
         )
     count_key = "bytes" if kind == "garbage" else "frames"
-    r.check_keys(("t", "kind", count_key, "within", "random") if kind == "garbage"
-                 else ("t", "kind", count_key, "within"))
+    r.check_keys(
+        ("t", "kind", count_key, "within", "random")
+        if kind == "garbage"
+        else ("t", "kind", count_key, "within")
+    )
     count = r.integer(count_key, lo=1, hi=50_000_000 if kind == "garbage" else 100_000)
     if t < MIN_TRANSPORT_GAP_S:
-        raise r.fail("t", f"a {kind} injection needs t >= {MIN_TRANSPORT_GAP_S:g} s (a status "
-                          "line before it is the baseline of its counters)")
+        raise r.fail(
+            "t",
+            f"a {kind} injection needs t >= {MIN_TRANSPORT_GAP_S:g} s (a status "
+            "line before it is the baseline of its counters)",
+        )
     if duration - t < MIN_TRANSPORT_GAP_S:
-        raise r.fail("t", f"a {kind} injection needs {MIN_TRANSPORT_GAP_S:g} s of samples after "
-                          f"it (the receiver counts losses at the next frame)")
+        raise r.fail(
+            "t",
+            f"a {kind} injection needs {MIN_TRANSPORT_GAP_S:g} s of samples after "
+            f"it (the receiver counts losses at the next frame)",
+        )
     within = r.number("within", DEFAULT_COUNTER_WITHIN_S, lo=0.0, lo_open=True)
     random = r.boolean("random", False) if kind == "garbage" else False
     return Injection(number, t, kind, count=count, random=random, within_s=within, line=line)
@@ -465,8 +516,9 @@ def _plain(obj: Any) -> Any:
 def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
     """Validate a parsed scenario document (see the module docstring)."""
     if not isinstance(doc, Mapping):
-        raise ScenarioError(source, None, "(document)",
-                            f"expected a mapping of keys, got {type(doc).__name__}")
+        raise ScenarioError(
+            source, None, "(document)", f"expected a mapping of keys, got {type(doc).__name__}"
+        )
     r = _Reader(source, doc)
     r.check_keys(_TOP_KEYS)
     if r.get("format") is not None and r.text("format") != FORMAT:
@@ -482,8 +534,9 @@ def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
         allowed = scenario_params(motion)
         for k, v in params_reader.doc.items():
             if k not in allowed:
-                raise params_reader.fail(str(k), f"unknown parameter of motion {motion}; "
-                                                 f"known: {', '.join(allowed)}")
+                raise params_reader.fail(
+                    str(k), f"unknown parameter of motion {motion}; known: {', '.join(allowed)}"
+                )
             if isinstance(v, bool) or not isinstance(v, (int, float, str)):
                 raise params_reader.fail(str(k), f"expected a number or text, got {v!r}")
             params[str(k)] = str(v)
@@ -530,8 +583,9 @@ def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
     try:
         config_from_dict(daemon_doc, f"{source}: daemon")
     except ConfigError as exc:
-        raise ScenarioError(source, _line_of(doc, ("daemon", *exc.key.split("."))),
-                            f"daemon.{exc.key}", exc.reason) from None
+        raise ScenarioError(
+            source, _line_of(doc, ("daemon", *exc.key.split("."))), f"daemon.{exc.key}", exc.reason
+        ) from None
     injections = tuple(
         _injection(item, r, k, duration) for k, item in enumerate(r.sequence("injections"))
     )
@@ -540,15 +594,26 @@ def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
         if b - a < MIN_TRANSPORT_GAP_S:
             bad = next(i for i in injections if i.category != "sensor" and i.t_s == b)
             raise ScenarioError(
-                source, bad.line, f"injections[{bad.number - 1}].t",
+                source,
+                bad.line,
+                f"injections[{bad.number - 1}].t",
                 f"transport injections at {a:g} s and {b:g} s are closer than "
                 f"{MIN_TRANSPORT_GAP_S:g} s (their counter increments could not be told apart)",
             )
     return BenchScenario(
-        name=name, motion=motion, motion_params=params, duration_s=duration, seed=seed,
-        speed=speed, effects=tuple(effects), certificate=certificate, daemon=daemon_doc,
-        injections=injections, description=str(r.get("description") or "").strip(),
-        source=source, chunk_s=chunk,
+        name=name,
+        motion=motion,
+        motion_params=params,
+        duration_s=duration,
+        seed=seed,
+        speed=speed,
+        effects=tuple(effects),
+        certificate=certificate,
+        daemon=daemon_doc,
+        injections=injections,
+        description=str(r.get("description") or "").strip(),
+        source=source,
+        chunk_s=chunk,
     )
 
 
@@ -584,8 +649,10 @@ def bundled_path(name: str) -> Path:
     root = resources.files("imudiag.bench").joinpath("scenarios")
     p = root.joinpath(f"{name}.yaml")
     if not p.is_file():
-        raise BadInput(f"unknown bench scenario {name!r}; bundled: {', '.join(bundled_names())} "
-                       "(or --scenario FILE.yaml)")
+        raise BadInput(
+            f"unknown bench scenario {name!r}; bundled: {', '.join(bundled_names())} "
+            "(or --scenario FILE.yaml)"
+        )
     return Path(str(p))
 
 

@@ -9,10 +9,14 @@ _COLUMNS = ("#", "t [s]", "injected", "expected", "detected", "latency", "bound"
 
 def _expected_text(r: dict[str, Any]) -> str:
     if r["category"] == "sensor":
-        parts = [" ".join(p for p in (e["triad"], e.get("sensor"), e["cause"]) if p)
-                 for e in r["expected"]]
-        pend = [" ".join(p for p in (e["triad"], e.get("sensor"), e["cause"]) if p)
-                for e in r.get("pending", [])]
+        parts = [
+            " ".join(p for p in (e["triad"], e.get("sensor"), e["cause"]) if p)
+            for e in r["expected"]
+        ]
+        pend = [
+            " ".join(p for p in (e["triad"], e.get("sensor"), e["cause"]) if p)
+            for e in r.get("pending", [])
+        ]
         text = " | ".join(parts)
         if pend:
             text += (" | " if text else "") + "(" + " | ".join(pend) + ": needs diagnosis)"
@@ -65,8 +69,10 @@ def format_table(report: dict[str, Any]) -> str:
         )
         for r in report["faults"]
     ]
-    widths = [max(len(c), *(len(row[i]) for row in rows)) if rows else len(c)
-              for i, c in enumerate(_COLUMNS)]
+    widths = [
+        max(len(c), *(len(row[i]) for row in rows)) if rows else len(c)
+        for i, c in enumerate(_COLUMNS)
+    ]
     lines = [
         f"bench scenario {report['scenario']}: {report['duration_s']:g} s of samples at "
         f"{report['speed']:g}x, seed {report['seed']}, diagnosis "
@@ -78,32 +84,43 @@ def format_table(report: dict[str, Any]) -> str:
     lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)) for row in rows]
     lines.append("latency: sample time from injection to the first status showing it, s")
     if report.get("max_status_delay_wall_s") is not None:
-        lines.append(f"longest delay from a board write to a status line showing it: "
-                     f"{report['max_status_delay_wall_s']:.3f} s wall")
+        lines.append(
+            f"longest delay from a board write to a status line showing it: "
+            f"{report['max_status_delay_wall_s']:.3f} s wall"
+        )
     fa = report["false_alarms"]
     if fa:
         lines.append("false alarms:")
         for f in fa:
             name = " ".join(p for p in (f["triad"], f.get("sensor"), f["cause"]) if p)
-            lines.append(f"  {name}: t {f['t_first']:.3f} .. {f['t_last']:.3f} s "
-                         f"({f['lines']} status lines)")
+            lines.append(
+                f"  {name}: t {f['t_first']:.3f} .. {f['t_last']:.3f} s ({f['lines']} status lines)"
+            )
     else:
         lines.append("false alarms: none")
     c = report["counters"]
-    diff = [k for k in c["expected"]
-            if c["expected"][k] not in ("any", c["observed"].get(k))]
+    diff = [k for k in c["expected"] if c["expected"][k] not in ("any", c["observed"].get(k))]
     expected = ", ".join(f"{k}={c['expected'][k]}" for k in diff)
     lines.append(
-        "counters: " + " ".join(f"{k}={c['observed'].get(k)}" for k in c["expected"])
-        + ("  (exact)" if c["exact"] else "  (not checkable: unplug without drain)"
-           if c["exact"] is None else f"  (expected {expected})")
+        "counters: "
+        + " ".join(f"{k}={c['observed'].get(k)}" for k in c["expected"])
+        + (
+            "  (exact)"
+            if c["exact"]
+            else "  (not checkable: unplug without drain)"
+            if c["exact"] is None
+            else f"  (expected {expected})"
+        )
         + ("" if c["monotonic"] else "  NOT MONOTONIC")
     )
     for p in report["daemon"]["problems"]:
         lines.append(f"daemon: {p}")
     pending = report["summary"].get("pending", 0)
-    lines.append("verdict: " + ("PASS" if report["passed"] else "FAIL")
-                 + (f" ({pending} pending the window diagnosis)" if pending else ""))
+    lines.append(
+        "verdict: "
+        + ("PASS" if report["passed"] else "FAIL")
+        + (f" ({pending} pending the window diagnosis)" if pending else "")
+    )
     return "\n".join(lines)
 
 

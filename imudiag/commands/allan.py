@@ -60,22 +60,38 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("log", metavar="LOG", help="sample log (.csv, .csv.gz, .npz, .bin)")
     p.add_argument("--json", metavar="OUT", help="write the report as JSON ('-' for stdout)")
-    p.add_argument("--sensors", default=",".join(SENSORS),
-                   help="comma-separated sensors (default all six)")
+    p.add_argument(
+        "--sensors", default=",".join(SENSORS), help="comma-separated sensors (default all six)"
+    )
     p.add_argument("--start", type=float, metavar="S", help="ignore samples before t = S s")
     p.add_argument("--stop", type=float, metavar="S", help="ignore samples after t = S s")
-    p.add_argument("--rate", type=float, metavar="HZ",
-                   help="sample rate (default: the log's sample_rate, else from t)")
+    p.add_argument(
+        "--rate",
+        type=float,
+        metavar="HZ",
+        help="sample rate (default: the log's sample_rate, else from t)",
+    )
     add_log_options(p)
-    p.add_argument("--points-per-decade", type=int, default=10, metavar="K",
-                   help="tau values per decade (default 10)")
-    p.add_argument("--psd-segment", type=int, default=4096, metavar="N",
-                   help="samples per Welch segment (default 4096, at most N/8)")
+    p.add_argument(
+        "--points-per-decade",
+        type=int,
+        default=10,
+        metavar="K",
+        help="tau values per decade (default 10)",
+    )
+    p.add_argument(
+        "--psd-segment",
+        type=int,
+        default=4096,
+        metavar="N",
+        help="samples per Welch segment (default 4096, at most N/8)",
+    )
     p.set_defaults(func=run, inputs=("log",), outputs=("json",))
 
 
-def _collect(path: str, start: float | None, stop: float | None, options: LogOptions | None = None
-             ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+def _collect(
+    path: str, start: float | None, stop: float | None, options: LogOptions | None = None
+) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """t (N,) and outputs (N, 6) of the log within [start, stop]."""
     ts: list[np.ndarray] = []
     us: list[np.ndarray] = []
@@ -94,8 +110,14 @@ def _collect(path: str, start: float | None, stop: float | None, options: LogOpt
     return t, u, meta
 
 
-def analyse(t: np.ndarray, u: np.ndarray, rate_hz: float, sensors: list[str],
-            points_per_decade: int = 10, psd_segment: int = 4096) -> dict[str, Any]:
+def analyse(
+    t: np.ndarray,
+    u: np.ndarray,
+    rate_hz: float,
+    sensors: list[str],
+    points_per_decade: int = 10,
+    psd_segment: int = 4096,
+) -> dict[str, Any]:
     """The per-sensor report for samples ``u`` (N, 6) at ``rate_hz``."""
     out: dict[str, Any] = {}
     n = u.shape[0]
@@ -119,14 +141,21 @@ def analyse(t: np.ndarray, u: np.ndarray, rate_hz: float, sensors: list[str],
         out[name] = {
             "white_noise_density": measured,
             "white_noise_method": WHITE_NOISE_METHOD,
-            "white_noise_note": _cross_check(measured, readings.get("density_one_sided"),
-                                             white_psd),
+            "white_noise_note": _cross_check(
+                measured, readings.get("density_one_sided"), white_psd
+            ),
             **readings,
             "psd_white_density": white_psd,
-            "allan": {"tau": allan.tau.tolist(), "adev": allan.adev.tolist(),
-                      "error": allan.error.tolist()},
-            "psd": {"frequency": psd.frequency.tolist(), "density": psd.density.tolist(),
-                    "segments": psd.segments},
+            "allan": {
+                "tau": allan.tau.tolist(),
+                "adev": allan.adev.tolist(),
+                "error": allan.error.tolist(),
+            },
+            "psd": {
+                "frequency": psd.frequency.tolist(),
+                "density": psd.density.tolist(),
+                "segments": psd.segments,
+            },
         }
     return out
 
@@ -180,8 +209,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cross_check(measured: float | None, allan_density: float | None,
-                 psd_density: float | None) -> str | None:
+def _cross_check(
+    measured: float | None, allan_density: float | None, psd_density: float | None
+) -> str | None:
     """Why the cross-check readings disagree with the measured density, or None."""
     if measured is None or measured <= 0:
         return None
@@ -193,8 +223,10 @@ def _cross_check(measured: float | None, allan_density: float | None,
                 off.append(f"{label} {r:.2f}x")
     if not off:
         return None
-    return ("cross-checks off: " + ", ".join(off) + " (coloured noise, quantisation or motion "
-            "in the record: trust the measured density for the white part)")
+    return (
+        "cross-checks off: " + ", ".join(off) + " (coloured noise, quantisation or motion "
+        "in the record: trust the measured density for the white part)"
+    )
 
 
 def _fmt(v: float | None) -> str:
@@ -202,19 +234,27 @@ def _fmt(v: float | None) -> str:
 
 
 def _print_table(report: dict[str, Any], out: Any) -> None:
-    print(f"{report['log']}: {report['samples']} samples at {report['rate_hz']:g} Hz, "
-          f"{report['duration_s']:.1f} s, {report['gaps']} gaps", file=out)
-    print(f"white noise: one-sided density, measured by {WHITE_NOISE_METHOD} (the figure "
-          "calibrate, diagnose and model-check use; Allan N and the PSD are cross-checks "
-          "in the JSON)", file=out)
+    print(
+        f"{report['log']}: {report['samples']} samples at {report['rate_hz']:g} Hz, "
+        f"{report['duration_s']:.1f} s, {report['gaps']} gaps",
+        file=out,
+    )
+    print(
+        f"white noise: one-sided density, measured by {WHITE_NOISE_METHOD} (the figure "
+        "calibrate, diagnose and model-check use; Allan N and the PSD are cross-checks "
+        "in the JSON)",
+        file=out,
+    )
     print("sensor  white [u/rtHz]  B [u] (tau s)  K [u/rts]", file=out)
     notes = []
     for name, r in report["sensors"].items():
         b = f"{_fmt(r['bias_instability'])} ({r['bias_instability_tau']:.3g})"
         if not r["bias_floor"]:
             b = "<=" + b
-        print(f"{name:6s}  {_fmt(r['white_noise_density']):>14s}  {b:>13s}  "
-              f"{_fmt(r['random_walk'])}", file=out)
+        print(
+            f"{name:6s}  {_fmt(r['white_noise_density']):>14s}  {b:>13s}  {_fmt(r['random_walk'])}",
+            file=out,
+        )
         if r["white_noise_note"]:
             notes.append(f"{name}: {r['white_noise_note']}")
     for line in notes:

@@ -27,19 +27,31 @@ def register(sub: argparse._SubParsersAction) -> None:
         "transport faults (garbage, crc, lost, duplicate, unplug) at known sample times, and "
         "report detection, latency in sample time and correctness per fault.",
     )
-    p.add_argument("scenario", nargs="?", metavar="SCENARIO",
-                   help="bundled scenario name (default sensor-faults; --list shows them)")
-    p.add_argument("--scenario", dest="scenario_file", metavar="FILE.yaml",
-                   help="scenario file instead of a bundled one")
+    p.add_argument(
+        "scenario",
+        nargs="?",
+        metavar="SCENARIO",
+        help="bundled scenario name (default sensor-faults; --list shows them)",
+    )
+    p.add_argument(
+        "--scenario",
+        dest="scenario_file",
+        metavar="FILE.yaml",
+        help="scenario file instead of a bundled one",
+    )
     p.add_argument("--json", metavar="OUT", help="write the JSON report to OUT ('-': stdout)")
     p.add_argument("--seed", type=int, help="simulation seed (overrides the scenario's)")
-    p.add_argument("--speed", type=float,
-                   help="board pace relative to real time (overrides the scenario's)")
-    p.add_argument("--no-diagnosis", action="store_true",
-                   help="run the daemon with per-sample checks only")
-    p.add_argument("--strict", action="store_true",
-                   help="exit 1 when a checked expectation fails (default: 0 whatever the "
-                   "verdict)")
+    p.add_argument(
+        "--speed", type=float, help="board pace relative to real time (overrides the scenario's)"
+    )
+    p.add_argument(
+        "--no-diagnosis", action="store_true", help="run the daemon with per-sample checks only"
+    )
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit 1 when a checked expectation fails (default: 0 whatever the verdict)",
+    )
     p.add_argument("--list", action="store_true", help="list the bundled scenarios and exit")
     p.set_defaults(inputs=("scenario_file",), outputs=("json",))
     p.set_defaults(func=run)
@@ -62,8 +74,11 @@ def run(args: argparse.Namespace) -> int:
         parent = Path(args.json).expanduser().resolve().parent
         if not parent.is_dir():
             raise BadInput(f"--json {args.json}: no such directory {parent}")
-    scenario = load(args.scenario_file) if args.scenario_file else load_bundled(
-        args.scenario or "sensor-faults")
+    scenario = (
+        load(args.scenario_file)
+        if args.scenario_file
+        else load_bundled(args.scenario or "sensor-faults")
+    )
     scenario = scenario.with_options(seed=args.seed, speed=args.speed)
     try:
         report = run_bench(scenario, diagnosis=False if args.no_diagnosis else None)

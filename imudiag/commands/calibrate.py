@@ -31,14 +31,22 @@ def register(sub: argparse._SubParsersAction) -> None:
         "errors and misalignment of both triads; scale factors, units and limits from --like.",
     )
     add_common_arguments(p)
-    p.add_argument("--like", required=True, metavar="CERT",
-                   help="certificate giving scale factors, units, limits and starting values")
+    p.add_argument(
+        "--like",
+        required=True,
+        metavar="CERT",
+        help="certificate giving scale factors, units, limits and starting values",
+    )
     p.add_argument("--out", required=True, metavar="CERT2", help="certificate to write")
-    p.add_argument("--json", metavar="OUT",
-                   help="write a calibration summary as JSON ('-' for stdout)")
-    p.add_argument("--force", action="store_true",
-                   help="write the certificate even when the held-out check says the "
-                   "calibration does not generalise (it then carries device.warning)")
+    p.add_argument(
+        "--json", metavar="OUT", help="write a calibration summary as JSON ('-' for stdout)"
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="write the certificate even when the held-out check says the "
+        "calibration does not generalise (it then carries device.warning)",
+    )
     p.set_defaults(func=run, inputs=("log", "like", "magnitude"), outputs=("out", "json"))
 
 
@@ -47,8 +55,13 @@ def run(args: argparse.Namespace) -> int:
     like = load(args.like)
     cfg = make_config(args)
     result = calibrate_recording(
-        args.log, like, cfg, rate_hz=args.rate, magnitude=args.magnitude,
-        certificate_noise=args.certificate_noise, options=log_options(args),
+        args.log,
+        like,
+        cfg,
+        rate_hz=args.rate,
+        magnitude=args.magnitude,
+        certificate_noise=args.certificate_noise,
+        options=log_options(args),
         block_size=args.block_size,
     )
     noise_report = result.noise or {}
@@ -61,8 +74,11 @@ def run(args: argparse.Namespace) -> int:
     elif check.get("generalises") is None and check.get("reason"):
         result.certificate.device["calibration_check"] = check["reason"]
     if refused and not args.force:
-        print(f"imudiag calibrate: refused: {args.log}: {check['reason']}; nothing written "
-              f"(--force writes it with a warning)", file=sys.stderr)
+        print(
+            f"imudiag calibrate: refused: {args.log}: {check['reason']}; nothing written "
+            f"(--force writes it with a warning)",
+            file=sys.stderr,
+        )
         if args.json:
             summary = result.summary()
             summary.update(log=str(args.log), like=str(args.like), out=None, refused=True)
@@ -84,37 +100,59 @@ def run(args: argparse.Namespace) -> int:
     b, a = result.accel_spread_before, result.accel_spread_after
     kr = result.known_rate
     if kr is not None:
-        print(f"{kr['plateaus']} plateaus at {kr['rate']:.6g} {kr['unit']} used "
-              f"({kr['set_aside']} set aside, of {result.intervals} constant-rate intervals); "
-              f"wrote {args.out}", file=out)
+        print(
+            f"{kr['plateaus']} plateaus at {kr['rate']:.6g} {kr['unit']} used "
+            f"({kr['set_aside']} set aside, of {result.intervals} constant-rate intervals); "
+            f"wrote {args.out}",
+            file=out,
+        )
         b, a = kr["norm_spread"]["before"], kr["norm_spread"]["after"]
-        print(f"|w|/rate - 1 over the plateaus: rms {b['rms']:.3e} -> {a['rms']:.3e}, "
-              f"peak-to-peak {b['peak_to_peak']:.3e} -> {a['peak_to_peak']:.3e}", file=out)
+        print(
+            f"|w|/rate - 1 over the plateaus: rms {b['rms']:.3e} -> {a['rms']:.3e}, "
+            f"peak-to-peak {b['peak_to_peak']:.3e} -> {a['peak_to_peak']:.3e}",
+            file=out,
+        )
     elif b is not None and a is not None:
-        print(f"{result.intervals} quasi-static intervals, {result.attitudes} attitudes, "
-              f"{result.rotations} rotations; wrote {args.out}", file=out)
-        print(f"|a|/g - 1 over the intervals: rms {b['rms']:.3e} -> {a['rms']:.3e}, "
-              f"peak-to-peak {b['peak_to_peak']:.3e} -> {a['peak_to_peak']:.3e}", file=out)
+        print(
+            f"{result.intervals} quasi-static intervals, {result.attitudes} attitudes, "
+            f"{result.rotations} rotations; wrote {args.out}",
+            file=out,
+        )
+        print(
+            f"|a|/g - 1 over the intervals: rms {b['rms']:.3e} -> {a['rms']:.3e}, "
+            f"peak-to-peak {b['peak_to_peak']:.3e} -> {a['peak_to_peak']:.3e}",
+            file=out,
+        )
     if result.rotation_rms_before_deg is not None:
-        print(f"gravity direction after integrated rotations, rms: "
-              f"{result.rotation_rms_before_deg:.3f} -> {result.rotation_rms_after_deg:.3f} deg",
-              file=out)
+        print(
+            f"gravity direction after integrated rotations, rms: "
+            f"{result.rotation_rms_before_deg:.3f} -> {result.rotation_rms_after_deg:.3f} deg",
+            file=out,
+        )
     for line in noise_lines(noise_report):
         print(line, file=out)
     if check.get("leave_one_out_rms") is not None:
-        print(f"held-out check: {check['quantity']} rms {check['leave_one_out_rms']:.3e} "
-              f"leaving each of "
-              f"{check['held_out']} intervals out (in-sample {check['in_sample_rms']:.3e})",
-              file=out)
+        print(
+            f"held-out check: {check['quantity']} rms {check['leave_one_out_rms']:.3e} "
+            f"leaving each of "
+            f"{check['held_out']} intervals out (in-sample {check['in_sample_rms']:.3e})",
+            file=out,
+        )
     if refused:
         print(f"WARNING: {result.certificate.device['warning']}", file=sys.stderr)
     elif check.get("reason"):
         print(f"  note: generalisation {check['reason']}", file=out)
     for r in result.rejected():
-        what = f"set aside {r['point']}" if "rate" in r else (
-            f"rejected {r['point']}" if r.get("point") else "outliers left in")
+        what = (
+            f"set aside {r['point']}"
+            if "rate" in r
+            else (f"rejected {r['point']}" if r.get("point") else "outliers left in")
+        )
         print(f"  {what} ({r['triad']} fit): {r['reason']}", file=out)
     for u in result.undetermined:
-        print(f"  undetermined (kept from --like) {u['triad']} {u['sensor']} {u['cause']}: "
-              f"{u['reason']}", file=out)
+        print(
+            f"  undetermined (kept from --like) {u['triad']} {u['sensor']} {u['cause']}: "
+            f"{u['reason']}",
+            file=out,
+        )
     return 0

@@ -34,15 +34,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("input", metavar="IN", help="log to read")
     p.add_argument("output", metavar="OUT", help="log to write (replaced if it exists)")
     p.add_argument(
-        "--block-size", type=int, default=DEFAULT_BLOCK_SIZE, metavar="N",
+        "--block-size",
+        type=int,
+        default=DEFAULT_BLOCK_SIZE,
+        metavar="N",
         help=f"samples per block (default {DEFAULT_BLOCK_SIZE})",
     )
     p.add_argument(
-        "--no-meta", action="store_true",
+        "--no-meta",
+        action="store_true",
         help="do not copy the metadata (e.g. when it does not fit a .bin device-info frame)",
     )
     p.add_argument(
-        "--quantum", metavar="SPEC",
+        "--quantum",
+        metavar="SPEC",
         help="writing .bin from a log not in counts: the quantisation, in the log's units per "
         "count, e.g. gyro=0.001,accel=0.0001 (outputs become round(value / quantum) counts)",
     )

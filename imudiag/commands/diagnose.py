@@ -40,19 +40,40 @@ def register(sub: argparse._SubParsersAction) -> None:
         "cannot tell.",
     )
     add_common_arguments(p)
-    p.add_argument("--certificate", "-c", metavar="CERT",
-                   help="certificate to compare with (default: the bundled one)")
+    p.add_argument(
+        "--certificate",
+        "-c",
+        metavar="CERT",
+        help="certificate to compare with (default: the bundled one)",
+    )
     p.add_argument("--json", metavar="OUT", help="write the report as JSON ('-' for stdout)")
-    p.add_argument("--no-windows", action="store_true",
-                   help="leave the per-window estimates out of the report")
-    p.add_argument("--window-intervals", type=int, metavar="K",
-                   help="quasi-static intervals per window (default 24)")
-    p.add_argument("--persist", type=int, metavar="N",
-                   help="consecutive windows a fault must persist (default 2)")
-    p.add_argument("--k-sigma", type=float, metavar="K",
-                   help="a fault deviates by more than K std as well as the limit (default 4)")
-    p.add_argument("--min-dof", type=float, metavar="N",
-                   help="redundant observations a window's fit needs to be judged (default 3)")
+    p.add_argument(
+        "--no-windows", action="store_true", help="leave the per-window estimates out of the report"
+    )
+    p.add_argument(
+        "--window-intervals",
+        type=int,
+        metavar="K",
+        help="quasi-static intervals per window (default 24)",
+    )
+    p.add_argument(
+        "--persist",
+        type=int,
+        metavar="N",
+        help="consecutive windows a fault must persist (default 2)",
+    )
+    p.add_argument(
+        "--k-sigma",
+        type=float,
+        metavar="K",
+        help="a fault deviates by more than K std as well as the limit (default 4)",
+    )
+    p.add_argument(
+        "--min-dof",
+        type=float,
+        metavar="N",
+        help="redundant observations a window's fit needs to be judged (default 3)",
+    )
     add_gnss_arguments(p)
     p.set_defaults(func=run, inputs=("log", "certificate", "magnitude", "gnss"), outputs=("json",))
 
@@ -60,29 +81,55 @@ def register(sub: argparse._SubParsersAction) -> None:
 def add_common_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments shared by ``diagnose`` and ``calibrate``."""
     p.add_argument("log", metavar="LOG", help="sample log (.csv, .csv.gz, .npz, .bin)")
-    p.add_argument("--method", choices=METHODS, default="exact",
-                   help="exact (default): quasi-static intervals, exact model; linear: the "
-                   "paper's literal linearised solution; moving-base: every sample with a "
-                   "per-sample magnitude")
-    p.add_argument("--magnitude", metavar="FILE",
-                   help="moving-base: CSV t,accel,gyro of independent magnitudes (s, m/s^2, "
-                   "rad/s)")
-    p.add_argument("--gyro-mode", choices=GYRO_MODES, default="auto",
-                   help="gyro fit: earth-rate (navigation grade), rotation (MEMS), auto "
-                   "(from the certificate's noise; default)")
-    p.add_argument("--rate", type=float, metavar="HZ",
-                   help="sample rate (default: the log's sample_rate, else from t)")
-    p.add_argument("--block-size", type=int, default=65536, metavar="N",
-                   help="samples per block read (default 65536)")
-    p.add_argument("--min-interval", type=float, metavar="S",
-                   help="shortest still stretch used, s (default "
-                   f"{DiagnosisConfig().min_interval_s:g}; each is weighted by its noise)")
-    p.add_argument("--known-rate", metavar="RATE",
-                   help="gyros on a turntable turning at this rate, with a unit (33.333rpm, "
-                   "200deg/s, 3.49rad/s, 0.5rev/s): constant-rate plateaus are the intervals "
-                   "and the gyro fit uses this magnitude instead of Earth rate; stopped "
-                   "plateaus are set aside; a log without accelerometer columns is accepted "
-                   "and the accelerometers are not diagnosed or calibrated")
+    p.add_argument(
+        "--method",
+        choices=METHODS,
+        default="exact",
+        help="exact (default): quasi-static intervals, exact model; linear: the "
+        "paper's literal linearised solution; moving-base: every sample with a "
+        "per-sample magnitude",
+    )
+    p.add_argument(
+        "--magnitude",
+        metavar="FILE",
+        help="moving-base: CSV t,accel,gyro of independent magnitudes (s, m/s^2, rad/s)",
+    )
+    p.add_argument(
+        "--gyro-mode",
+        choices=GYRO_MODES,
+        default="auto",
+        help="gyro fit: earth-rate (navigation grade), rotation (MEMS), auto "
+        "(from the certificate's noise; default)",
+    )
+    p.add_argument(
+        "--rate",
+        type=float,
+        metavar="HZ",
+        help="sample rate (default: the log's sample_rate, else from t)",
+    )
+    p.add_argument(
+        "--block-size",
+        type=int,
+        default=65536,
+        metavar="N",
+        help="samples per block read (default 65536)",
+    )
+    p.add_argument(
+        "--min-interval",
+        type=float,
+        metavar="S",
+        help="shortest still stretch used, s (default "
+        f"{DiagnosisConfig().min_interval_s:g}; each is weighted by its noise)",
+    )
+    p.add_argument(
+        "--known-rate",
+        metavar="RATE",
+        help="gyros on a turntable turning at this rate, with a unit (33.333rpm, "
+        "200deg/s, 3.49rad/s, 0.5rev/s): constant-rate plateaus are the intervals "
+        "and the gyro fit uses this magnitude instead of Earth rate; stopped "
+        "plateaus are set aside; a log without accelerometer columns is accepted "
+        "and the accelerometers are not diagnosed or calibrated",
+    )
     add_noise_argument(p)
     add_log_options(p)  # after --rate, which it shares
 
@@ -90,9 +137,13 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
 def make_config(args: argparse.Namespace, **extra: Any) -> DiagnosisConfig:
     """The diagnosis configuration from command-line options."""
     d: dict[str, Any] = {"method": args.method, "gyro_mode": args.gyro_mode}
-    for opt, key in (("window_intervals", "window_intervals"), ("persist", "persist"),
-                     ("k_sigma", "k_sigma"), ("min_interval", "min_interval_s"),
-                     ("min_dof", "min_dof")):
+    for opt, key in (
+        ("window_intervals", "window_intervals"),
+        ("persist", "persist"),
+        ("k_sigma", "k_sigma"),
+        ("min_interval", "min_interval_s"),
+        ("min_dof", "min_dof"),
+    ):
         v = getattr(args, opt, None)
         if v is not None:
             d[key] = v
@@ -128,22 +179,29 @@ def write_json(report: dict, out: str) -> None:
 def summary_lines(report: dict) -> list[str]:
     """A short human-readable account of a diagnosis report."""
     v = report["verdict"]
-    lines = [f"samples {report['samples']}, quasi-static intervals {report.get('intervals')}, "
-             f"windows {report.get('windows_run')}, method {report.get('method')}"]
+    lines = [
+        f"samples {report['samples']}, quasi-static intervals {report.get('intervals')}, "
+        f"windows {report.get('windows_run')}, method {report.get('method')}"
+    ]
     for triad in ("accel", "gyro"):
         f0 = report["f0"].get(triad, {})
-        lines.append(f"{triad}: {v[triad]} (F0 checked {f0.get('checked', 0)}, "
-                     f"failed {f0.get('failed', 0)})")
+        lines.append(
+            f"{triad}: {v[triad]} (F0 checked {f0.get('checked', 0)}, failed {f0.get('failed', 0)})"
+        )
     for f in v["faults"]:
         if f["cause"] == "f0":
-            lines.append(f"  FAULT {f['triad']} {f['sensor'] or '(triad)'} f0: {f['failed']} of "
-                         f"{f['checked']} checks beyond the limit {f['limit']:.6g} (rms "
-                         f"{f['check']} {f['estimate']:.3g}), persistent from t = "
-                         f"{f['t_first']:.2f} s")
+            lines.append(
+                f"  FAULT {f['triad']} {f['sensor'] or '(triad)'} f0: {f['failed']} of "
+                f"{f['checked']} checks beyond the limit {f['limit']:.6g} (rms "
+                f"{f['check']} {f['estimate']:.3g}), persistent from t = "
+                f"{f['t_first']:.2f} s"
+            )
             continue
-        lines.append(f"  FAULT {f['triad']} {f['sensor']} {f['cause']}: estimate "
-                     f"{f['estimate']:.6g}, certificate {f['certificate']:.6g}, limit "
-                     f"{f['limit']:.6g}, first at t = {f['t_first']:.2f} s")
+        lines.append(
+            f"  FAULT {f['triad']} {f['sensor']} {f['cause']}: estimate "
+            f"{f['estimate']:.6g}, certificate {f['certificate']:.6g}, limit "
+            f"{f['limit']:.6g}, first at t = {f['t_first']:.2f} s"
+        )
     for u in v["undetermined"]:
         lines.append(f"  undetermined {u['triad']} {u['sensor']} {u['cause']}: {u['reason']}")
     return lines
@@ -153,22 +211,32 @@ def run(args: argparse.Namespace) -> int:
     """Run the diagnosis over the log and write the report."""
     cert = load_certificate(args.certificate)
     if cert.device.get("warning"):
-        print(f"imudiag diagnose: warning: {cert.source}: {cert.device['warning']}",
-              file=sys.stderr)
+        print(
+            f"imudiag diagnose: warning: {cert.source}: {cert.device['warning']}", file=sys.stderr
+        )
     cfg = make_config(args)
     if args.magnitude and cfg.method != "moving-base":
         raise BadInput("--magnitude: only the moving-base method uses independent magnitudes")
     if args.block_size < 1:
         raise BadInput(f"--block-size: must be >= 1, got {args.block_size}")
     if cfg.method == "moving-base" and not args.magnitude:
-        print("imudiag diagnose: warning: moving-base without --magnitude uses the magnitude "
-              "estimated from the triad itself (the paper's eqs. 17-18), which cannot see "
-              "faults", file=sys.stderr)
+        print(
+            "imudiag diagnose: warning: moving-base without --magnitude uses the magnitude "
+            "estimated from the triad itself (the paper's eqs. 17-18), which cannot see "
+            "faults",
+            file=sys.stderr,
+        )
     check_gnss_options(args)
     report = diagnose_recording(
-        args.log, cert, cfg, rate_hz=args.rate, magnitude=args.magnitude,
-        certificate_noise=args.certificate_noise, options=log_options(args),
-        block_size=args.block_size, windows=not args.no_windows,
+        args.log,
+        cert,
+        cfg,
+        rate_hz=args.rate,
+        magnitude=args.magnitude,
+        certificate_noise=args.certificate_noise,
+        options=log_options(args),
+        block_size=args.block_size,
+        windows=not args.no_windows,
     )
     report["log"] = str(args.log)
     noise_report = report["noise"]

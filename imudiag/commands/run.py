@@ -41,9 +41,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-data-timeout", type=float, help="seconds without frames -> no_data")
     p.add_argument("--no-diagnosis", action="store_true", help="per-sample checks only")
     p.add_argument("--log-level", help="debug, info, warning, error, critical")
-    p.add_argument("--aiding", nargs="?", const="gpsd://127.0.0.1:2947", metavar="URL",
-                   help="GNSS aiding from gpsd (default gpsd://127.0.0.1:2947): the moving-base "
-                   "F0 and accelerometer check in motion (docs/moving-base.md)")
+    p.add_argument(
+        "--aiding",
+        nargs="?",
+        const="gpsd://127.0.0.1:2947",
+        metavar="URL",
+        help="GNSS aiding from gpsd (default gpsd://127.0.0.1:2947): the moving-base "
+        "F0 and accelerometer check in motion (docs/moving-base.md)",
+    )
     p.set_defaults(func=run)
 
 
@@ -85,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
         raise
     daemon.install_signal_handlers()
     logging.getLogger("imudiag.daemon").info(
-        "monitoring %s with certificate %s", settings.source_url,
+        "monitoring %s with certificate %s",
+        settings.source_url,
         settings.certificate_path or "(bundled)",
     )
     try:

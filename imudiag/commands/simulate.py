@@ -66,31 +66,67 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("scenario", metavar="SCENARIO",
-                   help=f"one of {', '.join(SCENARIOS)} (or default = static)")
+    p.add_argument(
+        "scenario", metavar="SCENARIO", help=f"one of {', '.join(SCENARIOS)} (or default = static)"
+    )
     p.add_argument("--out", required=True, metavar="LOG", help="log to write")
-    p.add_argument("--duration", type=float, metavar="S",
-                   help="seconds to simulate (required for the endless static, still, turntable)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        metavar="S",
+        help="seconds to simulate (required for the endless static, still, turntable)",
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--rate", type=float, metavar="HZ",
-                   help="sample rate, Hz (default: the certificate's sample_rate)")
+    p.add_argument(
+        "--rate",
+        type=float,
+        metavar="HZ",
+        help="sample rate, Hz (default: the certificate's sample_rate)",
+    )
     p.add_argument("--certificate", help="certificate YAML (default: the bundled one)")
-    p.add_argument("--effect", action="append", default=[], metavar="SPEC",
-                   help="an effect (repeatable; see below)")
-    p.add_argument("--fault", action="append", default=[], metavar="KIND:SENSOR:T[:VALUE]",
-                   help="a fault (repeatable)")
-    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                   help="a scenario parameter (repeatable)")
-    p.add_argument("--gnss", metavar="OUT",
-                   help="drive scenarios: also write the GNSS stream as a gpspipe -w log "
-                   "(5 Hz, 0.03/0.05 m/s noise, 0.12 s latency, multipath outliers)")
-    p.add_argument("--true-certificate", metavar="CERT",
-                   help="also write the true model at the end (faults and effects applied)")
+    p.add_argument(
+        "--effect",
+        action="append",
+        default=[],
+        metavar="SPEC",
+        help="an effect (repeatable; see below)",
+    )
+    p.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="KIND:SENSOR:T[:VALUE]",
+        help="a fault (repeatable)",
+    )
+    p.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a scenario parameter (repeatable)",
+    )
+    p.add_argument(
+        "--gnss",
+        metavar="OUT",
+        help="drive scenarios: also write the GNSS stream as a gpspipe -w log "
+        "(5 Hz, 0.03/0.05 m/s noise, 0.12 s latency, multipath outliers)",
+    )
+    p.add_argument(
+        "--true-certificate",
+        metavar="CERT",
+        help="also write the true model at the end (faults and effects applied)",
+    )
     p.set_defaults(func=run, inputs=("certificate",), outputs=("out", "true_certificate"))
 
 
-def _meta(args: argparse.Namespace, rate: float, device: str, scenario: str,
-          effects: Effects, faults: list[Fault]) -> dict:
+def _meta(
+    args: argparse.Namespace,
+    rate: float,
+    device: str,
+    scenario: str,
+    effects: Effects,
+    faults: list[Fault],
+) -> dict:
     meta: dict = {
         "sample_rate": int(rate) if float(rate).is_integer() else rate,
         "device": device,
@@ -157,6 +193,8 @@ def run(args: argparse.Namespace) -> int:
     if args.true_certificate:
         t_end = (total - 1) / rate if total else 0.0
         true_certificate(cert, effects, faults, t_end).save(args.true_certificate)
-    print(f"{args.out}: {written} samples, {total / rate:g} s at {rate:g} Hz, "
-          f"scenario {scenario}, seed {args.seed}")
+    print(
+        f"{args.out}: {written} samples, {total / rate:g} s at {rate:g} Hz, "
+        f"scenario {scenario}, seed {args.seed}"
+    )
     return 0

@@ -216,9 +216,7 @@ def _set_from_fit(out: TriadModel, like: TriadModel, fit: TriadFit) -> None:
     dev = fit.estimate - certificate_vector(like)
     shape = shape_c + np.concatenate([dev[3:6] / like.scale_factor, dev[6:9]])
     out.bias = fit.estimate[:3].copy()
-    out.scale_factor_error, out.misalignment = fields_from_n(
-        p_matrix(shape) @ q, like.scale_factor
-    )
+    out.scale_factor_error, out.misalignment = fields_from_n(p_matrix(shape) @ q, like.scale_factor)
 
 
 def accel_norm_spread(
@@ -267,8 +265,12 @@ def _noise_density(
 
 def _undetermined(fit: TriadFit) -> list[dict]:
     return [
-        {"triad": fit.triad, "sensor": sensor_of(fit.triad, i),
-         "cause": ("bias", "scale_factor", "misalignment")[i // 3], "reason": fit.reasons[i]}
+        {
+            "triad": fit.triad,
+            "sensor": sensor_of(fit.triad, i),
+            "cause": ("bias", "scale_factor", "misalignment")[i // 3],
+            "reason": fit.reasons[i],
+        }
         for i in range(9)
         if not fit.determined[i]
     ]
@@ -309,20 +311,37 @@ def calibrate(
         if not moving or "accel" not in moving:
             raise ValueError("the moving-base calibration needs independent accel magnitudes")
         ne, m0 = moving["accel"]
-        acc_fit = normal_equation_fit(acc_like, ne, m0, "moving-base", ratio,
-                                      prior_factor=CALIBRATION_PRIOR)
+        acc_fit = normal_equation_fit(
+            acc_like, ne, m0, "moving-base", ratio, prior_factor=CALIBRATION_PRIOR
+        )
     elif method == "linear":
         acc_fit = linear_fit(acc_like, means, covs, counts, g_in, ratio, CALIBRATION_PRIOR)
     else:
         acc_fit, acc_prior = _pinned_fit(
-            lambda pf, probe: exact_fit(
-                acc_like, means, mvar, g_in, prior_factor=pf, determined_std_ratio=ratio,
-                max_iter=0, start="certificate", scale_by_residual=False,
-            )
-            if probe
-            else robust_exact_fit(
-                acc_like, means, mvar, g_in, labels=labels, min_dof=CALIBRATION_MIN_DOF,
-                prior_factor=pf, determined_std_ratio=ratio, max_iter=100,
+            lambda pf, probe: (
+                exact_fit(
+                    acc_like,
+                    means,
+                    mvar,
+                    g_in,
+                    prior_factor=pf,
+                    determined_std_ratio=ratio,
+                    max_iter=0,
+                    start="certificate",
+                    scale_by_residual=False,
+                )
+                if probe
+                else robust_exact_fit(
+                    acc_like,
+                    means,
+                    mvar,
+                    g_in,
+                    labels=labels,
+                    min_dof=CALIBRATION_MIN_DOF,
+                    prior_factor=pf,
+                    determined_std_ratio=ratio,
+                    max_iter=100,
+                )
             ),
             CALIBRATION_MIN_DOF,
         )
@@ -359,24 +378,41 @@ def calibrate(
         mode = "earth-rate" if earth_rate_observable(like) else "rotation"
     if method == "moving-base" and moving and "gyro" in moving:
         ne, m0 = moving["gyro"]
-        gyr_fit = normal_equation_fit(gyr_like, ne, m0, "moving-base", ratio,
-                                      prior_factor=CALIBRATION_PRIOR)
+        gyr_fit = normal_equation_fit(
+            gyr_like, ne, m0, "moving-base", ratio, prior_factor=CALIBRATION_PRIOR
+        )
         _set_from_fit(gyr, gyr_like, gyr_fit)
     elif mode == "earth-rate":
         if method == "linear":
             gyr_fit = linear_fit(gyr_like, gmeans, gcovs, counts, w_in, ratio, CALIBRATION_PRIOR)
         else:
             gyr_fit, _ = _pinned_fit(
-                lambda pf, probe: exact_fit(
-                    gyr_like, gmeans, gmvar, w_in, prior_factor=pf, determined_std_ratio=ratio,
-                    max_iter=0, method="exact-earth-rate", start="certificate",
-                    scale_by_residual=False,
-                )
-                if probe
-                else robust_exact_fit(
-                    gyr_like, gmeans, gmvar, w_in, labels=labels, min_dof=CALIBRATION_MIN_DOF,
-                    prior_factor=pf, determined_std_ratio=ratio, max_iter=100,
-                    method="exact-earth-rate",
+                lambda pf, probe: (
+                    exact_fit(
+                        gyr_like,
+                        gmeans,
+                        gmvar,
+                        w_in,
+                        prior_factor=pf,
+                        determined_std_ratio=ratio,
+                        max_iter=0,
+                        method="exact-earth-rate",
+                        start="certificate",
+                        scale_by_residual=False,
+                    )
+                    if probe
+                    else robust_exact_fit(
+                        gyr_like,
+                        gmeans,
+                        gmvar,
+                        w_in,
+                        labels=labels,
+                        min_dof=CALIBRATION_MIN_DOF,
+                        prior_factor=pf,
+                        determined_std_ratio=ratio,
+                        max_iter=100,
+                        method="exact-earth-rate",
+                    )
                 ),
                 CALIBRATION_MIN_DOF,
             )
@@ -481,16 +517,32 @@ def calibrate_known_rate(
     gmvar = np.array([iv.mean_var("gyro") for iv in plateaus])
     labels = interval_labels(plateaus)
     gyr_fit, gprior = _pinned_fit(
-        lambda pf, probe: exact_fit(
-            gyr_like, gmeans, gmvar, rate_in, prior_factor=pf, determined_std_ratio=ratio,
-            max_iter=0, start="certificate", scale_by_residual=False,
-            method="exact-known-rate",
-        )
-        if probe
-        else robust_exact_fit(
-            gyr_like, gmeans, gmvar, rate_in, labels=labels, min_dof=CALIBRATION_MIN_DOF,
-            prior_factor=pf, determined_std_ratio=ratio, max_iter=100,
-            method="exact-known-rate",
+        lambda pf, probe: (
+            exact_fit(
+                gyr_like,
+                gmeans,
+                gmvar,
+                rate_in,
+                prior_factor=pf,
+                determined_std_ratio=ratio,
+                max_iter=0,
+                start="certificate",
+                scale_by_residual=False,
+                method="exact-known-rate",
+            )
+            if probe
+            else robust_exact_fit(
+                gyr_like,
+                gmeans,
+                gmvar,
+                rate_in,
+                labels=labels,
+                min_dof=CALIBRATION_MIN_DOF,
+                prior_factor=pf,
+                determined_std_ratio=ratio,
+                max_iter=100,
+                method="exact-known-rate",
+            )
         ),
         CALIBRATION_MIN_DOF,
     )
@@ -498,7 +550,13 @@ def calibrate_known_rate(
         gyr_fit.extra["plateaus_set_aside"] = set_aside
     kept = gyr_fit.kept if gyr_fit.kept is not None else np.ones(len(plateaus), dtype=bool)
     generalisation = _leave_one_out(
-        gyr_like, gmeans[kept], gmvar[kept], rate_in, gyr_fit, gprior, ratio,
+        gyr_like,
+        gmeans[kept],
+        gmvar[kept],
+        rate_in,
+        gyr_fit,
+        gprior,
+        ratio,
         quantity="|w|/rate - 1",
     )
     new = like.copy()
@@ -509,7 +567,8 @@ def calibrate_known_rate(
         gyr_like.noise, _noise_density(gyr_like, plateaus, rate, noise_density)
     )
     acc_fit = undetermined_fit(
-        like.accel, "kept",
+        like.accel,
+        "kept",
         "known-rate session: the accelerometers are not calibrated from turntable plateaus "
         "(centripetal acceleration; the log may have none)",
     )
@@ -602,8 +661,15 @@ def _leave_one_out(
     if k >= 3:
         for i in range(k):
             keep = np.arange(k) != i
-            f = exact_fit(like, means[keep], mvar[keep], g_in, prior_factor=prior,
-                          determined_std_ratio=ratio, max_iter=100)
+            f = exact_fit(
+                like,
+                means[keep],
+                mvar[keep],
+                g_in,
+                prior_factor=prior,
+                determined_std_ratio=ratio,
+                max_iter=100,
+            )
             if np.any(free & ~f.determined):
                 essential += 1  # without it a free parameter is unseen: nothing to predict
                 continue
@@ -692,8 +758,14 @@ def _gyro_rest_rotation(
     if moving:
         sample_var = np.median(np.array([np.diag(iv.gyro_cov) for iv in intervals]), axis=0)
         rot = rotation_fit(
-            gyr_like, pairs, sample_var, like.earth_rate, prior_factor=prior_factor[3:],
-            fit_frame=True, max_iter=0 if probe else 30, scale_by_residual=not probe,
+            gyr_like,
+            pairs,
+            sample_var,
+            like.earth_rate,
+            prior_factor=prior_factor[3:],
+            fit_frame=True,
+            max_iter=0 if probe else 30,
+            scale_by_residual=not probe,
         )
         scale = np.concatenate([gyr_like.scale_factor, np.ones(3)])
         est[3:] = cert[3:] + rot.deviation * scale
@@ -715,13 +787,22 @@ def _gyro_rest_rotation(
     for i in range(9):
         if not determined[i]:
             reasons[i] = (
-                "no rotation between static poses" if i >= 3 and not moving
+                "no rotation between static poses"
+                if i >= 3 and not moving
                 else f"std {std[i]:.3g} above {ratio:g} x limit {limit[i]:.3g}"
             )
     fit = TriadFit(
-        triad="gyro", method="rest+rotation", estimate=est, std=std, certificate=cert,
-        limit=limit, determined=determined, reasons=reasons, points=len(intervals),
-        extra=extra, dof=dof,
+        triad="gyro",
+        method="rest+rotation",
+        estimate=est,
+        std=std,
+        certificate=cert,
+        limit=limit,
+        determined=determined,
+        reasons=reasons,
+        points=len(intervals),
+        extra=extra,
+        dof=dof,
     )
     return fit, n_g
 

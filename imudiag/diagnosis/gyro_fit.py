@@ -278,9 +278,7 @@ def rotation_fit(
         loo = x[None, :6] + diag.shift[:, :6]
     if dof > 0.5 and scale_by_residual:
         cov = cov * max(1.0, chi2 / dof)
-    ang = [
-        math.degrees(math.acos(float(np.clip(np.dot(p.up0, p.up1), -1.0, 1.0)))) for p in pairs
-    ]
+    ang = [math.degrees(math.acos(float(np.clip(np.dot(p.up0, p.up1), -1.0, 1.0)))) for p in pairs]
     return RotationFitResult(
         deviation=x[:6],
         cov=cov[:6, :6],

@@ -240,7 +240,7 @@ class IntervalCollector:
         )
         self._count += 1
         self._have_interval = True
-        lead = rows[-min(n, self.margin_n + 1):]  # the motion's integral starts here
+        lead = rows[-min(n, self.margin_n + 1) :]  # the motion's integral starts here
         self._gap = [lead]
         self._gap_n = lead.shape[0]
         self._gap_usable = True

@@ -121,9 +121,7 @@ class TriadFit:
             }
         out["condition"] = float(self.condition) if np.isfinite(self.condition) else None
         out["dof"] = float(self.dof) if np.isfinite(self.dof) else None
-        out["rms_residual"] = (
-            float(self.rms_residual) if np.isfinite(self.rms_residual) else None
-        )
+        out["rms_residual"] = float(self.rms_residual) if np.isfinite(self.rms_residual) else None
         out.update(self.extra)
         return out
 

@@ -204,9 +204,7 @@ def exact_fit(
     else:
         theta = np.asarray(start, dtype=float).copy()
 
-    def cost(
-        th: np.ndarray, extra: float
-    ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    def cost(th: np.ndarray, extra: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         r, jac, w = residuals_and_jacobian(th, v, mu)
         sig2 = np.einsum("kj,kj->k", w * w, var_v) + RESIDUAL_FLOOR**2 + extra
         c = float(np.sum(r * r / sig2) + np.sum(prior_prec * (th - theta_c) ** 2))
@@ -271,8 +269,16 @@ def exact_fit(
         null |= np.sum(evec[:, weak] ** 2, axis=1) > 1e-3
     rms = float(np.sqrt(np.mean(r * r))) if k else float("nan")
     fit = _finish(
-        triad, method, m0, theta - theta_c, cov, null, determined_std_ratio,
-        _scaled_condition(info, lim), k, rms,
+        triad,
+        method,
+        m0,
+        theta - theta_c,
+        cov,
+        null,
+        determined_std_ratio,
+        _scaled_condition(info, lim),
+        k,
+        rms,
     )
     fit.dof = dof
     fit.excess_var = float(extra_used)
@@ -416,9 +422,7 @@ class NormalEquations:
         return self
 
 
-def corrected_normalised(
-    triad: TriadModel, raw: np.ndarray, m0: float
-) -> np.ndarray:
+def corrected_normalised(triad: TriadModel, raw: np.ndarray, m0: float) -> np.ndarray:
     """Certificate-corrected outputs (N, 3) in units of ``m0`` (input units)."""
     theta_c, q = certificate_internal(triad, m0)
     p = p_matrix(theta_c[3:])
@@ -498,10 +502,19 @@ def interval_normal_equations(
     cy = pinv @ (np.asarray(covs) * np.outer(scale, scale)) @ pinv.T  # (K, 3, 3)
     m2 = np.einsum("ki,kj->kij", y, y) + cy
     mu2 = (mu * mu)[:, None]
-    h = np.concatenate(
-        [y, np.stack([m2[:, 0, 0], m2[:, 1, 1], m2[:, 2, 2],
-                      m2[:, 0, 1], m2[:, 0, 2], m2[:, 1, 2]], axis=1)], axis=1
-    ) / mu2
+    h = (
+        np.concatenate(
+            [
+                y,
+                np.stack(
+                    [m2[:, 0, 0], m2[:, 1, 1], m2[:, 2, 2], m2[:, 0, 1], m2[:, 0, 2], m2[:, 1, 2]],
+                    axis=1,
+                ),
+            ],
+            axis=1,
+        )
+        / mu2
+    )
     z = 0.5 * (np.trace(m2, axis1=1, axis2=2) / mu2[:, 0] - 1.0)
     n = np.asarray(counts, dtype=float)
     # variance of one sample's F0 about its interval mean
@@ -548,8 +561,16 @@ def normal_equation_fit(
     ev = np.linalg.eigvalsh(a_s)
     cond = float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
     fit = _finish(
-        triad, method, m0, delta, cov, np.zeros(9, dtype=bool), determined_std_ratio, cond,
-        int(points if points is not None else ne.n), float(np.sqrt(max(ratio, 0.0))),
+        triad,
+        method,
+        m0,
+        delta,
+        cov,
+        np.zeros(9, dtype=bool),
+        determined_std_ratio,
+        cond,
+        int(points if points is not None else ne.n),
+        float(np.sqrt(max(ratio, 0.0))),
     )
     fit.dof = dof
     return fit
@@ -569,7 +590,12 @@ def linear_fit(
     m0 = float(np.median(mag)) if mag.ndim else float(mag)
     ne = interval_normal_equations(triad, means, covs, counts, magnitude, m0)
     return normal_equation_fit(
-        triad, ne, m0, "linear", determined_std_ratio, points=len(np.atleast_2d(means)),
+        triad,
+        ne,
+        m0,
+        "linear",
+        determined_std_ratio,
+        points=len(np.atleast_2d(means)),
         prior_factor=prior_factor,
     )
 

@@ -95,7 +95,11 @@ class StreamingDiagnoser:
         self.samples = 0
         #: known-rate sessions: F0 of each plateau (checked, failed, squares, streak)
         self.plateau_f0: dict[str, Any] = {
-            "checked": 0, "failed": 0, "sum_sq": 0.0, "streak": 0, "t_first": None,
+            "checked": 0,
+            "failed": 0,
+            "sum_sq": 0.0,
+            "streak": 0,
+            "t_first": None,
         }
         # moving-base state
         self._chunks: deque[tuple[int, dict[str, NormalEquations]]] = deque()
@@ -190,10 +194,16 @@ class StreamingDiagnoser:
         if st["t_first"] is None:
             return None
         return {
-            "triad": "gyro", "sensor": None, "cause": "f0", "check": "known_rate",
+            "triad": "gyro",
+            "sensor": None,
+            "cause": "f0",
+            "check": "known_rate",
             "estimate": math.sqrt(st["sum_sq"] / st["checked"]),
-            "certificate": 0.0, "limit": float(self.certificate.gyro.limits.f0),
-            "t_first": st["t_first"], "raised": 1, "failed": st["failed"],
+            "certificate": 0.0,
+            "limit": float(self.certificate.gyro.limits.f0),
+            "t_first": st["t_first"],
+            "raised": 1,
+            "failed": st["failed"],
             "checked": st["checked"],
         }
 
@@ -276,8 +286,12 @@ class StreamingDiagnoser:
             for _, ne in self._chunks:
                 tot += ne[triad]
             fits[triad] = normal_equation_fit(
-                self.certificate.triad(triad), tot, self._moving_m0(triad), "moving-base",
-                cfg.determined_std_ratio, prior_factor=cfg.prior_factor,
+                self.certificate.triad(triad),
+                tot,
+                self._moving_m0(triad),
+                "moving-base",
+                cfg.determined_std_ratio,
+                prior_factor=cfg.prior_factor,
             )
         ups = np.array([u for _, u in self._recent_up]) if self._recent_up else np.zeros((0, 3))
         res = WindowResult(
@@ -313,8 +327,12 @@ class StreamingDiagnoser:
                     if no_window:
                         reason = self._no_window_reason()
                     out.append(
-                        {"triad": triad, "sensor": sensor_of(triad, i), "cause": CAUSES[i],
-                         "reason": reason}
+                        {
+                            "triad": triad,
+                            "sensor": sensor_of(triad, i),
+                            "cause": CAUSES[i],
+                            "reason": reason,
+                        }
                     )
         return out
 
@@ -354,8 +372,12 @@ class StreamingDiagnoser:
     ) -> dict:
         """The ``imudiag-diagnosis/1`` report (spec/reports.md)."""
         v = self.verdict()
-        verdict = {"accel": v["accel"], "gyro": v["gyro"], "faults": v["faults"],
-                   "undetermined": v["undetermined"]}
+        verdict = {
+            "accel": v["accel"],
+            "gyro": v["gyro"],
+            "faults": v["faults"],
+            "undetermined": v["undetermined"],
+        }
         return {
             **header(REPORT_FORMAT),
             "samples": int(self.samples if samples is None else samples),
@@ -366,7 +388,6 @@ class StreamingDiagnoser:
             "windows_run": self.windows_run,
             "windows": [w.to_json() for w in self.windows] if windows else [],
         }
-
 
 
 def diagnose_samples(

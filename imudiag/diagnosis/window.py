@@ -140,8 +140,11 @@ def _with_reason(fit: TriadFit, idx: range, extra: str) -> None:
 
 
 def accel_window_fit(
-    cert: Certificate, intervals: list[QuasiStaticInterval], config: DiagnosisConfig,
-    method: str, attitudes: int,
+    cert: Certificate,
+    intervals: list[QuasiStaticInterval],
+    config: DiagnosisConfig,
+    method: str,
+    attitudes: int,
 ) -> TriadFit:
     """The accelerometer fit of one window."""
     tri = cert.accel
@@ -149,22 +152,28 @@ def accel_window_fit(
     means = _temperature_corrected(tri, means, [iv.temp for iv in intervals])
     g_in = cert.gravity / tri.unit_to_si
     if method == "linear":
-        fit = linear_fit(tri, means, covs, counts, g_in, config.determined_std_ratio,
-                         config.prior_factor)
+        fit = linear_fit(
+            tri, means, covs, counts, g_in, config.determined_std_ratio, config.prior_factor
+        )
     else:
         # no outlier rejection in a sliding window: a unit that changed inside it makes
         # the older intervals disagree with the newer ones, and dropping some of them
         # leaves a mixture that names the wrong parameter; a single interval is kept from
         # making a fault by the influence rule of the predicates instead
         fit = exact_fit(
-            tri, means, mvar, g_in, prior_factor=config.prior_factor,
+            tri,
+            means,
+            mvar,
+            g_in,
+            prior_factor=config.prior_factor,
             determined_std_ratio=config.determined_std_ratio,
         )
         fit.point_labels = interval_labels(intervals)
     if method != "linear":
         fit.require_redundancy(fit.dof, config.min_dof, range(9), f"{len(intervals)} intervals")
     _with_reason(
-        fit, range(9),
+        fit,
+        range(9),
         f"{attitudes} distinct attitude(s) in the window (at least 9 well-spread needed)",
     )
     return fit
@@ -220,9 +229,14 @@ def rotation_pairs(
         nf = np.linalg.norm(f, axis=1)
         if not np.all(nf > 0):
             continue
-        dir_var = float(
-            np.mean((prev.mean_var("accel") + cur.mean_var("accel")) / 2.0 / accel.scale_factor**2)
-        ) / g_in**2
+        dir_var = (
+            float(
+                np.mean(
+                    (prev.mean_var("accel") + cur.mean_var("accel")) / 2.0 / accel.scale_factor**2
+                )
+            )
+            / g_in**2
+        )
         pairs.append(
             RotationPair(
                 t=seg.t,
@@ -260,19 +274,26 @@ def gyro_window_fit(
     if mode == "auto":
         mode = "earth-rate" if earth_rate_observable(cert) else "rotation"
     if method == "linear":
-        fit = linear_fit(tri, means, covs, counts, w_in, config.determined_std_ratio,
-                         config.prior_factor)
+        fit = linear_fit(
+            tri, means, covs, counts, w_in, config.determined_std_ratio, config.prior_factor
+        )
         _with_reason(fit, range(9), f"{attitudes} distinct attitude(s); |w| = Earth rate (eq. 8)")
         return fit, 0
     if mode == "earth-rate":
         fit = exact_fit(
-            tri, means, mvar, w_in, prior_factor=config.prior_factor,
-            determined_std_ratio=config.determined_std_ratio, method="exact-earth-rate",
+            tri,
+            means,
+            mvar,
+            w_in,
+            prior_factor=config.prior_factor,
+            determined_std_ratio=config.determined_std_ratio,
+            method="exact-earth-rate",
         )
         fit.point_labels = interval_labels(intervals)
         fit.require_redundancy(fit.dof, config.min_dof, range(9), f"{len(intervals)} intervals")
         _with_reason(
-            fit, range(9),
+            fit,
+            range(9),
             f"{attitudes} distinct attitude(s) in the window (at least 9 well-spread needed)",
         )
         return fit, 0
@@ -294,7 +315,11 @@ def gyro_window_fit(
     if rotations:
         sample_var = np.mean([np.diag(iv.gyro_cov) for iv in intervals], axis=0)
         rot = rotation_fit(
-            tri, pairs, sample_var, cert.earth_rate, prior_factor=config.prior_factor,
+            tri,
+            pairs,
+            sample_var,
+            cert.earth_rate,
+            prior_factor=config.prior_factor,
             fit_frame=True,
         )
         scale = np.concatenate([tri.scale_factor, np.ones(3)])
@@ -366,15 +391,21 @@ def known_rate_window_fit(
     plateaus = [iv for iv, k in zip(intervals, keep, strict=True) if k]
     if len(plateaus) < 2:
         fit = undetermined_fit(
-            tri, "exact-known-rate",
+            tri,
+            "exact-known-rate",
             f"{len(plateaus)} plateau(s) at the known rate in the window (2 or more needed)",
         )
     else:
         means, mvar, _covs, _counts = _stack(plateaus, "gyro")
         means = _temperature_corrected(tri, means, [iv.temp for iv in plateaus])
         fit = exact_fit(
-            tri, means, mvar, rate_in, prior_factor=config.prior_factor,
-            determined_std_ratio=config.determined_std_ratio, method="exact-known-rate",
+            tri,
+            means,
+            mvar,
+            rate_in,
+            prior_factor=config.prior_factor,
+            determined_std_ratio=config.determined_std_ratio,
+            method="exact-known-rate",
         )
         fit.point_labels = interval_labels(plateaus)
         fit.require_redundancy(fit.dof, config.min_dof, range(9), f"{len(plateaus)} plateaus")
@@ -397,7 +428,8 @@ def diagnose_window(
     if config.known_rate_rad_s is not None:
         attitudes, rotations = 0, 0
         acc = undetermined_fit(
-            cert.accel, "kept",
+            cert.accel,
+            "kept",
             "known-rate session: the accelerometers are not diagnosed on a turntable",
         )
         gyr = known_rate_window_fit(cert, intervals, config)

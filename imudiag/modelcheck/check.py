@@ -72,9 +72,18 @@ from .summaries import DEFAULT_BLOCK_SIZE, BlockSource, Session, block_source, c
 
 FORMAT = MODEL_CHECK_FORMAT
 ALL_SENSORS = SENSORS["gyro"] + SENSORS["accel"]
-CATALOGUE = ("bias_drift", "bias_instability", "gauss_markov_bias", "rate_ramp", "temperature_bias",
-             "temperature_scale", "g_sensitivity", "scale_nonlinearity", "bias_step",
-             "periodic_disturbance")
+CATALOGUE = (
+    "bias_drift",
+    "bias_instability",
+    "gauss_markov_bias",
+    "rate_ramp",
+    "temperature_bias",
+    "temperature_scale",
+    "g_sensitivity",
+    "scale_nonlinearity",
+    "bias_step",
+    "periodic_disturbance",
+)
 
 
 @dataclass
@@ -91,19 +100,33 @@ class ModelCheckResult:
     lines: list[Line] = field(default_factory=list)
 
 
-def _chunk_residual(certificate: Certificate, accel: TriadModel, means: np.ndarray,
-                    temp: np.ndarray | None, a_in: np.ndarray) -> np.ndarray:
+def _chunk_residual(
+    certificate: Certificate,
+    accel: TriadModel,
+    means: np.ndarray,
+    temp: np.ndarray | None,
+    a_in: np.ndarray,
+) -> np.ndarray:
     """(C, 4) residuals gx gy gz (output units) and accel norm (input units) of chunk means."""
     gyro = certificate.gyro
-    pred = gyro.forward(np.zeros((means.shape[0], 3)), temp_c=temp,
-                        accel_input=a_in if gyro.g_sensitivity is not None else None)
+    pred = gyro.forward(
+        np.zeros((means.shape[0], 3)),
+        temp_c=temp,
+        accel_input=a_in if gyro.g_sensitivity is not None else None,
+    )
     g_in = certificate.gravity / accel.unit_to_si
     _x, norm, _g = norm_and_gradient(accel, means[:, 3:6], temp)
     return np.concatenate([means[:, :3] - pred, (norm - g_in)[:, None]], axis=1)
 
 
-def _stats(session: Session, config: ModelCheckConfig, segments: Segments,
-           predictors: dict, checks: list[F0Check], cert: Certificate) -> SegmentStats:
+def _stats(
+    session: Session,
+    config: ModelCheckConfig,
+    segments: Segments,
+    predictors: dict,
+    checks: list[F0Check],
+    cert: Certificate,
+) -> SegmentStats:
     longest = int(segments.n.max()) if len(segments) else 0
     rate = session.rate_hz
     nper = 0
@@ -113,9 +136,14 @@ def _stats(session: Session, config: ModelCheckConfig, segments: Segments,
         if nper < config.psd_min_segment:
             nper = 0
     return SegmentStats(
-        m=allan_m_grid(longest, config.allan_points_per_decade), rate_hz=rate, nperseg=nper,
-        n_chunks=len(session.chunks), predictors=predictors, f0_checks=checks,
-        gravity_in=cert.gravity / cert.accel.unit_to_si, f0_limit=cert.accel.limits.f0,
+        m=allan_m_grid(longest, config.allan_points_per_decade),
+        rate_hz=rate,
+        nperseg=nper,
+        n_chunks=len(session.chunks),
+        predictors=predictors,
+        f0_checks=checks,
+        gravity_in=cert.gravity / cert.accel.unit_to_si,
+        f0_limit=cert.accel.limits.f0,
     )
 
 
@@ -127,8 +155,10 @@ def _f0_summary(check: F0Check | None) -> dict[str, Any] | None:
     return {
         "samples": n,
         "false_alarm_rate": check.failed / n,
-        "mean": mean, "std": math.sqrt(max(check.total_sq / n - mean * mean, 0.0)),
-        "p01": check.quantile(0.01), "p99": check.quantile(0.99),
+        "mean": mean,
+        "std": math.sqrt(max(check.total_sq / n - mean * mean, 0.0)),
+        "p01": check.quantile(0.01),
+        "p99": check.quantile(0.99),
     }
 
 
@@ -150,9 +180,11 @@ def _round(x: Any, digits: int = 6) -> Any:
 
 
 def _empty_metrics() -> dict[str, Any]:
-    return {"residual_rms": {"gyro": None, "accel": None},
-            "f0_false_alarm_rate": {"gyro": None, "accel": None},
-            "allan_misfit": {"gyro": None, "accel": None}}
+    return {
+        "residual_rms": {"gyro": None, "accel": None},
+        "f0_false_alarm_rate": {"gyro": None, "accel": None},
+        "allan_misfit": {"gyro": None, "accel": None},
+    }
 
 
 def model_check(
@@ -180,19 +212,35 @@ def model_check(
     }
     if len(c) < 6:
         report = dict(base_report)
-        report.update({
-            "quasi_static": {"samples": session.static_samples, "chunks": len(c),
-                             "runs": int(len(session.runs)),
-                             "s": round(session.static_samples / session.rate_hz, 3)},
-            "effects": [], "baseline": _empty_metrics(), "extended": _empty_metrics(),
-            "gain": _empty_metrics(),
-            "untestable": [{"name": n, "triad": t, "sensor": s,
-                            "reason": "too little quasi-static data (needs a few seconds still)"}
-                           for n in CATALOGUE for t in ("gyro", "accel") for s in SENSORS[t]
-                           if not (n == "g_sensitivity" and t == "accel")],
-        })
-        return ModelCheckResult(report=_round(report), effects=[], extended=certificate,
-                                session=session)
+        report.update(
+            {
+                "quasi_static": {
+                    "samples": session.static_samples,
+                    "chunks": len(c),
+                    "runs": int(len(session.runs)),
+                    "s": round(session.static_samples / session.rate_hz, 3),
+                },
+                "effects": [],
+                "baseline": _empty_metrics(),
+                "extended": _empty_metrics(),
+                "gain": _empty_metrics(),
+                "untestable": [
+                    {
+                        "name": n,
+                        "triad": t,
+                        "sensor": s,
+                        "reason": "too little quasi-static data (needs a few seconds still)",
+                    }
+                    for n in CATALOGUE
+                    for t in ("gyro", "accel")
+                    for s in SENSORS[t]
+                    if not (n == "g_sensitivity" and t == "accel")
+                ],
+            }
+        )
+        return ModelCheckResult(
+            report=_round(report), effects=[], extended=certificate, session=session
+        )
 
     # -- residuals and chunk-level tests ----------------------------------------------------
     sigma2 = white_variance(session)
@@ -217,11 +265,15 @@ def model_check(
     ups = run_up(accel_w, session)
     g_in = certificate.gravity / certificate.accel.unit_to_si
     chunk_input = np.array([ups[int(r)] for r in c.run]) * g_in
-    steps = [(e.sensor, float(e.extra["t"]), float(e.value))  # type: ignore[arg-type]
-             for e in det_effects if e.name == "bias_step"]
+    steps = [
+        (e.sensor, float(e.extra["t"]), float(e.value))  # type: ignore[arg-type]
+        for e in det_effects
+        if e.name == "bias_step"
+    ]
     ext_det = extended_certificate(certificate, det_effects, None, refs)
     ext_accel_w = extended_certificate(
-        _with_accel(certificate, accel_w), det_effects, None, refs).accel
+        _with_accel(certificate, accel_w), det_effects, None, refs
+    ).accel
     predictors = {
         "baseline": predictor(certificate.gyro, accel_w, chunk_input, []),
         "extended": predictor(ext_det.gyro, ext_accel_w, chunk_input, steps),
@@ -229,8 +281,10 @@ def model_check(
     accel_res = next((r for r in results if r.channel.triad == "accel"), None)
     folds = {}
     if accel_res is not None and len(accel_res.channel) >= 4:
-        folds = {name: accel_folds(certificate, session, sigma2, accel_res, refs["accel"], ext)
-                 for name, ext in (("baseline", False), ("extended", True))}
+        folds = {
+            name: accel_folds(certificate, session, sigma2, accel_res, refs["accel"], ext)
+            for name, ext in (("baseline", False), ("extended", True))
+        }
     checks = f0_checks(folds)
     checks.append(F0Check(name="certificate", model=certificate.accel, parity=None))
     t_half = float(np.median(c.t_mid))
@@ -242,8 +296,10 @@ def model_check(
     g_named = ext_det.gyro.g_sensitivity  # the certificate's and the named, or None
     motion = MotionCollector(
         motion_windows(c, cfg.max_motion_s),
-        reduce=lambda w: reduce_motion(w, certificate, accel_w, c, g_named, sigma2,
-                                       refs["gyro"], 3.0 / session.rate_hz))
+        reduce=lambda w: reduce_motion(
+            w, certificate, accel_w, c, g_named, sigma2, refs["gyro"], 3.0 / session.rate_hz
+        ),
+    )
     stream_measured(source(), c, segments, measured, motion)
 
     # -- gyro scale effects from the rotations between still runs ---------------------------
@@ -253,24 +309,27 @@ def model_check(
     rot_res = analyse_channel(rot_ch, cfg) if rot_ch is not None else None
     if rot_res is not None:
         results.append(rot_res)
-        det_effects += collect_effects([rot_res], [], c.t_start, c.t_end, c.run, half_y,
-                                       out_units)
+        det_effects += collect_effects([rot_res], [], c.t_start, c.t_end, c.run, half_y, out_units)
     sigma_meas = measured.sample_sigma()
     density_meas = sigma_meas / math.sqrt(session.rate_hz / 2.0)
-    cert_density = np.concatenate([
-        _density(certificate.triad(n)) for n in ("gyro", "accel")])
+    cert_density = np.concatenate([_density(certificate.triad(n)) for n in ("gyro", "accel")])
     density_model = np.where(np.isfinite(cert_density), cert_density, density_meas)
 
     # -- spectral lines: fitted on the first half, confirmed on the second -----------------------
-    lines, line_tests = find_lines(measured.psd("baseline", 0), measured.psd("baseline", 1),
-                                   measured.nperseg, session.rate_hz, cfg.z_min, cfg.max_lines,
-                                   cfg.z_heldout)
+    lines, line_tests = find_lines(
+        measured.psd("baseline", 0),
+        measured.psd("baseline", 1),
+        measured.nperseg,
+        session.rate_hz,
+        cfg.z_min,
+        cfg.max_lines,
+        cfg.z_heldout,
+    )
     if measured.nperseg == 0 or not measured.psd("baseline", 1)[2]:
         psd_untestable = "still stretches too short or too few for a spectrum on both halves"
     else:
         psd_untestable = ""
-    effects = det_effects + collect_effects([], lines, c.t_start, c.t_end, c.run, half_y,
-                                            out_units)
+    effects = det_effects + collect_effects([], lines, c.t_start, c.t_end, c.run, half_y, out_units)
 
     # -- the noise model the longest still run supports (Allan, whole run, held-out choice) ----
     noise_section, noise_fits = _noise_model(source, c, session.rate_hz, cfg, out_units)
@@ -282,31 +341,45 @@ def model_check(
     first = c.t_mid < t_half
     for res in results:
         for d in res.drift:
-            e = next((x for x in effects if x.name == "bias_drift" and x.sensor == d.sensor),
-                     None)
+            e = next((x for x in effects if x.name == "bias_drift" and x.sensor == d.sensor), None)
             if e is None:
                 continue
             j = list(res.channel.sensors).index(d.sensor)
-            walk_first[ALL_SENSORS.index(d.sensor)] = max(k_on_rows(res, j, first),
-                                                          walk_cert[ALL_SENSORS.index(d.sensor)])
+            walk_first[ALL_SENSORS.index(d.sensor)] = max(
+                k_on_rows(res, j, first), walk_cert[ALL_SENSORS.index(d.sensor)]
+            )
     noise_base = NoiseModel(density=density_model, walk=walk_cert)
     noise_ext = NoiseModel(density=density_model, walk=walk_first, lines=lines, steps=steps)
 
     # -- simulations (common random numbers: the same seeds for both models) ------------------
     sims: dict[str, list[SegmentStats]] = {"baseline": [], "extended": []}
     for r in range(max(cfg.replicas, 1)):
-        s_base = _stats(session, cfg, segments, {"baseline": predictors["baseline"]},
-                        [F0Check(name="certificate", model=certificate.accel, parity=None)],
-                        certificate)
-        simulate_session(certificate, noise_base, session, segments, chunk_input, s_base,
-                         seed=seed * 1000 + r)
+        s_base = _stats(
+            session,
+            cfg,
+            segments,
+            {"baseline": predictors["baseline"]},
+            [F0Check(name="certificate", model=certificate.accel, parity=None)],
+            certificate,
+        )
+        simulate_session(
+            certificate, noise_base, session, segments, chunk_input, s_base, seed=seed * 1000 + r
+        )
         sims["baseline"].append(s_base)
         if not effects:  # the extended model is the certificate's
             continue
-        s_ext = _stats(session, cfg, segments, {"extended": predictors["extended"]}, [],
-                       certificate)
-        simulate_session(_with_accel(ext_det, ext_accel_w), noise_ext, session, segments,
-                         chunk_input, s_ext, seed=seed * 1000 + r)
+        s_ext = _stats(
+            session, cfg, segments, {"extended": predictors["extended"]}, [], certificate
+        )
+        simulate_session(
+            _with_accel(ext_det, ext_accel_w),
+            noise_ext,
+            session,
+            segments,
+            chunk_input,
+            s_ext,
+            seed=seed * 1000 + r,
+        )
         sims["extended"].append(s_ext)
 
     # -- metrics -----------------------------------------------------------------------------------
@@ -324,95 +397,135 @@ def model_check(
     }
     if not effects:  # nothing named: the extended model is the baseline, gain 1
         ext_m = copy.deepcopy(base_m)
-    gain = {k: {t: ratio(ext_m[k][t], base_m[k][t]) for t in ("gyro", "accel")}
-            for k in base_m}
-    units = {"residual_rms": {"gyro": in_units["gyro"], "accel": in_units["accel"]},
-             "f0_false_alarm_rate": "fraction of held-out quasi-static samples (gyro: "
-                                    "none, F0 needs gyros that resolve Earth rate)",
-             "allan_misfit": "RMS z of log Allan deviation (about 1: explained)",
-             "rotation_rms": "rad: gravity direction after a turn, predicted from the gyros "
-                             "against measured, held out"}
+    gain = {k: {t: ratio(ext_m[k][t], base_m[k][t]) for t in ("gyro", "accel")} for k in base_m}
+    units = {
+        "residual_rms": {"gyro": in_units["gyro"], "accel": in_units["accel"]},
+        "f0_false_alarm_rate": "fraction of held-out quasi-static samples (gyro: "
+        "none, F0 needs gyros that resolve Earth rate)",
+        "allan_misfit": "RMS z of log Allan deviation (about 1: explained)",
+        "rotation_rms": "rad: gravity direction after a turn, predicted from the gyros "
+        "against measured, held out",
+    }
 
     # -- extended certificate -------------------------------------------------------------------
-    extended = extended_certificate(certificate, effects,
-                                    None if np.all(np.isfinite(cert_density)) else density_meas,
-                                    refs)
+    extended = extended_certificate(
+        certificate, effects, None if np.all(np.isfinite(cert_density)) else density_meas, refs
+    )
     _write_noise_model(extended, noise_fits)
     if noise_section is not None:
         _predicted_by_extended(noise_section, extended)
 
     # -- comparison: measurement against the simulation of the certificate's model -------------
-    comparison = _comparison(certificate, accel_w, session, measured, sims, a_in, temp,
-                             density_meas, cert_density)
+    comparison = _comparison(
+        certificate, accel_w, session, measured, sims, a_in, temp, density_meas, cert_density
+    )
 
     untestable = [u for res in results for u in res.channel.untestable]
     if rot_ch is None:
         n_big = sum(p.angle_deg >= cfg.min_rotation_deg for p in pairs)
-        n_ok = sum(p.angle_deg >= cfg.min_rotation_deg
-                   for p in usable_pairs(pairs, cfg.max_turn_misfit_rad))
-        reason = (f"{n_big} rotation(s) of {cfg.min_rotation_deg:g} deg or more between still "
-                  f"runs: needs {MIN_TURNS} (at rest a gyro's input is zero)")
+        n_ok = sum(
+            p.angle_deg >= cfg.min_rotation_deg
+            for p in usable_pairs(pairs, cfg.max_turn_misfit_rad)
+        )
+        reason = (
+            f"{n_big} rotation(s) of {cfg.min_rotation_deg:g} deg or more between still "
+            f"runs: needs {MIN_TURNS} (at rest a gyro's input is zero)"
+        )
         if n_big >= MIN_TURNS:
-            reason = (f"only {n_ok} of {n_big} turns agree with the gyros within "
-                      f"{cfg.max_turn_misfit_rad:g} rad after a linear recalibration "
-                      f"(saturation, gaps, or errors beyond a linear model): needs {MIN_TURNS}")
+            reason = (
+                f"only {n_ok} of {n_big} turns agree with the gyros within "
+                f"{cfg.max_turn_misfit_rad:g} rad after a linear recalibration "
+                f"(saturation, gaps, or errors beyond a linear model): needs {MIN_TURNS}"
+            )
         for s in ("gx", "gy", "gz"):
             for name in ("temperature_scale", "scale_nonlinearity"):
-                untestable.append({"name": name, "triad": "gyro", "sensor": s,
-                                   "reason": reason})
+                untestable.append({"name": name, "triad": "gyro", "sensor": s, "reason": reason})
     if psd_untestable:
-        untestable += [{"name": "periodic_disturbance", "triad": t, "sensor": s,
-                        "reason": psd_untestable}
-                       for t in ("gyro", "accel") for s in SENSORS[t]]
+        untestable += [
+            {"name": "periodic_disturbance", "triad": t, "sensor": s, "reason": psd_untestable}
+            for t in ("gyro", "accel")
+            for s in SENSORS[t]
+        ]
     tested = [dict(t, triad=res.channel.triad) for res in results for t in res.tested]
-    tested += [{"name": "bias_drift", "triad": res.channel.triad, "sensor": d.sensor,
-                "significance": d.significance, "heldout": d.heldout, "value": d.value,
-                "certificate": d.certificate} for res in results for d in res.drift]
-    tested += [dict(t, triad="gyro" if t["sensor"].startswith("g") else "accel")
-               for t in line_tests]
+    tested += [
+        {
+            "name": "bias_drift",
+            "triad": res.channel.triad,
+            "sensor": d.sensor,
+            "significance": d.significance,
+            "heldout": d.heldout,
+            "value": d.value,
+            "certificate": d.certificate,
+        }
+        for res in results
+        for d in res.drift
+    ]
+    tested += [
+        dict(t, triad="gyro" if t["sensor"].startswith("g") else "accel") for t in line_tests
+    ]
     for t in tested:  # the likelihood improvement under its own name (not a gain)
         if "heldout" in t:
             t[HELDOUT_LOGLIK_KEY] = t.pop("heldout")
     report = dict(base_report)
-    report.update({
-        "quasi_static": {
-            "samples": session.static_samples,
-            "chunks": len(c),
-            "runs": int(len(session.runs)),
-            "attitudes": distinct_attitudes(np.array(list(ups.values()))),
-            "temperature": ([float(np.nanmin(c.temp)), float(np.nanmax(c.temp))]
-                            if session.has_temp else None),
-            "turns": {"between_runs": len(pairs),
-                      "used": (len(rot_ch) // 2) if rot_ch is not None else 0},
-        },
-        "effects": [e.as_dict() for e in sorted(effects, key=lambda e: -e.significance)],
-        "baseline": base_m,
-        "extended": ext_m,
-        "gain": gain,
-        "units": units,
-        "evaluation": {
-            "chunk_s": session.chunk_s,
-            "deterministic": "two folds of alternate quasi-static chunks: fit on one, score "
-                             "the other; both models re-fit the certificate's own biases "
-                             "(and accelerometer scale and misalignment) on the fitting fold",
-            "noise": f"fitted on quasi-static data before t = {t_half:.3f} s, scored after",
-            "z_min": cfg.z_min,
-            "significance": "one-sided standard-normal equivalent of the p-value",
-            "gain": GAIN_DEFINITION,
-        },
-        "comparison": comparison,
-        "noise_model": noise_section,
-        "tested": sorted(tested, key=lambda d: -float(d.get("significance", 0.0))),
-        "untestable": untestable,
-    })
-    return ModelCheckResult(report=_round(report), effects=effects, extended=extended,
-                            session=session, channels=results, measured=measured,
-                            simulated=sims, lines=lines)
+    report.update(
+        {
+            "quasi_static": {
+                "samples": session.static_samples,
+                "chunks": len(c),
+                "runs": int(len(session.runs)),
+                "attitudes": distinct_attitudes(np.array(list(ups.values()))),
+                "temperature": (
+                    [float(np.nanmin(c.temp)), float(np.nanmax(c.temp))]
+                    if session.has_temp
+                    else None
+                ),
+                "turns": {
+                    "between_runs": len(pairs),
+                    "used": (len(rot_ch) // 2) if rot_ch is not None else 0,
+                },
+            },
+            "effects": [e.as_dict() for e in sorted(effects, key=lambda e: -e.significance)],
+            "baseline": base_m,
+            "extended": ext_m,
+            "gain": gain,
+            "units": units,
+            "evaluation": {
+                "chunk_s": session.chunk_s,
+                "deterministic": "two folds of alternate quasi-static chunks: fit on one, score "
+                "the other; both models re-fit the certificate's own biases "
+                "(and accelerometer scale and misalignment) on the fitting fold",
+                "noise": f"fitted on quasi-static data before t = {t_half:.3f} s, scored after",
+                "z_min": cfg.z_min,
+                "significance": "one-sided standard-normal equivalent of the p-value",
+                "gain": GAIN_DEFINITION,
+            },
+            "comparison": comparison,
+            "noise_model": noise_section,
+            "tested": sorted(tested, key=lambda d: -float(d.get("significance", 0.0))),
+            "untestable": untestable,
+        }
+    )
+    return ModelCheckResult(
+        report=_round(report),
+        effects=effects,
+        extended=extended,
+        session=session,
+        channels=results,
+        measured=measured,
+        simulated=sims,
+        lines=lines,
+    )
 
 
-def _refine_accel(results: list[ChannelResult], certificate: Certificate, accel: TriadModel,
-                  session: Session, cfg: ModelCheckConfig, sigma2: np.ndarray, rounds: int = 3
-                  ) -> tuple[list[ChannelResult], TriadModel]:
+def _refine_accel(
+    results: list[ChannelResult],
+    certificate: Certificate,
+    accel: TriadModel,
+    session: Session,
+    cfg: ModelCheckConfig,
+    sigma2: np.ndarray,
+    rounds: int = 3,
+) -> tuple[list[ChannelResult], TriadModel]:
     """Gauss-Newton on the accelerometer channel: the norm is not linear in large effects
     and nuisance changes (1 % of g changes |f| by 5e-5 g at second order), so the
     accelerometer's own parameters are re-fitted together with the effects found, the
@@ -431,8 +544,11 @@ def _refine_accel(results: list[ChannelResult], certificate: Certificate, accel:
         if not specs:
             break
         accel, values = refit_accel(certificate, session, sigma2, specs, ref)
-        ch = next(x for x in build_channels(certificate, session, cfg, accel, sigma2)
-                  if x.triad == "accel")
+        ch = next(
+            x
+            for x in build_channels(certificate, session, cfg, accel, sigma2)
+            if x.triad == "accel"
+        )
         # exact trace of the effects at their fitted values in place of the linear one
         u = c.accel.copy()
         idx = np.arange(len(c))
@@ -486,10 +602,17 @@ def _walk(tri: TriadModel) -> np.ndarray:
     return np.asarray(tri.noise.bias_random_walk, dtype=float)
 
 
-def _comparison(certificate: Certificate, accel_w: TriadModel, session: Session,
-                measured: SegmentStats, sims: dict[str, list[SegmentStats]], a_in: np.ndarray,
-                temp: np.ndarray | None, density_meas: np.ndarray, cert_density: np.ndarray
-                ) -> dict[str, Any]:
+def _comparison(
+    certificate: Certificate,
+    accel_w: TriadModel,
+    session: Session,
+    measured: SegmentStats,
+    sims: dict[str, list[SegmentStats]],
+    a_in: np.ndarray,
+    temp: np.ndarray | None,
+    density_meas: np.ndarray,
+    cert_density: np.ndarray,
+) -> dict[str, Any]:
     c = session.chunks
     meas_means = np.concatenate([c.gyro, c.accel], axis=1)
     r_meas = _chunk_residual(certificate, accel_w, meas_means, temp, a_in)
@@ -503,8 +626,9 @@ def _comparison(certificate: Certificate, accel_w: TriadModel, session: Session,
     if sim0 is not None:
         sm = sim0.chunk_means()
         ok = np.all(np.isfinite(sm), axis=1)
-        r_sim = _chunk_residual(certificate, certificate.accel, sm[ok],
-                                None if temp is None else temp[ok], a_in[ok])
+        r_sim = _chunk_residual(
+            certificate, certificate.accel, sm[ok], None if temp is None else temp[ok], a_in[ok]
+        )
 
     def rms(v: np.ndarray, centre: bool) -> float:
         v = v - np.mean(v) if centre else v
@@ -512,35 +636,47 @@ def _comparison(certificate: Certificate, accel_w: TriadModel, session: Session,
 
     for j, lab in enumerate(labels):
         gyro = j < 3  # a gyro's rest offset is nuisance: centre it; the norm is not centred
-        entry = {"unit": unit[j],
-                 "measured_rms": rms(r_meas[:, j], gyro),
-                 "measured_rms_certificate_as_is": rms(r_cert[:, j], False)}
+        entry = {
+            "unit": unit[j],
+            "measured_rms": rms(r_meas[:, j], gyro),
+            "measured_rms_certificate_as_is": rms(r_cert[:, j], False),
+        }
         if r_sim is not None:
             entry["simulated_rms"] = rms(r_sim[:, j], gyro)
         res[lab] = entry
     out["chunk_residuals"] = res
     noise = {}
-    sim_density = (sim0.sample_sigma() / math.sqrt(session.rate_hz / 2.0)
-                   if sim0 is not None else np.full(6, np.nan))
+    sim_density = (
+        sim0.sample_sigma() / math.sqrt(session.rate_hz / 2.0)
+        if sim0 is not None
+        else np.full(6, np.nan)
+    )
     for j, s in enumerate(ALL_SENSORS):
-        noise[s] = {"certificate": None if not np.isfinite(cert_density[j]) else
-                    float(cert_density[j]),
-                    "measured": float(density_meas[j]), "simulated": float(sim_density[j]),
-                    "method": WHITE_NOISE_METHOD}
+        noise[s] = {
+            "certificate": None if not np.isfinite(cert_density[j]) else float(cert_density[j]),
+            "measured": float(density_meas[j]),
+            "simulated": float(sim_density[j]),
+            "method": WHITE_NOISE_METHOD,
+        }
     out["noise_density"] = noise
     tau, adev_m, ind = measured.allan("baseline")
     allan: dict[str, Any] = {"tau": tau.tolist(), "independent_terms": ind.tolist()}
     if sims["baseline"]:
         avar = np.mean(np.stack([s.allan("baseline")[1] ** 2 for s in sims["baseline"]]), 0)
         for j, s in enumerate(ALL_SENSORS):
-            allan[s] = {"measured": adev_m[:, j].tolist(),
-                        "simulated": np.sqrt(avar[:, j]).tolist()}
+            allan[s] = {
+                "measured": adev_m[:, j].tolist(),
+                "simulated": np.sqrt(avar[:, j]).tolist(),
+            }
     out["allan"] = allan
     f0: dict[str, Any] = {}
     chk_m = next((x for x in measured.f0_checks if x.name == "certificate"), None)
     chk_s = next((x for x in sim0.f0_checks if x.name == "certificate"), None) if sim0 else None
-    f0["accel"] = {"measured": _f0_summary(chk_m), "simulated": _f0_summary(chk_s),
-                   "limit": certificate.accel.limits.f0}
+    f0["accel"] = {
+        "measured": _f0_summary(chk_m),
+        "simulated": _f0_summary(chk_s),
+        "limit": certificate.accel.limits.f0,
+    }
     out["f0"] = f0
     spec: dict[str, Any] = {}
     for half in (0, 1):
@@ -554,9 +690,12 @@ def _comparison(certificate: Certificate, accel_w: TriadModel, session: Session,
             if ks:
                 sim_floor = np.median(ps[1:], axis=0)
         spec[f"half{half}"] = {
-            s: {"measured_floor": float(floor[j]),
-                "simulated_floor": None if sim_floor is None else float(sim_floor[j])}
-            for j, s in enumerate(ALL_SENSORS)}
+            s: {
+                "measured_floor": float(floor[j]),
+                "simulated_floor": None if sim_floor is None else float(sim_floor[j]),
+            }
+            for j, s in enumerate(ALL_SENSORS)
+        }
         spec[f"half{half}"]["segments"] = k
         spec[f"half{half}"]["resolution_hz"] = float(f[1] - f[0])
     out["psd"] = spec
@@ -572,32 +711,42 @@ NOISE_METHOD = (
     "likelihood of ln adev); a model beyond white noise must gain z_min^2/2 nats per "
     "parameter held out. Among the models that reproduce the whole stretch's curve "
     "within 1.5x, the lowest whole-stretch score plus the same penalty per parameter is "
-    "chosen and fitted on the whole stretch.")
+    "chosen and fitted on the whole stretch."
+)
 
 
-def _noise_model(source: BlockSource, c: Any, rate_hz: float, cfg: ModelCheckConfig,
-                 out_units: dict[str, str]
-                 ) -> tuple[dict[str, Any] | None, dict[str, SensorNoise]]:
+def _noise_model(
+    source: BlockSource, c: Any, rate_hz: float, cfg: ModelCheckConfig, out_units: dict[str, str]
+) -> tuple[dict[str, Any] | None, dict[str, SensorNoise]]:
     """The noise-model section of the report and the selection per sensor ({} when the
     longest still run is shorter than MIN_RUN_S)."""
     t0, t1 = longest_run(c.t_start, c.t_end, c.run, c.accel)
     if t1 - t0 < MIN_RUN_S:
-        return ({"untestable": f"longest still run {t1 - t0:.1f} s: a noise model needs "
-                               f"{MIN_RUN_S:g} s or more (cluster times to a tenth of it)"},
-                {})
+        return (
+            {
+                "untestable": f"longest still run {t1 - t0:.1f} s: a noise model needs "
+                f"{MIN_RUN_S:g} s or more (cluster times to a tenth of it)"
+            },
+            {},
+        )
     y, rate = run_samples(source(), t0, t1, rate_hz)
     fits = {s: select(y[:, j], rate, cfg.z_min) for j, s in enumerate(ALL_SENSORS)}
     section: dict[str, Any] = {
-        "run": [t0, t1], "run_s": t1 - t0, "tau_range_s": [0.1, (t1 - t0) / 10.0],
+        "run": [t0, t1],
+        "run_s": t1 - t0,
+        "tau_range_s": [0.1, (t1 - t0) / 10.0],
         "method": NOISE_METHOD,
-        "sensors": {s: report_entry(f, out_units["gyro" if s.startswith("g") else "accel"])
-                    for s, f in fits.items()},
+        "sensors": {
+            s: report_entry(f, out_units["gyro" if s.startswith("g") else "accel"])
+            for s, f in fits.items()
+        },
     }
     return section, fits
 
 
-def _noise_effects(effects: list[Effect], fits: dict[str, SensorNoise],
-                   out_units: dict[str, str]) -> list[Effect]:
+def _noise_effects(
+    effects: list[Effect], fits: dict[str, SensorNoise], out_units: dict[str, str]
+) -> list[Effect]:
     """Effects named by the noise model replace the chunk-level random walk of a sensor."""
     if not fits:
         return effects
@@ -610,19 +759,57 @@ def _noise_effects(effects: list[Effect], fits: dict[str, SensorNoise],
         common = {"model": f.model.name, "density": terms["density"]}
         for name in f.terms_named:
             if name == "bias_instability":
-                out.append(Effect("bias_instability", triad, s, terms["bias_instability"], u, z,
-                                  heldout=f.gain_nats, extra=dict(common)))
+                out.append(
+                    Effect(
+                        "bias_instability",
+                        triad,
+                        s,
+                        terms["bias_instability"],
+                        u,
+                        z,
+                        heldout=f.gain_nats,
+                        extra=dict(common),
+                    )
+                )
             elif name == "bias_drift":
-                out.append(Effect("bias_drift", triad, s, terms["bias_drift"], f"{u}/sqrt(s)",
-                                  z, heldout=f.gain_nats, extra=dict(common)))
+                out.append(
+                    Effect(
+                        "bias_drift",
+                        triad,
+                        s,
+                        terms["bias_drift"],
+                        f"{u}/sqrt(s)",
+                        z,
+                        heldout=f.gain_nats,
+                        extra=dict(common),
+                    )
+                )
             elif name == "rate_ramp":
-                out.append(Effect("rate_ramp", triad, s, terms["rate_ramp"], f"{u}/s", z,
-                                  heldout=f.gain_nats, extra=dict(common)))
+                out.append(
+                    Effect(
+                        "rate_ramp",
+                        triad,
+                        s,
+                        terms["rate_ramp"],
+                        f"{u}/s",
+                        z,
+                        heldout=f.gain_nats,
+                        extra=dict(common),
+                    )
+                )
             elif name == "gauss_markov":
-                out.append(Effect("gauss_markov_bias", triad, s, terms["gauss_markov_sigma"], u,
-                                  z, heldout=f.gain_nats,
-                                  extra=dict(common,
-                                             correlation_time=terms["gauss_markov_time"])))
+                out.append(
+                    Effect(
+                        "gauss_markov_bias",
+                        triad,
+                        s,
+                        terms["gauss_markov_sigma"],
+                        u,
+                        z,
+                        heldout=f.gain_nats,
+                        extra=dict(common, correlation_time=terms["gauss_markov_time"]),
+                    )
+                )
     return out
 
 
@@ -631,7 +818,7 @@ def _write_noise_model(cert: Certificate, fits: dict[str, SensorNoise]) -> None:
     from ..certificate import Noise
 
     for k, triad in enumerate(("gyro", "accel")):
-        sensors = ALL_SENSORS[3 * k:3 * k + 3]
+        sensors = ALL_SENSORS[3 * k : 3 * k + 3]
         if not all(s in fits for s in sensors):
             continue
         tri = cert.triad(triad)
@@ -647,8 +834,7 @@ def _write_noise_model(cert: Certificate, fits: dict[str, SensorNoise]) -> None:
         gs = np.array([t.get("gauss_markov_sigma", 0.0) for t in terms])
         if np.any(gs):
             tri.noise.gauss_markov_sigma = gs
-            tri.noise.gauss_markov_time = np.array([t.get("gauss_markov_time", 1.0)
-                                                    for t in terms])
+            tri.noise.gauss_markov_time = np.array([t.get("gauss_markov_time", 1.0) for t in terms])
         else:
             tri.noise.gauss_markov_sigma = tri.noise.gauss_markov_time = None
 

@@ -107,8 +107,9 @@ def _p0(ch: Channel) -> np.ndarray:
 def _reference_rows(ch: Channel, use: np.ndarray | None = None) -> np.ndarray:
     """Chunks that are not diffuse without any random walk (the fixed row set on which
     likelihoods of different K are compared)."""
-    inn = run_filter(ch.t, ch.H, ch.R, ch.y[:, None], np.zeros((1, ch.H.shape[1])), use=use,
-                     p0=_p0(ch))
+    inn = run_filter(
+        ch.t, ch.H, ch.R, ch.y[:, None], np.zeros((1, ch.H.shape[1])), use=use, p0=_p0(ch)
+    )
     return inn.valid[0]
 
 
@@ -125,8 +126,13 @@ class _Ctx:
     @classmethod
     def of(cls, ch: Channel) -> _Ctx:
         folds = ch.folds()
-        return cls(ch=ch, folds=folds, ref_all=_reference_rows(ch),
-                   ref_fold=[_reference_rows(ch, f) for f in folds], p0=_p0(ch))
+        return cls(
+            ch=ch,
+            folds=folds,
+            ref_all=_reference_rows(ch),
+            ref_fold=[_reference_rows(ch, f) for f in folds],
+            p0=_p0(ch),
+        )
 
 
 @dataclass
@@ -152,10 +158,16 @@ class _Cands:
 
 
 def _layout(ch: Channel, indices: list[int]) -> _Cands:
-    multi = [i for i in indices if ch.candidates[i].columns is not None
-             and ch.candidates[i].columns.shape[1] > 1]
-    single = [i for i in indices if ch.candidates[i].columns is not None
-              and ch.candidates[i].columns.shape[1] == 1]
+    multi = [
+        i
+        for i in indices
+        if ch.candidates[i].columns is not None and ch.candidates[i].columns.shape[1] > 1
+    ]
+    single = [
+        i
+        for i in indices
+        if ch.candidates[i].columns is not None and ch.candidates[i].columns.shape[1] == 1
+    ]
     steps = [i for i in indices if ch.candidates[i].columns is None]
     cols: list[np.ndarray] = []
     spans: list[tuple[int, int]] = []
@@ -170,12 +182,15 @@ def _layout(ch: Channel, indices: list[int]) -> _Cands:
         spans.append((k, k + 1))
         k += 1
     return _Cands(
-        items=multi + single + steps, spans=spans,
+        items=multi + single + steps,
+        spans=spans,
         cand=np.concatenate(cols, axis=1) if cols else None,
-        step_axis=(np.array([int(ch.candidates[i].extra["axis"]) for i in steps])
-                   if steps else None),
-        step_at=(np.array([int(ch.candidates[i].extra["boundary"]) for i in steps])
-                 if steps else None),
+        step_axis=(
+            np.array([int(ch.candidates[i].extra["axis"]) for i in steps]) if steps else None
+        ),
+        step_at=(
+            np.array([int(ch.candidates[i].extra["boundary"]) for i in steps]) if steps else None
+        ),
         block_k=block_k,
     )
 
@@ -184,13 +199,21 @@ def _runs(ctx: _Ctx, head: np.ndarray, k: np.ndarray, lay: _Cands | None = None)
     ch = ctx.ch
     kw = {}
     if lay is not None:
-        kw = {"cand": lay.cand, "step_axis": lay.step_axis, "step_at": lay.step_at,
-              "block_k": lay.block_k}
+        kw = {
+            "cand": lay.cand,
+            "step_axis": lay.step_axis,
+            "step_at": lay.step_at,
+            "block_k": lay.block_k,
+        }
     groups = np.stack([ctx.ref_all, ctx.ref_all & ctx.folds[0], ctx.ref_all & ctx.folds[1]])
     q = _q(k)
     full = filter_products(ch.t, ch.H, ch.R, head, q, groups, p0=ctx.p0, **kw)
-    fits = [filter_products(ch.t, ch.H, ch.R, head, q, ctx.ref_fold[f][None], use=ctx.folds[f],
-                            p0=ctx.p0, **kw) for f in (0, 1)]
+    fits = [
+        filter_products(
+            ch.t, ch.H, ch.R, head, q, ctx.ref_fold[f][None], use=ctx.folds[f], p0=ctx.p0, **kw
+        )
+        for f in (0, 1)
+    ]
     return _Runs(all=full, fits=fits)
 
 
@@ -216,16 +239,18 @@ def _base(m: np.ndarray) -> _Base:
     return _Base(m=m, a_inv=a_inv, gam=gam, r_yy=float(m[0, 0] - m[1:, 0] @ gam), rank=rank)
 
 
-def _significance(chi2: float, resid_chi2: float, m: float, rank: int, dof: int,
-                  trials: float) -> float:
+def _significance(
+    chi2: float, resid_chi2: float, m: float, rank: int, dof: int, trials: float
+) -> float:
     """z of a chi-square drop, scaled by the over-dispersion of what is left."""
     free = max(m - rank - dof, 1.0)
     phi = max(1.0, (resid_chi2 - chi2) / free)
     return chi2_significance(chi2 / phi, dof, trials)
 
 
-def _single_scores(runs: _Runs, cols: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, _Base]:
+def _single_scores(
+    runs: _Runs, cols: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, _Base]:
     """For single candidate columns ``cols`` of the layout: chi-square drop, observability,
     held-out gain (nats), the partial residual r_jj, and the base fit (all rows)."""
     p = runs.all
@@ -254,8 +279,9 @@ def _single_scores(runs: _Runs, cols: np.ndarray
         theta0 = np.concatenate([[1.0], -fb.gam])
         v = mo @ theta0
         term1 = g_f @ v[1:] - cxo @ theta0
-        quad = (np.sum((g_f @ mo[1:, 1:]) * g_f, axis=1) - 2.0 * np.sum(g_f * cxo[:, 1:], axis=1)
-                + dgo)
+        quad = (
+            np.sum((g_f @ mo[1:, 1:]) * g_f, axis=1) - 2.0 * np.sum(g_f * cxo[:, 1:], axis=1) + dgo
+        )
         heldout += -0.5 * (2.0 * beta * term1 + beta**2 * quad)
     return chi2, observable, heldout, r_jj, base
 
@@ -269,8 +295,7 @@ def _full_matrix(p: Products, g: int, span: tuple[int, int], block: bool) -> np.
     return np.block([[mh, cx.T], [cx, mjj]])
 
 
-def _multi_score(runs: _Runs, span: tuple[int, int]
-                 ) -> tuple[float, bool, float, float, _Base]:
+def _multi_score(runs: _Runs, span: tuple[int, int]) -> tuple[float, bool, float, float, _Base]:
     """Chi-square drop, observability, held-out gain and estimate norm of a block
     candidate (several columns)."""
     p = runs.all
@@ -309,12 +334,14 @@ def _multi_score(runs: _Runs, span: tuple[int, int]
 _Score = tuple[int, float, float, float, bool]  # (candidate, chi2, z, heldout, passes)
 
 
-def _scores(ch: Channel, runs: _Runs, lay: _Cands, active_rows: float,
-            best: dict[tuple[str, str], dict]) -> list[_Score]:
+def _scores(
+    ch: Channel, runs: _Runs, lay: _Cands, active_rows: float, best: dict[tuple[str, str], dict]
+) -> list[_Score]:
     """Scores of every candidate of the layout (recorded in ``best``)."""
     out: list[_Score] = []
-    singles = [(pos, i) for pos, i in enumerate(lay.items)
-               if lay.spans[pos][1] - lay.spans[pos][0] == 1]
+    singles = [
+        (pos, i) for pos, i in enumerate(lay.items) if lay.spans[pos][1] - lay.spans[pos][0] == 1
+    ]
     resid, rank = None, 0
     if singles:
         cols = np.array([lay.spans[pos][0] for pos, _i in singles])
@@ -322,8 +349,11 @@ def _scores(ch: Channel, runs: _Runs, lay: _Cands, active_rows: float,
         resid, rank = base.r_yy, base.rank
         for j, (_pos, i) in enumerate(singles):
             c = ch.candidates[i]
-            zz = (_significance(float(chi2[j]), resid, active_rows, rank, 1, c.trials)
-                  if obs[j] else 0.0)
+            zz = (
+                _significance(float(chi2[j]), resid, active_rows, rank, 1, c.trials)
+                if obs[j]
+                else 0.0
+            )
             out.append((i, float(chi2[j]), zz, float(ho[j]), bool(obs[j])))
     for pos, i in enumerate(lay.items):
         span = lay.spans[pos]
@@ -332,8 +362,11 @@ def _scores(ch: Channel, runs: _Runs, lay: _Cands, active_rows: float,
         c = ch.candidates[i]
         chi2_m, obs_m, ho_m, norm_m, base = _multi_score(runs, span)
         resid, rank = base.r_yy, base.rank
-        zz = (_significance(chi2_m, resid, active_rows, rank, span[1] - span[0], c.trials)
-              if obs_m else 0.0)
+        zz = (
+            _significance(chi2_m, resid, active_rows, rank, span[1] - span[0], c.trials)
+            if obs_m
+            else 0.0
+        )
         # an estimate below what a known confounder can produce does not count
         out.append((i, chi2_m, zz, ho_m, obs_m and norm_m >= c.min_norm))
         if obs_m and norm_m < c.min_norm:
@@ -343,29 +376,50 @@ def _scores(ch: Channel, runs: _Runs, lay: _Cands, active_rows: float,
     return out
 
 
-def _record(best: dict[tuple[str, str], dict], cand: Candidate, chi2: float, zz: float,
-            ho: float, obs: bool) -> None:
+def _record(
+    best: dict[tuple[str, str], dict], cand: Candidate, chi2: float, zz: float, ho: float, obs: bool
+) -> None:
     key = (cand.name, cand.sensor)
-    if key not in best or zz > best[key]["significance"] or (
-            zz == best[key]["significance"] and chi2 > best[key]["chi2"]):
-        entry = {"name": cand.name, "triad": cand.triad, "sensor": cand.sensor,
-                 "significance": zz, "heldout": ho, "chi2": chi2, "observable": obs}
+    if (
+        key not in best
+        or zz > best[key]["significance"]
+        or (zz == best[key]["significance"] and chi2 > best[key]["chi2"])
+    ):
+        entry = {
+            "name": cand.name,
+            "triad": cand.triad,
+            "sensor": cand.sensor,
+            "significance": zz,
+            "heldout": ho,
+            "chi2": chi2,
+            "observable": obs,
+        }
         if cand.extra.get("below_confounder"):
             entry["observable"] = True
             entry["note"] = "smaller than what Earth rate can produce (heading unknown)"
         best[key] = entry
 
 
-def _refine_step(ctx: _Ctx, head: np.ndarray, k: np.ndarray, cand: Candidate
-                 ) -> tuple[Candidate, float, float]:
+def _refine_step(
+    ctx: _Ctx, head: np.ndarray, k: np.ndarray, cand: Candidate
+) -> tuple[Candidate, float, float]:
     """Best boundary next to a step found on a strided scan: (candidate, chi-square drop,
     held-out gain)."""
     ch = ctx.ch
     b0, stride = int(cand.extra["boundary"]), int(cand.extra.get("stride", 1))
     bounds = list(range(max(2, b0 - stride + 1), min(len(ch) - 1, b0 + stride)))
-    news = [Candidate(cand.name, cand.triad, cand.sensor, None, cand.unit,
-                      extra=dict(cand.extra, boundary=b, stride=1), trials=cand.trials)
-            for b in bounds]
+    news = [
+        Candidate(
+            cand.name,
+            cand.triad,
+            cand.sensor,
+            None,
+            cand.unit,
+            extra=dict(cand.extra, boundary=b, stride=1),
+            trials=cand.trials,
+        )
+        for b in bounds
+    ]
     tmp = Channel(**{**ch.__dict__, "candidates": news})
     lay = _layout(tmp, list(range(len(news))))
     runs = _runs(ctx, head, k, lay)
@@ -375,8 +429,9 @@ def _refine_step(ctx: _Ctx, head: np.ndarray, k: np.ndarray, cand: Candidate
     return news[lay.items[best]], float(chi2[best]), float(ho[best])
 
 
-def _alternatives(ctx: _Ctx, head: np.ndarray, k: np.ndarray, i: int, chi2_i: float,
-                  rows: list[_Score]) -> list[str]:
+def _alternatives(
+    ctx: _Ctx, head: np.ndarray, k: np.ndarray, i: int, chi2_i: float, rows: list[_Score]
+) -> list[str]:
     """Sensors whose candidate of the same effect fits about as well (chi-square within 9)
     with strongly correlated regressors (|r| > 0.9 after the model so far): the data
     cannot say which of them it is."""
@@ -384,10 +439,16 @@ def _alternatives(ctx: _Ctx, head: np.ndarray, k: np.ndarray, i: int, chi2_i: fl
     cand = ch.candidates[i]
     if candidate_columns(ch, cand).shape[1] != 1:
         return []
-    others = [r[0] for r in rows if r[0] != i and r[4] and r[1] >= chi2_i - 9.0
-              and ch.candidates[r[0]].name == cand.name
-              and ch.candidates[r[0]].sensor != cand.sensor
-              and candidate_columns(ch, ch.candidates[r[0]]).shape[1] == 1]
+    others = [
+        r[0]
+        for r in rows
+        if r[0] != i
+        and r[4]
+        and r[1] >= chi2_i - 9.0
+        and ch.candidates[r[0]].name == cand.name
+        and ch.candidates[r[0]].sensor != cand.sensor
+        and candidate_columns(ch, ch.candidates[r[0]]).shape[1] == 1
+    ]
     if not others:
         return []
     lay = _layout(ch, others)
@@ -428,9 +489,15 @@ def _loglik(p: Products, g: int) -> np.ndarray:
     return out
 
 
-def profile_k(ctx: _Ctx, head: np.ndarray, k: np.ndarray, j: int,
-              use: np.ndarray | None = None, rows: np.ndarray | None = None,
-              extra: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def profile_k(
+    ctx: _Ctx,
+    head: np.ndarray,
+    k: np.ndarray,
+    j: int,
+    use: np.ndarray | None = None,
+    rows: np.ndarray | None = None,
+    extra: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Profile log-likelihood over K of state sensor j (others at ``k``), on ``rows``."""
     ch = ctx.ch
     grid = _k_grid(ch, j)
@@ -441,8 +508,9 @@ def profile_k(ctx: _Ctx, head: np.ndarray, k: np.ndarray, j: int,
     def run(g: np.ndarray) -> np.ndarray:
         q = np.repeat(_q(k), g.shape[0], axis=0)
         q[:, j] = g**2
-        return _loglik(filter_products(ch.t, ch.H, ch.R, head, q, rows[None], use=use,
-                                       p0=ctx.p0), 0)
+        return _loglik(
+            filter_products(ch.t, ch.H, ch.R, head, q, rows[None], use=use, p0=ctx.p0), 0
+        )
 
     ll = run(grid)
     b = int(np.argmax(ll))
@@ -465,8 +533,9 @@ def k_on_rows(res: ChannelResult, j: int, use: np.ndarray) -> float:
     return float(grid[int(np.argmax(ll))])
 
 
-def drift_test(ctx: _Ctx, head: np.ndarray, k: np.ndarray, j: int,
-               heldout: bool = True) -> DriftResult:
+def drift_test(
+    ctx: _Ctx, head: np.ndarray, k: np.ndarray, j: int, heldout: bool = True
+) -> DriftResult:
     """Random walk of state sensor j beyond ``k[j]``: profile-likelihood estimate, its
     significance (likelihood ratio against ``k[j]``, boundary-corrected) and the held-out
     gain (K fitted on one fold of alternate chunks, predictive likelihood of the other)."""
@@ -489,28 +558,39 @@ def drift_test(ctx: _Ctx, head: np.ndarray, k: np.ndarray, j: int,
             k_f = float(g_f[int(np.argmax(ll_f))])
             q = np.repeat(_q(k), 2, axis=0)
             q[0, j], q[1, j] = k_now**2, k_f**2
-            fit = filter_products(ch.t, ch.H, ch.R, head, q, ctx.ref_fold[f][None], use=mask,
-                                  p0=ctx.p0)
-            full = filter_products(ch.t, ch.H, ch.R, head, q, (ctx.ref_all & ~mask)[None],
-                                   p0=ctx.p0)
+            fit = filter_products(
+                ch.t, ch.H, ch.R, head, q, ctx.ref_fold[f][None], use=mask, p0=ctx.p0
+            )
+            full = filter_products(
+                ch.t, ch.H, ch.R, head, q, (ctx.ref_all & ~mask)[None], p0=ctx.p0
+            )
             scores = []
             for b in range(2):
                 gam = _base(fit.head[b, 0]).gam
                 theta = np.concatenate([[1.0], -gam])
-                scores.append(-0.5 * (float(full.log_s[b, 0])
-                                      + float(theta @ full.head[b, 0] @ theta)))
+                scores.append(
+                    -0.5 * (float(full.log_s[b, 0]) + float(theta @ full.head[b, 0] @ theta))
+                )
             ho_gain += scores[1] - scores[0]
-    return DriftResult(sensor=ch.sensors[j], value=kj, low=low, high=high,
-                       certificate=float(ch.k_cert[j]), significance=z_val, heldout=ho_gain,
-                       gain=max(gain, 0.0))
+    return DriftResult(
+        sensor=ch.sensors[j],
+        value=kj,
+        low=low,
+        high=high,
+        certificate=float(ch.k_cert[j]),
+        significance=z_val,
+        heldout=ho_gain,
+        gain=max(gain, 0.0),
+    )
 
 
 # ---------------------------------------------------------------------------
 # a whole channel
 
 
-def final_fit(ctx: _Ctx, head: np.ndarray, k: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray, float, list[np.ndarray]]:
+def final_fit(
+    ctx: _Ctx, head: np.ndarray, k: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float, list[np.ndarray]]:
     """GLS coefficients of the head regressors on all chunks, their standard deviations
     (scaled by the over-dispersion), that dispersion, and the coefficients of each fold."""
     runs = _runs(ctx, head, k)
@@ -536,8 +616,9 @@ def _head(ch: Channel, selected: list[Selected]) -> np.ndarray:
     return np.concatenate(parts, axis=1)
 
 
-def _backward(ctx: _Ctx, selected: list[Selected], k: np.ndarray,
-              config: ModelCheckConfig) -> list[Selected]:
+def _backward(
+    ctx: _Ctx, selected: list[Selected], k: np.ndarray, config: ModelCheckConfig
+) -> list[Selected]:
     """Drop selected effects that are no longer significant given all the others at ``k``."""
     ch = ctx.ch
     while selected:
@@ -564,8 +645,16 @@ def analyse_channel(ch: Channel, config: ModelCheckConfig) -> ChannelResult:
     k = np.array(ch.k_cert, dtype=float)
     nuis = list(range(1, 1 + ch.nuisance.shape[1]))
     if len(ch) < 6:
-        return ChannelResult(channel=ch, selected=[], drift=[], k=k, tested=[],
-                             dispersion=math.nan, design=_head(ch, []), nuisance_cols=nuis)
+        return ChannelResult(
+            channel=ch,
+            selected=[],
+            drift=[],
+            k=k,
+            tested=[],
+            dispersion=math.nan,
+            design=_head(ch, []),
+            nuisance_cols=nuis,
+        )
     ctx = _Ctx.of(ch)
     selected: list[Selected] = []
     active = [True] * len(ch.candidates)
@@ -579,8 +668,11 @@ def analyse_channel(ch: Channel, config: ModelCheckConfig) -> ChannelResult:
         rows = _scores(ch, runs, lay, float(runs.all.rows[0]), best_tests)
         ok = [r for r in rows if r[4] and r[2] >= config.z_min and r[3] > config.z_heldout]
         det = max(ok, key=lambda r: (r[2], r[1])) if ok else None
-        drifts = [(j, drift_test(ctx, head, k, j, heldout=False))
-                  for j in range(k.shape[0]) if drift_active[j]]
+        drifts = [
+            (j, drift_test(ctx, head, k, j, heldout=False))
+            for j in range(k.shape[0])
+            if drift_active[j]
+        ]
         drift_best = max(drifts, key=lambda d: d[1].significance) if drifts else None
         # a random walk "explains" a smooth temperature effect or a step too: it must beat
         # the best deterministic effect by ``drift_margin`` nats of likelihood (a step pays
@@ -588,8 +680,11 @@ def analyse_channel(ch: Channel, config: ModelCheckConfig) -> ChannelResult:
         det_nats = -math.inf
         if det is not None:
             det_nats = 0.5 * det[1] - math.log(max(ch.candidates[det[0]].trials, 1.0))
-        if drift_best is not None and drift_best[1].significance >= config.z_min and (
-                drift_best[1].gain > det_nats + config.drift_margin):
+        if (
+            drift_best is not None
+            and drift_best[1].significance >= config.z_min
+            and (drift_best[1].gain > det_nats + config.drift_margin)
+        ):
             j = drift_best[0]
             res = drift_test(ctx, head, k, j, heldout=True)
             if res.heldout > config.z_heldout:
@@ -608,15 +703,33 @@ def analyse_channel(ch: Channel, config: ModelCheckConfig) -> ChannelResult:
                 cand, chi2_i, ho_i = cand_r, chi2_r, ho_r
         alt = _alternatives(ctx, head, k, i, chi2_i, rows)
         if cand.name == "bias_step":  # boundaries the data cannot tell from the best one
-            near = [ch.candidates[r[0]].extra["boundary"] for r in rows
-                    if ch.candidates[r[0]].name == "bias_step"
-                    and ch.candidates[r[0]].sensor == cand.sensor and r[1] >= chi2_i - 9.0]
+            near = [
+                ch.candidates[r[0]].extra["boundary"]
+                for r in rows
+                if ch.candidates[r[0]].name == "bias_step"
+                and ch.candidates[r[0]].sensor == cand.sensor
+                and r[1] >= chi2_i - 9.0
+            ]
             near.append(cand.extra["boundary"])
-            cand = Candidate(cand.name, cand.triad, cand.sensor, None, cand.unit,
-                             extra=dict(cand.extra, boundary_range=(min(near), max(near))),
-                             trials=cand.trials)
-        selected.append(Selected(candidate=cand, cols=[], significance=zz, heldout=ho_i,
-                                 chi2=chi2_i, alternatives=alt))
+            cand = Candidate(
+                cand.name,
+                cand.triad,
+                cand.sensor,
+                None,
+                cand.unit,
+                extra=dict(cand.extra, boundary_range=(min(near), max(near))),
+                trials=cand.trials,
+            )
+        selected.append(
+            Selected(
+                candidate=cand,
+                cols=[],
+                significance=zz,
+                heldout=ho_i,
+                chi2=chi2_i,
+                alternatives=alt,
+            )
+        )
         _deactivate(ch, active, cand)
     selected = _backward(ctx, selected, k, config)
     # final random-walk values: the estimate where drift was named, else the certificate's
@@ -641,16 +754,23 @@ def analyse_channel(ch: Channel, config: ModelCheckConfig) -> ChannelResult:
     for s in selected:
         n = candidate_columns(ch, s.candidate).shape[1]
         s.cols = list(range(col, col + n))
-        s.value = beta[off:off + n]
-        s.sigma = sigma[off:off + n]
-        s.fold_values = [f[off:off + n] for f in folds]
+        s.value = beta[off : off + n]
+        s.sigma = sigma[off : off + n]
+        s.fold_values = [f[off : off + n] for f in folds]
         off += n
         col += n
     for s in selected:
         _record(best_tests, s.candidate, s.chi2, s.significance, s.heldout, True)
-    return ChannelResult(channel=ch, selected=selected, drift=drift, k=k,
-                         tested=list(best_tests.values()), dispersion=disp, design=head,
-                         nuisance_cols=nuis)
+    return ChannelResult(
+        channel=ch,
+        selected=selected,
+        drift=drift,
+        k=k,
+        tested=list(best_tests.values()),
+        dispersion=disp,
+        design=head,
+        nuisance_cols=nuis,
+    )
 
 
 __all__ = [

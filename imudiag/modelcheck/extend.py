@@ -43,7 +43,8 @@ GAIN_DEFINITION = (
     "every gain is extended / baseline of the error measure it is named for (residual_rms, "
     "rotation_rms, f0_false_alarm_rate, allan_misfit), both on held-out data: below 1 the "
     "extended model is better, 1 no change; an effect's held-out log-likelihood improvement "
-    f"is {HELDOUT_LOGLIK_KEY!r} (nats, above 0 is better), never called a gain")
+    f"is {HELDOUT_LOGLIK_KEY!r} (nats, above 0 is better), never called a gain"
+)
 
 _COL = {s: i for i, s in enumerate(SENSORS["gyro"] + SENSORS["accel"])}
 
@@ -64,9 +65,14 @@ class Effect:
 
     def as_dict(self) -> dict:
         """The report entry."""
-        d = {"name": self.name, "triad": self.triad, "sensor": self.sensor,
-             "value": self.value, "unit": self.unit,
-             "significance": round(float(self.significance), 3)}
+        d = {
+            "name": self.name,
+            "triad": self.triad,
+            "sensor": self.sensor,
+            "value": self.value,
+            "unit": self.unit,
+            "significance": round(float(self.significance), 3),
+        }
         d.update(self.extra)
         if self.sigma is not None:
             d["sigma"] = self.sigma
@@ -80,8 +86,16 @@ def _num(x: np.ndarray | float) -> float | list[float]:
     return float(a[0]) if a.shape[0] == 1 else [float(v) for v in a]
 
 
-def step_time(ch: Channel, boundary: int, size: float, half_y: np.ndarray, t_start: np.ndarray,
-              t_end: np.ndarray, run: np.ndarray, j: int) -> tuple[float, float, float]:
+def step_time(
+    ch: Channel,
+    boundary: int,
+    size: float,
+    half_y: np.ndarray,
+    t_start: np.ndarray,
+    t_end: np.ndarray,
+    run: np.ndarray,
+    j: int,
+) -> tuple[float, float, float]:
     """Time (s) of a bias step of ``size`` found between chunks ``boundary - 1`` and
     ``boundary``, and the interval (s) the data allow (chi-square within 9: 3 sigma).
 
@@ -126,9 +140,15 @@ def step_time(ch: Channel, boundary: int, size: float, half_y: np.ndarray, t_sta
     return float(np.median(grid[best])), float(inside.min()), float(inside.max())
 
 
-def collect_effects(results: list[ChannelResult], lines: list[Line], t_start: np.ndarray,
-                    t_end: np.ndarray, run: np.ndarray, half_y: dict[str, np.ndarray],
-                    output_unit: dict[str, str]) -> list[Effect]:
+def collect_effects(
+    results: list[ChannelResult],
+    lines: list[Line],
+    t_start: np.ndarray,
+    t_end: np.ndarray,
+    run: np.ndarray,
+    half_y: dict[str, np.ndarray],
+    output_unit: dict[str, str],
+) -> list[Effect]:
     """The named effects of every channel and the spectral lines, as report entries."""
     out: list[Effect] = []
     for res in results:
@@ -139,8 +159,16 @@ def collect_effects(results: list[ChannelResult], lines: list[Line], t_start: np
             value = _num(s.value)
             if c.name == "bias_step":
                 j = list(ch.sensors).index(c.sensor)
-                ts, lo, hi = step_time(ch, int(c.extra["boundary"]), float(s.value[0]),
-                                       half_y[ch.label], t_start, t_end, run, j)
+                ts, lo, hi = step_time(
+                    ch,
+                    int(c.extra["boundary"]),
+                    float(s.value[0]),
+                    half_y[ch.label],
+                    t_start,
+                    t_end,
+                    run,
+                    j,
+                )
                 b_lo, b_hi = c.extra.get("boundary_range", (c.extra["boundary"],) * 2)
                 if b_hi - b_lo > 2:  # a flat stretch (the sensor barely sees the step there)
                     lo = min(lo, float(t_start[max(b_lo - 1, 0)]))
@@ -152,19 +180,49 @@ def collect_effects(results: list[ChannelResult], lines: list[Line], t_start: np
                 extra["reference"] = c.extra["reference"]
             if s.alternatives:
                 extra["alternatives"] = list(s.alternatives)
-            out.append(Effect(c.name, c.triad, c.sensor, value, c.unit, s.significance,
-                              sigma=_num(s.sigma), heldout=s.heldout, extra=extra))
+            out.append(
+                Effect(
+                    c.name,
+                    c.triad,
+                    c.sensor,
+                    value,
+                    c.unit,
+                    s.significance,
+                    sigma=_num(s.sigma),
+                    heldout=s.heldout,
+                    extra=extra,
+                )
+            )
         for d in res.drift:
             if d.value > d.certificate and res.k[list(ch.sensors).index(d.sensor)] == d.value:
                 unit = f"{output_unit[ch.triad]}/sqrt(s)"
-                out.append(Effect("bias_drift", ch.triad, d.sensor, float(d.value), unit,
-                                  d.significance, sigma=0.5 * (d.high - d.low), heldout=d.heldout,
-                                  extra={"certificate": d.certificate}))
+                out.append(
+                    Effect(
+                        "bias_drift",
+                        ch.triad,
+                        d.sensor,
+                        float(d.value),
+                        unit,
+                        d.significance,
+                        sigma=0.5 * (d.high - d.low),
+                        heldout=d.heldout,
+                        extra={"certificate": d.certificate},
+                    )
+                )
     for ln in lines:
         triad = "gyro" if ln.sensor.startswith("g") else "accel"
-        out.append(Effect("periodic_disturbance", triad, ln.sensor, float(ln.amplitude),
-                          output_unit[triad], ln.significance, heldout=ln.heldout,
-                          extra={"frequency": round(float(ln.frequency), 4)}))
+        out.append(
+            Effect(
+                "periodic_disturbance",
+                triad,
+                ln.sensor,
+                float(ln.amplitude),
+                output_unit[triad],
+                ln.significance,
+                heldout=ln.heldout,
+                extra={"frequency": round(float(ln.frequency), 4)},
+            )
+        )
     return out
 
 
@@ -200,9 +258,12 @@ def add_blocks(triad: TriadModel, effects: list[Effect], reference: float) -> Tr
     return t
 
 
-def extended_certificate(certificate: Certificate, effects: list[Effect],
-                         density: np.ndarray | None, references: dict[str, float]
-                         ) -> Certificate:
+def extended_certificate(
+    certificate: Certificate,
+    effects: list[Effect],
+    density: np.ndarray | None,
+    references: dict[str, float],
+) -> Certificate:
     """The certificate with the fitted extended-model blocks (spec/certificate.md).
 
     bias_drift goes to ``noise.bias_random_walk``; a measured white-noise density is
@@ -217,10 +278,13 @@ def extended_certificate(certificate: Certificate, effects: list[Effect],
             if tri.noise is None:
                 tri.noise = Noise()
             if tri.noise.density is None and density is not None:
-                tri.noise.density = np.asarray(density[3 * k:3 * k + 3], dtype=float)
+                tri.noise.density = np.asarray(density[3 * k : 3 * k + 3], dtype=float)
             if walk:
-                base = (tri.noise.bias_random_walk.copy() if tri.noise.bias_random_walk
-                        is not None else np.zeros(3))
+                base = (
+                    tri.noise.bias_random_walk.copy()
+                    if tri.noise.bias_random_walk is not None
+                    else np.zeros(3)
+                )
                 for e in walk:
                     base[SENSORS[name].index(e.sensor)] = float(e.value)  # type: ignore[arg-type]
                 tri.noise.bias_random_walk = base
@@ -265,8 +329,9 @@ def fold_fits(res: ChannelResult, extended: bool) -> list[FoldFit]:
     return out
 
 
-def residual_rms(results: list[ChannelResult], extended: bool,
-                 accel: list[AccelFold] | None = None) -> dict[str, float | None]:
+def residual_rms(
+    results: list[ChannelResult], extended: bool, accel: list[AccelFold] | None = None
+) -> dict[str, float | None]:
     """Held-out chunk residual RMS per triad, input units (None without chunks); the
     accelerometer's from its exact fold fits ``accel`` when given."""
     acc: dict[str, list[np.ndarray]] = {"gyro": [], "accel": []}
@@ -303,8 +368,14 @@ class AccelFold:
     resid: np.ndarray  #: norm residuals there, input units
 
 
-def accel_folds(certificate: Certificate, session: Session, sigma2: np.ndarray,
-                res: ChannelResult, reference: float, extended: bool) -> list[AccelFold]:
+def accel_folds(
+    certificate: Certificate,
+    session: Session,
+    sigma2: np.ndarray,
+    res: ChannelResult,
+    reference: float,
+    extended: bool,
+) -> list[AccelFold]:
     """Per fold of the accelerometer channel: its own linear parameters (and the selected
     effects when ``extended``) fitted on the fold, and the exact residuals of the other."""
     c = session.chunks
@@ -323,8 +394,10 @@ def accel_folds(certificate: Certificate, session: Session, sigma2: np.ndarray,
                 u[idx >= (b or 0), j] -= v
                 steps.append((3 + j, float(c.t_start[b or 0]), float(v)))
         ho = np.flatnonzero(~fit)
-        resid = np.linalg.norm(model.inverse(u[ho], temp_c=None if temp is None else
-                                             temp[ho]), axis=1) - g_in
+        resid = (
+            np.linalg.norm(model.inverse(u[ho], temp_c=None if temp is None else temp[ho]), axis=1)
+            - g_in
+        )
         out.append(AccelFold(model=model, steps=steps, heldout=ho, resid=resid))
     return out
 
@@ -350,13 +423,19 @@ def f0_rate(checks: list[F0Check], name: str) -> float | None:
 # predictors (per-sample model outputs at rest, for Allan / PSD residuals)
 
 
-def predictor(gyro: TriadModel, accel: TriadModel, chunk_input: np.ndarray,
-              steps: list[tuple[str, float, float]]) -> Predictor:
+def predictor(
+    gyro: TriadModel,
+    accel: TriadModel,
+    chunk_input: np.ndarray,
+    steps: list[tuple[str, float, float]],
+) -> Predictor:
     """Model outputs (n, 6) at rest along each chunk's specific force ``chunk_input`` (C, 3)."""
+
     def predict(t: np.ndarray, temp: np.ndarray | None, chunk: np.ndarray) -> np.ndarray:
         a = chunk_input[chunk]
-        g = gyro.forward(np.zeros_like(a), temp_c=temp,
-                         accel_input=a if gyro.g_sensitivity is not None else None)
+        g = gyro.forward(
+            np.zeros_like(a), temp_c=temp, accel_input=a if gyro.g_sensitivity is not None else None
+        )
         u = np.concatenate([g, accel.forward(a, temp_c=temp)], axis=1)
         for sensor, ts, size in steps:
             u[:, _COL[sensor]] += size * (t >= ts)
@@ -369,8 +448,9 @@ def predictor(gyro: TriadModel, accel: TriadModel, chunk_input: np.ndarray,
 # Allan / spectrum misfit
 
 
-def allan_misfit(measured: SegmentStats, simulated: list[SegmentStats], name: str,
-                 half: int = 1) -> dict[str, float | None]:
+def allan_misfit(
+    measured: SegmentStats, simulated: list[SegmentStats], name: str, half: int = 1
+) -> dict[str, float | None]:
     """RMS z of log Allan deviation, measured vs the mean of simulated replicas, per triad."""
     tau, adev_m, ind_m = measured.allan(name, (half,))
     sims = [s.allan(name, (half,)) for s in simulated]

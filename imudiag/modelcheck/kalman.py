@@ -42,8 +42,15 @@ class Innovations:
         return rows, self.nu[b, rows] / np.sqrt(self.S[b, rows])[:, None]
 
 
-def run_filter(t: np.ndarray, H: np.ndarray, R: np.ndarray, Z: np.ndarray, q: np.ndarray,
-               use: np.ndarray | None = None, p0: np.ndarray | None = None) -> Innovations:
+def run_filter(
+    t: np.ndarray,
+    H: np.ndarray,
+    R: np.ndarray,
+    Z: np.ndarray,
+    q: np.ndarray,
+    use: np.ndarray | None = None,
+    p0: np.ndarray | None = None,
+) -> Innovations:
     """Innovations of data columns ``Z`` (n, c) under random-walk states.
 
     t (n,) s; H (n, d); R (n,) white variance; q (B, d) random-walk intensities K^2
@@ -109,11 +116,21 @@ class Products:
     rows: np.ndarray
 
 
-def filter_products(t: np.ndarray, H: np.ndarray, R: np.ndarray, head: np.ndarray,
-                    q: np.ndarray, groups: np.ndarray, use: np.ndarray | None = None,
-                    p0: np.ndarray | None = None, cand: np.ndarray | None = None,
-                    step_axis: np.ndarray | None = None, step_at: np.ndarray | None = None,
-                    block_k: int = 0, buffer_rows: int = 64) -> Products:
+def filter_products(
+    t: np.ndarray,
+    H: np.ndarray,
+    R: np.ndarray,
+    head: np.ndarray,
+    q: np.ndarray,
+    groups: np.ndarray,
+    use: np.ndarray | None = None,
+    p0: np.ndarray | None = None,
+    cand: np.ndarray | None = None,
+    step_axis: np.ndarray | None = None,
+    step_at: np.ndarray | None = None,
+    block_k: int = 0,
+    buffer_rows: int = 64,
+) -> Products:
     """Run the random-walk filter on the head columns and candidate columns and return the
     cross products of their whitened innovations over the row ``groups`` (G, n) bool.
 
@@ -136,8 +153,11 @@ def filter_products(t: np.ndarray, H: np.ndarray, R: np.ndarray, head: np.ndarra
     width = hw + cw
     g = groups.shape[0]
     out = Products(
-        head=np.zeros((b, g, hw, hw)), cross=np.zeros((b, g, cw, hw)), diag=np.zeros((b, g, cw)),
-        block=np.zeros((b, g, block_k, block_k)), log_s=np.zeros((b, g)),
+        head=np.zeros((b, g, hw, hw)),
+        cross=np.zeros((b, g, cw, hw)),
+        diag=np.zeros((b, g, cw)),
+        block=np.zeros((b, g, block_k, block_k)),
+        log_s=np.zeros((b, g)),
         rows=groups.sum(axis=1).astype(float),
     )
     x = np.zeros((b, d, width))
@@ -175,9 +195,9 @@ def filter_products(t: np.ndarray, H: np.ndarray, R: np.ndarray, head: np.ndarra
         h = H[i]
         row[:hw] = head[i]
         if c1:
-            row[hw:hw + c1] = cand[i]  # type: ignore[index]
+            row[hw : hw + c1] = cand[i]  # type: ignore[index]
         if steps:
-            row[hw + c1:] = H[i, step_axis] * (i >= step_at)  # type: ignore[index]
+            row[hw + c1 :] = H[i, step_axis] * (i >= step_at)  # type: ignore[index]
         ph = P @ h
         s = ph @ h + R[i]
         innov = row[None, :] - np.einsum("d,bdc->bc", h, x)

@@ -302,7 +302,8 @@ def longest_run(
     for i in range(t_start.shape[0]):  # one step per chunk
         if i > 0 and not same[i - 1]:
             joined = t_start[i] - t_end[i - 1] <= max_gap_s and (
-                thr is None or bool(np.all(np.abs(acc[i] - acc[i - 1]) <= thr)))
+                thr is None or bool(np.all(np.abs(acc[i] - acc[i - 1]) <= thr))
+            )
             if not joined:
                 a = float(t_start[i])
         b = float(t_end[i])

@@ -49,12 +49,14 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
             ok = ind >= 4
             ax.loglog(tau[ok], adev_m[ok, j], "k.-", label="measured")
             if sims.get("baseline"):
-                a = np.sqrt(np.mean([x.allan("baseline")[1][:, j] ** 2
-                                     for x in sims["baseline"]], axis=0))
+                a = np.sqrt(
+                    np.mean([x.allan("baseline")[1][:, j] ** 2 for x in sims["baseline"]], axis=0)
+                )
                 ax.loglog(tau[ok], a[ok], "b-", label="simulated: certificate model")
             if sims.get("extended") and any(e.sensor == s for e in result.effects):
-                a = np.sqrt(np.mean([x.allan("extended")[1][:, j] ** 2
-                                     for x in sims["extended"]], axis=0))
+                a = np.sqrt(
+                    np.mean([x.allan("extended")[1][:, j] ** 2 for x in sims["extended"]], axis=0)
+                )
                 ax.loglog(tau[ok], adev_e[ok, j], "g.", label="measured, effects removed")
                 ax.loglog(tau[ok], a[ok], "g-", label="simulated: extended model")
             ax.set_xlabel("tau [s]")
@@ -78,8 +80,12 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
                 fig, ax = plt.subplots(figsize=(6, 4))
                 ax.semilogy(f[1:], p[1:, j], "k-", lw=0.7, label=f"measured, half {half + 1}")
                 for ln in lines:
-                    ax.axvline(ln.frequency, color="r", alpha=0.5,
-                               label=f"line {ln.frequency:.3g} Hz, A={ln.amplitude:.3g}")
+                    ax.axvline(
+                        ln.frequency,
+                        color="r",
+                        alpha=0.5,
+                        label=f"line {ln.frequency:.3g} Hz, A={ln.amplitude:.3g}",
+                    )
                 ax.set_xlabel("frequency [Hz]")
                 ax.set_ylabel("PSD [output units^2/Hz]")
                 ax.set_title(s)
@@ -95,8 +101,9 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
         tau = np.asarray(a["tau"])
         if tau.shape[0] == 0:
             continue
-        fig, (ax, ax2) = plt.subplots(2, 1, figsize=(6, 6), sharex=True,
-                                      gridspec_kw={"height_ratios": [3, 1]})
+        fig, (ax, ax2) = plt.subplots(
+            2, 1, figsize=(6, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1]}
+        )
         meas = np.asarray(a["measured"])
         err = np.asarray(a["relative_error"])
         ax.fill_between(tau, meas * (1 - err), meas * (1 + err), color="k", alpha=0.15)
@@ -133,15 +140,15 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
         if res.selected:
             axes[0].plot(ch.t, after, "g.", ms=2, label="after the named effects")
         axes[0].set_xlabel("t [s]")
-        unit = ch.y_unit if ch.triad == "accel" or ch.label == "rotation" else (
-            "input units")
+        unit = ch.y_unit if ch.triad == "accel" or ch.label == "rotation" else ("input units")
         axes[0].set_ylabel(f"residual [{unit}]")
         axes[0].legend(fontsize=7)
         names = {s.candidate.name for s in res.selected}
         if ch.label == "rotation":
             x, xlabel = np.arange(len(ch)) // 2, "turn"
-        elif result.session.has_temp and (not names or names & {"temperature_bias",
-                                                                  "temperature_scale"}):
+        elif result.session.has_temp and (
+            not names or names & {"temperature_bias", "temperature_scale"}
+        ):
             x, xlabel = c.temp, "temperature [degC]"
         elif "g_sensitivity" in names:
             g = next(s for s in res.selected if s.candidate.name == "g_sensitivity")

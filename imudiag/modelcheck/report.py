@@ -60,8 +60,10 @@ def write(report: dict[str, Any], dest: str | Path) -> None:
 def summary(report: dict[str, Any]) -> list[str]:
     """A few human-readable lines."""
     q = report.get("quasi_static", {})
-    lines = [f"{report.get('samples', 0)} samples, {q.get('chunks', 0)} quasi-static chunks "
-             f"in {q.get('runs', 0)} still runs, {q.get('attitudes', 0)} attitudes"]
+    lines = [
+        f"{report.get('samples', 0)} samples, {q.get('chunks', 0)} quasi-static chunks "
+        f"in {q.get('runs', 0)} still runs, {q.get('attitudes', 0)} attitudes"
+    ]
     if not report["effects"]:
         lines.append("no effect beyond the certificate's model")
     for e in report["effects"]:
@@ -70,8 +72,9 @@ def summary(report: dict[str, Any]) -> list[str]:
             extra = f" at t={e['t']} s"
         if "frequency" in e:
             extra = f" at {e['frequency']} Hz"
-        lines.append(f"{e['name']} {e['sensor']}: {e['value']} {e['unit']}{extra} "
-                     f"(z={e['significance']})")
+        lines.append(
+            f"{e['name']} {e['sensor']}: {e['value']} {e['unit']}{extra} (z={e['significance']})"
+        )
     for metric, by_triad in report["gain"].items():
         parts = [f"{t} {v}" for t, v in by_triad.items() if v is not None]
         if parts:

@@ -40,8 +40,14 @@ SENSORS = {"gyro": ("gx", "gy", "gz"), "accel": ("ax", "ay", "az")}
 #: symmetric misalignment pairs of the accelerometer nuisance
 _PAIRS = ((0, 1), (0, 2), (1, 2))
 #: position of each misalignment key in N and its sign there (certificate.md)
-_N_ENTRY = {"xz": (0, 1, 1.0), "xy": (0, 2, -1.0), "yz": (1, 0, -1.0), "yx": (1, 2, 1.0),
-            "zy": (2, 0, 1.0), "zx": (2, 1, -1.0)}
+_N_ENTRY = {
+    "xz": (0, 1, 1.0),
+    "xy": (0, 2, -1.0),
+    "yz": (1, 0, -1.0),
+    "yx": (1, 2, 1.0),
+    "zy": (2, 0, 1.0),
+    "zx": (2, 1, -1.0),
+}
 
 
 @dataclass
@@ -123,8 +129,9 @@ def white_variance(session: Session) -> np.ndarray:
     return np.maximum(est, np.maximum(q2, 1e-30))
 
 
-def norm_and_gradient(triad: TriadModel, u: np.ndarray, temp: np.ndarray | None
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def norm_and_gradient(
+    triad: TriadModel, u: np.ndarray, temp: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Inputs x (C, 3), |x| (C,) and d|x|/dU (C, 3) per output unit (central differences)."""
     x = triad.inverse(u, temp_c=temp)
     norm = np.linalg.norm(x, axis=1)
@@ -145,8 +152,9 @@ def _nx(triad: TriadModel, u: np.ndarray, temp: np.ndarray | None) -> np.ndarray
     return x @ triad.n_matrix().T
 
 
-def accel_nuisance_columns(triad: TriadModel, u: np.ndarray, temp: np.ndarray | None,
-                           grad: np.ndarray) -> tuple[np.ndarray, list[str]]:
+def accel_nuisance_columns(
+    triad: TriadModel, u: np.ndarray, temp: np.ndarray | None, grad: np.ndarray
+) -> tuple[np.ndarray, list[str]]:
     """Columns (C, 6) of the accelerometer's scale errors E_j (output per input unit) and
     symmetric misalignment terms (rad) on the norm residual."""
     x = triad.inverse(u, temp_c=temp)
@@ -160,8 +168,12 @@ def accel_nuisance_columns(triad: TriadModel, u: np.ndarray, temp: np.ndarray | 
     return np.stack(cols, axis=1), names
 
 
-def with_effects(tri: TriadModel, effects: list[tuple[str, int, int | None]],
-                  values: np.ndarray, reference: float) -> TriadModel:
+def with_effects(
+    tri: TriadModel,
+    effects: list[tuple[str, int, int | None]],
+    values: np.ndarray,
+    reference: float,
+) -> TriadModel:
     """``tri`` with temperature / nonlinearity effects of the given values added."""
     out = copy.deepcopy(tri)
     for (name, j, _b), v in zip(effects, values, strict=True):
@@ -179,9 +191,14 @@ def with_effects(tri: TriadModel, effects: list[tuple[str, int, int | None]],
     return out
 
 
-def _effect_columns(tri: TriadModel, u: np.ndarray, temp: np.ndarray | None,
-                    grad: np.ndarray, effects: list[tuple[str, int, int | None]],
-                    reference: float) -> np.ndarray:
+def _effect_columns(
+    tri: TriadModel,
+    u: np.ndarray,
+    temp: np.ndarray | None,
+    grad: np.ndarray,
+    effects: list[tuple[str, int, int | None]],
+    reference: float,
+) -> np.ndarray:
     """Columns (C, k) of the effects on the norm residual at the current model."""
     nx = tri.inverse(u, temp_c=temp) @ tri.n_matrix().T
     d_t = (temp - reference) if temp is not None else np.zeros(u.shape[0])
@@ -201,14 +218,25 @@ def _effect_columns(tri: TriadModel, u: np.ndarray, temp: np.ndarray | None,
 
 def accel_effect_specs(selected: list) -> list[tuple[str, int, int | None]]:
     """(name, axis, step boundary) of the selected effects of an accelerometer channel."""
-    return [(s.candidate.name, SENSORS["accel"].index(s.candidate.sensor),
-             s.candidate.extra.get("boundary")) for s in selected]
+    return [
+        (
+            s.candidate.name,
+            SENSORS["accel"].index(s.candidate.sensor),
+            s.candidate.extra.get("boundary"),
+        )
+        for s in selected
+    ]
 
 
-def refit_accel(certificate: Certificate, session: Session, sigma2: np.ndarray,
-                effects: list[tuple[str, int, int | None]] | None = None,
-                reference: float = 25.0, iterations: int = 6,
-                mask: np.ndarray | None = None) -> tuple[TriadModel, np.ndarray]:
+def refit_accel(
+    certificate: Certificate,
+    session: Session,
+    sigma2: np.ndarray,
+    effects: list[tuple[str, int, int | None]] | None = None,
+    reference: float = 25.0,
+    iterations: int = 6,
+    mask: np.ndarray | None = None,
+) -> tuple[TriadModel, np.ndarray]:
     """The accelerometer model with biases, scale-factor errors and symmetric misalignment
     re-estimated on the session's chunks (Gauss-Newton on the exact norm residual, weak
     prior of 10 limits at the certificate: directions the attitudes do not determine stay
@@ -224,8 +252,7 @@ def refit_accel(certificate: Certificate, session: Session, sigma2: np.ndarray,
     temp = c.temp if session.has_temp else None
     g_in = certificate.gravity / tri.unit_to_si
     var_mean = sigma2[3:] / c.n[:, None]
-    lim = np.concatenate([tri.limits.bias, tri.limits.scale_factor_error,
-                          tri.limits.misalignment])
+    lim = np.concatenate([tri.limits.bias, tri.limits.scale_factor_error, tri.limits.misalignment])
     # solved in units of the prior's standard deviation (10 limits; effects: unit column
     # RMS), so that directions the attitudes do not determine are shared as the prior says
     prior = np.concatenate([np.ones(9), np.zeros(len(effects))])
@@ -241,8 +268,9 @@ def refit_accel(certificate: Certificate, session: Session, sigma2: np.ndarray,
         y = norm - g_in
         r = np.sum(grad**2 * var_mean, axis=1) + (1e-7 * g_in) ** 2
         cols, _names = accel_nuisance_columns(model, u, temp, grad)
-        a = np.concatenate([grad, cols, _effect_columns(model, u, temp, grad, effects,
-                                                        reference)], axis=1)
+        a = np.concatenate(
+            [grad, cols, _effect_columns(model, u, temp, grad, effects, reference)], axis=1
+        )
         w = 1.0 / r
         if mask is not None:
             w = np.where(mask, w, 0.0)
@@ -304,8 +332,9 @@ def distinct_attitudes(up: np.ndarray, separation_deg: float = 10.0) -> int:
     return len(kept)
 
 
-def _step_candidates(triad: str, sensor: str, axis: int, n: int, unit: str,
-                     config: ModelCheckConfig) -> list[Candidate]:
+def _step_candidates(
+    triad: str, sensor: str, axis: int, n: int, unit: str, config: ModelCheckConfig
+) -> list[Candidate]:
     """Bias-step hypotheses at chunk boundaries (at least two chunks each side); their
     regressors ``H[:, axis] * (i >= boundary)`` are generated by the filter, not stored."""
     positions = np.arange(2, n - 1)
@@ -313,14 +342,27 @@ def _step_candidates(triad: str, sensor: str, axis: int, n: int, unit: str,
         return []
     stride = max(1, int(math.ceil(positions.shape[0] / config.max_step_candidates)))
     trials = float(positions.shape[0])
-    return [Candidate("bias_step", triad, sensor, None, unit,
-                      extra={"boundary": int(i), "stride": stride, "axis": axis},
-                      trials=trials)
-            for i in positions[::stride].tolist()]
+    return [
+        Candidate(
+            "bias_step",
+            triad,
+            sensor,
+            None,
+            unit,
+            extra={"boundary": int(i), "stride": stride, "axis": axis},
+            trials=trials,
+        )
+        for i in positions[::stride].tolist()
+    ]
 
 
-def build_channels(certificate: Certificate, session: Session, config: ModelCheckConfig,
-                   accel: TriadModel, sigma2: np.ndarray) -> list[Channel]:
+def build_channels(
+    certificate: Certificate,
+    session: Session,
+    config: ModelCheckConfig,
+    accel: TriadModel,
+    sigma2: np.ndarray,
+) -> list[Channel]:
     """The gyro-axis channels and the accelerometer-norm channel of a session."""
     c = session.chunks
     if len(c) == 0:
@@ -335,44 +377,87 @@ def build_channels(certificate: Certificate, session: Session, config: ModelChec
     n_att = distinct_attitudes(ups)
     t_span = (float(np.nanmax(c.temp) - np.nanmin(c.temp))) if session.has_temp else 0.0
     temp_ok = session.has_temp and t_span >= config.min_temperature_span
-    temp_reason = ("no temperature column in the log" if not session.has_temp else
-                   f"temperature spans only {t_span:.2f} degC")
+    temp_reason = (
+        "no temperature column in the log"
+        if not session.has_temp
+        else f"temperature spans only {t_span:.2f} degC"
+    )
 
     # -- gyro axes -----------------------------------------------------------------------
     g_out = gyro.output_unit
     acc_in_unit = accel.input_unit
-    pred = gyro.forward(np.zeros((len(c), 3)), temp_c=temp,
-                        accel_input=a_in if gyro.g_sensitivity is not None else None)
+    pred = gyro.forward(
+        np.zeros((len(c), 3)),
+        temp_c=temp,
+        accel_input=a_in if gyro.g_sensitivity is not None else None,
+    )
     earth_out = certificate.earth_rate / gyro.unit_to_si * gyro.scale_factor
-    k_cert_g = (gyro.noise.bias_random_walk if gyro.noise is not None
-                and gyro.noise.bias_random_walk is not None else np.zeros(3))
+    k_cert_g = (
+        gyro.noise.bias_random_walk
+        if gyro.noise is not None and gyro.noise.bias_random_walk is not None
+        else np.zeros(3)
+    )
     t_ref_g = temperature_reference(gyro, config)
     for j, sensor in enumerate(SENSORS["gyro"]):
         y = c.gyro[:, j] - pred[:, j]
         r = sigma2[j] / n + earth_out[j] ** 2 / 3.0
         ch = Channel(
-            triad="gyro", label=sensor, sensors=(sensor,), t=t, y=y, H=np.ones((len(c), 1)),
-            R=r, to_input=np.full(len(c), 1.0 / gyro.scale_factor[j]),
-            nuisance=np.zeros((len(c), 0)), nuisance_names=[],
-            k_cert=np.array([k_cert_g[j]]), y_unit=g_out,
+            triad="gyro",
+            label=sensor,
+            sensors=(sensor,),
+            t=t,
+            y=y,
+            H=np.ones((len(c), 1)),
+            R=r,
+            to_input=np.full(len(c), 1.0 / gyro.scale_factor[j]),
+            nuisance=np.zeros((len(c), 0)),
+            nuisance_names=[],
+            k_cert=np.array([k_cert_g[j]]),
+            y_unit=g_out,
         )
         if temp_ok:
-            ch.candidates.append(Candidate("temperature_bias", "gyro", sensor,
-                                           (c.temp - t_ref_g)[:, None], f"{g_out}/degC",
-                                           extra={"reference": t_ref_g}))
+            ch.candidates.append(
+                Candidate(
+                    "temperature_bias",
+                    "gyro",
+                    sensor,
+                    (c.temp - t_ref_g)[:, None],
+                    f"{g_out}/degC",
+                    extra={"reference": t_ref_g},
+                )
+            )
         else:
-            ch.untestable.append({"name": "temperature_bias", "triad": "gyro", "sensor": sensor,
-                                  "reason": temp_reason})
+            ch.untestable.append(
+                {
+                    "name": "temperature_bias",
+                    "triad": "gyro",
+                    "sensor": sensor,
+                    "reason": temp_reason,
+                }
+            )
         if n_att >= 4:
             # Earth rate projects on a gyro axis by up to S * Omega as the attitude changes
             # (heading unknown): a g-sensitivity must move the bias by more than 3 times that
             g_in = certificate.gravity / accel.unit_to_si
-            ch.candidates.append(Candidate("g_sensitivity", "gyro", sensor, a_in.copy(),
-                                           f"{g_out}/({acc_in_unit})",
-                                           min_norm=3.0 * float(earth_out[j]) / g_in))
+            ch.candidates.append(
+                Candidate(
+                    "g_sensitivity",
+                    "gyro",
+                    sensor,
+                    a_in.copy(),
+                    f"{g_out}/({acc_in_unit})",
+                    min_norm=3.0 * float(earth_out[j]) / g_in,
+                )
+            )
         else:
-            ch.untestable.append({"name": "g_sensitivity", "triad": "gyro", "sensor": sensor,
-                                  "reason": f"{n_att} distinct attitude(s): needs 4 or more"})
+            ch.untestable.append(
+                {
+                    "name": "g_sensitivity",
+                    "triad": "gyro",
+                    "sensor": sensor,
+                    "reason": f"{n_att} distinct attitude(s): needs 4 or more",
+                }
+            )
         ch.candidates += _step_candidates("gyro", sensor, 0, len(c), g_out, config)
         out.append(ch)
 
@@ -383,12 +468,24 @@ def build_channels(certificate: Certificate, session: Session, config: ModelChec
     y = norm - g_in
     r = np.sum(grad**2 * sigma2[3:] / n[:, None], axis=1) + (1e-7 * g_in) ** 2
     nuis, nuis_names = accel_nuisance_columns(accel, c.accel, temp, grad)
-    k_cert_a = (accel.noise.bias_random_walk if accel.noise is not None
-                and accel.noise.bias_random_walk is not None else np.zeros(3))
+    k_cert_a = (
+        accel.noise.bias_random_walk
+        if accel.noise is not None and accel.noise.bias_random_walk is not None
+        else np.zeros(3)
+    )
     ch = Channel(
-        triad="accel", label="accel", sensors=SENSORS["accel"], t=t, y=y, H=grad, R=r,
-        to_input=np.ones(len(c)), nuisance=nuis, nuisance_names=nuis_names,
-        k_cert=np.asarray(k_cert_a, dtype=float), y_unit=accel.input_unit,
+        triad="accel",
+        label="accel",
+        sensors=SENSORS["accel"],
+        t=t,
+        y=y,
+        H=grad,
+        R=r,
+        to_input=np.ones(len(c)),
+        nuisance=nuis,
+        nuisance_names=nuis_names,
+        k_cert=np.asarray(k_cert_a, dtype=float),
+        y_unit=accel.input_unit,
     )
     nx = x @ accel.n_matrix().T
     t_ref_a = temperature_reference(accel, config)
@@ -397,31 +494,67 @@ def build_channels(certificate: Certificate, session: Session, config: ModelChec
     for j, sensor in enumerate(SENSORS["accel"]):
         h = grad[:, j]
         if seen[j] <= 0.05:
-            for name in ("temperature_bias", "temperature_scale", "scale_nonlinearity",
-                         "bias_step", "bias_drift"):
-                ch.untestable.append({"name": name, "triad": "accel", "sensor": sensor,
-                                      "reason": "the sensor's axis never sees gravity"})
+            for name in (
+                "temperature_bias",
+                "temperature_scale",
+                "scale_nonlinearity",
+                "bias_step",
+                "bias_drift",
+            ):
+                ch.untestable.append(
+                    {
+                        "name": name,
+                        "triad": "accel",
+                        "sensor": sensor,
+                        "reason": "the sensor's axis never sees gravity",
+                    }
+                )
             continue
         if temp_ok:
-            ch.candidates.append(Candidate("temperature_bias", "accel", sensor,
-                                           (h * (c.temp - t_ref_a))[:, None], f"{a_out}/degC",
-                                           extra={"reference": t_ref_a}))
-            ch.candidates.append(Candidate(
-                "temperature_scale", "accel", sensor,
-                (h * accel.scale_factor[j] * nx[:, j] * (c.temp - t_ref_a))[:, None], "1/degC",
-                extra={"reference": t_ref_a}))
+            ch.candidates.append(
+                Candidate(
+                    "temperature_bias",
+                    "accel",
+                    sensor,
+                    (h * (c.temp - t_ref_a))[:, None],
+                    f"{a_out}/degC",
+                    extra={"reference": t_ref_a},
+                )
+            )
+            ch.candidates.append(
+                Candidate(
+                    "temperature_scale",
+                    "accel",
+                    sensor,
+                    (h * accel.scale_factor[j] * nx[:, j] * (c.temp - t_ref_a))[:, None],
+                    "1/degC",
+                    extra={"reference": t_ref_a},
+                )
+            )
         else:
             for name in ("temperature_bias", "temperature_scale"):
-                ch.untestable.append({"name": name, "triad": "accel", "sensor": sensor,
-                                      "reason": temp_reason})
+                ch.untestable.append(
+                    {"name": name, "triad": "accel", "sensor": sensor, "reason": temp_reason}
+                )
         if n_att >= 4:
-            ch.candidates.append(Candidate("scale_nonlinearity", "accel", sensor,
-                                           (h * nx[:, j] ** 2)[:, None],
-                                           f"{a_out}/({accel.input_unit})^2"))
+            ch.candidates.append(
+                Candidate(
+                    "scale_nonlinearity",
+                    "accel",
+                    sensor,
+                    (h * nx[:, j] ** 2)[:, None],
+                    f"{a_out}/({accel.input_unit})^2",
+                )
+            )
         else:
-            ch.untestable.append({"name": "scale_nonlinearity", "triad": "accel",
-                                  "sensor": sensor,
-                                  "reason": f"{n_att} distinct attitude(s): needs 4 or more"})
+            ch.untestable.append(
+                {
+                    "name": "scale_nonlinearity",
+                    "triad": "accel",
+                    "sensor": sensor,
+                    "reason": f"{n_att} distinct attitude(s): needs 4 or more",
+                }
+            )
         ch.candidates += _step_candidates("accel", sensor, j, len(c), a_out, config)
     out.append(ch)
     return out

@@ -87,8 +87,7 @@ def _rates(gyro: TriadModel, u: np.ndarray, bias: np.ndarray) -> np.ndarray:
     return x @ np.linalg.inv(gyro.n_matrix()).T
 
 
-def _predict(omega_in: np.ndarray, to_si: float, dt: np.ndarray, up0: np.ndarray
-             ) -> np.ndarray:
+def _predict(omega_in: np.ndarray, to_si: float, dt: np.ndarray, up0: np.ndarray) -> np.ndarray:
     """End directions (P, 3) for rate sets (P, m, 3) in input units."""
     w = omega_in * to_si
     theta = 0.5 * (w[:, 1:] + w[:, :-1]) * dt[None, :, None]
@@ -96,9 +95,16 @@ def _predict(omega_in: np.ndarray, to_si: float, dt: np.ndarray, up0: np.ndarray
     return np.einsum("pji,j->pi", c, up0)
 
 
-def reduce_motion(window: MotionWindow, certificate: Certificate, accel: TriadModel,
-                  chunks: Chunks, g_sens: np.ndarray | None,
-                  sigma2: np.ndarray, t_ref: float, max_step: float) -> RotationPair | None:
+def reduce_motion(
+    window: MotionWindow,
+    certificate: Certificate,
+    accel: TriadModel,
+    chunks: Chunks,
+    g_sens: np.ndarray | None,
+    sigma2: np.ndarray,
+    t_ref: float,
+    max_step: float,
+) -> RotationPair | None:
     """The regression rows of one motion, or None when it cannot be used."""
     if not window.rows:
         return None
@@ -116,20 +122,22 @@ def reduce_motion(window: MotionWindow, certificate: Certificate, accel: TriadMo
     for i in (b, a):
         sel = chunks.run == chunks.run[i]
         n_run = chunks.n[sel]
-        runs.append((np.sum(chunks.gyro[sel] * n_run[:, None], axis=0) / n_run.sum(),
-                     int(n_run.sum())))
+        runs.append(
+            (np.sum(chunks.gyro[sel] * n_run[:, None], axis=0) / n_run.sum(), int(n_run.sum()))
+        )
     (bias_b, n_b), (bias_a, n_a) = runs
     w = np.clip((t - window.t0) / max(window.t1 - window.t0, 1e-9), 0.0, 1.0)[:, None]
     bias = (1.0 - w) * bias_b + w * bias_a
     if g_sens is not None:
         a_meas = accel.inverse(rows[:, 4:7], temp_c=temp)
-        a_rest = (1.0 - w) * accel.inverse(chunks.accel[b:b + 1])[0] + w * accel.inverse(
-            chunks.accel[a:a + 1])[0]
+        a_rest = (1.0 - w) * accel.inverse(chunks.accel[b : b + 1])[0] + w * accel.inverse(
+            chunks.accel[a : a + 1]
+        )[0]
         bias = bias + (a_meas - a_rest) @ g_sens.T
     omega = _rates(gyro, rows[:, 1:4], bias)  # input units
     up = []
     for i in (b, a):
-        f = accel.inverse(chunks.accel[i:i + 1])[0]
+        f = accel.inverse(chunks.accel[i : i + 1])[0]
         up.append(f / np.linalg.norm(f))
     up0, up1 = up
     dt = np.diff(t)
@@ -144,7 +152,7 @@ def reduce_motion(window: MotionWindow, certificate: Certificate, accel: TriadMo
         basis[3 + p, :, j] = -omega[:, k]
     for j in range(3):
         basis[9 + j, :, j] = -omega[:, j] * dT
-        basis[12 + j, :, j] = -omega[:, j] ** 2 / s_in[j]
+        basis[12 + j, :, j] = -(omega[:, j] ** 2) / s_in[j]
     steps = np.array([1e-6] * 9 + [1e-6] * 3 + [1e-6 * s_in[j] / peak for j in range(3)])
     sets = np.concatenate([omega[None], omega[None] + steps[:, None, None] * basis])
     pred = _predict(sets, gyro.unit_to_si, dt, up0)
@@ -173,8 +181,11 @@ def reduce_motion(window: MotionWindow, certificate: Certificate, accel: TriadMo
 class MotionCollector:
     """Collects the samples of every motion window during the second pass."""
 
-    def __init__(self, windows: list[MotionWindow],
-                 reduce: Callable[[MotionWindow], RotationPair | None] | None = None) -> None:
+    def __init__(
+        self,
+        windows: list[MotionWindow],
+        reduce: Callable[[MotionWindow], RotationPair | None] | None = None,
+    ) -> None:
         self.windows = windows
         self._t0 = np.array([w.t0 for w in windows])
         self._t1 = np.array([w.t1 for w in windows])
@@ -192,8 +203,9 @@ class MotionCollector:
         if pair is not None:
             self.pairs.append(pair)
 
-    def add(self, t: np.ndarray, gyro: np.ndarray, accel: np.ndarray,
-            temp: np.ndarray | None) -> None:
+    def add(
+        self, t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, temp: np.ndarray | None
+    ) -> None:
         """Feed all samples of a block (in time order)."""
         if not self.windows or t.shape[0] == 0:
             return
@@ -208,8 +220,11 @@ class MotionCollector:
             rows[:, 7] = np.nan if temp is None else temp[idx]
             kk = k[idx]
             cut = np.flatnonzero(np.diff(kk) != 0) + 1
-            for s0, s1 in zip(np.concatenate([[0], cut]).tolist(),
-                              np.concatenate([cut, [idx.shape[0]]]).tolist(), strict=True):
+            for s0, s1 in zip(
+                np.concatenate([[0], cut]).tolist(),
+                np.concatenate([cut, [idx.shape[0]]]).tolist(),
+                strict=True,
+            ):
                 self.windows[int(kk[s0])].rows.append(rows[s0:s1])
         # windows that ended before this block's last sample are complete
         while self._next < len(self.windows) and self._t1[self._next] < t[-1]:
@@ -248,9 +263,14 @@ def usable_pairs(pairs: list[RotationPair], max_misfit_rad: float) -> list[Rotat
     return [p for p, k in zip(pairs, keep, strict=True) if k]
 
 
-def rotation_channel(pairs: list[RotationPair], certificate: Certificate,
-                     config: ModelCheckConfig, has_temp: bool, temp_span: float,
-                     t_ref: float) -> Channel | None:
+def rotation_channel(
+    pairs: list[RotationPair],
+    certificate: Certificate,
+    config: ModelCheckConfig,
+    has_temp: bool,
+    temp_span: float,
+    t_ref: float,
+) -> Channel | None:
     """The direction residuals of all motions as a channel (no random-walk state)."""
     gyro = certificate.gyro
     pairs = usable_pairs(pairs, config.max_turn_misfit_rad)
@@ -264,24 +284,53 @@ def rotation_channel(pairs: list[RotationPair], certificate: Certificate,
     group = np.repeat(np.arange(len(pairs)), 2)
     out_unit, in_unit = gyro.output_unit, gyro.input_unit
     ch = Channel(
-        triad="gyro", label="rotation", sensors=(), t=t, y=y, H=np.zeros((y.shape[0], 0)),
-        R=r, to_input=np.ones(y.shape[0]), nuisance=jac[:, :_N_NUIS],
+        triad="gyro",
+        label="rotation",
+        sensors=(),
+        t=t,
+        y=y,
+        H=np.zeros((y.shape[0], 0)),
+        R=r,
+        to_input=np.ones(y.shape[0]),
+        nuisance=jac[:, :_N_NUIS],
         nuisance_names=[f"scale.{a}" for a in "xyz"] + [f"M.{j}{k}" for j, k in _OFF],
-        k_cert=np.zeros(0), y_unit="rad", drift_ok=np.zeros(0, dtype=bool), group=group,
+        k_cert=np.zeros(0),
+        y_unit="rad",
+        drift_ok=np.zeros(0, dtype=bool),
+        group=group,
     )
     temp_ok = has_temp and temp_span >= config.min_temperature_span
     for j, sensor in enumerate(("gx", "gy", "gz")):
         if temp_ok:
-            ch.candidates.append(Candidate("temperature_scale", "gyro", sensor,
-                                           jac[:, 9 + j:10 + j], "1/degC",
-                                           extra={"reference": t_ref}))
-        ch.candidates.append(Candidate("scale_nonlinearity", "gyro", sensor,
-                                       jac[:, 12 + j:13 + j], f"{out_unit}/({in_unit})^2"))
+            ch.candidates.append(
+                Candidate(
+                    "temperature_scale",
+                    "gyro",
+                    sensor,
+                    jac[:, 9 + j : 10 + j],
+                    "1/degC",
+                    extra={"reference": t_ref},
+                )
+            )
+        ch.candidates.append(
+            Candidate(
+                "scale_nonlinearity",
+                "gyro",
+                sensor,
+                jac[:, 12 + j : 13 + j],
+                f"{out_unit}/({in_unit})^2",
+            )
+        )
     if not temp_ok:
-        reason = ("no temperature column in the log" if not has_temp else
-                  f"temperature spans only {temp_span:.2f} degC")
-        ch.untestable += [{"name": "temperature_scale", "triad": "gyro", "sensor": s,
-                           "reason": reason} for s in ("gx", "gy", "gz")]
+        reason = (
+            "no temperature column in the log"
+            if not has_temp
+            else f"temperature spans only {temp_span:.2f} degC"
+        )
+        ch.untestable += [
+            {"name": "temperature_scale", "triad": "gyro", "sensor": s, "reason": reason}
+            for s in ("gx", "gy", "gz")
+        ]
     return ch
 
 

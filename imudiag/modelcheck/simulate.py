@@ -45,13 +45,20 @@ def with_noise(certificate: Certificate, density: np.ndarray) -> Certificate:
         tri = cert.triad(name)
         if tri.noise is None:
             tri.noise = Noise()
-        tri.noise.density = np.asarray(density[3 * k:3 * k + 3], dtype=float)
+        tri.noise.density = np.asarray(density[3 * k : 3 * k + 3], dtype=float)
     return cert
 
 
-def simulate_session(certificate: Certificate, noise: NoiseModel, session: Session,
-                     segments: Segments, chunk_input: np.ndarray, stats: SegmentStats,
-                     seed: int, halves: tuple[int, ...] = (0, 1)) -> None:
+def simulate_session(
+    certificate: Certificate,
+    noise: NoiseModel,
+    session: Session,
+    segments: Segments,
+    chunk_input: np.ndarray,
+    stats: SegmentStats,
+    seed: int,
+    halves: tuple[int, ...] = (0, 1),
+) -> None:
     """Simulate the still segments of ``session`` and accumulate them into ``stats``.
 
     ``chunk_input`` (C, 3): the specific force of every chunk, accel input units.
@@ -74,8 +81,12 @@ def simulate_session(certificate: Certificate, noise: NoiseModel, session: Sessi
         temperature_reference=25.0,
         bias_step=[BiasStep(s, t, size) for s, t, size in noise.steps],
         periodic_disturbance=[
-            PeriodicDisturbance(ln.sensor, ln.amplitude, ln.frequency,
-                                float(np.random.default_rng(seed + i).uniform(0, 2 * np.pi)))
+            PeriodicDisturbance(
+                ln.sensor,
+                ln.amplitude,
+                ln.frequency,
+                float(np.random.default_rng(seed + i).uniform(0, 2 * np.pi)),
+            )
             for i, ln in enumerate(noise.lines)
         ],
     )
@@ -93,16 +104,20 @@ def simulate_session(certificate: Certificate, noise: NoiseModel, session: Sessi
         t = c.t_start[chunk] + offsets / rate
         n = t.shape[0]
         traj = Trajectory(
-            t=t, omega=np.zeros((n, 3)), specific_force=f_si[chunk],
-            attitude=np.broadcast_to(np.eye(3), (n, 3, 3)), static=np.ones(n, dtype=bool),
+            t=t,
+            omega=np.zeros((n, 3)),
+            specific_force=f_si[chunk],
+            attitude=np.broadcast_to(np.eye(3), (n, 3, 3)),
+            static=np.ones(n, dtype=bool),
             rate_hz=rate,
         )
         block = sim.step(traj)
         u = np.concatenate([block.gyro, block.accel], axis=1)
         q = np.where(quantum > 0, quantum, 1.0)
         u = np.where(quantum > 0, np.round(u / q) * q, u)
-        stats.add(block.t, u, block.temp if session.has_temp else None, chunk,
-                  int(segments.half[seg]))
+        stats.add(
+            block.t, u, block.temp if session.has_temp else None, chunk, int(segments.half[seg])
+        )
 
 
 __all__ = ["NoiseModel", "simulate_session", "with_noise"]

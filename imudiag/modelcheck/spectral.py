@@ -65,8 +65,9 @@ def _floor(p: np.ndarray, dof: float) -> np.ndarray:
     return running_median(p) / chi2_ratio_quantile(dof, 0.0)
 
 
-def _fit_line(freq: np.ndarray, p: np.ndarray, floor: np.ndarray, k: int, nperseg: int,
-              rate_hz: float) -> tuple[float, float]:
+def _fit_line(
+    freq: np.ndarray, p: np.ndarray, floor: np.ndarray, k: int, nperseg: int, rate_hz: float
+) -> tuple[float, float]:
     """(f Hz, A^2) of the sinusoid that best explains the excess around bin k."""
     df = freq[1] - freq[0]
     lo, hi = max(k - _HALF_WIDTH, 1), min(k + _HALF_WIDTH + 1, freq.shape[0])
@@ -89,9 +90,15 @@ def _gamma_loglik(p: np.ndarray, model: np.ndarray, dof: float) -> float:
     return float(-0.5 * dof * np.sum(np.log(model) + p / model))
 
 
-def find_lines(fit: tuple[np.ndarray, np.ndarray, int], test: tuple[np.ndarray, np.ndarray, int],
-               nperseg: int, rate_hz: float, z_min: float, max_lines: int,
-               heldout_min: float = 0.0) -> tuple[list[Line], list[dict]]:
+def find_lines(
+    fit: tuple[np.ndarray, np.ndarray, int],
+    test: tuple[np.ndarray, np.ndarray, int],
+    nperseg: int,
+    rate_hz: float,
+    z_min: float,
+    max_lines: int,
+    heldout_min: float = 0.0,
+) -> tuple[list[Line], list[dict]]:
     """Lines found on ``fit`` (freq, PSD (F, 6), segments) and confirmed on ``test``.
 
     Returns the named lines and the strongest test per sensor (for the report).
@@ -113,8 +120,11 @@ def find_lines(fit: tuple[np.ndarray, np.ndarray, int], test: tuple[np.ndarray, 
     for j, sensor in enumerate(SENSORS):
         ratio = p1[:, j] / np.maximum(floor1[:, j], 1e-300)
         # local maxima among usable bins
-        cand = [k for k in usable.tolist()
-                if ratio[k] >= ratio[k - 1] and ratio[k] >= ratio[k + 1] and ratio[k] > 1.0]
+        cand = [
+            k
+            for k in usable.tolist()
+            if ratio[k] >= ratio[k - 1] and ratio[k] >= ratio[k + 1] and ratio[k] > 1.0
+        ]
         scored = []
         for k in cand:
             log_p = log_chi2_sf(dof1 * ratio[k], dof1) + math.log(trials)
@@ -122,8 +132,15 @@ def find_lines(fit: tuple[np.ndarray, np.ndarray, int], test: tuple[np.ndarray, 
         scored.sort(reverse=True)
         if scored:
             z0, k0 = scored[0]
-            tested.append({"name": "periodic_disturbance", "sensor": sensor, "significance": z0,
-                           "frequency": float(freq[k0]), "ratio": float(ratio[k0])})
+            tested.append(
+                {
+                    "name": "periodic_disturbance",
+                    "sensor": sensor,
+                    "significance": z0,
+                    "frequency": float(freq[k0]),
+                    "ratio": float(ratio[k0]),
+                }
+            )
         taken: list[int] = []
         for z, k in scored:
             if z < z_min or len(taken) >= max_lines:
@@ -137,14 +154,21 @@ def find_lines(fit: tuple[np.ndarray, np.ndarray, int], test: tuple[np.ndarray, 
             shape = line_shape(freq[lo:hi], f, nperseg, rate_hz)
             base = floor2[lo:hi, j]
             obs = p2[lo:hi, j]
-            gain = (_gamma_loglik(obs, base + a2 * shape, dof2)
-                    - _gamma_loglik(obs, base, dof2))
+            gain = _gamma_loglik(obs, base + a2 * shape, dof2) - _gamma_loglik(obs, base, dof2)
             tested[-1]["heldout"] = max(tested[-1].get("heldout", -math.inf), gain)
             if gain <= heldout_min:
                 continue
             taken.append(k)
-            lines.append(Line(sensor=sensor, frequency=f, amplitude=math.sqrt(a2),
-                              significance=z, heldout=gain, ratio=float(ratio[k])))
+            lines.append(
+                Line(
+                    sensor=sensor,
+                    frequency=f,
+                    amplitude=math.sqrt(a2),
+                    significance=z,
+                    heldout=gain,
+                    ratio=float(ratio[k]),
+                )
+            )
     return lines, tested
 
 

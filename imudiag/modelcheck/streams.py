@@ -66,8 +66,11 @@ def make_segments(chunks: Chunks, t_half: float, max_samples: int) -> Segments:
             or chunks.run[i] != run_list[seg]
             or half[i] != half_list[seg]
             or n_list[seg] + int(chunks.n[i]) > max_samples
-            or (i > 0 and chunks.t_start[i] - chunks.t_end[i - 1]
-                > 1.5 * (chunks.t_end[i] - chunks.t_start[i]) / max(int(chunks.n[i]) - 1, 1))
+            or (
+                i > 0
+                and chunks.t_start[i] - chunks.t_end[i - 1]
+                > 1.5 * (chunks.t_end[i] - chunks.t_start[i]) / max(int(chunks.n[i]) - 1, 1)
+            )
         )
         if new:
             seg += 1
@@ -76,9 +79,13 @@ def make_segments(chunks: Chunks, t_half: float, max_samples: int) -> Segments:
             n_list.append(0)
         of_chunk[i] = seg
         n_list[seg] += int(chunks.n[i])
-    return Segments(of_chunk=of_chunk, half=np.array(half_list, dtype=np.int64),
-                    run=np.array(run_list, dtype=np.int64), n=np.array(n_list, dtype=np.int64),
-                    t_half=t_half)
+    return Segments(
+        of_chunk=of_chunk,
+        half=np.array(half_list, dtype=np.int64),
+        run=np.array(run_list, dtype=np.int64),
+        n=np.array(n_list, dtype=np.int64),
+        t_half=t_half,
+    )
 
 
 def allan_m_grid(max_len: int, points_per_decade: int) -> np.ndarray:
@@ -145,8 +152,9 @@ class SegmentStats:
 
     # -- one segment ----------------------------------------------------------------
 
-    def add(self, t: np.ndarray, u: np.ndarray, temp: np.ndarray | None, chunk: np.ndarray,
-            half: int) -> None:
+    def add(
+        self, t: np.ndarray, u: np.ndarray, temp: np.ndarray | None, chunk: np.ndarray, half: int
+    ) -> None:
         """Accumulate one contiguous segment: t (n,) s, u (n, 6) raw outputs, chunk (n,)."""
         n = t.shape[0]
         if n == 0:
@@ -180,7 +188,7 @@ class SegmentStats:
         for i, mj in enumerate(self.m.tolist()):  # one vectorised pass per cluster size
             if 2 * mj > n:
                 break
-            d = x[2 * mj:] - 2.0 * x[mj:-mj] + x[:-2 * mj]
+            d = x[2 * mj :] - 2.0 * x[mj:-mj] + x[: -2 * mj]
             self.allan_sum[key][i] += np.einsum("ij,ij->j", d, d) / (mj * mj)
             self.allan_terms[key][i] += d.shape[0]
             self.allan_indep[key][i] += max(n // mj - 1, 0)
@@ -196,15 +204,16 @@ class SegmentStats:
         batch = max(1, (1 << 20) // (p * 6))
         k = np.arange(p)
         for b0 in range(0, starts.shape[0], batch):
-            idx = starts[b0:b0 + batch, None] + k[None, :]
+            idx = starts[b0 : b0 + batch, None] + k[None, :]
             seg = r[idx]  # (B, p, 6)
             seg = seg - seg.mean(axis=1, keepdims=True)
             spec = np.fft.rfft(seg * self._window[None, :, None], axis=1)
             self.psd_sum[key] += np.sum(spec.real**2 + spec.imag**2, axis=0)
             self.psd_count[key] += idx.shape[0]
 
-    def _f0(self, chk: F0Check, t: np.ndarray, u: np.ndarray, temp: np.ndarray | None,
-            chunk: np.ndarray) -> None:
+    def _f0(
+        self, chk: F0Check, t: np.ndarray, u: np.ndarray, temp: np.ndarray | None, chunk: np.ndarray
+    ) -> None:
         sel = np.ones(t.shape[0], dtype=bool) if chk.parity is None else (chunk % 2 == chk.parity)
         if not np.any(sel):
             return
@@ -222,8 +231,9 @@ class SegmentStats:
 
     # -- results ----------------------------------------------------------------------
 
-    def allan(self, name: str, halves: Iterable[int] = (0, 1)
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def allan(
+        self, name: str, halves: Iterable[int] = (0, 1)
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(tau s, adev (M, 6) output units, independent terms (M,)) over the given halves."""
         tot = np.zeros((self.m.shape[0], 6))
         terms = np.zeros(self.m.shape[0])
@@ -261,8 +271,13 @@ class SegmentStats:
         return self.noise.sample_sigma()
 
 
-def stream_measured(blocks: Iterable[SampleBlock], chunks: Chunks, segments: Segments,
-                    stats: SegmentStats, motion: MotionCollector | None = None) -> None:
+def stream_measured(
+    blocks: Iterable[SampleBlock],
+    chunks: Chunks,
+    segments: Segments,
+    stats: SegmentStats,
+    motion: MotionCollector | None = None,
+) -> None:
     """Feed the quasi-static samples of a measured log, one segment at a time (and every
     block to ``motion``, a :class:`~.rotations.MotionCollector`, when given)."""
     buf: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]] = []

@@ -43,8 +43,9 @@ _ROW = 31
 DEFAULT_BLOCK_SIZE = 8192
 
 
-def block_source(log: str | Path | SampleBlock | BlockSource,
-                 block_size: int = DEFAULT_BLOCK_SIZE) -> tuple[BlockSource, dict[str, Any]]:
+def block_source(
+    log: str | Path | SampleBlock | BlockSource, block_size: int = DEFAULT_BLOCK_SIZE
+) -> tuple[BlockSource, dict[str, Any]]:
     """A re-startable block source and the log's metadata, from a path, a block or a callable."""
     if isinstance(log, SampleBlock):
         whole = log
@@ -150,9 +151,14 @@ def _estimate_rate(t: np.ndarray, meta: dict[str, Any], fallback: float) -> floa
 class ChunkCollector:
     """Streaming first pass: feed blocks, then :meth:`finish` returns the :class:`Session`."""
 
-    def __init__(self, certificate: Certificate, config: ModelCheckConfig | None = None,
-                 meta: dict[str, Any] | None = None, rate_hz: float | None = None,
-                 detection_sigma: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        certificate: Certificate,
+        config: ModelCheckConfig | None = None,
+        meta: dict[str, Any] | None = None,
+        rate_hz: float | None = None,
+        detection_sigma: np.ndarray | None = None,
+    ) -> None:
         self.certificate = certificate
         self._rate_given = rate_hz
         self._detection_sigma = detection_sigma
@@ -178,19 +184,23 @@ class ChunkCollector:
 
     def _start(self, block: SampleBlock) -> None:
         cfg = self.config
-        self.rate_hz = self._rate_given or _estimate_rate(block.t, self.meta or block.meta,
-                                                          self.certificate.sample_rate)
+        self.rate_hz = self._rate_given or _estimate_rate(
+            block.t, self.meta or block.meta, self.certificate.sample_rate
+        )
         # the detector must not trust the noise figures being checked: it uses the noise
         # measured by :func:`detection_noise` (or estimates it itself, block-dependently)
         blind = copy.deepcopy(self.certificate)
         for k, tri in enumerate((blind.gyro, blind.accel)):
             tri.noise = None
             if self._detection_sigma is not None:
-                sig = np.asarray(self._detection_sigma[3 * k:3 * k + 3], dtype=float)
+                sig = np.asarray(self._detection_sigma[3 * k : 3 * k + 3], dtype=float)
                 if np.all(sig > 0) and np.all(np.isfinite(sig)):
                     tri.noise = Noise(density=sig / math.sqrt(self.rate_hz / 2.0))
         self.detector = QuasiStaticDetector(
-            blind, self.rate_hz, window_s=cfg.detector_window_s, k_sigma=cfg.detector_k_sigma,
+            blind,
+            self.rate_hz,
+            window_s=cfg.detector_window_s,
+            k_sigma=cfg.detector_k_sigma,
         )
         self.chunk_n = max(4, int(round(cfg.chunk_s * self.rate_hz)))
         self.min_chunk_n = max(4, int(round(cfg.min_chunk_s * self.rate_hz)))
@@ -231,7 +241,7 @@ class ChunkCollector:
         rows = np.concatenate(self._run)
         start = 0
         while rows.shape[0] - start >= self.chunk_n + reserve:
-            self._emit(rows[start:start + self.chunk_n])
+            self._emit(rows[start : start + self.chunk_n])
             start += self.chunk_n
         rest = rows[start:]
         self._run = [rest] if rest.shape[0] else []
@@ -337,22 +347,32 @@ class ChunkCollector:
             a = np.zeros((0, _ROW))
         c = a.shape[0]
         chunks = Chunks(
-            t_start=a[:, 0], t_end=a[:, 1], n=a[:, 2].astype(np.int64),
-            gyro=a[:, 3:6], accel=a[:, 6:9],
+            t_start=a[:, 0],
+            t_end=a[:, 1],
+            n=a[:, 2].astype(np.int64),
+            gyro=a[:, 3:6],
+            accel=a[:, 6:9],
             gyro_half=np.stack([a[:, 9:12], a[:, 15:18]], axis=1),
             accel_half=np.stack([a[:, 12:15], a[:, 18:21]], axis=1),
-            n_half=a[:, 21:23], sub_var=a[:, 25:31], temp=a[:, 23],
+            n_half=a[:, 21:23],
+            sub_var=a[:, 25:31],
+            temp=a[:, 23],
             run=a[:, 24].astype(np.int64),
         )
         if c and not self.has_temp:
             chunks.temp[:] = math.nan
         assert self.rate_hz is not None and self.t_first is not None
         return Session(
-            chunks=chunks, rate_hz=self.rate_hz, samples=self.samples,
-            static_samples=self.static_samples, t_first=self.t_first,
+            chunks=chunks,
+            rate_hz=self.rate_hz,
+            samples=self.samples,
+            static_samples=self.static_samples,
+            t_first=self.t_first,
             t_last=float(self._last_t if self._last_t is not None else self.t_first),
             has_temp=self.has_temp and c > 0 and bool(np.all(np.isfinite(chunks.temp))),
-            quantum=self._quantum(), meta=self.meta, chunk_s=self.config.chunk_s,
+            quantum=self._quantum(),
+            meta=self.meta,
+            chunk_s=self.config.chunk_s,
         )
 
 
@@ -369,8 +389,9 @@ def session_rate(source: BlockSource, meta: dict[str, Any], fallback: float) -> 
     return _estimate_rate(t[:1000], meta, fallback)
 
 
-def detection_noise(source: BlockSource, rate_hz: float, window_s: float,
-                    max_windows: int = 200_000) -> tuple[np.ndarray, int]:
+def detection_noise(
+    source: BlockSource, rate_hz: float, window_s: float, max_windows: int = 200_000
+) -> tuple[np.ndarray, int]:
     """Per-sample noise (6,) output units for the quasi-static detector, from the data.
 
     The variance of every sensor in fixed, non-overlapping windows of ``window_s`` (aligned
@@ -398,7 +419,7 @@ def detection_noise(source: BlockSource, rate_hz: float, window_s: float,
                 stride *= 2
                 parts = [np.concatenate(parts)[::2]]
                 kept = parts[0].shape[0]
-        carry = x[m * w:]
+        carry = x[m * w :]
     if not parts:
         return np.full(6, np.nan), total
     v = np.concatenate(parts)
@@ -406,8 +427,12 @@ def detection_noise(source: BlockSource, rate_hz: float, window_s: float,
     return np.sqrt(np.quantile(v, 0.05, axis=0) / ratio), total
 
 
-def collect(source: BlockSource, certificate: Certificate,
-            config: ModelCheckConfig | None = None, meta: dict[str, Any] | None = None) -> Session:
+def collect(
+    source: BlockSource,
+    certificate: Certificate,
+    config: ModelCheckConfig | None = None,
+    meta: dict[str, Any] | None = None,
+) -> Session:
     """Run the first pass over ``source`` (after a look at its rate and noise)."""
     cfg = copy.copy(config or ModelCheckConfig())
     meta = dict(meta or {})

@@ -335,8 +335,11 @@ class Daemon:
             # counter (and the log), not a latch that contradicts "faults" and "state"
             undetermined = {u["triad"] for u in self.diagnoser.undetermined}
             view: dict[str, Any] = {
-                name: "fault" if any(f["triad"] == name for f in faults_now)
-                else "undetermined" if name in undetermined else "ok"
+                name: "fault"
+                if any(f["triad"] == name for f in faults_now)
+                else "undetermined"
+                if name in undetermined
+                else "ok"
                 for name in ("accel", "gyro")
             }
             view["raised"] = len(self.diagnoser.tracker.raised)
@@ -357,8 +360,11 @@ class Daemon:
         monitor_faults = self.monitor.faults_in_force()
         aiding = self.aiding.faults() if self.aiding is not None else []
         cached = self._merged
-        if aiding or cached is None or cached[0] is not monitor_faults or (
-            cached[1] is not diag_faults
+        if (
+            aiding
+            or cached is None
+            or cached[0] is not monitor_faults
+            or (cached[1] is not diag_faults)
         ):
             # the checkers hand back the same lists until something changed
             merged = merge_faults(

@@ -126,8 +126,9 @@ class SimulatedBoard:
                 parts.append(encode_info(int(info_seqs[k_info]), t_info, self.info))
                 k_info += 1
             parts.append(
-                encode_samples(int(ws[a]), time_us[a:b], raw[a:b], block.temp[a:b],
-                               block.flags[a:b])
+                encode_samples(
+                    int(ws[a]), time_us[a:b], raw[a:b], block.temp[a:b], block.flags[a:b]
+                )
             )
         while k_info < len(info_seqs):  # an info frame after the last sample of the chunk
             parts.append(encode_info(int(info_seqs[k_info]), int(time_us[-1]), self.info))

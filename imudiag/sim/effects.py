@@ -119,8 +119,15 @@ class Effects:
             p if isinstance(p, PeriodicDisturbance) else PeriodicDisturbance(*p)
             for p in self.periodic_disturbance
         ]
-        for name in ("bias_drift", "bias_instability", "flicker", "rate_ramp",
-                     "temperature_bias", "temperature_scale", "scale_nonlinearity"):
+        for name in (
+            "bias_drift",
+            "bias_instability",
+            "flicker",
+            "rate_ramp",
+            "temperature_bias",
+            "temperature_scale",
+            "scale_nonlinearity",
+        ):
             for sensor in getattr(self, name):
                 sensor_index(sensor)
         for s in self.bias_step:
@@ -179,14 +186,27 @@ class Effects:
         kw: dict[str, Any] = {
             "bias_drift": {s: 0.05 for s in SENSORS},
             "bias_instability": {s: (2.0, 100.0) for s in SENSORS},
-            "temperature": TemperatureProfile(start_c=22.0, warmup_c=12.0, warmup_tau_s=600.0,
-                                              ramp_c_per_s=0.001),
-            "temperature_bias": {"gx": 1.5, "gy": -1.0, "gz": 0.8, "ax": 0.6, "ay": -0.4,
-                                 "az": 0.5},
+            "temperature": TemperatureProfile(
+                start_c=22.0, warmup_c=12.0, warmup_tau_s=600.0, ramp_c_per_s=0.001
+            ),
+            "temperature_bias": {
+                "gx": 1.5,
+                "gy": -1.0,
+                "gz": 0.8,
+                "ax": 0.6,
+                "ay": -0.4,
+                "az": 0.5,
+            },
             "temperature_scale": {s: 2e-4 for s in SENSORS},
             "g_sensitivity": np.diag([1.34, 1.34, 1.34]),
-            "scale_nonlinearity": {"gx": 1e-4, "gy": 1e-4, "gz": 1e-4, "ax": 0.02, "ay": 0.02,
-                                   "az": 0.02},
+            "scale_nonlinearity": {
+                "gx": 1e-4,
+                "gy": 1e-4,
+                "gz": 1e-4,
+                "ax": 0.02,
+                "ay": 0.02,
+                "az": 0.02,
+            },
             "bias_step": [BiasStep("gz", 600.0, 15.0)],
             "periodic_disturbance": [PeriodicDisturbance("ay", 3.0, 50.0)],
             "quantize": True,

@@ -34,18 +34,19 @@ def gauss_markov(drive: np.ndarray, a: float, x_prev: float) -> np.ndarray:
     block = n if neg_log_a == 0 else max(1, min(n, int(_MAX_GROWTH_LOG / neg_log_a)))
     x = float(x_prev)
     for start in range(0, n, block):
-        w = drive[start:start + block]
+        w = drive[start : start + block]
         k = np.arange(w.shape[0], dtype=float)
         grow = np.exp(k * neg_log_a)  # a^-k
         shrink = np.exp(-k * neg_log_a)  # a^k
         seg = shrink * (a * x + np.cumsum(w * grow))
-        out[start:start + block] = seg
+        out[start : start + block] = seg
         x = float(seg[-1])
     return out
 
 
-def flicker_components(band_s: tuple[float, float], per_decade: int = 2
-                       ) -> tuple[np.ndarray, np.ndarray]:
+def flicker_components(
+    band_s: tuple[float, float], per_decade: int = 2
+) -> tuple[np.ndarray, np.ndarray]:
     """First-order Gauss-Markov processes whose sum has a flat Allan variance over the
     cluster times ``band_s`` (low, high) s: the flicker floor (bias instability) of IEEE
     Std 952 approximated over a band of tau.

@@ -61,8 +61,17 @@ from .trajectories import (
     turntable_motion,
 )
 
-SCENARIOS = ("static", "still", "multiposition", "turntable", "vehicle", "urban", "highway",
-             "hilly", "aircraft")
+SCENARIOS = (
+    "static",
+    "still",
+    "multiposition",
+    "turntable",
+    "vehicle",
+    "urban",
+    "highway",
+    "hilly",
+    "aircraft",
+)
 #: Drives with a consistent GNSS stream (imudiag.sim.drive); their time is UTC Unix seconds.
 DRIVES = ("urban", "highway", "hilly", "aircraft")
 _PARAMS: dict[str, tuple[str, ...]] = {
@@ -126,24 +135,42 @@ def scenario_motion(name: str, seed: int = 0, params: Mapping[str, str] | None =
         return drive_motion(sc, num("length", 600.0), seed)
     lat = num("latitude", 45.0)
     if sc == "static":
-        return static_cycle_motion(int(num("n", 4)), num("dwell", 20.0), num("turn", 4.0), seed,
-                                   latitude_deg=lat)
+        return static_cycle_motion(
+            int(num("n", 4)), num("dwell", 20.0), num("turn", 4.0), seed, latitude_deg=lat
+        )
     if sc == "still":
-        return still_motion(attitude_rpy_deg=(num("roll", 0.0), num("pitch", 0.0),
-                                              num("yaw", 0.0)), latitude_deg=lat)
+        return still_motion(
+            attitude_rpy_deg=(num("roll", 0.0), num("pitch", 0.0), num("yaw", 0.0)),
+            latitude_deg=lat,
+        )
     if sc == "multiposition":
         first = num("first_dwell", -1.0)
         return multi_position_motion(
-            int(num("n", 12)), num("dwell", 3.0), num("turn", 1.5), seed,
-            first_dwell_s=None if first < 0 else first, latitude_deg=lat,
+            int(num("n", 12)),
+            num("dwell", 3.0),
+            num("turn", 1.5),
+            seed,
+            first_dwell_s=None if first < 0 else first,
+            latitude_deg=lat,
             cyclic=bool(num("loop", 0.0)),
         )
     if sc == "turntable":
-        return turntable_motion(num("turn_rate", 30.0), params.get("axis", "z"),
-                                ramp_s=num("ramp", 2.0), latitude_deg=lat)
-    return VehicleRun(num("still", 10.0), num("accel", 8.0), num("speed", 20.0),
-                      num("cruise", 4.0), num("turn", 4.0), num("turn_deg", 90.0),
-                      num("final", 6.0), latitude_deg=lat)
+        return turntable_motion(
+            num("turn_rate", 30.0),
+            params.get("axis", "z"),
+            ramp_s=num("ramp", 2.0),
+            latitude_deg=lat,
+        )
+    return VehicleRun(
+        num("still", 10.0),
+        num("accel", 8.0),
+        num("speed", 20.0),
+        num("cruise", 4.0),
+        num("turn", 4.0),
+        num("turn_deg", 90.0),
+        num("final", 6.0),
+        latitude_deg=lat,
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -230,9 +257,12 @@ def apply_effect(effects: Effects, spec: str) -> Effects:
         vals = _floats(rest, 4 if len(rest) == 4 else 3, spec)
         if vals[2] <= 0:
             raise ValueError(f"effect {spec!r}: the warm-up time constant must be > 0 s")
-        e.temperature = TemperatureProfile(start_c=vals[0], warmup_c=vals[1],
-                                           warmup_tau_s=vals[2],
-                                           ramp_c_per_s=vals[3] if len(vals) == 4 else 0.0)
+        e.temperature = TemperatureProfile(
+            start_c=vals[0],
+            warmup_c=vals[1],
+            warmup_tau_s=vals[2],
+            ramp_c_per_s=vals[3] if len(vals) == 4 else 0.0,
+        )
     elif name == "g_sensitivity":
         if not rest or rest[0] not in ("gx", "gy", "gz"):
             raise ValueError(f"effect {spec!r}: expected g_sensitivity:gx|gy|gz:KX:KY:KZ")
@@ -300,8 +330,17 @@ def split_list(values: Iterable[str]) -> list[str]:
 def describe(effects: Effects) -> list[str]:
     """Names of the effects that are on (for log metadata)."""
     on = ["white_noise"] if effects.white_noise else []
-    for name in ("bias_drift", "bias_instability", "flicker", "rate_ramp", "temperature_bias",
-                 "temperature_scale", "scale_nonlinearity", "bias_step", "periodic_disturbance"):
+    for name in (
+        "bias_drift",
+        "bias_instability",
+        "flicker",
+        "rate_ramp",
+        "temperature_bias",
+        "temperature_scale",
+        "scale_nonlinearity",
+        "bias_step",
+        "periodic_disturbance",
+    ):
         if getattr(effects, name):
             on.append(name)
     for name in ("temperature", "g_sensitivity", "saturation"):

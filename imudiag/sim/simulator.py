@@ -38,8 +38,14 @@ from .processes import flicker_components, gauss_markov, random_walk
 from .trajectories import Trajectory
 
 #: position in N of each misalignment key, and its sign (certificate.md)
-_D_ENTRY = {"xz": (0, 1, 1.0), "xy": (0, 2, -1.0), "yz": (1, 0, -1.0), "yx": (1, 2, 1.0),
-            "zy": (2, 0, 1.0), "zx": (2, 1, -1.0)}
+_D_ENTRY = {
+    "xz": (0, 1, 1.0),
+    "xy": (0, 2, -1.0),
+    "yz": (1, 0, -1.0),
+    "yx": (1, 2, 1.0),
+    "zy": (2, 0, 1.0),
+    "zx": (2, 1, -1.0),
+}
 #: (a new stream goes at the end: the earlier ones keep their numbers)
 _STREAMS = ("white", "walk", "markov", "adc", "drop", "jitter", "flicker")
 _DEFAULT_ADC_RANGE = (0.0, 65535.0)
@@ -86,8 +92,9 @@ class Simulator:
             f.columns  # noqa: B018 - validate sensor names early
         self.seed = int(seed)
         streams = np.random.SeedSequence(self.seed).spawn(len(_STREAMS))
-        self._rng = {name: np.random.default_rng(s) for name, s in zip(_STREAMS, streams,
-                                                                        strict=True)}
+        self._rng = {
+            name: np.random.default_rng(s) for name, s in zip(_STREAMS, streams, strict=True)
+        }
         self.n_done = 0
         self._walk = np.zeros(6)
         e = self.effects
@@ -123,7 +130,7 @@ class Simulator:
         for k, name in enumerate(("gyro", "accel")):
             s = self.certificate.triad(name).noise_sigma(rate_hz)
             if s is not None:
-                out[3 * k:3 * k + 3] = s
+                out[3 * k : 3 * k + 3] = s
         return out
 
     def _deterministic(self, traj: Trajectory, temp: np.ndarray) -> np.ndarray:
@@ -232,7 +239,8 @@ class Simulator:
         self.n_done += n
 
         temp_true = (
-            np.asarray(e.temperature(t), dtype=float) if e.temperature is not None
+            np.asarray(e.temperature(t), dtype=float)
+            if e.temperature is not None
             else np.full(n, e.temperature_reference)
         )
         temp = np.round(temp_true * 100.0) * 0.01  # the board reports 0.01 degC
@@ -254,8 +262,9 @@ class Simulator:
         flags = np.zeros(n, dtype=np.uint16)
         if e.quantize:
             u = np.round(u)
-        for k, (name, bit) in enumerate((("gyro", FLAG_GYRO_SATURATED),
-                                         ("accel", FLAG_ACCEL_SATURATED))):
+        for k, (name, bit) in enumerate(
+            (("gyro", FLAG_GYRO_SATURATED), ("accel", FLAG_ACCEL_SATURATED))
+        ):
             rng_ = e.saturation_range(name)
             if rng_ is None:
                 continue
@@ -343,9 +352,7 @@ def true_certificate(
             tri.scale_factor = tri.scale_factor * k_scale
             tri.scale_factor_error = tri.scale_factor_error * k_scale
             tri.temperature.bias_coefficient = tri.temperature.bias_coefficient + tb
-            tri.temperature.scale_coefficient = (
-                tri.temperature.scale_coefficient + ts
-            ) / k_scale
+            tri.temperature.scale_coefficient = (tri.temperature.scale_coefficient + ts) / k_scale
         q = Effects.per_sensor(e.scale_nonlinearity)[cols]
         if np.any(q):
             tri.nonlinearity = q + (tri.nonlinearity if tri.nonlinearity is not None else 0.0)

@@ -95,9 +95,7 @@ class Motion(ABC):
     earth_rate: float = EARTH_RATE
 
     @abstractmethod
-    def kinematics(
-        self, t: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def kinematics(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(attitude (N,3,3), omega_nb body rad/s (N,3), acceleration NED m/s^2 (N,3), static)."""
 
     def evaluate(self, t: np.ndarray, rate_hz: float) -> Trajectory:
@@ -411,8 +409,9 @@ def multi_position_motion(
     dwell = np.full(att.shape[0], float(dwell_s))
     if first_dwell_s is not None:
         dwell[0] = float(first_dwell_s)
-    return PoseSchedule(att, dwell, turn_s, cyclic=cyclic, latitude_deg=latitude_deg,
-                        gravity=gravity)
+    return PoseSchedule(
+        att, dwell, turn_s, cyclic=cyclic, latitude_deg=latitude_deg, gravity=gravity
+    )
 
 
 def multi_position(
@@ -434,8 +433,9 @@ def multi_position(
     as ``up_directions`` (n, 3) in body axes. Duration:
     first_dwell + (n - 1) (turn + dwell) s.
     """
-    motion = multi_position_motion(n_attitudes, dwell_s, turn_s, seed, first_dwell_s,
-                                   latitude_deg, gravity, up_directions)
+    motion = multi_position_motion(
+        n_attitudes, dwell_s, turn_s, seed, first_dwell_s, latitude_deg, gravity, up_directions
+    )
     return motion.sample(rate_hz)
 
 
@@ -468,8 +468,9 @@ def turntable(
     ``rate_deg_s`` deg/s (relative to the Earth), after a raised-cosine spin-up of
     ``ramp_s`` s. By default the axis points straight up (the table axis is vertical);
     ``attitude_rpy_deg`` sets the starting attitude instead."""
-    return turntable_motion(rate_deg_s, axis, duration_s, attitude_rpy_deg, ramp_s,
-                            latitude_deg, gravity).sample(rate_hz)
+    return turntable_motion(
+        rate_deg_s, axis, duration_s, attitude_rpy_deg, ramp_s, latitude_deg, gravity
+    ).sample(rate_hz)
 
 
 def vehicle_run(
@@ -489,8 +490,18 @@ def vehicle_run(
     (peak 2 v / T m/s^2), run ``cruise_s`` s, a sharp ``turn_deg`` turn in ``turn_s`` s
     (peak rate 2 turn / T, peak lateral acceleration v times that), run ``final_s`` s.
     Defaults: peak 5 m/s^2 forward, 45 deg/s and 15.7 m/s^2 lateral in the turn."""
-    return VehicleRun(still_s, accel_s, speed_m_s, cruise_s, turn_s, turn_deg, final_s,
-                      heading_deg, latitude_deg, gravity).sample(rate_hz)
+    return VehicleRun(
+        still_s,
+        accel_s,
+        speed_m_s,
+        cruise_s,
+        turn_s,
+        turn_deg,
+        final_s,
+        heading_deg,
+        latitude_deg,
+        gravity,
+    ).sample(rate_hz)
 
 
 def static_cycle_motion(
@@ -509,13 +520,17 @@ def static_cycle_motion(
         # tilted up to 60 deg from level in a random direction
         tilt = math.radians(rng.uniform(15.0, 60.0))
         az = rng.uniform(-math.pi, math.pi)
-        up.append(np.array([math.sin(tilt) * math.cos(az), math.sin(tilt) * math.sin(az),
-                            -math.cos(tilt)]))
+        up.append(
+            np.array(
+                [math.sin(tilt) * math.cos(az), math.sin(tilt) * math.sin(az), -math.cos(tilt)]
+            )
+        )
     att = _attitudes_from_up(np.array(up), seed)
     att[0] = np.eye(3)
     dwell = np.full(len(up), float(dwell_s))
-    return PoseSchedule(att, dwell, turn_s, cyclic=n_attitudes > 1, latitude_deg=latitude_deg,
-                        gravity=gravity)
+    return PoseSchedule(
+        att, dwell, turn_s, cyclic=n_attitudes > 1, latitude_deg=latitude_deg, gravity=gravity
+    )
 
 
 def relative_rotation(traj: Trajectory, i: int, j: int) -> np.ndarray:

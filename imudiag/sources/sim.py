@@ -101,7 +101,13 @@ class SimSource(ByteSource):
             raise SourceError(f"{url.url}: {exc}") from None
         faults.extend(options.get("faults", ()))
         self.board = SimulatedBoard(
-            self.certificate, motion, rate, self.seed, effects, faults, duration,
+            self.certificate,
+            motion,
+            rate,
+            self.seed,
+            effects,
+            faults,
+            duration,
             info={"scenario": self.scenario, "seed": self.seed},
         )
         self.rate_hz = rate

@@ -195,13 +195,15 @@ class Monitor:
                 firsts = [q.t_first for q in (p, gross) if q.active and q.t_first is not None]
                 if p.active or gross.active:
                     out.append(
-                        {"triad": name, "sensor": SENSOR_NAMES[name][axis], "cause": "noise",
-                         "t_first": min(firsts) if firsts else None}
+                        {
+                            "triad": name,
+                            "sensor": SENSOR_NAMES[name][axis],
+                            "cause": "noise",
+                            "t_first": min(firsts) if firsts else None,
+                        }
                     )
             if st.saturation is not None and st.saturation.active:
-                out.append(
-                    {"triad": name, "cause": "saturation", "t_first": st.saturation.t_first}
-                )
+                out.append({"triad": name, "cause": "saturation", "t_first": st.saturation.t_first})
         return out
 
     def f0_faults(self) -> list[dict[str, Any]]:
@@ -221,19 +223,23 @@ class Monitor:
             sensor = None
             if rest_rate and st.worst_axis is not None:
                 sensor = SENSOR_NAMES[name][st.worst_axis]
-            out.append({
-                "triad": name,
-                "sensor": sensor,
-                "cause": "f0",
-                "check": "rest_rate" if rest_rate else "f0",
-                "estimate": math.sqrt(st.sum_f0_sq / st.checked) if st.checked else float("nan"),
-                "certificate": 0.0,
-                "limit": 1.0 if rest_rate else float(self.certificate.triad(name).limits.f0),
-                "t_first": p.t_first_raised,
-                "raised": p.raised,
-                "failed": st.failed,
-                "checked": st.checked,
-            })
+            out.append(
+                {
+                    "triad": name,
+                    "sensor": sensor,
+                    "cause": "f0",
+                    "check": "rest_rate" if rest_rate else "f0",
+                    "estimate": math.sqrt(st.sum_f0_sq / st.checked)
+                    if st.checked
+                    else float("nan"),
+                    "certificate": 0.0,
+                    "limit": 1.0 if rest_rate else float(self.certificate.triad(name).limits.f0),
+                    "t_first": p.t_first_raised,
+                    "raised": p.raised,
+                    "failed": st.failed,
+                    "checked": st.checked,
+                }
+            )
         return out
 
     # -- the checks -------------------------------------------------------
@@ -258,8 +264,9 @@ class Monitor:
         accel_in = cert.accel.inverse(block.accel, temp_c=temp)  # accel input units
         accel_si = accel_in * cert.accel.unit_to_si
         gyro_si = cert.gyro.inverse_si(
-            block.gyro, temp_c=temp, accel_input=accel_in if cert.gyro.g_sensitivity is not None
-            else None,
+            block.gyro,
+            temp_c=temp,
+            accel_input=accel_in if cert.gyro.g_sensitivity is not None else None,
         )
 
         sat = {
