@@ -64,7 +64,7 @@ class ReconnectingSource(Source):
         return self._backoff_s
 
     @property
-    def device_info(self) -> dict[str, Any]:  # type: ignore[override]
+    def device_info(self) -> dict[str, Any]:
         """The inner source's latest device information."""
         return self.inner.device_info
 

@@ -106,7 +106,7 @@ class SerialSource(ByteSource):
             first = port.read(1)  # waits up to timeout_s for the first byte
             if not first:
                 return b""
-            waiting = port.in_waiting
+            waiting = int(getattr(port, "in_waiting", 0))  # every pyserial port class has it
             return first + port.read(min(waiting, _MAX_READ)) if waiting else first
         except (serial.SerialException, OSError) as e:
             raise SourceError(f"{self.url.url}: device gone: {e}") from e

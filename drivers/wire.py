@@ -522,8 +522,11 @@ class Decoder:
         None (nothing changed) when the general rules are needed.
         """
         k = seq16.shape[0]
+        last_seq = self._last_seq
+        if last_seq is None:  # the first frame: the general rules start the timeline
+            return None
         seq_d = np.empty(k, np.uint16)
-        seq_d[0] = (int(seq16[0]) - self._last_seq) % SEQ_MODULUS
+        seq_d[0] = (int(seq16[0]) - last_seq) % SEQ_MODULUS
         np.subtract(seq16[1:], seq16[:-1], out=seq_d[1:])
         if not (seq_d == 1).all():
             return None
@@ -571,10 +574,11 @@ class Decoder:
             self._last_seq = None
         s = seq16.astype(np.int64)
         tm = time32.astype(np.int64)
-        first = self._last_seq is None
+        last_seq = self._last_seq
+        first = last_seq is None
         prev = np.empty(k, np.int64)
         prev[1:] = s[:-1]
-        prev[0] = s[0] - 1 if first else self._last_seq
+        prev[0] = s[0] - 1 if last_seq is None else last_seq
         d = ((s - prev + SEQ_MODULUS // 2) % SEQ_MODULUS) - SEQ_MODULUS // 2
         keep = d != 0
         n_dup = k - int(np.count_nonzero(keep))

@@ -37,6 +37,7 @@ inside a block everything is vectorised with cumulative sums.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -104,6 +105,8 @@ class QuasiStaticDetector:
     the quietest windows seen so far: a data sheet's figure is often wrong by a
     factor 1.5-3, and a figure too low leaves no window still.
     """
+
+    _ref: np.ndarray | None  #: the first sample of the stream, the running sums' origin
 
     def __init__(
         self,
@@ -179,8 +182,10 @@ class QuasiStaticDetector:
         down = a.inverse(mean[:, 3:6], n_inv_t=self._n_inv_t["accel"])
         norm = np.sqrt(np.einsum("ij,ij->i", down, down))
         vertical = np.einsum("ij,ij->i", rate, down) / np.where(norm > 0, norm, 1.0)
+        margin = self.bias_margin
+        assert margin is not None  # the caller checks the band only with a margin
         band = (
-            float(self.bias_margin) * float(np.max(g.limits.bias / g.scale_factor))
+            float(margin) * float(np.max(g.limits.bias / g.scale_factor))
             + cert.earth_rate / g.unit_to_si
             + self.k_sigma * float(np.max(np.sqrt(sigma2 / self.window) / g.scale_factor))
         )
@@ -248,7 +253,7 @@ class QuasiStaticDetector:
         """Forget the carried samples (after a gap in the stream); the noise estimate stays."""
         self._prefix = PrefixSums(13, self.window)
         self._offsets = np.array([self.window])
-        self._ref: np.ndarray | None = None
+        self._ref = None
 
 
 def static_mask(
@@ -256,7 +261,7 @@ def static_mask(
     certificate: Certificate,
     rate_hz: float | None = None,
     window_s: float = 0.5,
-    **options: float,
+    **options: Any,
 ) -> np.ndarray:
     """One-shot static flags (N,) bool for a whole block (see :class:`QuasiStaticDetector`)."""
     det = QuasiStaticDetector(certificate, rate_hz, window_s=window_s, **options)

@@ -38,7 +38,7 @@ class YamlError(BadInput):
         super().__init__(f"{where}{self.problem}")
 
 
-class LineDict(dict):  # type: ignore[type-arg]
+class LineDict(dict):
     """A mapping that remembers its own line and the line of each key (1-based)."""
 
     line: int | None = None

@@ -26,6 +26,7 @@ nothing can be said).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -225,7 +226,7 @@ class IsolationTracker:
     def _entry(iso: Isolation, f: Finding, t: float) -> dict:
         i = f.best
         named = len(f.group) == 1
-        out = {
+        out: dict[str, Any] = {
             "triad": iso.triad,
             "sensor": sensor_of(iso.triad, i) if named else None,
             "cause": CAUSES[i] if named else None,

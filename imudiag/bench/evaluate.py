@@ -80,7 +80,8 @@ class Evaluation:
 
     def _active(self, inj: Injection) -> tuple[list[Expectation], list[Expectation]]:
         """(expectations checked in this run, expectations pending the diagnosis)."""
-        active, pending = [], []
+        active: list[Expectation] = []
+        pending: list[Expectation] = []
         for e in inj.expect:
             (pending if e.requires == "diagnosis" and not self.diagnosis else active).append(e)
         return active, pending
@@ -196,7 +197,7 @@ class Evaluation:
             return out
         observed = {k: after[k] - before[k] for k in ERROR_COUNTERS}
         out["observed"] = {k: v for k, v in observed.items() if v}
-        target = {k: before[k] + expected[k] for k in checked if expected[k]}
+        target = {k: before[k] + n for k in checked if (n := expected[k])}
         t_det = None
         for r in self.timed:
             t = float(r.status["t"])

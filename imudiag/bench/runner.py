@@ -47,8 +47,8 @@ def diagnosis_available() -> bool:
     settings.diagnosis = True
     # no except: a diagnoser that cannot be built is a defect to see, not "pending"
     diagnoser = Daemon._make_diagnoser(
-        SimpleNamespace(settings=settings),
-        certmod.load_default(),  # type: ignore[arg-type]
+        SimpleNamespace(settings=settings),  # type: ignore[arg-type]  # a stand-in self
+        certmod.load_default(),
     )
     return hasattr(diagnoser, "faults") and callable(getattr(diagnoser, "verdict", None))
 

@@ -552,9 +552,9 @@ def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
     chunk = r.number("chunk", 0.05, lo=0.0, hi=1.0, lo_open=True)
     effects_raw = r.sequence("effects") if r.get("effects") is not None else ["board"]
     effects: list[str] = []
-    for k, e in enumerate(effects_raw):
+    for n, e in enumerate(effects_raw):
         if not isinstance(e, str):
-            raise r.fail("effects", f"effects[{k}]: expected text like 'noise:1', got {e!r}")
+            raise r.fail("effects", f"effects[{n}]: expected text like 'noise:1', got {e!r}")
         effects.append(e)
     try:
         parse_effects(effects)
@@ -592,11 +592,11 @@ def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
     counter_times = sorted(i.t_s for i in injections if i.category != "sensor")
     for a, b in zip(counter_times, counter_times[1:], strict=False):
         if b - a < MIN_TRANSPORT_GAP_S:
-            bad = next(i for i in injections if i.category != "sensor" and i.t_s == b)
+            late = next(i for i in injections if i.category != "sensor" and i.t_s == b)
             raise ScenarioError(
                 source,
-                bad.line,
-                f"injections[{bad.number - 1}].t",
+                late.line,
+                f"injections[{late.number - 1}].t",
                 f"transport injections at {a:g} s and {b:g} s are closer than "
                 f"{MIN_TRANSPORT_GAP_S:g} s (their counter increments could not be told apart)",
             )

@@ -58,7 +58,7 @@ def parse_lever_arm(text: str | None) -> tuple[float, float, float]:
         raise BadInput(f"--lever-arm: expected X,Y,Z in m, got {text!r}") from None
     if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
         raise BadInput(f"--lever-arm: expected three finite numbers X,Y,Z in m, got {text!r}")
-    return vals  # type: ignore[return-value]
+    return vals
 
 
 def check_gnss_options(args: argparse.Namespace) -> None:

@@ -118,7 +118,7 @@ def _pinned_fit(
     fit = fit_once(prior(pinned), False)
     while pin_worst(fit):
         fit = fit_once(prior(pinned), False)
-    for i in np.flatnonzero(pinned):
+    for i in np.flatnonzero(pinned).tolist():
         fit.determined[i] = False
         fit.std[i] = np.inf
         fit.estimate[i] = fit.certificate[i]  # literally the --like value
@@ -770,6 +770,7 @@ def _gyro_rest_rotation(
         scale = np.concatenate([gyr_like.scale_factor, np.ones(3)])
         est[3:] = cert[3:] + rot.deviation * scale
         std[3:] = np.sqrt(np.maximum(np.diag(rot.cov), 0.0)) * scale
+        assert rot.frame_cov is not None  # fit_frame=True: the frame rotation was fitted
         frame_std = np.sqrt(np.maximum(np.diag(rot.frame_cov), 0.0))
         # the frame rotation goes into N only where the rotations determine it as well as a
         # misalignment must be (a rotation fitted from 2 turns would be written as 0.3 rad)

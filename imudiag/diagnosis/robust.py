@@ -183,14 +183,14 @@ def reject_outliers(
         scatter = bool(getattr(fit, "excess_var", 0.0) > 0.0)
         if not scatter:
             order = [j for j in order if zz[j] > SCREEN_SIGMA]
-        best = None
+        best: tuple[int, tuple[T, np.ndarray | None, float, float], np.ndarray] | None = None
         for j in order:
             i = int(np.flatnonzero(keep)[j])
             trial_keep = keep.copy()
             trial_keep[i] = False
-            trial = fit_once(trial_keep, i)
-            if trial[3] > REJECT_SIGMA and (best is None or trial[3] > best[1][3]):
-                best = (i, trial, trial_keep)
+            probe = fit_once(trial_keep, i)
+            if probe[3] > REJECT_SIGMA and (best is None or probe[3] > best[1][3]):
+                best = (i, probe, trial_keep)
         if best is None:
             break
         i, (trial, tz, tdof, zp), trial_keep = best

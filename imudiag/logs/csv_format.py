@@ -231,7 +231,7 @@ class CsvWriter(LogWriter):
             raise LogError(self.path, f"cannot write: {exc.strerror or exc}") from None
         if self.path.lower().endswith(".gz"):
             name = os.path.basename(self.path)[:-3]
-            self._fh: IO[bytes] = gzip.GzipFile(name, "wb", 6, raw, mtime=0)
+            self._fh: IO[bytes] | gzip.GzipFile = gzip.GzipFile(name, "wb", 6, raw, mtime=0)
             self._raw: IO[bytes] | None = raw
         else:
             self._fh, self._raw = raw, None

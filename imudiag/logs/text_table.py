@@ -98,7 +98,7 @@ class TextTableReader(LogReader):
         self._delim: str | None = None
         fh = self._file()
         try:
-            self._read_head(fh)
+            self._read_table_head(fh)
         finally:
             self._release(fh)
         units = dict(self.options.units) or units_from_meta(self.meta)
@@ -116,7 +116,7 @@ class TextTableReader(LogReader):
             except UnicodeDecodeError:
                 raise LogError(self.path, "not UTF-8 text", lineno) from None
 
-    def _read_head(self, fh: IO[bytes]) -> None:
+    def _read_table_head(self, fh: IO[bytes]) -> None:
         for lineno, line in self._lines(fh):
             stripped = line.strip()
             if not stripped:
@@ -204,8 +204,8 @@ class TextTableReader(LogReader):
 
     def _file(self) -> IO[bytes]:
         if self.path.lower().endswith(".gz"):
-            return self._open(gzip.open, self.path, "rb")  # type: ignore[no-any-return]
-        return self._open(open, self.path, "rb")  # type: ignore[no-any-return]
+            return self._open(gzip.open, self.path, "rb")
+        return self._open(open, self.path, "rb")
 
     def _blocks(self) -> Iterator[SampleBlock]:
         fh = self._file()

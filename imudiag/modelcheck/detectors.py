@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -158,26 +159,21 @@ class _Cands:
 
 
 def _layout(ch: Channel, indices: list[int]) -> _Cands:
-    multi = [
-        i
-        for i in indices
-        if ch.candidates[i].columns is not None and ch.candidates[i].columns.shape[1] > 1
-    ]
-    single = [
-        i
-        for i in indices
-        if ch.candidates[i].columns is not None and ch.candidates[i].columns.shape[1] == 1
-    ]
-    steps = [i for i in indices if ch.candidates[i].columns is None]
+    columns = {
+        i: c for i in indices if (c := ch.candidates[i].columns) is not None
+    }  # regressor columns of each candidate; a bias step has none (built row by row)
+    multi = [i for i in indices if i in columns and columns[i].shape[1] > 1]
+    single = [i for i in indices if i in columns and columns[i].shape[1] == 1]
+    steps = [i for i in indices if i not in columns]
     cols: list[np.ndarray] = []
     spans: list[tuple[int, int]] = []
     k = 0
     for i in multi + single:
-        c = ch.candidates[i].columns
+        c = columns[i]
         cols.append(c)
         spans.append((k, k + c.shape[1]))
         k += c.shape[1]
-    block_k = sum(ch.candidates[i].columns.shape[1] for i in multi)
+    block_k = sum(columns[i].shape[1] for i in multi)
     for _i in steps:
         spans.append((k, k + 1))
         k += 1
@@ -197,7 +193,7 @@ def _layout(ch: Channel, indices: list[int]) -> _Cands:
 
 def _runs(ctx: _Ctx, head: np.ndarray, k: np.ndarray, lay: _Cands | None = None) -> _Runs:
     ch = ctx.ch
-    kw = {}
+    kw: dict[str, Any] = {}
     if lay is not None:
         kw = {
             "cand": lay.cand,

@@ -148,6 +148,9 @@ def filter_products(
         p0 = np.full(d, 1e6 * float(np.median(R / hh)))
     c1 = 0 if cand is None else cand.shape[1]
     steps = 0 if step_axis is None else step_axis.shape[0]
+    cand_rows = cand if cand is not None else np.zeros((0, 0))
+    step_cols = step_axis if step_axis is not None else np.zeros(0, np.int64)
+    step_rows = step_at if step_at is not None else np.zeros(0, np.int64)
     hw = head.shape[1]
     cw = c1 + steps
     width = hw + cw
@@ -195,9 +198,9 @@ def filter_products(
         h = H[i]
         row[:hw] = head[i]
         if c1:
-            row[hw : hw + c1] = cand[i]  # type: ignore[index]
+            row[hw : hw + c1] = cand_rows[i]
         if steps:
-            row[hw + c1 :] = H[i, step_axis] * (i >= step_at)  # type: ignore[index]
+            row[hw + c1 :] = H[i, step_cols] * (i >= step_rows)
         ph = P @ h
         s = ph @ h + R[i]
         innov = row[None, :] - np.einsum("d,bdc->bc", h, x)

@@ -187,7 +187,9 @@ def select(y: np.ndarray, rate_hz: float, z_min: float = 5.0) -> SensorNoise:
     if chosen != "white" and scores["white"] - scores[chosen] < per_term * _extra(chosen):
         chosen = "white"  # not confirmed on held-out data
     model = fits[chosen]
-    named = [t for t in ("bias_instability", "bias_drift", "rate_ramp") if t in CANDIDATES[chosen]]
+    named: list[str] = [
+        t for t in ("bias_instability", "bias_drift", "rate_ramp") if t in CANDIDATES[chosen]
+    ]
     if chosen == "gauss_markov":
         named = ["gauss_markov"]
     return SensorNoise(
@@ -302,7 +304,7 @@ def longest_run(
     for i in range(t_start.shape[0]):  # one step per chunk
         if i > 0 and not same[i - 1]:
             joined = t_start[i] - t_end[i - 1] <= max_gap_s and (
-                thr is None or bool(np.all(np.abs(acc[i] - acc[i - 1]) <= thr))
+                thr is None or acc is None or bool(np.all(np.abs(acc[i] - acc[i - 1]) <= thr))
             )
             if not joined:
                 a = float(t_start[i])

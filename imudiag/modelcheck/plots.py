@@ -97,22 +97,22 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
                 written.append(path)
     nm = result.report.get("noise_model") or {}
     for s, entry in (nm.get("sensors") or {}).items():
-        a = entry["allan"]
-        tau = np.asarray(a["tau"])
+        allan = entry["allan"]
+        tau = np.asarray(allan["tau"])
         if tau.shape[0] == 0:
             continue
         fig, (ax, ax2) = plt.subplots(
             2, 1, figsize=(6, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1]}
         )
-        meas = np.asarray(a["measured"])
-        err = np.asarray(a["relative_error"])
-        ax.fill_between(tau, meas * (1 - err), meas * (1 + err), color="k", alpha=0.15)
-        ax.loglog(tau, meas, "k.-", label="measured")
-        ax.loglog(tau, a["predicted"], "b-", label=f"model: {entry['model']}")
-        if "extended_certificate" in a:
-            ax.loglog(tau, a["extended_certificate"], "g--", label="extended certificate")
-            ax2.semilogx(tau, a["ratio_extended_certificate"], "g.-")
-        ax2.semilogx(tau, a["ratio"], "b.-")
+        adev = np.asarray(allan["measured"])
+        err = np.asarray(allan["relative_error"])
+        ax.fill_between(tau, adev * (1 - err), adev * (1 + err), color="k", alpha=0.15)
+        ax.loglog(tau, adev, "k.-", label="measured")
+        ax.loglog(tau, allan["predicted"], "b-", label=f"model: {entry['model']}")
+        if "extended_certificate" in allan:
+            ax.loglog(tau, allan["extended_certificate"], "g--", label="extended certificate")
+            ax2.semilogx(tau, allan["ratio_extended_certificate"], "g.-")
+        ax2.semilogx(tau, allan["ratio"], "b.-")
         ax2.axhspan(1 / 1.5, 1.5, color="g", alpha=0.1)
         ax2.set_ylabel("measured / predicted")
         ax2.set_xlabel("tau [s]")
@@ -153,7 +153,9 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
         elif "g_sensitivity" in names:
             g = next(s for s in res.selected if s.candidate.name == "g_sensitivity")
             k = int(np.argmax(np.abs(g.value)))
-            x, xlabel = g.candidate.columns[:, k], f"specific force {'xyz'[k]} [accel input]"
+            g_columns = g.candidate.columns
+            assert g_columns is not None  # a g-sensitivity candidate has regressor columns
+            x, xlabel = g_columns[:, k], f"specific force {'xyz'[k]} [accel input]"
         else:
             x, xlabel = np.arange(len(ch)), "chunk"
         axes[1].plot(x, y, "k.", ms=2, label="certificate model")

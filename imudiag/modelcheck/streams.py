@@ -288,7 +288,7 @@ def stream_measured(
             return
         t = np.concatenate([b[0] for b in buf])
         u = np.concatenate([b[1] for b in buf])
-        temp = None if buf[0][2] is None else np.concatenate([b[2] for b in buf])  # type: ignore
+        temp = None if buf[0][2] is None else np.concatenate([b[2] for b in buf])
         ch = np.concatenate([b[3] for b in buf])
         stats.add(t, u, temp, ch, int(segments.half[current]))
         buf.clear()

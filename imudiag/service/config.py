@@ -334,7 +334,11 @@ def merge_cli(
             changes.update(_status_sinks(value, source))
         elif name in _FIELD_CHECK and name != "origin":
             check = _FIELD_CHECK[name]
-            changes[name] = check(value, lambda r, n=name: ConfigError(source, option(n), r))
+
+            def fail(reason: str, n: str = name) -> ConfigError:
+                return ConfigError(source, option(n), reason)
+
+            changes[name] = check(value, fail)
     if "certificate" in changes:
         changes["certificate"] = str(Path(changes["certificate"]).expanduser())
     merged = config.replace(**changes)

@@ -296,7 +296,8 @@ class StatusLinkError(SinkError):
 def open_status_port(url: str, write_timeout_s: float = 0.5) -> serial.SerialBase:
     """Open a status link: a pyserial URL (``loop://``, ``socket://host:port``, a
     device path such as ``/dev/ttyS1``) or ``serial:///dev/ttyS1?baud=115200``."""
-    target, kwargs = url, {}
+    target = url
+    kwargs: dict[str, Any] = {}
     parts = urlsplit(url)
     if parts.scheme == "serial":
         target = parts.netloc + parts.path

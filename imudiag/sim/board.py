@@ -109,6 +109,8 @@ class SimulatedBoard:
         block = self.simulator.step(traj)
         if len(block) == 0:
             return b"".join(parts), block
+        # the simulator gives every sample its seq, temperature and flags
+        assert block.seq is not None and block.temp is not None and block.flags is not None
         ws = wire_seq(block.seq) + self._extra
         time_us = np.rint(block.t * 1e6).astype(np.int64)
         raw = np.hstack([block.gyro, block.accel])

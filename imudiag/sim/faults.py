@@ -41,6 +41,13 @@ class Fault:
     t_s: float
     value: float | None = None
 
+    @property
+    def amount(self) -> float:
+        """The fault's value, for the kinds that need one (checked when it was made)."""
+        if self.value is None:
+            raise ValueError(f"fault {self.kind}:{self.sensor} has no value")
+        return self.value
+
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(
@@ -83,7 +90,7 @@ class Fault:
             raise ValueError(f"unknown misalignment pair {self.sensor!r}")
         for p in parts:
             sensor_index(p)
-        return PAIR_KEYS[axes]  # type: ignore[index]
+        return PAIR_KEYS[axes]
 
     def to_text(self) -> str:
         """The ``kind:sensor:t_s[:value]`` form."""
@@ -117,11 +124,11 @@ def apply_faults(certificate: Certificate, faults: Iterable[Fault], t_s: float) 
             continue
         tri = cert.triad(f.triad)
         if f.kind == "bias":
-            tri.bias[f.columns[0] % 3] += f.value
+            tri.bias[f.columns[0] % 3] += f.amount
         elif f.kind == "scale_factor":
-            tri.scale_factor_error[f.columns[0] % 3] += f.value
+            tri.scale_factor_error[f.columns[0] % 3] += f.amount
         elif f.kind == "misalignment":
-            tri.misalignment[f.pair_key[1]] += f.value
+            tri.misalignment[f.pair_key[1]] += f.amount
         elif f.kind == "noise" and tri.noise is not None and tri.noise.density is not None:
-            tri.noise.density[f.columns[0] % 3] *= f.value
+            tri.noise.density[f.columns[0] % 3] *= f.amount
     return cert

@@ -157,10 +157,10 @@ class Simulator:
                 dn = np.zeros((3, 3))
                 if f.kind == "scale_factor":
                     j = f.columns[0] % 3
-                    dn[j, j] = f.value / tri.scale_factor[j]
+                    dn[j, j] = f.amount / tri.scale_factor[j]
                 else:
                     r, c, sign = _D_ENTRY[f.pair_key[1]]
-                    dn[r, c] = sign * f.value
+                    dn[r, c] = sign * f.amount
                 active = t >= f.t_s
                 if np.any(active):
                     nx[active] += x[active] @ dn.T
@@ -206,7 +206,7 @@ class Simulator:
         if np.any(self._gm_sigma):
             xi = self._rng["markov"].standard_normal((n, 6))
             gm = np.zeros((n, 6))
-            for j in np.flatnonzero(self._gm_sigma):
+            for j in np.flatnonzero(self._gm_sigma).tolist():
                 a = math.exp(-dt / self._gm_tau[j])
                 drive = xi[:, j] * (self._gm_sigma[j] * math.sqrt(1.0 - a * a))
                 gm[:, j] = gauss_markov(drive, a, self._gm_state[j])
@@ -309,7 +309,7 @@ class Simulator:
         # device clock: whole microseconds from 0 (as the wire decoder rebuilds it)
         t_out = np.maximum(np.round(t_out * 1e6), 0.0) * 1e-6
 
-        keep = slice(None)
+        keep: slice | np.ndarray = slice(None)
         if e.drop_rate > 0:
             keep = self._rng["drop"].random(n) >= e.drop_rate
         meta = self.meta

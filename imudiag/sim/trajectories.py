@@ -154,7 +154,7 @@ class PoseSchedule(Motion):
     def __init__(
         self,
         attitudes: np.ndarray,
-        dwell_s: Sequence[float],
+        dwell_s: Sequence[float] | np.ndarray,
         turn_s: float,
         cyclic: bool = False,
         latitude_deg: float = 45.0,
@@ -340,8 +340,8 @@ def spread_up_directions(n: int, seed: int = 0) -> np.ndarray:
 
 def _attitudes_from_up(up: np.ndarray, seed: int) -> np.ndarray:
     rng = np.random.default_rng(np.random.SeedSequence([seed, 1]))
-    yaws = rng.uniform(-math.pi, math.pi, up.shape[0])
-    return np.array([attitude_with_up(u, y) for u, y in zip(up, yaws, strict=True)])
+    yaws = np.asarray(rng.uniform(-math.pi, math.pi, up.shape[0]))
+    return np.array([attitude_with_up(u, y) for u, y in zip(up, yaws.tolist(), strict=True)])
 
 
 def _axis_vector(axis: str | Sequence[float]) -> np.ndarray:

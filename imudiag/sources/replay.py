@@ -172,7 +172,7 @@ class ReplaySource(Source):
     def close(self) -> None:
         """Close the file; safe to call twice."""
         if self._blocks is not None and hasattr(self._blocks, "close"):
-            self._blocks.close()  # type: ignore[union-attr]
+            self._blocks.close()
         self._blocks = None
         if self._reader is not None:
             self._reader.close()
