@@ -221,3 +221,59 @@ def test_cli_conflict_with_the_file_names_the_option(tmp_path: Path) -> None:
     assert "exceeds f0_persistence_n = 4" in info.value.reason
     custom = merge_cli(base, {"f0_persistence_n": 9}, option_names={})
     assert custom.f0_persistence_n == 9
+
+
+def test_one_definition_of_the_daemon_defaults() -> None:
+    """Issue 12 item 12: a daemon built in code (DaemonSettings()), the configuration's
+    dataclass, the bundled file, the monitor's and the diagnosis's own defaults agree."""
+    from imudiag.aiding.gpsd_client import DEFAULT_URL
+    from imudiag.diagnosis.config import DiagnosisConfig
+    from imudiag.monitor import MonitorConfig
+    from imudiag.service.daemon import DaemonSettings, settings_from_config
+
+    config = default_config()
+    from_file = settings_from_config(config)
+    in_code = DaemonSettings()
+    for key in (
+        "source_url",
+        "certificate_path",
+        "status_period_s",
+        "no_data_timeout_s",
+        "read_interval_s",
+        "reconnect_min_s",
+        "reconnect_max_s",
+        "aiding_url",
+    ):
+        assert getattr(in_code, key) == getattr(from_file, key), key
+    # the reconnect back-off stays below WatchdogSec / 2 (systemd/imudiag.service)
+    unit = (PROJECT_DIR / "systemd" / "imudiag.service").read_text(encoding="utf-8")
+    watchdog_s = float(re.search(r"^WatchdogSec=(\d+(?:\.\d+)?)s?$", unit, re.M).group(1))
+    assert in_code.reconnect_max_s < watchdog_s / 2
+    monitor = MonitorConfig()
+    assert (monitor.persistence_k, monitor.persistence_n) == (
+        config.f0_persistence_k,
+        config.f0_persistence_n,
+    )
+    assert monitor.stuck_samples == config.stuck_samples
+    assert monitor.static_window_s == config.static_window_s
+    assert from_file.monitor == monitor
+    diagnosis = DiagnosisConfig()
+    assert diagnosis.window_intervals == config.diagnosis_window_intervals
+    assert diagnosis.window_max_s == config.diagnosis_window_max_s
+    assert diagnosis.persist == config.diagnosis_persist_windows
+    assert DEFAULT_URL.startswith("gpsd://")
+
+
+def test_run_help_shows_the_defaults_in_force() -> None:
+    """`imudiag run --help` names the defaults of the one definition, never a stale one."""
+    from imudiag.aiding.gpsd_client import DEFAULT_URL
+    from imudiag.cli import build_parser
+
+    parser = build_parser()
+    run = next(a for a in parser._subparsers._group_actions[0].choices.items() if a[0] == "run")[1]
+    text = " ".join(run.format_help().split())
+    config = DaemonConfig()
+    assert f"default {config.source}" in text
+    assert f"default {config.status_rate_hz:g}" in text
+    assert f"default {config.no_data_timeout_s:g}" in text
+    assert f"default {DEFAULT_URL}" in text

@@ -63,24 +63,27 @@ def test_socket_stream_and_disconnect():
     data, raw = board_bytes(1000, seed=1)
     server = socket.create_server(("127.0.0.1", 0))
     port = server.getsockname()[1]
+    opened, read_all = threading.Event(), threading.Event()
 
     def serve():
         conn, _ = server.accept()
-        time.sleep(0.1)  # pyserial's open() discards whatever arrived before it finished
+        # pyserial's open() discards whatever arrived before it finished: send once it has
+        assert opened.wait(10), "the client never finished opening"
         with conn:
             conn.sendall(encode_info(65535, 0, INFO))  # seq wraps to the first sample's 0
             for piece in chunked(data, 777):
                 conn.sendall(piece)
-                time.sleep(0.002)
-            time.sleep(0.3)
+            read_all.wait(10)
         # closing the connection = the bench server going away
 
     th = threading.Thread(target=serve, daemon=True)
     th.start()
     src = open_source(f"socket://127.0.0.1:{port}")
     src.open()
+    opened.set()
     try:
         out = read_samples(src, 1000)
+        read_all.set()
         assert len(out) == 1000
         assert src.device_info == INFO
         np.testing.assert_array_equal(out.gyro, raw[:, :3])
@@ -88,6 +91,7 @@ def test_socket_stream_and_disconnect():
             for _ in range(100):
                 src.read(0.05)
     finally:
+        read_all.set()
         src.close()
         server.close()
         th.join(2)

@@ -12,7 +12,12 @@ import logging
 import sys
 from typing import Any
 
+from ..aiding.gpsd_client import DEFAULT_URL as DEFAULT_AIDING_URL
 from ..errors import BadInput
+from ..service.config import DaemonConfig
+
+#: the defaults --help names: the one definition (config/imudiag.yaml equals it)
+_DEFAULTS = DaemonConfig()
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--source",
         help="input URL: serial:///dev/ttyACM0?baud=921600, hid://VID:PID, usb://VID:PID, "
-        "replay://PATH?speed=1, sim://SCENARIO?seed=N (default sim://)",
+        f"replay://PATH?speed=1, sim://SCENARIO?seed=N (default {_DEFAULTS.source})",
     )
     p.add_argument("--certificate", help="certificate YAML (default: the bundled one)")
     p.add_argument(
@@ -36,17 +41,29 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="status sink: '-' for JSON lines on stdout, or a serial URL for NMEA sentences "
         "(repeatable; default '-')",
     )
-    p.add_argument("--status-rate", type=float, help="steady status rate, Hz (default 1)")
-    p.add_argument("--nmea-rate", type=float, help="steady NMEA status rate, Hz")
-    p.add_argument("--no-data-timeout", type=float, help="seconds without frames -> no_data")
+    p.add_argument(
+        "--status-rate",
+        type=float,
+        help=f"steady status rate, Hz (default {_DEFAULTS.status_rate_hz:g})",
+    )
+    p.add_argument(
+        "--nmea-rate",
+        type=float,
+        help=f"steady NMEA status rate, Hz (default {_DEFAULTS.nmea_rate_hz:g})",
+    )
+    p.add_argument(
+        "--no-data-timeout",
+        type=float,
+        help=f"seconds without frames -> no_data (default {_DEFAULTS.no_data_timeout_s:g})",
+    )
     p.add_argument("--no-diagnosis", action="store_true", help="per-sample checks only")
     p.add_argument("--log-level", help="debug, info, warning, error, critical")
     p.add_argument(
         "--aiding",
         nargs="?",
-        const="gpsd://127.0.0.1:2947",
+        const=DEFAULT_AIDING_URL,
         metavar="URL",
-        help="GNSS aiding from gpsd (default gpsd://127.0.0.1:2947): the moving-base "
+        help=f"GNSS aiding from gpsd (default {DEFAULT_AIDING_URL}): the moving-base "
         "F0 and accelerometer check in motion (docs/moving-base.md)",
     )
     p.set_defaults(func=run)

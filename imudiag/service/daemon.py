@@ -60,27 +60,37 @@ class StatusSink(Protocol):
     def close(self) -> None: ...
 
 
+#: the one definition of the daemon's defaults (config/imudiag.yaml equals it, tested)
+_DEFAULTS = DaemonConfig()
+
+
 @dataclass
 class DaemonSettings:
-    """What the daemon runs on and how often it reports."""
+    """What the daemon runs on and how often it reports.
 
-    source_url: str = "sim://"
-    certificate_path: str | None = None  #: None: the bundled certificate
-    status_period_s: float = 1.0  #: steady status cadence, s
-    no_data_timeout_s: float = 2.0  #: no valid frame for this long -> state no_data, s
+    Every setting that the configuration file also holds takes its default from
+    :class:`~imudiag.service.config.DaemonConfig` (issue 12 item 12: one definition), so a
+    daemon built in code behaves as ``imudiag run`` with the bundled configuration.
+    """
+
+    source_url: str = _DEFAULTS.source
+    certificate_path: str | None = _DEFAULTS.certificate  #: None: the bundled certificate
+    status_period_s: float = 1.0 / _DEFAULTS.status_rate_hz  #: steady status cadence, s
+    #: no valid frame for this long -> state no_data, s
+    no_data_timeout_s: float = _DEFAULTS.no_data_timeout_s
     read_timeout_s: float = 0.05  #: longest wait for data in one loop turn, s
     #: after a read that brought samples, wait this long before reading again, s: the
     #: kernel buffers what arrives meanwhile, so the per-turn cost is paid once per
     #: interval instead of once per frame (CPU share), at the price of up to this much
     #: added latency (docs/benchmarks.md measures the trade-off); no wait while the
     #: source delivers faster than real time
-    read_interval_s: float = 0.005
+    read_interval_s: float = _DEFAULTS.read_interval_s
     #: sample time, s, gathered before the window diagnosis and the noise meter are fed:
     #: they need no low latency (a window every few seconds, a noise figure a second)
     #: and cost per call, not per sample
     diagnosis_batch_s: float = 0.5
-    reconnect_min_s: float = 0.5  #: first reconnect back-off, s
-    reconnect_max_s: float = 10.0  #: longest reconnect back-off, s
+    reconnect_min_s: float = _DEFAULTS.reconnect_min_s  #: first reconnect back-off, s
+    reconnect_max_s: float = _DEFAULTS.reconnect_max_s  #: longest reconnect back-off, s
     degraded_hold_s: float = 10.0  #: transport errors keep the state degraded this long, s
     diagnosis: bool = True  #: run the sliding-window 18-parameter diagnosis live
     diagnosis_options: dict[str, Any] = field(default_factory=dict)
