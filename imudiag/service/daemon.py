@@ -24,14 +24,19 @@ from ..certificate import Certificate, CertificateError
 from ..drivers.base import EndOfStream, SourceError
 from ..drivers.reconnect import ReconnectingSource
 from ..monitor import Monitor, MonitorConfig
-from ..noise_estimate import METHOD as WHITE_NOISE_METHOD
-from ..noise_estimate import NoiseMeter, compare
+from ..noise_estimate import NoiseMeter
 from ..quasistatic import BAD_FLAGS
-from ..reports import CLASSES, STATUS_FORMAT
 from ..samples import SampleBlock
 from .config import DaemonConfig
 from .sdnotify import Notifier, WatchdogGate
-from .status import StatusSchedule, merge_faults, signature
+from .status import (
+    StatusSchedule,
+    diagnosis_verdict,
+    merge_faults,
+    noise_object,
+    signature,
+    status_record,
+)
 
 log = logging.getLogger("imudiag.daemon")
 
@@ -43,9 +48,6 @@ DAEMON_WINDOWS_KEPT = 16  #: past diagnosis windows the live diagnoser keeps in 
 
 #: status lines over which the status's ``cpu`` figures are taken (about 10 s at 1 Hz)
 CPU_WINDOW_LINES = 10
-
-
-STATUS_CLASS = CLASSES[STATUS_FORMAT]  #: "STATUS" (imudiag/reports.py)
 
 
 class StatusSink(Protocol):
@@ -110,10 +112,6 @@ class _ReloadThread(threading.Thread):
 
     def run(self) -> None:
         self.result = self._load()
-
-
-def _finite_or_none(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
 
 
 class Daemon:
@@ -295,23 +293,7 @@ class Daemon:
         return self._noise_view[1]
 
     def _measure_noise_status(self) -> dict[str, Any] | None:
-        figures = self.noise.result()
-        if figures is None:
-            return None
-        out: dict[str, Any] = {"method": WHITE_NOISE_METHOD, "window_s": NOISE_WINDOW_S}
-        for name, fig in figures.items():
-            tri = self.certificate.triad(name)
-            measured = [_finite_or_none(float(v)) for v in fig.density]
-            entry: dict[str, Any] = {"density": measured, "unit": f"{tri.output_unit}/sqrt(Hz)"}
-            certified = tri.noise.density if tri.noise is not None else None
-            if certified is not None and all(v is not None for v in measured):
-                cmp = compare(fig.density, certified)
-                ratios = cmp["ratio"]
-                assert isinstance(ratios, list)
-                entry["ratio"] = [round(float(r), 3) for r in ratios]
-                entry["disagrees"] = bool(cmp["disagrees"])
-            out[name] = entry
-        return out
+        return noise_object(self.noise.result(), self.certificate, NOISE_WINDOW_S)
 
     def _cpu_status(self) -> dict[str, Any] | None:
         """The daemon's CPU share over the last ~10 status lines (% of one core), and for a
@@ -341,18 +323,11 @@ class Daemon:
             return [], {}
         if self._diag_view is None:
             faults_now = self.diagnoser.faults
-            # the live verdict comes from the faults in force; what was ever raised is a
-            # counter (and the log), not a latch that contradicts "faults" and "state"
-            undetermined = {u["triad"] for u in self.diagnoser.undetermined}
-            view: dict[str, Any] = {
-                name: "fault"
-                if any(f["triad"] == name for f in faults_now)
-                else "undetermined"
-                if name in undetermined
-                else "ok"
-                for name in ("accel", "gyro")
-            }
-            view["raised"] = len(self.diagnoser.tracker.raised)
+            view = diagnosis_verdict(
+                faults_now,
+                (u["triad"] for u in self.diagnoser.undetermined),
+                len(self.diagnoser.tracker.raised),
+            )
             self._diag_view = (faults_now, view)
         return self._diag_view
 
@@ -399,34 +374,16 @@ class Daemon:
 
     def _status(self, now: float, faults: list[dict[str, Any]], state: str) -> dict[str, Any]:
         _, diagnosis = self._diagnosis_view()
-        counters = self.source.counters.as_dict()
-        t = self.monitor.t_last
-        status: dict[str, Any] = {
-            "class": STATUS_CLASS,
-            "format": STATUS_FORMAT,
-            "t": None if t is None else round(t, 6),
-            "state": state,
-            "faults": faults,
-            "counters": counters,
-            "link": self.source.state,
-            "static": self.monitor.static,
-            "f0": {
-                name: {
-                    "check": self.monitor.check_mode(name),
-                    "samples_per_check": self.monitor.samples_per_check(name),
-                    "checked": st.checked,
-                    "failed": st.failed,
-                    "last": _finite_or_none(st.last_f0),
-                }
-                for name, st in self.monitor.state.items()
-            },
-            "adc_errors": self.monitor.adc_errors,
-            "self_test": self.monitor.self_test,
-            "certificate": {
-                "serial": str(self.certificate.device.get("serial", "")),
-                "reloads": self.reloads,
-            },
-        }
+        status = status_record(
+            t=self.monitor.t_last,
+            state=state,
+            faults=faults,
+            counters=self.source.counters.as_dict(),
+            link=self.source.state,
+            monitor=self.monitor,
+            certificate=self.certificate,
+            reloads=self.reloads,
+        )
         noise = self._noise_status()
         if noise is not None:
             status["noise"] = noise

@@ -6,14 +6,27 @@ degraded, fault, no_data), ``faults`` (triad, sensor where it can be told,
 cause), ``counters`` (the receiver counters). Added keys: ``link``,
 ``static``, ``f0``, ``diagnosis``, ``certificate``, ``adc_errors``, ``notes``,
 ``status_link`` (NMEA sentences ``written`` and ``dropped`` when a serial link is set).
+
+The record is built here from what the daemon holds (:func:`status_record`,
+:func:`noise_object`, :func:`diagnosis_verdict`); the daemon's loop only decides when.
 """
 
 from __future__ import annotations
 
 import json
+import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
+from ..certificate import Certificate
+from ..monitor import Monitor
+from ..noise_estimate import METHOD as WHITE_NOISE_METHOD
+from ..noise_estimate import compare
+from ..reports import CLASSES, STATUS_FORMAT
+
+STATUS_CLASS = CLASSES[STATUS_FORMAT]
+TRIADS = ("accel", "gyro")
 STATES = ("ok", "degraded", "fault", "no_data")
 FAULT_KEYS = ("triad", "sensor", "cause")
 
@@ -41,6 +54,93 @@ def merge_faults(*groups: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 ordered.update({k: v for k, v in f.items() if k not in FAULT_KEYS})
                 seen[key] = ordered
     return [seen[k] for k in sorted(seen)]
+
+
+def finite_or_none(x: float) -> float | None:
+    """A float for JSON: None where it is not finite (JSON has no NaN)."""
+    return float(x) if math.isfinite(x) else None
+
+
+def status_record(
+    *,
+    t: float | None,
+    state: str,
+    faults: list[dict[str, Any]],
+    counters: dict[str, int],
+    link: str,
+    monitor: Monitor,
+    certificate: Certificate,
+    reloads: int,
+) -> dict[str, Any]:
+    """The keys every status line has, in order: the contract's (``class``, ``format``,
+    ``t`` sample time in s, ``state``, ``faults``, ``counters``), then the link state, the
+    monitor's F0 checks per triad, ADC-error and self-test sample counts, the certificate."""
+    return {
+        "class": STATUS_CLASS,
+        "format": STATUS_FORMAT,
+        "t": None if t is None else round(t, 6),
+        "state": state,
+        "faults": faults,
+        "counters": counters,
+        "link": link,
+        "static": monitor.static,
+        "f0": {
+            name: {
+                "check": monitor.check_mode(name),
+                "samples_per_check": monitor.samples_per_check(name),
+                "checked": st.checked,
+                "failed": st.failed,
+                "last": finite_or_none(st.last_f0),
+            }
+            for name, st in monitor.state.items()
+        },
+        "adc_errors": monitor.adc_errors,
+        "self_test": monitor.self_test,
+        "certificate": {
+            "serial": str(certificate.device.get("serial", "")),
+            "reloads": reloads,
+        },
+    }
+
+
+def noise_object(
+    figures: Mapping[str, Any] | None, certificate: Certificate, window_s: float
+) -> dict[str, Any] | None:
+    """The ``noise`` object: per triad the white-noise density measured live (``density``,
+    in the certificate's output unit per sqrt(Hz)), its ``ratio`` to the certificate's and
+    whether they ``disagree``; None before the meter has a figure."""
+    if figures is None:
+        return None
+    out: dict[str, Any] = {"method": WHITE_NOISE_METHOD, "window_s": window_s}
+    for name, fig in figures.items():
+        tri = certificate.triad(name)
+        measured = [finite_or_none(float(v)) for v in fig.density]
+        entry: dict[str, Any] = {"density": measured, "unit": f"{tri.output_unit}/sqrt(Hz)"}
+        certified = tri.noise.density if tri.noise is not None else None
+        if certified is not None and all(v is not None for v in measured):
+            cmp = compare(fig.density, certified)
+            ratios = cmp["ratio"]
+            assert isinstance(ratios, list)
+            entry["ratio"] = [round(float(r), 3) for r in ratios]
+            entry["disagrees"] = bool(cmp["disagrees"])
+        out[name] = entry
+    return out
+
+
+def diagnosis_verdict(
+    faults: Iterable[Mapping[str, Any]], undetermined: Iterable[str], raised: int
+) -> dict[str, Any]:
+    """The ``diagnosis`` object: per triad ``fault`` while a fault of it is in force, else
+    ``undetermined`` or ``ok``; ``raised`` counts what was ever raised. The live verdict
+    comes from the faults in force, never a latch that contradicts ``faults`` and ``state``."""
+    in_force = {f["triad"] for f in faults}
+    unseen = set(undetermined)
+    view: dict[str, Any] = {
+        name: "fault" if name in in_force else "undetermined" if name in unseen else "ok"
+        for name in TRIADS
+    }
+    view["raised"] = raised
+    return view
 
 
 @dataclass
