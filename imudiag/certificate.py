@@ -105,7 +105,7 @@ def _check_keys(
 
 def _positive(value: float, key: str) -> float:
     if value <= 0.0:
-        raise CertificateError(key, f"must be > 0, got {value!r}")
+        raise CertificateError(key, f"must be > 0, got {float(value)!r}")
     return value
 
 

@@ -429,3 +429,12 @@ def test_default_certificate_loads() -> None:
     # at rest, level, the accelerometer reads gravity on z and the model inverts to it
     u = cert.accel.forward_si(np.array([[0.0, 0.0, cert.gravity]]))
     np.testing.assert_allclose(np.linalg.norm(cert.accel.inverse_si(u)), cert.gravity)
+
+
+@pytest.mark.parametrize("path", ["gyro.scale_factor[0]", "accel.scale_factor[2]"])
+def test_value_in_a_message_is_plain(doc: dict[str, Any], path: str) -> None:
+    """Issue 12 item 7: the message shows the value as written, never numpy's repr."""
+    set_path(doc, path, -65.52)
+    err = error_for(doc)
+    assert err.key == path and err.reason == "must be > 0, got -65.52"
+    assert "np." not in str(err)

@@ -62,7 +62,7 @@ class DiagnosisConfig:
         if self.known_rate_rad_s is not None and not (
             math.isfinite(self.known_rate_rad_s) and self.known_rate_rad_s > 0
         ):
-            raise ValueError(f"known_rate_rad_s must be > 0, got {self.known_rate_rad_s!r}")
+            raise ValueError(f"known_rate_rad_s must be > 0, got {float(self.known_rate_rad_s)!r}")
         if self.known_rate_rad_s is not None and self.method != "exact":
             raise ValueError("a known rate is used by the exact method only")
         if self.persist < 1 or self.window_intervals < 1 or self.min_intervals < 1:

@@ -60,7 +60,7 @@ class SimulatedBoard:
         self.motion = motion
         self.rate_hz = float(rate_hz if rate_hz is not None else certificate.sample_rate)
         if not (self.rate_hz > 0 and math.isfinite(self.rate_hz)):
-            raise ValueError(f"sample rate must be > 0 Hz, got {rate_hz!r}")
+            raise ValueError(f"sample rate must be > 0 Hz, got {self.rate_hz!r}")
         total = motion.n_samples(self.rate_hz)
         if duration_s is not None:
             cap = int(round(duration_s * self.rate_hz))

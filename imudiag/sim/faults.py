@@ -54,7 +54,7 @@ class Fault:
                 f"unknown fault kind {self.kind!r}; expected one of {', '.join(KINDS)}"
             )
         if not math.isfinite(self.t_s):
-            raise ValueError(f"fault time must be finite, got {self.t_s!r}")
+            raise ValueError(f"fault time must be finite, got {float(self.t_s)!r}")
         if self.kind in _NEEDS_VALUE and (self.value is None or not math.isfinite(self.value)):
             raise ValueError(f"a {self.kind} fault needs a finite value")
         if self.kind == "noise" and self.value is not None and self.value < 0:
