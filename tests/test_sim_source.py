@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import resource
 import subprocess
 import sys
 import time
@@ -188,11 +189,15 @@ def test_board_through_a_pty_and_the_serial_source(default_certificate):
 def test_run_reports_the_simulated_boards_cost_apart_from_the_monitors():
     """``imudiag run`` on the simulated board (here at full speed) says in its status what
     the board took to make its frames and what is left for the monitor (issue 14)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    wall0 = time.monotonic()
     proc = subprocess.run(
         [sys.executable, "-m", "imudiag", "run", "--source", "sim://static?speed=0&duration=900",
          "--log-level", "warning"],
         capture_output=True, text=True, timeout=300, check=False,
     )  # fmt: skip
+    wall_s = time.monotonic() - wall0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     assert proc.returncode == 0, proc.stderr[-2000:]
     cpu = [json.loads(line)["cpu"] for line in proc.stdout.splitlines() if '"cpu"' in line]
     assert cpu, "no status line has a cpu object"
@@ -202,5 +207,10 @@ def test_run_reports_the_simulated_boards_cost_apart_from_the_monitors():
         assert abs(c["percent"] - c["board_percent"] - c["monitor_percent"]) <= 0.02 + max(
             0.0, c["board_percent"] - c["percent"]
         )
-    # at full speed the process is busy all the time: the two parts fill a core between them
-    assert cpu[-1]["percent"] > 50
+    # at full speed the process is busy all the time: the two parts fill what the process
+    # got of a core. Judged against its share of the run as the kernel counted it (CPU s
+    # over wall s), so other load on the machine cannot fail the test, nor hide a
+    # figure that does not follow the process's real use
+    used = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    share = 100.0 * used / wall_s
+    assert cpu[-1]["percent"] > 0.7 * share, (cpu[-1], share)
