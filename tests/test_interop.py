@@ -308,10 +308,24 @@ def test_like_in_other_units_rescales_what_it_gives(tmp_path):
 # the command line, through real subprocesses
 
 
-def test_acceptance_calibrate_export_imu_tk_import_diagnose_real_xsens(tmp_path):
-    cal = tmp_path / "cal.yaml"
+@pytest.fixture(scope="module")
+def xsens_cal(tmp_path_factory) -> Path:
+    """The real Xsens session calibrated by ``imudiag calibrate`` (a real subprocess)."""
+    cal = tmp_path_factory.mktemp("interop") / "cal.yaml"
     r = run_imudiag("calibrate", str(XSENS), "--like", str(LIKE_XSENS), "--out", str(cal))
     assert r.returncode == 0, r.stderr
+    return cal
+
+
+def _diagnose_verdict(cert: Path, tmp: Path) -> dict:
+    report = tmp / "diag.json"
+    r = run_imudiag("diagnose", str(XSENS), "--certificate", str(cert), "--json", str(report))
+    assert r.returncode == 0, r.stderr
+    return json.loads(report.read_text())["verdict"]
+
+
+def test_acceptance_calibrate_export_imu_tk_import_diagnose_real_xsens(xsens_cal, tmp_path):
+    cal = xsens_cal
     prefix = tmp_path / "xsens"
     r = run_imudiag("certificate", "export", str(cal), "--format", "imu_tk", "--out", str(prefix))
     assert r.returncode == 0, r.stderr
@@ -332,12 +346,31 @@ def test_acceptance_calibrate_export_imu_tk_import_diagnose_real_xsens(tmp_path)
     for name in ("accel", "gyro"):
         m, mb = _matrix(a, name), _matrix(b, name)
         assert np.abs(mb - m).max() <= ROUND_TRIP_RTOL * np.abs(m).max()
-    report = tmp_path / "diag.json"
-    r = run_imudiag("diagnose", str(XSENS), "--certificate", str(back), "--json", str(report))
-    assert r.returncode == 0, r.stderr
-    verdict = json.loads(report.read_text())["verdict"]
+    verdict = _diagnose_verdict(back, tmp_path)
     assert verdict["accel"] == "ok" and verdict["gyro"] == "ok"
     assert verdict["faults"] == []
+
+
+def test_a_frame_rotation_kept_by_gauge_tool_changes_no_verdict(xsens_cal, tmp_path):
+    """Through iKalibr (triangular: both triads re-framed, 11.8 mrad) and back with --gauge
+    tool, the certificate holds the rotation; the diagnosis sees only P: still no fault."""
+    out = tmp_path / "intri.yaml"
+    r = run_imudiag(
+        "certificate", "export", str(xsens_cal), "--format", "ikalibr", "--out", str(out)
+    )
+    assert r.returncode == 0, r.stderr
+    assert "re-framed by 1.1" in r.stdout
+    back = tmp_path / "back.yaml"
+    r = run_imudiag(
+        "certificate", "import", str(out), "--format", "ikalibr", "--like", str(xsens_cal),
+        "--gauge", "tool", "--out", str(back),
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    n, n_cal = load(back).accel.n_matrix(), load(xsens_cal).accel.n_matrix()
+    assert np.abs(n - n.T).max() > 1e-3  # not the symmetric gauge: the rotation is in N
+    np.testing.assert_allclose(n @ n.T, n_cal @ n_cal.T, atol=1e-13)
+    verdict = _diagnose_verdict(back, tmp_path)
+    assert (verdict["accel"], verdict["gyro"], verdict["faults"]) == ("ok", "ok", [])
 
 
 @pytest.mark.parametrize("fmt", ["imucal", "kalibr", "ikalibr"])
