@@ -206,6 +206,37 @@ def test_imu_tk_file_maps_onto_imu_tk_model():
         np.testing.assert_array_equal(cert.triad(name).bias, b)
 
 
+def test_imu_tk_pair_named_by_prefix_either_file_or_options(tmp_path):
+    prefix = IO / "imu_tk_xsens"
+    want = interop.read("imu_tk", str(prefix))
+    for path in (f"{prefix}_acc.calib", f"{prefix}_gyro.calib"):
+        got = interop.read("imu_tk", path)
+        np.testing.assert_array_equal(got.accel.matrix, want.accel.matrix)
+        np.testing.assert_array_equal(got.gyro.bias, want.gyro.bias)
+    out = tmp_path / "c.yaml"
+    r = run_imudiag(
+        "certificate", "import", "--format", "imu_tk", "--accel", f"{prefix}_acc.calib",
+        "--gyro", f"{prefix}_gyro.calib", "--like", str(LIKE_XSENS), "--out", str(out),
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    np.testing.assert_array_equal(load(out).gyro.bias, want.gyro.bias)
+
+
+def test_exported_files_have_the_tools_own_keys(tmp_path):
+    """imucal: the keys of its own snapshot, in its order; Kalibr: the imu.yaml keys at the
+    top level, where its ImuParameters reads them."""
+    cert = _symmetric_cert()
+    interop.write("imucal", cert, str(tmp_path / "c.json"))
+    ours = list(json.loads((tmp_path / "c.json").read_text()))
+    assert ours == list(json.loads((IO / "imucal_example_cal.json").read_text()))
+    interop.write("kalibr", cert, str(tmp_path / "imu.yaml"))
+    doc = yaml.safe_load((tmp_path / "imu.yaml").read_text())
+    example = yaml.safe_load((IO / "kalibr_imu_adis16448.yaml").read_text())
+    assert set(example) <= set(doc)
+    assert doc["model"] == "scale-misalignment"
+    assert np.allclose(np.triu(doc["accelerometers"]["M"], 1), 0.0)  # lower triangular
+
+
 def test_imu_tk_symmetric_gauge_reports_the_rotation_it_takes():
     ic = interop.read("imu_tk", str(IO / "imu_tk_xsens"))
     cert, prov = interop.to_certificate(ic, load(LIKE_XSENS), gauge="symmetric")

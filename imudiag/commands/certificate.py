@@ -39,7 +39,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "input",
         metavar="FILE",
         nargs="?",
-        help="the tool's file (imu_tk: the PREFIX of PREFIX_acc.calib and PREFIX_gyro.calib)",
+        help="the tool's file (imu_tk: PREFIX naming PREFIX_acc.calib and PREFIX_gyro.calib, "
+        "or either of the two files)",
     )
     imp.add_argument("--format", required=True, choices=FORMATS, help="the tool's format")
     imp.add_argument("--accel", metavar="FILE", help="imu_tk: the accelerometer .calib file")

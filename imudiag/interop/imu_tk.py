@@ -23,7 +23,11 @@ BLOCKS = (("T", (3, 3)), ("K", (3, 3)), ("B", (3, 1)))
 
 
 def paths(prefix: str) -> dict[str, str]:
-    """The two file paths of a prefix: ``{"accel": PREFIX_acc.calib, "gyro": ...}``."""
+    """The two file paths of a prefix: ``{"accel": PREFIX_acc.calib, "gyro": ...}``; a
+    prefix that is already one of the two files names the pair."""
+    for suffix in SUFFIX.values():
+        if prefix.endswith(suffix):
+            prefix = prefix[: -len(suffix)]
     return {name: prefix + suffix for name, suffix in SUFFIX.items()}
 
 
