@@ -332,7 +332,7 @@ def test_like_in_other_units_rescales_what_it_gives(tmp_path):
     np.testing.assert_allclose(cert.accel.limits.bias, like.accel.limits.bias * k)
     assert prov.fields["accel.scale_factor"] == "file"
     assert any("rescaled" in n for n in prov.notes)
-    assert prov.fields["accel.bias"] == "zero"  # not in the file, the like's is in counts
+    assert prov.fields["accel.bias"] == "set to 0"  # not in the file, the like's is in counts
 
 
 # ---------------------------------------------------------------------------

@@ -19,7 +19,8 @@ Noise: Kalibr's noise density sigma_c is the continuous-time white-noise density
 discrete sigma = sigma_c sqrt(rate); the certificate's one-sided density n has the
 per-sample sigma = n sqrt(rate / 2), so n = sqrt(2) sigma_c. Kalibr's random walk sigma_b
 (bias variance sigma_b^2 t) is the certificate's ``bias_random_walk`` K as it is. Both are
-scaled by S / unit (output per SI input) into output units, one figure per triad.
+multiplied by each axis' gain (the row norm of M, output per SI input unit; for a file with
+noise and no matrix, the like's S per SI unit) into output units; one figure per triad.
 
 Writing, M_a is made lower triangular and M_g = L_g C_gyro_i (Kalibr's own design
 variables: lower-triangular M, a rotation C_gyro_i) by re-framing both triads; the rotation

@@ -37,9 +37,6 @@ SCALE_AGREEMENT_FACTOR = 2.0
 #: A frame rotation (rad) smaller than this is float noise, not worth a note.
 ANGLE_NOTE_RAD = 1e-12
 
-#: SI unit of each triad's physical input, the unit :class:`TriadCal` matrices are per.
-SI_INPUT_UNIT = {"gyro": "rad/s", "accel": "m/s^2"}
-
 
 @dataclass
 class TriadCal:
@@ -275,7 +272,7 @@ def _triad_from_cal(
         prov.fields[f"{name}.bias"] = "file"
     elif out.output_unit != like.output_unit:
         out.bias = np.zeros(3)
-        prov.fields[f"{name}.bias"] = "zero"
+        prov.fields[f"{name}.bias"] = "set to 0"
         prov.notes.append(
             f"{name}.bias: not in the file, and the like bias is in {like.output_unit!r}, "
             f"not {out.output_unit!r}: set to 0"
@@ -385,7 +382,6 @@ def from_certificate(cert: Certificate) -> Interchange:
 __all__ = [
     "DEFAULT_GAUGE",
     "GAUGES",
-    "SI_INPUT_UNIT",
     "Interchange",
     "Provenance",
     "TriadCal",
