@@ -31,6 +31,7 @@ COMMANDS = (
     "allan",
     "bench",
     "convert",
+    "certificate",
 )
 
 __all__ = ["COMMANDS", "EXIT_BAD_INPUT", "EXIT_ERROR", "EXIT_OK", "build_parser", "main"]

@@ -51,6 +51,35 @@ def quat_matrix(q: np.ndarray) -> np.ndarray:
     )
 
 
+def matrix_quat(r: np.ndarray) -> np.ndarray:
+    """Unit quaternion (4,) (w, x, y, z), w >= 0, of a rotation matrix (3, 3)
+    (the inverse of :func:`quat_matrix`; Shepperd's method, stable at every angle)."""
+    r = np.asarray(r, dtype=float)
+    tr = float(np.trace(r))
+    cands = [tr, r[0, 0], r[1, 1], r[2, 2]]
+    i = int(np.argmax(cands))
+    if i == 0:
+        w = 0.5 * np.sqrt(1.0 + tr)
+        q = [
+            w,
+            (r[2, 1] - r[1, 2]) / (4 * w),
+            (r[0, 2] - r[2, 0]) / (4 * w),
+            (r[1, 0] - r[0, 1]) / (4 * w),
+        ]
+    else:
+        j, k = (i % 3), ((i + 1) % 3)
+        a = i - 1
+        s = 2.0 * np.sqrt(1.0 + 2.0 * r[a, a] - tr)
+        q = [0.0] * 4
+        q[0] = (r[k, j] - r[j, k]) / s
+        q[1 + a] = 0.25 * s
+        q[1 + j] = (r[j, a] + r[a, j]) / s
+        q[1 + k] = (r[k, a] + r[a, k]) / s
+    out = np.array(q, dtype=float)
+    out /= np.linalg.norm(out)
+    return -out if out[0] < 0 else out
+
+
 def ordered_product(q: np.ndarray) -> np.ndarray:
     """q_0 * q_1 * ... * q_{L-1} along axis -2 of (..., L, 4), by pairwise reduction."""
     length = q.shape[-2]
@@ -64,4 +93,4 @@ def ordered_product(q: np.ndarray) -> np.ndarray:
     return q[..., 0, :]
 
 
-__all__ = ["ordered_product", "qmul", "quat_matrix", "rotvec_quat"]
+__all__ = ["matrix_quat", "ordered_product", "qmul", "quat_matrix", "rotvec_quat"]

@@ -49,6 +49,7 @@ FLOORS: list[tuple[str, ...]] = [
         "imudiag.diagnosis",
         "imudiag.modelcheck",
         "imudiag.aiding",
+        "imudiag.interop",
     ),
     # 6 sources above the transports: sim://, replay://
     ("imudiag.sources",),

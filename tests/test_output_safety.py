@@ -154,6 +154,21 @@ def _refusals(d: Path, log: Path, cert: Path) -> list[tuple[list[str], Path]]:
         ),
         (["convert", str(log), str(link)], log),
         (["convert", str(link), str(log)], log),
+        (["certificate", "export", str(cert), "--format", "imucal", "--out", str(cert)], cert),
+        (
+            [
+                "certificate",
+                "import",
+                str(log),
+                "--format",
+                "kalibr",
+                "--like",
+                str(cert),
+                "--out",
+                str(cert),
+            ],
+            cert,
+        ),
         (
             [
                 "simulate",
