@@ -249,25 +249,28 @@ def accel_norm_spread(
     return spread(accel_norm_residuals(accel, intervals, gravity))
 
 
-def rotation_residuals_deg(gyro: TriadModel, pairs: list[RotationPair]) -> np.ndarray:
-    """Angle (deg) between the gravity direction measured after each rotation and the one
-    predicted by integrating the rotation with ``gyro``'s correction."""
-    if not pairs:
-        return np.zeros(0)
+def _rotation_residuals(gyro: TriadModel, pairs: list[RotationPair]) -> np.ndarray:
+    """|measured - predicted| unit gravity direction after each rotation (rad, small angle)."""
     from .gyro_fit import stack_pairs
 
     stack = stack_pairs(gyro, pairs)
     up0 = np.array([p.up0 for p in pairs])
     up1 = np.array([p.up1 for p in pairs])
     pred = predict_end_directions(stack, np.linalg.inv(gyro.n_matrix())[None], up0)[0]
-    return np.degrees(np.linalg.norm(up1 - pred, axis=1))
+    return np.asarray(np.linalg.norm(up1 - pred, axis=1))
+
+
+def rotation_residuals_deg(gyro: TriadModel, pairs: list[RotationPair]) -> np.ndarray:
+    """Angle (deg) between the gravity direction measured after each rotation and the one
+    predicted by integrating the rotation with ``gyro``'s correction."""
+    return np.degrees(_rotation_residuals(gyro, pairs)) if pairs else np.zeros(0)
 
 
 def _rotation_rms_deg(gyro: TriadModel, pairs: list[RotationPair]) -> float | None:
     if not pairs:
         return None
-    r = rotation_residuals_deg(gyro, pairs)
-    return float(np.sqrt(np.mean(r * r)))
+    r = _rotation_residuals(gyro, pairs)
+    return float(math.degrees(float(np.sqrt(np.mean(r * r)))))
 
 
 def _noise_density(
