@@ -214,3 +214,23 @@ def test_model_check_lists_its_plots(tmp_path):
     for p in paths:
         png_size(Path(p))
         assert f"plot: {p}" in res.stdout
+
+
+def test_known_rate_calibration_draws_the_plateau_residuals(tmp_path):
+    """A turntable session (gyro only; the session writer of tests/test_known_rate.py)."""
+    from test_known_rate import _session, _truth
+
+    from imudiag.certificate import load_default
+
+    log, like = tmp_path / "table.csv", tmp_path / "like.yaml"
+    _session(log, _truth().gyro, seed=4)
+    load_default().save(like)
+    js = tmp_path / "cal.json"
+    res = run_imudiag(
+        "calibrate", str(log), "--like", str(like), "--known-rate", "33.333333rpm",
+        "--out", str(tmp_path / "cal.yaml"), "--plots", str(tmp_path / "p"), "--json", str(js),
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    summary = json.loads(js.read_text())
+    check_figures(summary["plots"], ("gyro_norm_residuals.png",), tmp_path / "p")
+    assert summary["known_rate"]["norm_spread"]["after"]["rms"] < 1e-3
