@@ -114,6 +114,62 @@ class TriadState:
     noise_ratio_last: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
 
 
+class _Thinned:
+    """(t, value) pairs kept for a plot: every ``stride``-th, the stride doubling whenever
+    more than ``max_points`` are held (so a day-long log costs a bounded memory)."""
+
+    def __init__(self, max_points: int) -> None:
+        self.max_points = max_points
+        self.stride = 1
+        self.seen = 0  #: pairs given, kept or not
+        self._t: list[np.ndarray] = []
+        self._v: list[np.ndarray] = []
+        self._held = 0
+
+    def add(self, t: np.ndarray, v: np.ndarray) -> None:
+        keep = (self.seen + np.arange(t.size)) % self.stride == 0
+        self.seen += int(t.size)
+        if not np.any(keep):
+            return
+        self._t.append(np.asarray(t, dtype=float)[keep])
+        self._v.append(np.asarray(v, dtype=float)[keep])
+        self._held += int(np.count_nonzero(keep))
+        while self._held > self.max_points:
+            t_all, v_all = self.arrays()
+            self._t, self._v = [t_all[::2]], [v_all[::2]]
+            self._held = int(self._t[0].size)
+            self.stride *= 2
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Times (s) and values kept, in the order given."""
+        if not self._t:
+            return np.zeros(0), np.zeros(0)
+        return np.concatenate(self._t), np.concatenate(self._v)
+
+
+class F0Trace:
+    """Every F0 check of one triad for plots: its time (s, the last sample's), its value
+    (F0, dimensionless; for the MEMS gyro rest-rate check the ratio of the worst axis' mean
+    rate to its threshold) and whether it failed. Passing and failing checks are each
+    thinned to at most ``max_points`` (every k-th kept, k a power of 2)."""
+
+    def __init__(self, check: str, limit: float, max_points: int = 50_000) -> None:
+        self.check = check  #: ``f0`` or ``rest_rate``
+        self.limit = limit  #: a check fails beyond this (dimensionless)
+        self.passed = _Thinned(max_points)
+        self.failed = _Thinned(max_points)
+
+    def add(self, t: np.ndarray, values: np.ndarray, failed: np.ndarray) -> None:
+        """Checks at times ``t`` (s) with ``values`` and their failed flags."""
+        self.passed.add(t[~failed], values[~failed])
+        self.failed.add(t[failed], values[failed])
+
+    @property
+    def checks(self) -> int:
+        """Checks given (kept or thinned away)."""
+        return self.passed.seen + self.failed.seen
+
+
 def _beyond(x: np.ndarray, scale: float, limit: float) -> int:
     """How many rows of ``x`` (N, 3) times ``scale`` have |F0| = |(|row|^2 - 1) / 2| beyond
     ``limit`` (NaN rows never do, as in the F0 check)."""
@@ -156,7 +212,22 @@ class Monitor:
         self._unscreened: list[SampleBlock] = []  # pending reads not looked at yet
         self._unscreened_n = 0
         self._faults: list[dict[str, Any]] | None = []  # the faults in force (None: stale)
+        #: every F0 check per triad, for plots (None: not kept; see :meth:`keep_f0_trace`)
+        self.f0_trace: dict[str, F0Trace] | None = None
         self.set_certificate(certificate)
+
+    def keep_f0_trace(self, max_points: int = 50_000) -> dict[str, F0Trace]:
+        """Keep every F0 check from now on (thinned to ``max_points`` per triad and verdict)
+        in :attr:`f0_trace`; returns it."""
+        self.f0_trace = {
+            name: F0Trace(
+                self.check_mode(name),
+                1.0 if self.check_mode(name) == "rest_rate" else self._limit[name],
+                max_points,
+            )
+            for name in TRIADS
+        }
+        return self.f0_trace
 
     # -- configuration ----------------------------------------------------
 
@@ -599,6 +670,8 @@ class Monitor:
             values = values[: k * m].reshape(k, m).mean(axis=1)
             t = t[m - 1 : k * m : m]  # a check's time: its last sample's
         failed = np.abs(values) > limit
+        if self.f0_trace is not None:
+            self.f0_trace[name].add(t, values, failed)
         st.failed += m * int(np.count_nonzero(failed))
         if values.size:
             st.last_f0 = float(values[-1])
@@ -634,6 +707,8 @@ class Monitor:
         failed = worst > 1.0
         values = worst  # ratio of the worst axis' mean rate to its threshold
         st = self._state["gyro"]
+        if self.f0_trace is not None:
+            self.f0_trace["gyro"].add(t[usable], values, failed)
         st.checked += int(m.shape[0])
         st.failed += int(np.count_nonzero(failed))
         st.sum_f0_sq += float(np.sum(values * values))

@@ -18,7 +18,8 @@ from ..certificate import load
 from ..diagnosis.session import calibrate_recording
 from ..errors import BadInput
 from ..logs.options import log_options
-from .diagnose import add_common_arguments, make_config, write_json
+from ..progress import for_command
+from .diagnose import add_common_arguments, check_plots, make_config, plot_lines, write_json
 from .noise import noise_lines
 
 
@@ -47,23 +48,44 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="write the certificate even when the held-out check says the "
         "calibration does not generalise (it then carries device.warning)",
     )
+    p.add_argument(
+        "--plots",
+        metavar="DIR",
+        help="write PNG figures into DIR: |a|/g - 1 of the intervals (accel_norm_residuals.png) "
+        "and the gravity direction after the rotations (rotation_residuals.png) before and "
+        "after; with --known-rate |w|/rate - 1 of the plateaus (gyro_norm_residuals.png); "
+        "needs matplotlib (pip install 'imudiag[plots]')",
+    )
     p.set_defaults(func=run, inputs=("log", "like", "magnitude"), outputs=("out", "json"))
 
 
 def run(args: argparse.Namespace) -> int:
     """Calibrate from the log and write the certificate."""
+    from ..plots.calibration import FILES  # the names only: matplotlib is imported to draw
+
+    check_plots(args, FILES)
     like = load(args.like)
     cfg = make_config(args)
-    result = calibrate_recording(
-        args.log,
-        like,
-        cfg,
-        rate_hz=args.rate,
-        magnitude=args.magnitude,
-        certificate_noise=args.certificate_noise,
-        options=log_options(args),
-        block_size=args.block_size,
-    )
+    with for_command("calibrate", args.quiet) as progress:
+        result = calibrate_recording(
+            args.log,
+            like,
+            cfg,
+            rate_hz=args.rate,
+            magnitude=args.magnitude,
+            certificate_noise=args.certificate_noise,
+            options=log_options(args),
+            block_size=args.block_size,
+            progress=progress,
+        )
+    plots: list[str] = []
+    if args.plots:
+        from pathlib import Path
+
+        from ..plots.calibration import write_calibration_plots
+
+        written = write_calibration_plots(result, args.plots, Path(args.like).name)
+        plots = [str(p) for p in written]
     noise_report = result.noise or {}
     check = result.generalisation or {}
     refused = check.get("generalises") is False
@@ -82,7 +104,11 @@ def run(args: argparse.Namespace) -> int:
         if args.json:
             summary = result.summary()
             summary.update(log=str(args.log), like=str(args.like), out=None, refused=True)
+            if args.plots:
+                summary["plots"] = plots
             write_json(summary, args.json)
+        for line in plot_lines(plots):
+            print(line, file=sys.stderr)
         return 1
     try:
         result.certificate.save(args.out)
@@ -94,6 +120,8 @@ def run(args: argparse.Namespace) -> int:
     summary["out"] = str(args.out)
     summary["noise"] = noise_report
     summary["refused"] = False
+    if args.plots:
+        summary["plots"] = plots
     if args.json:
         write_json(summary, args.json)
     out = sys.stderr if args.json == "-" else sys.stdout
@@ -155,4 +183,6 @@ def run(args: argparse.Namespace) -> int:
             f"{u['reason']}",
             file=out,
         )
+    for line in plot_lines(plots):
+        print(line, file=out)
     return 0

@@ -16,6 +16,7 @@ import numpy as np
 from ..errors import BadInput
 from ..logs import DEFAULT_BLOCK_SIZE, log_format, open_log, open_writer
 from ..logs.options import add_log_options, log_options, units_from_meta
+from ..progress import for_command
 from ..samples import SampleBlock
 
 
@@ -51,6 +52,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="writing .bin from a log not in counts: the quantisation, in the log's units per "
         "count, e.g. gyro=0.001,accel=0.0001 (outputs become round(value / quantum) counts)",
     )
+    p.add_argument(
+        "--quiet",
+        "-q",
+        action="store_true",
+        help="no progress bar on standard error (drawn only on a terminal anyway)",
+    )
     add_log_options(p)
     p.set_defaults(func=run, inputs=("input",), outputs=("output",))
 
@@ -64,7 +71,10 @@ def run(args: argparse.Namespace) -> int:
     to_bin = log_format(args.output) == ".bin"
     if quantum is not None and not to_bin:
         raise BadInput("--quantum: only writing a .bin capture (integer counts) needs it")
-    with open_log(args.input, block_size=args.block_size, options=log_options(args)) as reader:
+    with (
+        open_log(args.input, block_size=args.block_size, options=log_options(args)) as reader,
+        for_command("convert", args.quiet) as bar,
+    ):
         meta = {} if args.no_meta else dict(reader.meta)
         units = units_from_meta(reader.meta)
         if quantum is not None and not args.no_meta:
@@ -81,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
                         "or write .csv / .npz"
                     )
             for block in reader:
+                bar("converting", reader.fraction_read(), reader.samples_read)
                 if quantum is not None:
                     block.gyro = block.gyro / quantum["gyro"]
                     block.accel = block.accel / quantum["accel"]

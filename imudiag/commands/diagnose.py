@@ -21,10 +21,11 @@ from ..atomic import write_text_atomic
 from ..certificate import Certificate, load, load_default
 from ..diagnosis.config import GYRO_MODES, METHODS, DiagnosisConfig
 from ..diagnosis.known_rate import parse_known_rate
-from ..diagnosis.session import diagnose_recording
+from ..diagnosis.session import DiagnosisTrace, diagnose_recording
 from ..errors import BadInput
 from ..logs import open_log
 from ..logs.options import add_log_options, log_options
+from ..progress import for_command
 from .gnss import add_gnss_arguments, check_gnss_options, moving_base_lines, moving_base_section
 from .noise import add_noise_argument, noise_lines
 
@@ -73,6 +74,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=float,
         metavar="N",
         help="redundant observations a window's fit needs to be judged (default 3)",
+    )
+    p.add_argument(
+        "--plots",
+        metavar="DIR",
+        help="write PNG figures into DIR: each parameter's window estimates against the "
+        "certificate (estimates_accel.png, estimates_gyro.png) and the F0 trace "
+        "(f0_trace.png); needs matplotlib (pip install 'imudiag[plots]')",
     )
     add_gnss_arguments(p)
     p.set_defaults(func=run, inputs=("log", "certificate", "magnitude", "gnss"), outputs=("json",))
@@ -130,8 +138,33 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
         "plateaus are set aside; a log without accelerometer columns is accepted "
         "and the accelerometers are not diagnosed or calibrated",
     )
+    p.add_argument(
+        "--quiet",
+        "-q",
+        action="store_true",
+        help="no progress bar on standard error (drawn only on a terminal anyway)",
+    )
     add_noise_argument(p)
     add_log_options(p)  # after --rate, which it shares
+
+
+def check_plots(args: argparse.Namespace, files: tuple[str, ...]) -> None:
+    """Before any work: matplotlib installed, ``--plots DIR`` usable, and none of the figure
+    files an input of the command (exit 2 otherwise)."""
+    if not args.plots:
+        return
+    from ..atomic import refuse_overwrite
+    from ..plots import check_directory, require
+
+    require()
+    directory = check_directory(args.plots)
+    inputs = [(k.upper() if k == "log" else "--" + k, getattr(args, k, None)) for k in args.inputs]
+    refuse_overwrite(inputs, [("--plots", str(directory / f)) for f in files])
+
+
+def plot_lines(paths: list[str]) -> list[str]:
+    """The console lines naming the figures written."""
+    return [f"plot: {p}" for p in paths]
 
 
 def make_config(args: argparse.Namespace, **extra: Any) -> DiagnosisConfig:
@@ -209,6 +242,9 @@ def summary_lines(report: dict) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Run the diagnosis over the log and write the report."""
+    from ..plots.diagnosis import FILES  # the names only: matplotlib is imported to draw
+
+    check_plots(args, FILES)
     cert = load_certificate(args.certificate)
     if cert.device.get("warning"):
         print(
@@ -227,29 +263,38 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     check_gnss_options(args)
-    report = diagnose_recording(
-        args.log,
-        cert,
-        cfg,
-        rate_hz=args.rate,
-        magnitude=args.magnitude,
-        certificate_noise=args.certificate_noise,
-        options=log_options(args),
-        block_size=args.block_size,
-        windows=not args.no_windows,
-    )
+    trace = DiagnosisTrace() if args.plots else None
+    with for_command("diagnose", args.quiet) as progress:
+        report = diagnose_recording(
+            args.log,
+            cert,
+            cfg,
+            rate_hz=args.rate,
+            magnitude=args.magnitude,
+            certificate_noise=args.certificate_noise,
+            options=log_options(args),
+            block_size=args.block_size,
+            windows=not args.no_windows,
+            progress=progress,
+            trace=trace,
+        )
     report["log"] = str(args.log)
     noise_report = report["noise"]
     if args.gnss:
         with open_log(args.log, block_size=args.block_size, options=log_options(args)) as reader:
             kept = list(reader)
         report["moving_base"] = moving_base_section(args, kept, cert, report["sample_rate"])
+    if trace is not None:
+        from ..plots.diagnosis import write_diagnosis_plots
+
+        report["plots"] = [str(p) for p in write_diagnosis_plots(trace, cert, args.plots)]
     if args.json:
         write_json(report, args.json)
     out = sys.stderr if args.json == "-" else sys.stdout
     lines = summary_lines(report) + noise_lines(noise_report)
     if "moving_base" in report:
         lines += moving_base_lines(report["moving_base"])
+    lines += plot_lines(report.get("plots", []))
     for line in lines:
         print(line, file=out)
     return 0

@@ -11,6 +11,7 @@ from typing import Any
 from ..certificate import load
 from ..errors import BadInput
 from ..logs.options import LogOptions, add_log_options, log_options
+from ..progress import Progress, for_command
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -41,7 +42,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="FILE",
         help="write the certificate with the fitted extended-model blocks",
     )
-    p.add_argument("--plots", metavar="DIR", help="write PNG figures (needs matplotlib)")
+    p.add_argument(
+        "--plots",
+        metavar="DIR",
+        help="write PNG figures into DIR (needs matplotlib: pip install 'imudiag[plots]')",
+    )
+    p.add_argument(
+        "--quiet",
+        "-q",
+        action="store_true",
+        help="no progress bar on standard error (drawn only on a terminal anyway)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the simulations (default 0)")
     p.add_argument(
         "--chunk",
@@ -87,44 +98,52 @@ def run(args: argparse.Namespace) -> int:
     if args.block_size is not None and args.block_size < 64:
         raise BadInput(f"--block-size: must be >= 64, got {args.block_size}")
     if args.plots:
-        from ..modelcheck.plots import available
+        from ..plots import check_directory, require
 
-        if not available():
-            raise BadInput("--plots: matplotlib is not installed (pip install matplotlib)")
+        require()
+        check_directory(args.plots)
     cert = load(args.certificate)
     try:
         kw = {"block_size": args.block_size} if args.block_size else {}
         options = log_options(args)
         log: Any = args.log
-        if options.given():  # a text table read with the user's names
-            log = _table_source(args.log, options, args.block_size)
-        result = model_check(log, cert, seed=args.seed, config=cfg, **kw)
+        with for_command("model-check", args.quiet) as progress:
+            if options.given():  # a text table read with the user's names
+                log = _table_source(args.log, options, args.block_size, progress)
+            result = model_check(log, cert, seed=args.seed, config=cfg, progress=progress, **kw)
     except ValueError as exc:
         if type(exc).__name__ in ("LogError", "CertificateError"):
             raise
         raise BadInput(f"{args.log}: {exc}") from None
-    report_mod.write(result.report, args.json)
-    if args.extended_certificate:
-        result.extended.save(args.extended_certificate)
     if args.plots:
         from ..modelcheck.plots import write_plots
 
-        write_plots(result, args.plots)
-    if args.json != "-":
-        for line in report_mod.summary(result.report):
-            print(line)
-    else:
-        for line in report_mod.summary(result.report):
-            print(line, file=sys.stderr)
+        result.report["plots"] = [str(p) for p in write_plots(result, args.plots)]
+    report_mod.write(result.report, args.json)
+    if args.extended_certificate:
+        result.extended.save(args.extended_certificate)
+    out = sys.stdout if args.json != "-" else sys.stderr
+    for line in report_mod.summary(result.report):
+        print(line, file=out)
+    for path in result.report.get("plots", []):
+        print(f"plot: {path}", file=out)
     return 0
 
 
-def _table_source(path: str, options: LogOptions, block_size: int | None) -> Any:
-    """A block source reading ``path`` with the user's log options."""
+def _table_source(
+    path: str, options: LogOptions, block_size: int | None, progress: Progress
+) -> Any:
+    """A block source reading ``path`` with the user's log options (each pass told to
+    ``progress``)."""
     from ..logs import DEFAULT_BLOCK_SIZE, open_log
 
+    passes = [0]
+
     def blocks() -> Any:
+        passes[0] += 1
         with open_log(path, block_size=block_size or DEFAULT_BLOCK_SIZE, options=options) as r:
-            yield from r
+            for block in r:
+                yield block
+                progress(f"pass {passes[0]}", r.fraction_read(), r.samples_read)
 
     return blocks

@@ -14,6 +14,7 @@ import math
 from ..certificate import load, load_default
 from ..errors import BadInput
 from ..logs import log_format, open_writer
+from ..progress import for_command
 from ..sim.drive import EPOCH_UNIX, gnss_reports, write_gpspipe_log
 from ..sim.effects import Effects
 from ..sim.faults import Fault
@@ -116,6 +117,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="CERT",
         help="also write the true model at the end (faults and effects applied)",
     )
+    p.add_argument(
+        "--quiet",
+        "-q",
+        action="store_true",
+        help="no progress bar on standard error (drawn only on a terminal anyway)",
+    )
     p.set_defaults(func=run, inputs=("certificate",), outputs=("out", "true_certificate"))
 
 
@@ -178,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
     sim = Simulator(cert, effects, faults, args.seed, meta=dict(meta))
     chunk = max(1, int(round(CHUNK_S * rate)))
     written = 0
-    with open_writer(args.out, meta=meta) as writer:
+    with open_writer(args.out, meta=meta) as writer, for_command("simulate", args.quiet) as bar:
         done = 0
         while done < total:
             n = min(chunk, total - done)
@@ -187,6 +194,7 @@ def run(args: argparse.Namespace) -> int:
                 block.t = block.t + EPOCH_UNIX
             writer.write(block)
             done += n
+            bar("simulating", done / total, done)
         written = writer.samples_written
     if args.gnss:
         write_gpspipe_log(args.gnss, gnss_reports(motion, seed=args.seed))  # type: ignore[arg-type]

@@ -157,6 +157,11 @@ class CalibrationResult:
     #: the unit's white noise measured from the recording beside the certificate's (the
     #: reports' ``noise`` object), where the caller measured it
     noise: dict[str, Any] | None = None
+    #: per-point residuals behind the spreads, for plots: ``accel_norm`` (|f|/g - 1 of each
+    #: interval, dimensionless), ``rotation`` (gravity direction after each rotation, deg),
+    #: ``gyro_norm`` (known rate: |w|/rate - 1 of each plateau); each holds ``t`` (s, the
+    #: interval's middle or the rotation's end), ``before`` (with --like) and ``after``
+    residuals: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary of the calibration."""
@@ -219,12 +224,8 @@ def _set_from_fit(out: TriadModel, like: TriadModel, fit: TriadFit) -> None:
     out.scale_factor_error, out.misalignment = fields_from_n(p_matrix(shape) @ q, like.scale_factor)
 
 
-def accel_norm_spread(
-    accel: TriadModel, intervals: list[QuasiStaticInterval], gravity: float
-) -> dict[str, float]:
-    """Spread of |f| / g - 1 over the interval means with ``accel``'s correction (dimensionless)."""
-    means = np.array([iv.accel_mean for iv in intervals])
-    r = np.linalg.norm(accel.inverse_si(means), axis=1) / gravity - 1.0
+def spread(r: np.ndarray) -> dict[str, float]:
+    """RMS, std, peak-to-peak and largest magnitude of residuals ``r`` (their unit)."""
     return {
         "rms": float(np.sqrt(np.mean(r * r))),
         "std": float(np.std(r)),
@@ -233,16 +234,42 @@ def accel_norm_spread(
     }
 
 
-def _rotation_rms_deg(gyro: TriadModel, pairs: list[RotationPair]) -> float | None:
-    if not pairs:
-        return None
+def accel_norm_residuals(
+    accel: TriadModel, intervals: list[QuasiStaticInterval], gravity: float
+) -> np.ndarray:
+    """|f| / g - 1 of each interval mean with ``accel``'s correction (dimensionless)."""
+    means = np.array([iv.accel_mean for iv in intervals])
+    return np.asarray(np.linalg.norm(accel.inverse_si(means), axis=1) / gravity - 1.0)
+
+
+def accel_norm_spread(
+    accel: TriadModel, intervals: list[QuasiStaticInterval], gravity: float
+) -> dict[str, float]:
+    """Spread of |f| / g - 1 over the interval means with ``accel``'s correction (dimensionless)."""
+    return spread(accel_norm_residuals(accel, intervals, gravity))
+
+
+def _rotation_residuals(gyro: TriadModel, pairs: list[RotationPair]) -> np.ndarray:
+    """|measured - predicted| unit gravity direction after each rotation (rad, small angle)."""
     from .gyro_fit import stack_pairs
 
     stack = stack_pairs(gyro, pairs)
     up0 = np.array([p.up0 for p in pairs])
     up1 = np.array([p.up1 for p in pairs])
     pred = predict_end_directions(stack, np.linalg.inv(gyro.n_matrix())[None], up0)[0]
-    r = np.linalg.norm(up1 - pred, axis=1)
+    return np.asarray(np.linalg.norm(up1 - pred, axis=1))
+
+
+def rotation_residuals_deg(gyro: TriadModel, pairs: list[RotationPair]) -> np.ndarray:
+    """Angle (deg) between the gravity direction measured after each rotation and the one
+    predicted by integrating the rotation with ``gyro``'s correction."""
+    return np.degrees(_rotation_residuals(gyro, pairs)) if pairs else np.zeros(0)
+
+
+def _rotation_rms_deg(gyro: TriadModel, pairs: list[RotationPair]) -> float | None:
+    if not pairs:
+        return None
+    r = _rotation_residuals(gyro, pairs)
     return float(math.degrees(float(np.sqrt(np.mean(r * r)))))
 
 
@@ -453,6 +480,20 @@ def calibrate(
     new.device = device
     new.source = None
     rot_after = _rotation_rms_deg(gyr, pairs)
+    mid_t = np.array([0.5 * (iv.t_start + iv.t_end) for iv in intervals])
+    residuals: dict[str, dict[str, np.ndarray]] = {
+        "accel_norm": {
+            "t": mid_t,
+            "before": accel_norm_residuals(acc_like, intervals, like.gravity),
+            "after": accel_norm_residuals(acc, intervals, like.gravity),
+        }
+    }
+    if pairs:
+        residuals["rotation"] = {
+            "t": np.array([float(p.t[-1]) for p in pairs]),
+            "before": rotation_residuals_deg(gyr_like, pairs),
+            "after": rotation_residuals_deg(gyr, pairs),
+        }
     return CalibrationResult(
         certificate=new,
         method=method,
@@ -463,24 +504,19 @@ def calibrate(
         rotations=rotations,
         accel=acc_fit,
         gyro=gyr_fit,
-        accel_spread_before=accel_norm_spread(acc_like, intervals, like.gravity),
-        accel_spread_after=accel_norm_spread(acc, intervals, like.gravity),
+        accel_spread_before=spread(residuals["accel_norm"]["before"]),
+        accel_spread_after=spread(residuals["accel_norm"]["after"]),
         rotation_rms_before_deg=rot_before,
         rotation_rms_after_deg=rot_after,
         undetermined=_undetermined(acc_fit) + _undetermined(gyr_fit),
         generalisation=generalisation,
+        residuals=residuals,
     )
 
 
-def _norm_spread(triad: TriadModel, means: np.ndarray, magnitude_in: float) -> dict[str, float]:
-    """Spread of |x| / magnitude - 1 over interval means with ``triad``'s correction."""
-    r = np.linalg.norm(triad.inverse(means), axis=1) / magnitude_in - 1.0
-    return {
-        "rms": float(np.sqrt(np.mean(r * r))),
-        "std": float(np.std(r)),
-        "peak_to_peak": float(np.ptp(r)),
-        "max_abs": float(np.max(np.abs(r))),
-    }
+def _norm_residuals(triad: TriadModel, means: np.ndarray, magnitude_in: float) -> np.ndarray:
+    """|x| / magnitude - 1 of interval means with ``triad``'s correction (dimensionless)."""
+    return np.asarray(np.linalg.norm(triad.inverse(means), axis=1) / magnitude_in - 1.0)
 
 
 def calibrate_known_rate(
@@ -589,11 +625,17 @@ def calibrate_known_rate(
         "unit": unit,
         "plateaus": int(kept.sum()),
         "set_aside": len(set_aside),
-        "norm_spread": {
-            "before": _norm_spread(gyr_like, used, rate_in),
-            "after": _norm_spread(gyr, used, rate_in),
-        },
+        "norm_spread": {},
     }
+    used_t = np.array(
+        [0.5 * (iv.t_start + iv.t_end) for iv, k in zip(plateaus, kept, strict=True) if k]
+    )
+    gyro_norm = {
+        "t": used_t,
+        "before": _norm_residuals(gyr_like, used, rate_in),
+        "after": _norm_residuals(gyr, used, rate_in),
+    }
+    known["norm_spread"] = {k: spread(gyro_norm[k]) for k in ("before", "after")}
     return CalibrationResult(
         certificate=new,
         method="exact-known-rate",
@@ -607,6 +649,7 @@ def calibrate_known_rate(
         undetermined=_undetermined(acc_fit) + _undetermined(gyr_fit),
         generalisation=generalisation,
         known_rate=known,
+        residuals={"gyro_norm": gyro_norm},
     )
 
 
@@ -808,4 +851,12 @@ def _gyro_rest_rotation(
     return fit, n_g
 
 
-__all__ = ["CalibrationResult", "calibrate", "accel_norm_spread", "fields_from_n"]
+__all__ = [
+    "CalibrationResult",
+    "accel_norm_residuals",
+    "accel_norm_spread",
+    "calibrate",
+    "fields_from_n",
+    "rotation_residuals_deg",
+    "spread",
+]

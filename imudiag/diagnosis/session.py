@@ -10,10 +10,11 @@ interval collector of the calibration).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -31,6 +32,10 @@ from .intervals import IntervalCollector
 from .known_rate import PLATEAU_DETECTOR
 from .scalar_fit import NormalEquations, sample_rows
 from .stream import StreamingDiagnoser
+from .window import WindowResult
+
+if TYPE_CHECKING:
+    from ..monitor import F0Trace
 
 #: Longest stretch of a recording read to measure its white noise (s of sample time).
 NOISE_SECONDS = 600.0
@@ -41,6 +46,22 @@ DEFAULT_BLOCK_SIZE = 65536
 Recording = str | Path | SampleBlock
 
 
+#: Told how far a pass over a recording has got: (what the pass does, fraction read 0..1
+#: or None when unknown, samples read).
+ProgressCallback = Callable[[str, float | None, int], None]
+
+
+@dataclass
+class DiagnosisTrace:
+    """What a diagnosis saw over time, for plots: every window's estimates (not only those
+    kept for the report) and every F0 check (:class:`~imudiag.monitor.F0Trace` per triad).
+    ``t0``: the recording's first sample time, s."""
+
+    windows: list[WindowResult] = field(default_factory=list)
+    f0: dict[str, F0Trace] = field(default_factory=dict)
+    t0: float = float("nan")
+
+
 def recording_name(data: Recording) -> str:
     """How reports name a recording: the path, or ``(samples)`` for one in memory."""
     return "(samples)" if isinstance(data, SampleBlock) else str(data)
@@ -48,19 +69,41 @@ def recording_name(data: Recording) -> str:
 
 @contextmanager
 def blocks(
-    data: Recording, block_size: int = DEFAULT_BLOCK_SIZE, options: LogOptions | None = None
+    data: Recording,
+    block_size: int = DEFAULT_BLOCK_SIZE,
+    options: LogOptions | None = None,
+    progress: ProgressCallback | None = None,
+    what: str = "reading",
 ) -> Iterator[tuple[dict[str, Any], Iterator[SampleBlock]]]:
-    """The recording's metadata and its samples in blocks of at most ``block_size``."""
+    """The recording's metadata and its samples in blocks of at most ``block_size``;
+    ``progress`` is told ``(what, fraction read, samples read)`` after each block."""
     if block_size < 1:
         raise BadInput(f"block size: must be >= 1, got {block_size}")
     if isinstance(data, SampleBlock):
         if options is not None and options.given():
             raise BadInput("log options (columns, units, rate, ...) apply to log files only")
         n = len(data)
-        yield data.meta, (data.slice(i, i + block_size) for i in range(0, n, block_size))
+
+        def in_memory() -> Iterator[SampleBlock]:
+            for i in range(0, n, block_size):
+                yield data.slice(i, i + block_size)
+                if progress is not None:
+                    done = min(n, i + block_size)
+                    progress(what, done / n, done)
+
+        yield data.meta, in_memory()
         return
     with open_log(data, block_size=block_size, options=options) as reader:
-        yield reader.meta, iter(reader)
+        if progress is None:
+            yield reader.meta, iter(reader)
+            return
+
+        def from_file() -> Iterator[SampleBlock]:
+            for block in reader:
+                yield block
+                progress(what, reader.fraction_read(), reader.samples_read)
+
+        yield reader.meta, from_file()
 
 
 def measure_noise(
@@ -70,6 +113,7 @@ def measure_noise(
     block_size: int = DEFAULT_BLOCK_SIZE,
     options: LogOptions | None = None,
     certificate_noise: bool = False,
+    progress: ProgressCallback | None = None,
 ) -> dict[str, Any]:
     """The report's ``noise`` part: the unit's white noise beside the certificate's.
 
@@ -79,7 +123,7 @@ def measure_noise(
     """
     meter = None
     t0 = None
-    with blocks(data, block_size, options) as (meta, stream):
+    with blocks(data, block_size, options, progress, "measuring noise") as (meta, stream):
         for block in stream:
             if meter is None:
                 meter = NoiseMeter(rate_hz or log_rate_hz(meta, block, cert))
@@ -129,14 +173,18 @@ def diagnose_recording(
     options: LogOptions | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
     windows: bool = True,
+    progress: ProgressCallback | None = None,
+    trace: DiagnosisTrace | None = None,
 ) -> dict[str, Any]:
     """The diagnosis report of spec/reports.md for a whole recording (``imudiag diagnose``).
 
     ``rate_hz``: the sample rate (default the log's ``sample_rate``, else from ``t``).
     ``magnitude``: independent magnitudes for ``config.method == "moving-base"``
     (a :class:`~imudiag.diagnosis.inputs.MagnitudeTable` or its CSV path).
-    ``windows``: include the per-window estimates. Raises :class:`~imudiag.errors.BadInput`
-    (or a subclass: LogError, CertificateError) for input it cannot use.
+    ``windows``: include the per-window estimates. ``progress``: told how far each pass
+    has got. ``trace``: filled with every window and F0 check (for plots). Raises
+    :class:`~imudiag.errors.BadInput` (or a subclass: LogError, CertificateError) for input
+    it cannot use.
     """
     from ..monitor import Monitor
 
@@ -144,10 +192,12 @@ def diagnose_recording(
     if table is not None and config.method != "moving-base":
         raise BadInput("--magnitude: only the moving-base method uses independent magnitudes")
     name = recording_name(data)
-    noise_report = measure_noise(data, cert, rate_hz, block_size, options, certificate_noise)
+    noise_report = measure_noise(
+        data, cert, rate_hz, block_size, options, certificate_noise, progress
+    )
     monitor = None
     diag = None
-    with blocks(data, block_size, options) as (meta, stream):
+    with blocks(data, block_size, options, progress, "diagnosing") as (meta, stream):
         for block in stream:
             if diag is None:
                 check_units(name, meta, cert)
@@ -156,12 +206,20 @@ def diagnose_recording(
                 diag = StreamingDiagnoser(
                     cert, config, rate_hz=rate, certificate_noise=certificate_noise
                 )
+                if trace is not None:
+                    trace.f0 = monitor.keep_f0_trace()
+                    trace.t0 = float(block.t[0]) if len(block) else float("nan")
             assert monitor is not None
             monitor.update(block)
-            diag.update(block, table.at(block.t) if table is not None else None)
+            done = diag.update(block, table.at(block.t) if table is not None else None)
+            if trace is not None:
+                trace.windows.extend(done)
     if diag is None or monitor is None:
         raise BadInput(f"{name}: no samples")
-    diag.finish()
+    done = diag.finish()
+    monitor.flush()
+    if trace is not None:
+        trace.windows.extend(done)
     f0: dict[str, Any] = {
         t: {"checked": int(monitor.f0_checked[t]), "failed": int(monitor.f0_failed[t])}
         for t in ("accel", "gyro")
@@ -206,14 +264,16 @@ def calibrate_recording(
     certificate_noise: bool = False,
     options: LogOptions | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
+    progress: ProgressCallback | None = None,
 ) -> CalibrationResult:
     """Calibrate from a whole recording (``imudiag calibrate``); the result's ``noise``
     holds the unit's white noise measured from the recording.
 
     ``like`` gives scale factors, units, limits and starting values. The result's
     ``generalisation`` says whether the held-out check accepts the calibration;
-    nothing is written here. Raises :class:`~imudiag.errors.BadInput` when the
-    recording cannot calibrate (no still interval, too few attitudes).
+    nothing is written here. ``progress``: told how far each pass has got. Raises
+    :class:`~imudiag.errors.BadInput` when the recording cannot calibrate (no still
+    interval, too few attitudes).
     """
     table = _magnitudes(magnitude)
     if config.method == "moving-base" and table is None:
@@ -227,7 +287,9 @@ def calibrate_recording(
     if known is not None and table is not None:
         raise BadInput("--known-rate: only the exact method (no --magnitude) uses a known rate")
     name = recording_name(data)
-    noise_report = measure_noise(data, like, rate_hz, block_size, options, certificate_noise)
+    noise_report = measure_noise(
+        data, like, rate_hz, block_size, options, certificate_noise, progress
+    )
     detector_options: dict[str, Any] = {"certificate_noise": certificate_noise}
     if known is not None:
         detector_options.update(PLATEAU_DETECTOR)
@@ -235,7 +297,7 @@ def calibrate_recording(
     intervals = []
     moving: dict[str, tuple[NormalEquations, float]] = {}
     rate = None
-    with blocks(data, block_size, options) as (meta, stream):
+    with blocks(data, block_size, options, progress, "collecting intervals") as (meta, stream):
         for block in stream:
             if collector is None:
                 check_units(name, meta, like)
@@ -307,6 +369,8 @@ def calibrate_recording(
 __all__ = [
     "DEFAULT_BLOCK_SIZE",
     "NOISE_SECONDS",
+    "DiagnosisTrace",
+    "ProgressCallback",
     "Recording",
     "blocks",
     "calibrate_recording",

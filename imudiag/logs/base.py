@@ -6,7 +6,9 @@ Every format module (one per file format) builds on :class:`LogReader` and
 
 from __future__ import annotations
 
+import io
 import json
+import os
 import re
 from collections.abc import Iterator
 from pathlib import Path
@@ -146,6 +148,29 @@ class LogReader:
     def _blocks(self) -> Iterator[SampleBlock]:
         raise NotImplementedError
 
+    def _total_samples(self) -> int | None:
+        """Samples in the log when the format knows before reading them (None: it does not)."""
+        return None
+
+    def fraction_read(self) -> float | None:
+        """How far the current iteration has got, 0..1 (for progress bars): samples read of
+        the log's samples where the format knows them, else the position in the file (the
+        compressed file for a .gz); None when neither can be told."""
+        total = self._total_samples()
+        if total:
+            return min(1.0, self.samples_read / total)
+        try:
+            size = os.path.getsize(self.path)
+        except OSError:
+            return None
+        for fh in self._handles:
+            try:
+                pos = os.lseek(fh.fileno(), 0, os.SEEK_CUR)
+            except (OSError, AttributeError, ValueError, io.UnsupportedOperation):
+                continue
+            return min(1.0, pos / size) if size > 0 else None
+        return None
+
     def _open(self, opener: Any, *args: Any) -> Any:
         try:
             fh = opener(*args)
@@ -188,6 +213,9 @@ class ColumnsReader(LogReader):
 
     def _where(self, index: int) -> str:
         return f"sample {index + 1}"
+
+    def _total_samples(self) -> int | None:
+        return len(self._cols["t"]) if hasattr(self, "_cols") else None
 
     def _blocks(self) -> Iterator[SampleBlock]:
         n = len(self._cols["t"])

@@ -80,6 +80,9 @@ class NpzReader(LogReader):
         finally:
             self._release(zf)
 
+    def _total_samples(self) -> int | None:
+        return self.length if self.length >= 0 else None
+
     def _zip(self) -> zipfile.ZipFile:
         try:
             return self._open(zipfile.ZipFile, self.path)

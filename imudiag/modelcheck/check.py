@@ -68,7 +68,14 @@ from .rotations import (
 from .simulate import NoiseModel, simulate_session
 from .spectral import Line, find_lines
 from .streams import F0Check, Segments, SegmentStats, allan_m_grid, make_segments, stream_measured
-from .summaries import DEFAULT_BLOCK_SIZE, BlockSource, Session, block_source, collect
+from .summaries import (
+    DEFAULT_BLOCK_SIZE,
+    BlockSource,
+    ProgressCallback,
+    Session,
+    block_source,
+    collect,
+)
 
 FORMAT = MODEL_CHECK_FORMAT
 ALL_SENSORS = SENSORS["gyro"] + SENSORS["accel"]
@@ -193,11 +200,13 @@ def model_check(
     seed: int = 0,
     config: ModelCheckConfig | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
+    progress: ProgressCallback | None = None,
 ) -> ModelCheckResult:
     """Run the model check of ``log`` (a path, a block, or a re-startable block source);
-    a log is read ``block_size`` samples at a time (three passes)."""
+    a log is read ``block_size`` samples at a time (three passes); ``progress`` is told
+    how far each pass has got (a path or a block)."""
     cfg = config or ModelCheckConfig()
-    source, meta = block_source(log, block_size)
+    source, meta = block_source(log, block_size, progress)
     session = collect(source, certificate, cfg, meta)
     c = session.chunks
     out_units = {"gyro": certificate.gyro.output_unit, "accel": certificate.accel.output_unit}

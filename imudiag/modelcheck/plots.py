@@ -17,25 +17,13 @@ from pathlib import Path
 import numpy as np
 
 from .. import atomic
+from ..plots import available, pyplot
 from .check import ALL_SENSORS, ModelCheckResult
-
-
-def available() -> bool:
-    """Whether matplotlib can be imported."""
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
     """Write the figures into ``directory`` (created); returns the files written."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     out_dir = Path(directory)
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
@@ -123,7 +111,7 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
         ax.legend(fontsize=7)
         path = out_dir / f"noise_model_{s}.png"
         fig.tight_layout()
-        fig.savefig(path, dpi=90)
+        atomic.save_figure(fig, path, dpi=90)
         plt.close(fig)
         written.append(path)
     c = result.session.chunks

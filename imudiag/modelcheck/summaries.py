@@ -43,16 +43,30 @@ _ROW = 31
 DEFAULT_BLOCK_SIZE = 8192
 
 
+#: Told how far a pass over the log has got: (which pass, fraction read 0..1 or None when
+#: unknown, samples read).
+ProgressCallback = Callable[[str, float | None, int], None]
+
+
 def block_source(
-    log: str | Path | SampleBlock | BlockSource, block_size: int = DEFAULT_BLOCK_SIZE
+    log: str | Path | SampleBlock | BlockSource,
+    block_size: int = DEFAULT_BLOCK_SIZE,
+    progress: ProgressCallback | None = None,
 ) -> tuple[BlockSource, dict[str, Any]]:
-    """A re-startable block source and the log's metadata, from a path, a block or a callable."""
+    """A re-startable block source and the log's metadata, from a path, a block or a callable;
+    ``progress`` (a path or a block) is told how far each pass has got."""
+    passes = [0]
     if isinstance(log, SampleBlock):
         whole = log
 
         def from_block() -> Iterator[SampleBlock]:
-            for i in range(0, len(whole), block_size):
-                yield whole.slice(i, min(i + block_size, len(whole)))
+            passes[0] += 1
+            n = len(whole)
+            for i in range(0, n, block_size):
+                yield whole.slice(i, min(i + block_size, n))
+                if progress is not None:
+                    done = min(n, i + block_size)
+                    progress(f"pass {passes[0]}", done / n, done)
 
         return from_block, dict(whole.meta)
     if callable(log):
@@ -62,8 +76,12 @@ def block_source(
         meta = dict(reader.meta)
 
     def from_file() -> Iterator[SampleBlock]:
+        passes[0] += 1
         with open_log(path, block_size=block_size) as r:
-            yield from r
+            for block in r:
+                yield block
+                if progress is not None:
+                    progress(f"pass {passes[0]}", r.fraction_read(), r.samples_read)
 
     return from_file, meta
 
@@ -453,6 +471,7 @@ __all__ = [
     "DEFAULT_BLOCK_SIZE",
     "Chunks",
     "Session",
+    "ProgressCallback",
     "block_source",
     "collect",
     "detection_noise",
