@@ -45,6 +45,7 @@ from .dataflash import DataFlashReader, is_dataflash
 from .matlab import MatReader
 from .npz_format import NpzReader, NpzWriter
 from .options import LogOptions
+from .rdata_format import RDataReader
 from .registry import FORMATS, LogFormat, formats, log_format, lookup, register_format
 from .rosbag import RosbagReader, is_bag_directory, is_ros1_bag
 from .text_table import TextTableReader
@@ -133,6 +134,17 @@ register_format(
         extra="mat",
     )
 )
+register_format(
+    LogFormat(
+        "rdata",
+        (".rda", ".rdata", ".rds"),
+        RDataReader,
+        description="R data.frame or matrix (.rda/.RData from save, .rds from saveRDS; "
+        "--variable, --columns)",
+        takes_options=True,
+        extra="r",
+    )
+)
 
 
 def open_log(
@@ -205,6 +217,7 @@ __all__ = [
     "CsvWriter",
     "NpzReader",
     "NpzWriter",
+    "RDataReader",
     "formats",
     "lookup",
     "register_format",

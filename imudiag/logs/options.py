@@ -35,7 +35,7 @@ class LogOptions:
     units: dict[str, str] = field(default_factory=dict)  #: {"gyro": ..., "accel": ...}
     time_unit: str | None = None
     rate: float | None = None  #: Hz, for logs without time stamps
-    variable: str | None = None  #: the matrix of a MATLAB file
+    variable: str | None = None  #: the matrix of a MATLAB file, the object of an R file
     #: accept a log without accelerometer columns (a gyro on a turntable, ``--known-rate``):
     #: its accelerometer outputs read as NaN
     gyro_only: bool = False
@@ -135,7 +135,11 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--time-unit", metavar="U", help="unit of the t column: s (default), ms, us or ns"
     )
-    g.add_argument("--variable", metavar="NAME", help="the matrix of a MATLAB .mat file")
+    g.add_argument(
+        "--variable",
+        metavar="NAME",
+        help="the matrix of a MATLAB .mat file, the data.frame or matrix of an R .rda file",
+    )
     g.add_argument(
         "--topic",
         metavar="NAME",
