@@ -25,7 +25,14 @@ PACKAGE_DIRS = {
 #: module or a package prefix; the longest matching prefix decides.
 FLOORS: list[tuple[str, ...]] = [
     # 0 ground: errors, the YAML loader, atomic files, bundled configuration
-    ("imudiag.errors", "imudiag.yamlio", "imudiag.atomic", "imudiag.config", "imudiag.reports"),
+    (
+        "imudiag.errors",
+        "imudiag.yamlio",
+        "imudiag.atomic",
+        "imudiag.config",
+        "imudiag.reports",
+        "imudiag.argtypes",
+    ),
     # 1 data: samples with units, the certificate model, rotations
     ("imudiag.samples", "imudiag.certificate", "imudiag.rotations"),
     # 2 wire: bytes <-> frames <-> samples

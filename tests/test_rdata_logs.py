@@ -64,7 +64,9 @@ def test_several_objects_are_listed_and_chosen_with_variable() -> None:
         open_log(DATA / "session.rda")
     assert "imu (data.frame 3075x8)" in exc.value.reason
     assert "gain (matrix 3x3)" in exc.value.reason
-    with pytest.raises(LogError, match=r"no object 'nope'; the file has \['gain', 'imu'\]"):
+    with pytest.raises(
+        LogError, match=r"no object 'nope' \(--variable\); the file has \['gain', 'imu'\]"
+    ):
         open_log(DATA / "session.rda", options=LogOptions(variable="nope"))
     with pytest.raises(LogError, match="matrix 'gain' is 3x3: name its columns with --columns"):
         open_log(DATA / "session.rda", options=LogOptions(variable="gain"))

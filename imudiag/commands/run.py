@@ -12,6 +12,7 @@ import logging
 import sys
 from typing import Any
 
+from ..argtypes import positive_float
 from ..errors import BadInput
 
 
@@ -36,9 +37,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="status sink: '-' for JSON lines on stdout, or a serial URL for NMEA sentences "
         "(repeatable; default '-')",
     )
-    p.add_argument("--status-rate", type=float, help="steady status rate, Hz (default 1)")
-    p.add_argument("--nmea-rate", type=float, help="steady NMEA status rate, Hz")
-    p.add_argument("--no-data-timeout", type=float, help="seconds without frames -> no_data")
+    p.add_argument(
+        "--status-rate", type=positive_float("Hz"), help="steady status rate, Hz (default 1)"
+    )
+    p.add_argument("--nmea-rate", type=positive_float("Hz"), help="steady NMEA status rate, Hz")
+    p.add_argument(
+        "--no-data-timeout", type=positive_float("s"), help="seconds without frames -> no_data"
+    )
     p.add_argument("--no-diagnosis", action="store_true", help="per-sample checks only")
     p.add_argument("--log-level", help="debug, info, warning, error, critical")
     p.add_argument(

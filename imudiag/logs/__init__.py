@@ -52,13 +52,25 @@ from .text_table import TextTableReader
 from .ulog import ULogReader, is_ulog
 from .wire_capture import BinReader, BinWriter
 
-register_format(LogFormat(".csv", (".csv",), CsvReader, CsvWriter, description="CSV table"))
+# bytes_per_sample: measured on imudiag simulate sessions (t, six outputs, temp, seq, flags)
+register_format(
+    LogFormat(".csv", (".csv",), CsvReader, CsvWriter, description="CSV table", bytes_per_sample=70)
+)
 register_format(
     LogFormat(
-        ".csv.gz", (".csv.gz",), CsvReader, CsvWriter, description="gzip-compressed CSV table"
+        ".csv.gz",
+        (".csv.gz",),
+        CsvReader,
+        CsvWriter,
+        description="gzip-compressed CSV table",
+        bytes_per_sample=16,
     )
 )
-register_format(LogFormat(".npz", (".npz",), NpzReader, NpzWriter, description="NumPy arrays"))
+register_format(
+    LogFormat(
+        ".npz", (".npz",), NpzReader, NpzWriter, description="NumPy arrays", bytes_per_sample=74
+    )
+)
 register_format(
     LogFormat(
         ".bin",
@@ -66,6 +78,7 @@ register_format(
         BinReader,
         BinWriter,
         description="raw wire capture (spec/wire-protocol.md)",
+        bytes_per_sample=40,
     )
 )
 
@@ -77,6 +90,7 @@ register_format(
         magic=is_dataflash,
         description="ArduPilot DataFlash log (IMU messages; --instance)",
         takes_options=True,
+        chooser="instance",
         extra="ardupilot",
     )
 )
@@ -98,6 +112,7 @@ register_format(
         description="PX4 ULog flight log (sensor_combined, or sensor_gyro/sensor_accel with "
         "--instance)",
         takes_options=True,
+        chooser="instance",
         extra="px4",
     )
 )
@@ -109,6 +124,7 @@ register_format(
         description="ROS 2 bag: a bag directory (metadata.yaml) or one .db3 / .mcap file "
         "(sensor_msgs/msg/Imu; --topic)",
         takes_options=True,
+        chooser="topic",
         extra="ros",
         directory=is_bag_directory,
     )
@@ -121,6 +137,7 @@ register_format(
         magic=is_ros1_bag,
         description="ROS 1 bag (sensor_msgs/msg/Imu; --topic)",
         takes_options=True,
+        chooser="topic",
         extra="ros",
     )
 )
@@ -131,6 +148,7 @@ register_format(
         MatReader,
         description="MATLAB matrix (v5 via scipy, v7.3 via h5py; --variable, --columns)",
         takes_options=True,
+        chooser="variable",
         extra="mat",
     )
 )
@@ -142,9 +160,14 @@ register_format(
         description="R data.frame or matrix (.rda/.RData from save, .rds from saveRDS; "
         "--variable, --columns)",
         takes_options=True,
+        chooser="variable",
         extra="r",
     )
 )
+
+
+#: Log options that choose the samples within a file; each applies to some formats only.
+CHOOSERS = ("variable", "topic", "instance")
 
 
 def open_log(
@@ -160,6 +183,9 @@ def open_log(
     violation.
     """
     fmt = lookup(path)
+    for opt in CHOOSERS:
+        if options is not None and getattr(options, opt) is not None and fmt.chooser != opt:
+            raise LogError(str(path), f"--{opt} does not apply to {fmt.name} logs")
     table = options is not None and bool(options.columns or options.time_unit)
     if fmt.name in (".csv", ".csv.gz") and table:
         reader: LogReader = TextTableReader(path, block_size, options=options)

@@ -79,7 +79,8 @@ class MatReader(ColumnsReader):
         if wanted:
             if wanted not in variables:
                 raise LogError(
-                    self.path, f"no variable {wanted!r}; the file has {sorted(variables)}"
+                    self.path,
+                    f"no variable {wanted!r} (--variable); the file has {sorted(variables)}",
                 )
             if wanted not in numeric:
                 raise LogError(self.path, f"variable {wanted!r} is not a 2-D numeric matrix")

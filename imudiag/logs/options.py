@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..argtypes import nonnegative_int, positive_float
 from ..errors import BadInput
 from .base import OPTIONAL_COLUMNS, REQUIRED_COLUMNS
 
@@ -148,13 +149,14 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--instance",
         metavar="N",
+        type=nonnegative_int("a sensor instance"),
         help="the sensor instance of a PX4 ULog (raw sensor_gyro/sensor_accel multi id; "
         "default: sensor_combined unless the raw topics are logged as fast)",
     )
     if "--rate" not in parser._option_string_actions:
         g.add_argument(
             "--rate",
-            type=float,
+            type=positive_float("Hz"),
             metavar="HZ",
             help="sample rate of a log without a t column (Hz)",
         )

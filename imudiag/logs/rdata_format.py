@@ -121,7 +121,9 @@ class RDataReader(ColumnsReader):
             return "", tables[""]
         if wanted:
             if wanted not in objects:
-                raise LogError(self.path, f"no object {wanted!r}; the file has {sorted(objects)}")
+                raise LogError(
+                    self.path, f"no object {wanted!r} (--variable); the file has {sorted(objects)}"
+                )
             if wanted not in tables:
                 raise LogError(
                     self.path,
