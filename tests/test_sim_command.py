@@ -284,3 +284,10 @@ def test_simulate_refuses_a_fault_at_or_after_the_end(tmp_path, imudiag_cli, fau
     assert f"--fault {':'.join(fault.split(':')[:2])}:" in r.stderr
     assert "at or after the end of the session (60 s, last sample at t = 59.995 s)" in r.stderr
     assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_simulate_absurd_duration_message_stays_short(tmp_path, imudiag_cli):
+    r = imudiag_cli("simulate", "static", "--duration", "1e300", "--out", str(tmp_path / "x.csv"))
+    assert r.returncode == 2, r.stderr
+    assert "is 2e+302 samples, about 1.4e+286 EB as .csv" in r.stderr
+    assert len(r.stderr) < 300 and list(tmp_path.iterdir()) == []

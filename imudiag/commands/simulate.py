@@ -183,17 +183,19 @@ def check_free_space(
     directory = Path(out).expanduser().absolute().parent
     free = shutil.disk_usage(directory).free
     if need > free:
+        count = str(total) if total < 10**15 else f"{float(total):.3g}"
         what = "--duration" if duration is not None else "the session"
         raise BadInput(
-            f"{what}: {total / rate:g} s at {rate:g} Hz is {total} samples, about "
+            f"{what}: {total / rate:g} s at {rate:g} Hz is {count} samples, about "
             f"{_size(need)} as {lookup(out).name} ({bytes_per_sample:g} B per sample), "
             f"more than the {_size(free)} free on the filesystem of {directory}"
         )
 
 
 def _size(n: float) -> str:
-    for unit in ("B", "kB", "MB", "GB", "TB"):
-        if n < 1000 or unit == "TB":
+    """``n`` bytes as text with a decimal unit (B to EB)."""
+    for unit in ("B", "kB", "MB", "GB", "TB", "PB", "EB"):
+        if n < 1000 or unit == "EB":
             return f"{n:.3g} {unit}"
         n /= 1000
     raise AssertionError("unreachable")
