@@ -23,7 +23,8 @@ samples, so the error may come after earlier blocks were yielded:
 **consumers must not report on a log until iteration has completed**.
 
 Each format lives in a module of its own (``csv_format``, ``npz_format``,
-``wire_capture``) and is found through :mod:`imudiag.logs.registry`.
+``wire_capture``, ``matlab``, ``rdata_format``, ...; docs/logs.md lists them) and is
+found through :mod:`imudiag.logs.registry`.
 """
 
 from __future__ import annotations
