@@ -17,6 +17,7 @@ import importlib
 import signal
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from . import __version__
 from .errors import EXIT_BAD_INPUT, EXIT_ERROR, EXIT_OK, ImudiagError, exit_code
@@ -52,9 +53,18 @@ def _on_signal(signum: int, frame: object) -> None:
     raise KeyboardInterrupt()
 
 
+class OneLineErrorParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line naming the option, exit 2 (bad input)."""
+
+    def error(self, message: str) -> NoReturn:
+        """Print ``PROG: error: MESSAGE (see PROG --help)`` and exit 2."""
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """The full argument parser with every available subcommand."""
-    parser = argparse.ArgumentParser(
+    """The full argument parser with every available subcommand (subparsers of the same
+    class: a bad option value is one line, exit 2, before any command runs)."""
+    parser = OneLineErrorParser(
         prog="imudiag",
         description="Onboard IMU monitor and scalar diagnosis (Avrutov 2015).",
     )

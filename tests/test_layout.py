@@ -32,6 +32,7 @@ FLOORS: list[tuple[str, ...]] = [
         "imudiag.config",
         "imudiag.reports",
         "imudiag.progress",
+        "imudiag.argtypes",
     ),
     # 1 data: samples with units, the certificate model, rotations
     ("imudiag.samples", "imudiag.certificate", "imudiag.rotations"),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -228,3 +229,65 @@ def test_benchmark_script_runs():
     )
     assert r.returncode == 0, r.stderr
     assert "20000 samples" in r.stdout and "faster than real time" in r.stdout
+
+
+@pytest.mark.parametrize("ext", ["csv", "csv.gz", "npz", "bin"])
+def test_simulate_refuses_a_session_larger_than_the_free_space(tmp_path, imudiag_cli, ext):
+    """1e9 s at the bundled 200 Hz is 2e11 samples: terabytes in every format, more than the
+    real filesystem of tmp_path holds; refused before anything is written."""
+    out = tmp_path / f"huge.{ext}"
+    free = shutil.disk_usage(tmp_path).free
+    from imudiag.logs import lookup
+
+    assert lookup(out).bytes_per_sample * 2e11 > free  # the premise, on this machine
+    r = imudiag_cli("simulate", "static", "--duration", "1e9", "--out", str(out))
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    line = r.stderr.strip()
+    assert len(line.splitlines()) == 1 and "Traceback" not in line
+    assert "--duration: 1e+09 s at 200 Hz is 200000000000 samples" in line
+    assert "free on the filesystem of" in line and str(tmp_path) in line
+    assert list(tmp_path.iterdir()) == []  # not even a temporary part file
+
+
+def test_simulate_free_space_estimate_is_near_what_is_written(tmp_path, imudiag_cli):
+    """The per-format estimate is within a factor 1.5 of the real size of a written log."""
+    from imudiag.logs import lookup
+
+    for ext in ("csv", "csv.gz", "npz", "bin"):
+        out = tmp_path / f"s.{ext}"
+        r = imudiag_cli("simulate", "static", "--duration", "10", "--out", str(out))
+        assert r.returncode == 0, r.stderr
+        per_sample = out.stat().st_size / 2000
+        estimate = lookup(out).bytes_per_sample
+        assert estimate / 1.5 < per_sample < estimate * 1.5, (ext, per_sample, estimate)
+
+
+@pytest.mark.parametrize(
+    ("fault", "refused"),
+    [
+        ("bias:ax:60:150", True),  # at the end of a 60 s session
+        ("scale_factor:gz:61:0.1", True),  # after it
+        ("stuck:gy:1e6", True),
+        ("bias:ax:59.9975:150", True),  # after the last sample (t = 59.995 s at 200 Hz)
+        ("bias:ax:59.995:150", False),  # on the last sample: one faulty sample
+        ("bias:ax:30:150", False),
+    ],
+)
+def test_simulate_refuses_a_fault_at_or_after_the_end(tmp_path, imudiag_cli, fault, refused):
+    out = tmp_path / "f.npz"
+    r = imudiag_cli("simulate", "static", "--duration", "60", "--out", str(out), "--fault", fault)
+    if not refused:
+        assert r.returncode == 0, r.stderr
+        return
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+    assert f"--fault {':'.join(fault.split(':')[:2])}:" in r.stderr
+    assert "at or after the end of the session (60 s, last sample at t = 59.995 s)" in r.stderr
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_simulate_absurd_duration_message_stays_short(tmp_path, imudiag_cli):
+    r = imudiag_cli("simulate", "static", "--duration", "1e300", "--out", str(tmp_path / "x.csv"))
+    assert r.returncode == 2, r.stderr
+    assert "is 2e+302 samples, about 1.4e+286 EB as .csv" in r.stderr
+    assert len(r.stderr) < 300 and list(tmp_path.iterdir()) == []

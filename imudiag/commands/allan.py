@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from ..argtypes import finite_float, positive_float, positive_int, writable_output_path
 from ..atomic import write_text_atomic
 from ..errors import BadInput
 from ..logs import LogError, open_log
@@ -49,6 +50,9 @@ UNITS = {
 }
 
 
+MIN_PSD_SEGMENT = 16  #: fewest samples per Welch segment
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``allan`` subcommand."""
     p = sub.add_parser(
@@ -59,29 +63,38 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(IEEE Std 952). Use a still recording.",
     )
     p.add_argument("log", metavar="LOG", help="sample log (.csv, .csv.gz, .npz, .bin)")
-    p.add_argument("--json", metavar="OUT", help="write the report as JSON ('-' for stdout)")
+    p.add_argument(
+        "--json",
+        type=writable_output_path(stdout=True),
+        metavar="OUT",
+        help="write the report as JSON ('-' for stdout)",
+    )
     p.add_argument(
         "--sensors", default=",".join(SENSORS), help="comma-separated sensors (default all six)"
     )
-    p.add_argument("--start", type=float, metavar="S", help="ignore samples before t = S s")
-    p.add_argument("--stop", type=float, metavar="S", help="ignore samples after t = S s")
+    p.add_argument(
+        "--start", type=finite_float("s"), metavar="S", help="ignore samples before t = S s"
+    )
+    p.add_argument(
+        "--stop", type=finite_float("s"), metavar="S", help="ignore samples after t = S s"
+    )
     p.add_argument(
         "--rate",
-        type=float,
+        type=positive_float("Hz"),
         metavar="HZ",
         help="sample rate (default: the log's sample_rate, else from t)",
     )
     add_log_options(p)
     p.add_argument(
         "--points-per-decade",
-        type=int,
+        type=positive_int("tau values per decade"),
         default=10,
         metavar="K",
         help="tau values per decade (default 10)",
     )
     p.add_argument(
         "--psd-segment",
-        type=int,
+        type=positive_int("samples per segment", minimum=MIN_PSD_SEGMENT),
         default=4096,
         metavar="N",
         help="samples per Welch segment (default 4096, at most N/8)",
@@ -166,8 +179,6 @@ def run(args: argparse.Namespace) -> int:
     for s in sensors:
         if s not in SENSORS:
             raise BadInput(f"--sensors: unknown sensor {s!r}; expected {' '.join(SENSORS)}")
-    if args.points_per_decade < 1 or args.psd_segment < 16:
-        raise BadInput("--points-per-decade must be >= 1 and --psd-segment >= 16")
     t, u, meta = _collect(args.log, args.start, args.stop, log_options(args))
     if t.shape[0] < 16:
         raise LogError(args.log, f"{t.shape[0]} samples in the selected range; need at least 16")

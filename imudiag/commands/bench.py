@@ -11,8 +11,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
+from ..argtypes import positive_float, seed, writable_output_path
 from ..atomic import write_text_atomic
 from ..errors import BadInput
 
@@ -39,10 +39,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="FILE.yaml",
         help="scenario file instead of a bundled one",
     )
-    p.add_argument("--json", metavar="OUT", help="write the JSON report to OUT ('-': stdout)")
-    p.add_argument("--seed", type=int, help="simulation seed (overrides the scenario's)")
     p.add_argument(
-        "--speed", type=float, help="board pace relative to real time (overrides the scenario's)"
+        "--json",
+        type=writable_output_path(stdout=True),
+        metavar="OUT",
+        help="write the JSON report to OUT ('-': stdout)",
+    )
+    p.add_argument("--seed", type=seed, help="simulation seed (overrides the scenario's)")
+    p.add_argument(
+        "--speed",
+        type=positive_float("x real time"),
+        help="board pace relative to real time (overrides the scenario's)",
     )
     p.add_argument(
         "--no-diagnosis", action="store_true", help="run the daemon with per-sample checks only"
@@ -68,12 +75,6 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.scenario and args.scenario_file:
         raise BadInput("give a bundled SCENARIO name or --scenario FILE, not both")
-    if args.seed is not None and args.seed < 0:
-        raise BadInput(f"--seed: must be >= 0, got {args.seed}")
-    if args.json and args.json != "-":
-        parent = Path(args.json).expanduser().resolve().parent
-        if not parent.is_dir():
-            raise BadInput(f"--json {args.json}: no such directory {parent}")
     scenario = (
         load(args.scenario_file)
         if args.scenario_file

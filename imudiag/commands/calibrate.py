@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..argtypes import writable_output_path
 from ..certificate import load
 from ..diagnosis.session import calibrate_recording
 from ..errors import BadInput
@@ -38,9 +39,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="CERT",
         help="certificate giving scale factors, units, limits and starting values",
     )
-    p.add_argument("--out", required=True, metavar="CERT2", help="certificate to write")
     p.add_argument(
-        "--json", metavar="OUT", help="write a calibration summary as JSON ('-' for stdout)"
+        "--out",
+        required=True,
+        type=writable_output_path(),
+        metavar="CERT2",
+        help="certificate to write",
+    )
+    p.add_argument(
+        "--json",
+        type=writable_output_path(stdout=True),
+        metavar="OUT",
+        help="write a calibration summary as JSON ('-' for stdout)",
     )
     p.add_argument(
         "--force",

@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from ..argtypes import positive_int, writable_output_path
 from ..errors import BadInput
 from ..logs import DEFAULT_BLOCK_SIZE, log_format, open_log, open_writer
 from ..logs.options import add_log_options, log_options, units_from_meta
@@ -33,10 +34,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("input", metavar="IN", help="log to read")
-    p.add_argument("output", metavar="OUT", help="log to write (replaced if it exists)")
+    p.add_argument(
+        "output",
+        type=writable_output_path(),
+        metavar="OUT",
+        help="log to write (replaced if it exists)",
+    )
     p.add_argument(
         "--block-size",
-        type=int,
+        type=positive_int("samples per block"),
         default=DEFAULT_BLOCK_SIZE,
         metavar="N",
         help=f"samples per block (default {DEFAULT_BLOCK_SIZE})",
@@ -64,8 +70,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Convert ``args.input`` to ``args.output``; returns the exit code."""
-    if args.block_size < 1:
-        raise BadInput(f"--block-size: must be >= 1, got {args.block_size}")
     log_format(args.output)  # reject an unknown output format before reading anything
     quantum = _parse_quantum(args.quantum) if args.quantum else None
     to_bin = log_format(args.output) == ".bin"

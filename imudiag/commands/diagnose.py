@@ -17,6 +17,7 @@ import json
 import sys
 from typing import Any
 
+from ..argtypes import nonnegative_float, positive_float, positive_int, writable_output_path
 from ..atomic import write_text_atomic
 from ..certificate import Certificate, load, load_default
 from ..diagnosis.config import GYRO_MODES, METHODS, DiagnosisConfig
@@ -47,31 +48,36 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="CERT",
         help="certificate to compare with (default: the bundled one)",
     )
-    p.add_argument("--json", metavar="OUT", help="write the report as JSON ('-' for stdout)")
+    p.add_argument(
+        "--json",
+        type=writable_output_path(stdout=True),
+        metavar="OUT",
+        help="write the report as JSON ('-' for stdout)",
+    )
     p.add_argument(
         "--no-windows", action="store_true", help="leave the per-window estimates out of the report"
     )
     p.add_argument(
         "--window-intervals",
-        type=int,
+        type=positive_int("quasi-static intervals"),
         metavar="K",
         help="quasi-static intervals per window (default 24)",
     )
     p.add_argument(
         "--persist",
-        type=int,
+        type=positive_int("windows"),
         metavar="N",
         help="consecutive windows a fault must persist (default 2)",
     )
     p.add_argument(
         "--k-sigma",
-        type=float,
+        type=positive_float("std"),
         metavar="K",
         help="a fault deviates by more than K std as well as the limit (default 4)",
     )
     p.add_argument(
         "--min-dof",
-        type=float,
+        type=nonnegative_float("degrees of freedom"),
         metavar="N",
         help="redundant observations a window's fit needs to be judged (default 3)",
     )
@@ -111,20 +117,20 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--rate",
-        type=float,
+        type=positive_float("Hz"),
         metavar="HZ",
         help="sample rate (default: the log's sample_rate, else from t)",
     )
     p.add_argument(
         "--block-size",
-        type=int,
+        type=positive_int("samples per block"),
         default=65536,
         metavar="N",
         help="samples per block read (default 65536)",
     )
     p.add_argument(
         "--min-interval",
-        type=float,
+        type=positive_float("s"),
         metavar="S",
         help="shortest still stretch used, s (default "
         f"{DiagnosisConfig().min_interval_s:g}; each is weighted by its noise)",

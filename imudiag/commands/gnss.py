@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from ..argtypes import finite_float, positive_float
 from ..certificate import Certificate
 from ..errors import BadInput
 from ..samples import SampleBlock
@@ -28,20 +29,20 @@ def add_gnss_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--gnss-latency",
-        type=float,
+        type=finite_float("s"),
         metavar="S",
         help="GNSS latency, s (default: estimated from the data)",
     )
     g.add_argument(
         "--gnss-interval",
-        type=float,
+        type=positive_float("s"),
         default=1.0,
         metavar="S",
         help="GNSS epoch used, s (whole GNSS periods; default 1)",
     )
     g.add_argument(
         "--gnss-window",
-        type=float,
+        type=positive_float("s"),
         default=180.0,
         metavar="S",
         help="moving-base fit window, s (default 180)",
@@ -68,11 +69,7 @@ def check_gnss_options(args: argparse.Namespace) -> None:
             if getattr(args, opt, None) is not None:
                 raise BadInput(f"--{opt.replace('_', '-')}: needs --gnss FILE")
         return
-    parse_lever_arm(args.lever_arm)
-    for opt in ("gnss_interval", "gnss_window"):
-        v = getattr(args, opt)
-        if not (math.isfinite(v) and v > 0):
-            raise BadInput(f"--{opt.replace('_', '-')}: must be > 0 s, got {v}")
+    parse_lever_arm(args.lever_arm)  # --gnss-interval and --gnss-window: checked when parsed
 
 
 def moving_base_section(

@@ -8,10 +8,14 @@ import argparse
 import sys
 from typing import Any
 
+from ..argtypes import positive_float, positive_int, seed, writable_directory, writable_output_path
 from ..certificate import load
 from ..errors import BadInput
 from ..logs.options import LogOptions, add_log_options, log_options
 from ..progress import Progress, for_command
+
+MIN_CHUNK_S = 0.05  #: --chunk must be longer, s
+MIN_BLOCK_SIZE = 64  #: fewest samples per block read
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -35,15 +39,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--certificate", required=True, metavar="CERT", help="calibration certificate (YAML)"
     )
     p.add_argument(
-        "--json", default="-", metavar="OUT", help="report file, '-' for standard output (default)"
+        "--json",
+        default="-",
+        type=writable_output_path(stdout=True),
+        metavar="OUT",
+        help="report file, '-' for standard output (default)",
     )
     p.add_argument(
         "--extended-certificate",
+        type=writable_output_path(),
         metavar="FILE",
         help="write the certificate with the fitted extended-model blocks",
     )
     p.add_argument(
         "--plots",
+        type=writable_directory,
         metavar="DIR",
         help="write PNG figures into DIR (needs matplotlib: pip install 'imudiag[plots]')",
     )
@@ -53,24 +63,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="no progress bar on standard error (drawn only on a terminal anyway)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the simulations (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the simulations (default 0)")
     p.add_argument(
         "--chunk",
-        type=float,
+        type=positive_float("s", above=MIN_CHUNK_S),
         default=None,
         metavar="S",
         help="length of the quasi-static chunks, s (default 1)",
     )
     p.add_argument(
         "--z-min",
-        type=float,
+        type=positive_float("std"),
         default=None,
         metavar="Z",
         help="significance an effect needs (default 5)",
     )
     p.add_argument(
         "--block-size",
-        type=int,
+        type=positive_int("samples per block", minimum=MIN_BLOCK_SIZE),
         default=None,
         metavar="N",
         help="samples per block read from the log (default 8192)",
@@ -86,17 +96,11 @@ def run(args: argparse.Namespace) -> int:
     from ..modelcheck import report as report_mod
 
     cfg = ModelCheckConfig()
-    if args.chunk is not None:
-        if not args.chunk > 0.05:
-            raise BadInput(f"--chunk: must be > 0.05 s, got {args.chunk}")
+    if args.chunk is not None:  # the option values are checked when parsed
         cfg.chunk_s = args.chunk
         cfg.min_chunk_s = min(cfg.min_chunk_s, args.chunk / 2)
     if args.z_min is not None:
-        if not args.z_min > 0:
-            raise BadInput(f"--z-min: must be > 0, got {args.z_min}")
         cfg.z_min = args.z_min
-    if args.block_size is not None and args.block_size < 64:
-        raise BadInput(f"--block-size: must be >= 64, got {args.block_size}")
     if args.plots:
         from ..plots import check_directory, require
 

@@ -13,6 +13,7 @@ import sys
 from typing import Any
 
 from ..aiding.gpsd_client import DEFAULT_URL as DEFAULT_AIDING_URL
+from ..argtypes import positive_float
 from ..errors import BadInput
 from ..service.config import DaemonConfig
 
@@ -43,17 +44,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--status-rate",
-        type=float,
+        type=positive_float("Hz"),
         help=f"steady status rate, Hz (default {_DEFAULTS.status_rate_hz:g})",
     )
     p.add_argument(
         "--nmea-rate",
-        type=float,
+        type=positive_float("Hz"),
         help=f"steady NMEA status rate, Hz (default {_DEFAULTS.nmea_rate_hz:g})",
     )
     p.add_argument(
         "--no-data-timeout",
-        type=float,
+        type=positive_float("s"),
         help=f"seconds without frames -> no_data (default {_DEFAULTS.no_data_timeout_s:g})",
     )
     p.add_argument("--no-diagnosis", action="store_true", help="per-sample checks only")

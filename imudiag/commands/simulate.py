@@ -10,10 +10,15 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import TypeVar
 
+from ..argtypes import positive_float, seed, writable_output_path
 from ..certificate import load, load_default
 from ..errors import BadInput
-from ..logs import log_format, open_writer
+from ..logs import log_format, lookup, open_writer
 from ..progress import for_command
 from ..sim.drive import EPOCH_UNIX, gnss_reports, write_gpspipe_log
 from ..sim.effects import Effects
@@ -29,6 +34,7 @@ from ..sim.scenarios import (
 )
 from ..sim.simulator import Simulator, true_certificate
 
+T = TypeVar("T")
 CHUNK_S = 30.0  #: seconds simulated per written block
 _BIN_META_LIMIT = 249  #: bytes of JSON a device-info frame holds
 
@@ -70,17 +76,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "scenario", metavar="SCENARIO", help=f"one of {', '.join(SCENARIOS)} (or default = static)"
     )
-    p.add_argument("--out", required=True, metavar="LOG", help="log to write")
+    p.add_argument(
+        "--out", required=True, type=writable_output_path(), metavar="LOG", help="log to write"
+    )
     p.add_argument(
         "--duration",
-        type=float,
+        type=positive_float("s"),
         metavar="S",
         help="seconds to simulate (required for the endless static, still, turntable)",
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     p.add_argument(
         "--rate",
-        type=float,
+        type=positive_float("Hz"),
         metavar="HZ",
         help="sample rate, Hz (default: the certificate's sample_rate)",
     )
@@ -108,12 +116,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--gnss",
+        type=writable_output_path(),
         metavar="OUT",
         help="drive scenarios: also write the GNSS stream as a gpspipe -w log "
         "(5 Hz, 0.03/0.05 m/s noise, 0.12 s latency, multipath outliers)",
     )
     p.add_argument(
         "--true-certificate",
+        type=writable_output_path(),
         metavar="CERT",
         help="also write the true model at the end (faults and effects applied)",
     )
@@ -148,34 +158,87 @@ def _meta(
     return meta
 
 
+def _parsed(option: str, parse: Callable[[list[str]], T], specs: list[str]) -> T:
+    """``parse(specs)``, a ValueError becoming BadInput naming ``option``."""
+    try:
+        return parse(specs)
+    except ValueError as exc:
+        raise BadInput(f"{option}: {exc}") from None
+
+
+def check_faults_in_session(faults: list[Fault], total: int, rate: float) -> None:
+    """BadInput for a fault timed at or after the session's end (it would touch no sample).
+
+    Sample ``i`` is at ``i / rate`` s from the start; the session ends at ``total / rate`` s.
+    """
+    end = total / rate
+    last = (total - 1) / rate if total else 0.0
+    for f in faults:
+        if f.t_s > last:
+            raise BadInput(
+                f"--fault {f.to_text()}: at t = {f.t_s:g} s, at or after the end of the "
+                f"session ({end:g} s, last sample at t = {last:g} s)"
+            )
+
+
+def check_free_space(
+    out: str, bytes_per_sample: float, total: int, rate: float, duration: float | None
+) -> None:
+    """BadInput when ``total`` samples of about ``bytes_per_sample`` B each would not fit
+    the free space of the filesystem holding ``out`` (checked before anything is written)."""
+    need = bytes_per_sample * total
+    directory = Path(out).expanduser().absolute().parent
+    free = shutil.disk_usage(directory).free
+    if need > free:
+        count = str(total) if total < 10**15 else f"{float(total):.3g}"
+        what = "--duration" if duration is not None else "the session"
+        raise BadInput(
+            f"{what}: {total / rate:g} s at {rate:g} Hz is {count} samples, about "
+            f"{_size(need)} as {lookup(out).name} ({bytes_per_sample:g} B per sample), "
+            f"more than the {_size(free)} free on the filesystem of {directory}"
+        )
+
+
+def _size(n: float) -> str:
+    """``n`` bytes as text with a decimal unit (B to EB)."""
+    for unit in ("B", "kB", "MB", "GB", "TB", "PB", "EB"):
+        if n < 1000 or unit == "EB":
+            return f"{n:.3g} {unit}"
+        n /= 1000
+    raise AssertionError("unreachable")
+
+
 def run(args: argparse.Namespace) -> int:
     """Simulate and write the log; returns the exit code."""
-    log_format(args.out)  # an unknown format fails before any work
+    out_format = lookup(args.out)  # an unknown format fails before any work
     cert = load(args.certificate) if args.certificate else load_default()
     try:
         scenario = canonical_scenario(args.scenario)
-        params = {}
-        for item in args.param:
-            key, sep, value = item.partition("=")
-            if not sep:
-                raise ValueError(f"--param {item!r}: expected KEY=VALUE")
-            params[key.strip()] = value.strip()
-        motion = scenario_motion(scenario, args.seed, params)
-        effects = parse_effects(args.effect)
-        faults = parse_faults(args.fault)
     except ValueError as exc:
-        raise BadInput(str(exc)) from None
+        raise BadInput(f"SCENARIO: {exc}") from None
+    params = {}
+    for item in args.param:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise BadInput(f"--param {item!r}: expected KEY=VALUE")
+        params[key.strip()] = value.strip()
+    try:
+        motion = scenario_motion(scenario, args.seed, params)
+    except ValueError as exc:
+        raise BadInput(f"--param: {exc}") from None
+    effects = _parsed("--effect", parse_effects, args.effect)
+    faults = _parsed("--fault", parse_faults, args.fault)
     rate = float(args.rate) if args.rate is not None else float(cert.sample_rate)
     if not (rate > 0 and math.isfinite(rate)):
         raise BadInput(f"--rate: must be > 0 Hz, got {args.rate}")
     total = motion.n_samples(rate)
-    if args.duration is not None:
-        if not (args.duration > 0 and math.isfinite(args.duration)):
-            raise BadInput(f"--duration: must be > 0 s, got {args.duration}")
+    if args.duration is not None:  # finite and > 0: checked when parsed
         want = int(round(args.duration * rate))
         total = want if total is None else min(total, want)
     elif total is None:
         raise BadInput(f"--duration: required for the endless scenario {scenario!r}")
+    check_faults_in_session(faults, total, rate)
+    check_free_space(args.out, out_format.bytes_per_sample, total, rate, args.duration)
 
     drive = scenario in DRIVES
     if args.gnss and not drive:

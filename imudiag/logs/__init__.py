@@ -23,7 +23,8 @@ samples, so the error may come after earlier blocks were yielded:
 **consumers must not report on a log until iteration has completed**.
 
 Each format lives in a module of its own (``csv_format``, ``npz_format``,
-``wire_capture``) and is found through :mod:`imudiag.logs.registry`.
+``wire_capture``, ``matlab``, ``rdata_format``, ...; docs/logs.md lists them) and is
+found through :mod:`imudiag.logs.registry`.
 """
 
 from __future__ import annotations
@@ -45,19 +46,32 @@ from .dataflash import DataFlashReader, is_dataflash
 from .matlab import MatReader
 from .npz_format import NpzReader, NpzWriter
 from .options import LogOptions
+from .rdata_format import RDataReader
 from .registry import FORMATS, LogFormat, formats, log_format, lookup, register_format
 from .rosbag import RosbagReader, is_bag_directory, is_ros1_bag
 from .text_table import TextTableReader
 from .ulog import ULogReader, is_ulog
 from .wire_capture import BinReader, BinWriter
 
-register_format(LogFormat(".csv", (".csv",), CsvReader, CsvWriter, description="CSV table"))
+# bytes_per_sample: measured on imudiag simulate sessions (t, six outputs, temp, seq, flags)
+register_format(
+    LogFormat(".csv", (".csv",), CsvReader, CsvWriter, description="CSV table", bytes_per_sample=70)
+)
 register_format(
     LogFormat(
-        ".csv.gz", (".csv.gz",), CsvReader, CsvWriter, description="gzip-compressed CSV table"
+        ".csv.gz",
+        (".csv.gz",),
+        CsvReader,
+        CsvWriter,
+        description="gzip-compressed CSV table",
+        bytes_per_sample=16,
     )
 )
-register_format(LogFormat(".npz", (".npz",), NpzReader, NpzWriter, description="NumPy arrays"))
+register_format(
+    LogFormat(
+        ".npz", (".npz",), NpzReader, NpzWriter, description="NumPy arrays", bytes_per_sample=74
+    )
+)
 register_format(
     LogFormat(
         ".bin",
@@ -65,6 +79,7 @@ register_format(
         BinReader,
         BinWriter,
         description="raw wire capture (spec/wire-protocol.md)",
+        bytes_per_sample=40,
     )
 )
 
@@ -76,6 +91,7 @@ register_format(
         magic=is_dataflash,
         description="ArduPilot DataFlash log (IMU messages; --instance)",
         takes_options=True,
+        chooser="instance",
         extra="ardupilot",
     )
 )
@@ -97,6 +113,7 @@ register_format(
         description="PX4 ULog flight log (sensor_combined, or sensor_gyro/sensor_accel with "
         "--instance)",
         takes_options=True,
+        chooser="instance",
         extra="px4",
     )
 )
@@ -108,6 +125,7 @@ register_format(
         description="ROS 2 bag: a bag directory (metadata.yaml) or one .db3 / .mcap file "
         "(sensor_msgs/msg/Imu; --topic)",
         takes_options=True,
+        chooser="topic",
         extra="ros",
         directory=is_bag_directory,
     )
@@ -120,6 +138,7 @@ register_format(
         magic=is_ros1_bag,
         description="ROS 1 bag (sensor_msgs/msg/Imu; --topic)",
         takes_options=True,
+        chooser="topic",
         extra="ros",
     )
 )
@@ -130,9 +149,26 @@ register_format(
         MatReader,
         description="MATLAB matrix (v5 via scipy, v7.3 via h5py; --variable, --columns)",
         takes_options=True,
+        chooser="variable",
         extra="mat",
     )
 )
+register_format(
+    LogFormat(
+        "rdata",
+        (".rda", ".rdata", ".rds"),
+        RDataReader,
+        description="R data.frame or matrix (.rda/.RData from save, .rds from saveRDS; "
+        "--variable, --columns)",
+        takes_options=True,
+        chooser="variable",
+        extra="r",
+    )
+)
+
+
+#: Log options that choose the samples within a file; each applies to some formats only.
+CHOOSERS = ("variable", "topic", "instance")
 
 
 def open_log(
@@ -148,6 +184,9 @@ def open_log(
     violation.
     """
     fmt = lookup(path)
+    for opt in CHOOSERS:
+        if options is not None and getattr(options, opt) is not None and fmt.chooser != opt:
+            raise LogError(str(path), f"--{opt} does not apply to {fmt.name} logs")
     table = options is not None and bool(options.columns or options.time_unit)
     if fmt.name in (".csv", ".csv.gz") and table:
         reader: LogReader = TextTableReader(path, block_size, options=options)
@@ -205,6 +244,7 @@ __all__ = [
     "CsvWriter",
     "NpzReader",
     "NpzWriter",
+    "RDataReader",
     "formats",
     "lookup",
     "register_format",

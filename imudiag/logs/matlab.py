@@ -17,20 +17,11 @@ import numpy as np
 
 from .base import DEFAULT_BLOCK_SIZE, ColumnsReader, LogError
 from .extras import require
-from .options import TIME_UNITS, LogOptions, units_from_meta
+from .matrix_columns import matrix_columns
+from .options import LogOptions, units_from_meta
 
 #: First bytes of a v7.3 file (HDF5 with a 512-byte MATLAB text header).
 V73_TEXT = b"MATLAB 7.3 MAT-file"
-
-
-def _default_columns(k: int, rate: float | None) -> list[str] | None:
-    if k == 7:
-        return ["t", "gx", "gy", "gz", "ax", "ay", "az"]
-    if k == 8:
-        return ["t", "gx", "gy", "gz", "ax", "ay", "az", "temp"]
-    if k == 6 and rate is not None:
-        return ["gx", "gy", "gz", "ax", "ay", "az"]
-    return None
 
 
 class MatReader(ColumnsReader):
@@ -88,7 +79,8 @@ class MatReader(ColumnsReader):
         if wanted:
             if wanted not in variables:
                 raise LogError(
-                    self.path, f"no variable {wanted!r}; the file has {sorted(variables)}"
+                    self.path,
+                    f"no variable {wanted!r} (--variable); the file has {sorted(variables)}",
                 )
             if wanted not in numeric:
                 raise LogError(self.path, f"variable {wanted!r} is not a 2-D numeric matrix")
@@ -103,36 +95,8 @@ class MatReader(ColumnsReader):
         return next(iter(numeric.items()))
 
     def _set_matrix(self, matrix: np.ndarray) -> None:
-        m = np.asarray(matrix, dtype=float)
-        names = self.options.columns
-        k = len(names) if names else None
-        if k is not None and m.shape[1] != k and m.shape[0] == k:
-            m = m.T
-        elif k is None and m.shape[0] < m.shape[1]:
-            m = m.T  # samples are the long side
-        if names is None:
-            names = _default_columns(m.shape[1], self.options.rate)
-            if names is None:
-                raise LogError(
-                    self.path,
-                    f"variable {self.variable!r} is {m.shape[0]}x{m.shape[1]}: name its "
-                    "columns with --columns (e.g. t,gx,gy,gz,ax,ay,az; _ skips one)",
-                )
-        if m.shape[1] != len(names):
-            raise LogError(
-                self.path,
-                f"--columns names {len(names)} columns, variable {self.variable!r} has "
-                f"{m.shape[1]}",
-            )
-        cols = {n: m[:, i] for i, n in enumerate(names) if n != "_"}
-        if "t" in cols:
-            cols["t"] = cols["t"] * TIME_UNITS[self.options.time_unit or "s"]
-        elif self.options.rate is not None:
-            cols["t"] = np.arange(m.shape[0]) / self.options.rate
-            self.meta.setdefault("sample_rate", self.options.rate)
-        else:
-            raise LogError(self.path, "no time column: give the sample rate with --rate HZ")
-        self._cols = cols
+        what = f"variable {self.variable!r}"
+        self._cols = matrix_columns(self.path, matrix, what, self.options, self.meta)
 
     def _where(self, index: int) -> str:
         return f"variable {self.variable!r} row {index + 1}"

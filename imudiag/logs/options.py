@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..argtypes import nonnegative_int, positive_float
 from ..errors import BadInput
 from .base import OPTIONAL_COLUMNS, REQUIRED_COLUMNS
 
@@ -35,7 +36,7 @@ class LogOptions:
     units: dict[str, str] = field(default_factory=dict)  #: {"gyro": ..., "accel": ...}
     time_unit: str | None = None
     rate: float | None = None  #: Hz, for logs without time stamps
-    variable: str | None = None  #: the matrix of a MATLAB file
+    variable: str | None = None  #: the matrix of a MATLAB file, the object of an R file
     #: accept a log without accelerometer columns (a gyro on a turntable, ``--known-rate``):
     #: its accelerometer outputs read as NaN
     gyro_only: bool = False
@@ -135,7 +136,11 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--time-unit", metavar="U", help="unit of the t column: s (default), ms, us or ns"
     )
-    g.add_argument("--variable", metavar="NAME", help="the matrix of a MATLAB .mat file")
+    g.add_argument(
+        "--variable",
+        metavar="NAME",
+        help="the matrix of a MATLAB .mat file, the data.frame or matrix of an R .rda file",
+    )
     g.add_argument(
         "--topic",
         metavar="NAME",
@@ -144,13 +149,14 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--instance",
         metavar="N",
+        type=nonnegative_int("a sensor instance"),
         help="the sensor instance of a PX4 ULog (raw sensor_gyro/sensor_accel multi id; "
         "default: sensor_combined unless the raw topics are logged as fast)",
     )
     if "--rate" not in parser._option_string_actions:
         g.add_argument(
             "--rate",
-            type=float,
+            type=positive_float("Hz"),
             metavar="HZ",
             help="sample rate of a log without a t column (Hz)",
         )

@@ -35,6 +35,11 @@ class LogFormat:
     extra: str = ""  #: the pip extra holding the reader's dependencies, if any
     #: accepts a directory that is a log of this format (a ROS 2 bag directory)
     directory: Callable[[Path], bool] | None = None
+    #: the log option that chooses the samples within a file of this format (``variable``,
+    #: ``topic`` or ``instance``); the others are refused for it
+    chooser: str = ""
+    #: typical bytes a written sample takes (the writer's output), for free-space checks
+    bytes_per_sample: float = 0.0
 
     def open_reader(self, path: str | Path, block_size: int, options: Any = None) -> LogReader:
         """A reader of ``path``; raises LogError when the format cannot be read."""
