@@ -101,22 +101,24 @@ def main(argv: Sequence[str] | None = None) -> int:
             for k in keys
         ]
 
+    # the words naming the command in messages: a command with actions sets ``command_name``
+    name = getattr(args, "command_name", None) or args.command
     try:
         refuse_overwrite(named(getattr(args, "inputs", ())), named(getattr(args, "outputs", ())))
         return int(args.func(args) or 0)
     except ImudiagError as exc:
-        print(f"imudiag {args.command}: error: {exc}", file=sys.stderr)
+        print(f"imudiag {name}: error: {exc}", file=sys.stderr)
         return exit_code(exc)
     except Terminated:
         print(
-            f"imudiag {args.command}: terminated (SIGTERM); nothing half-written left",
+            f"imudiag {name}: terminated (SIGTERM); nothing half-written left",
             file=sys.stderr,
         )
         return EXIT_SIGTERM
     except KeyboardInterrupt:
         if args.command == "run":
             return EXIT_OK
-        print(f"imudiag {args.command}: interrupted; nothing half-written left", file=sys.stderr)
+        print(f"imudiag {name}: interrupted; nothing half-written left", file=sys.stderr)
         return EXIT_SIGINT
     except BrokenPipeError:
         return EXIT_OK

@@ -89,6 +89,7 @@ CASES: list[tuple] = [
     (["diagnose", "{log}"], "--gnss", [NONE], "none.yaml"),
     (["diagnose", "{log}"], "--certificate", [NONE], "none.yaml"),
     (["diagnose", "{log}"], "--json", BAD_OUTPUTS),
+    (["diagnose", "{log}"], "--plots", ["{tmp}/a-file/plots", "{tmp}/a-file"]),
     # calibrate
     (LOG_COMMANDS["calibrate"], "--min-interval", ["0", "-1", "nan"]),
     (LOG_COMMANDS["calibrate"], "--block-size", COUNTS),
@@ -99,6 +100,7 @@ CASES: list[tuple] = [
     (LOG_COMMANDS["calibrate"], "--magnitude", [NONE], "none.yaml"),
     (["calibrate", "{log}", "--out", "{tmp}/c.yaml"], "--like", [NONE], "none.yaml"),
     (["calibrate", "{log}", "--like", "{cert}"], "--out", BAD_OUTPUTS),
+    (LOG_COMMANDS["calibrate"], "--plots", ["{tmp}/a-file/plots", "{tmp}/a-file"]),
     # model-check
     (LOG_COMMANDS["model-check"], "--seed", SEEDS),
     (LOG_COMMANDS["model-check"], "--chunk", ["0", "0.01", "nan"]),
@@ -158,14 +160,61 @@ CASES: list[tuple] = [
     (["convert", "{log}"], "OUT", BAD_OUTPUTS),
     (LOG_COMMANDS["convert"], "--block-size", COUNTS),
     (["convert", "{log}", "{tmp}/o.bin"], "--quantum", ["gyro=0", "gyro=x"]),
+    # certificate import / export
+    (
+        ["certificate", "import", "--format", "imu_tk", "--out", "{tmp}/c.yaml"],
+        "FILE",
+        [NONE],
+        "none.yaml",
+    ),
+    (["certificate", "import", NONE, "--out", "{tmp}/c.yaml"], "--format", ["matlab"]),
+    (
+        ["certificate", "import", "--format", "imu_tk", "--gyro", NONE, "--out", "{tmp}/c.yaml"],
+        "--accel",
+        [NONE],
+        "none.yaml",
+    ),
+    (
+        ["certificate", "import", "--format", "imu_tk", "--accel", NONE, "--out", "{tmp}/c.yaml"],
+        "--gyro",
+        [NONE],
+        "none.yaml",
+    ),
+    (
+        ["certificate", "import", "{cert}", "--format", "kalibr", "--out", "{tmp}/c.yaml"],
+        "--like",
+        [NONE],
+        "none.yaml",
+    ),
+    (
+        ["certificate", "import", "{cert}", "--format", "kalibr", "--out", "{tmp}/c.yaml"],
+        "--gauge",
+        ["crooked"],
+    ),
+    (["certificate", "import", "{cert}", "--format", "kalibr"], "--out", BAD_OUTPUTS),
+    (
+        ["certificate", "export", "--format", "kalibr", "--out", "{tmp}/k.yaml"],
+        "CERT",
+        [NONE],
+        "none.yaml",
+    ),
+    (["certificate", "export", "{cert}", "--out", "{tmp}/k.yaml"], "--format", ["matlab"]),
+    (["certificate", "export", "{cert}", "--format", "kalibr"], "--out", BAD_OUTPUTS),
 ] + [(prefix, option, values) for prefix in LOG_COMMANDS.values() for option, values in LOG_OPTIONS]
+
+
+def _command(prefix: list[str]) -> str:
+    """The command words of a command line: the command, and the action of ``certificate``."""
+    return " ".join(prefix[:2]) if prefix[0] == "certificate" else prefix[0]
 
 
 def _params():
     for prefix, option, values, *names in CASES:
         for value in values:
             named = names[0] if names else option
-            yield pytest.param(prefix, option, value, named, id=f"{prefix[0]} {option} {value}")
+            yield pytest.param(
+                prefix, option, value, named, id=f"{_command(prefix)} {option} {value}"
+            )
 
 
 @pytest.fixture
@@ -208,7 +257,7 @@ def test_bad_value_is_exit_2_one_line_naming_the_option(
     assert code == 2, captured.err
     assert len(lines) == 1, captured.err
     assert named in lines[0], lines[0]
-    assert lines[0].startswith(f"imudiag {prefix[0]}: error: "), lines[0]
+    assert lines[0].startswith(f"imudiag {_command(prefix)}: error: "), lines[0]
     assert "Traceback" not in captured.err
     assert _listing(Path(workdir["tmp"])) == before  # nothing written
 
@@ -224,8 +273,14 @@ def test_every_numeric_or_output_option_has_a_checking_type() -> None:
             if action.type in (float, int):
                 bare.append(f"{name} {'/'.join(action.option_strings) or action.dest}")
     assert bare == []
-    covered = {(case[0][0], case[1]) for case in CASES}
-    for name, cmd in sub.choices.items():
+    covered = {(_command(case[0]), case[1]) for case in CASES}
+    commands = dict(sub.choices)
+    for name, cmd in list(commands.items()):  # a command with actions: each action's options
+        for action in cmd._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                del commands[name]
+                commands.update({f"{name} {a}": p for a, p in action.choices.items()})
+    for name, cmd in commands.items():
         for action in cmd._actions:
             if action.nargs == 0 or action.dest == "help":
                 continue  # a flag: no value to check

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..argtypes import writable_output_path
+from ..argtypes import writable_directory, writable_output_path
 from ..certificate import load
 from ..diagnosis.session import calibrate_recording
 from ..errors import BadInput
@@ -60,6 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--plots",
+        type=writable_directory,
         metavar="DIR",
         help="write PNG figures into DIR: |a|/g - 1 of the intervals (accel_norm_residuals.png) "
         "and the gravity direction after the rotations (rotation_residuals.png) before and "

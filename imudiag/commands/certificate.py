@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..argtypes import writable_output_path
 from ..atomic import refuse_overwrite
 from ..certificate import default_certificate_path, load, loads
 from ..errors import BadInput
@@ -59,8 +60,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         "writes it (the rotation is printed); tool: keep the tool's frame "
         f"(default {DEFAULT_GAUGE})",
     )
-    imp.add_argument("--out", required=True, metavar="CERT", help="certificate to write")
-    imp.set_defaults(func=run_import, inputs=("input", "accel", "gyro", "like"), outputs=("out",))
+    imp.add_argument(
+        "--out",
+        required=True,
+        type=writable_output_path(),
+        metavar="CERT",
+        help="certificate to write",
+    )
+    imp.set_defaults(
+        func=run_import,
+        command_name="certificate import",
+        inputs=("input", "accel", "gyro", "like"),
+        outputs=("out",),
+    )
     exp = actions.add_parser(
         "export",
         help="a certificate to a tool's calibration file",
@@ -72,10 +84,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     exp.add_argument(
         "--out",
         required=True,
+        type=writable_output_path(),
         metavar="FILE",
         help="file to write (imu_tk: PREFIX, writing PREFIX_acc.calib and PREFIX_gyro.calib)",
     )
-    exp.set_defaults(func=run_export, inputs=("input",), outputs=("out",))
+    exp.set_defaults(
+        func=run_export, command_name="certificate export", inputs=("input",), outputs=("out",)
+    )
 
 
 def _import_sources(args: argparse.Namespace) -> list[tuple[str, str]]:

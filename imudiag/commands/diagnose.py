@@ -17,7 +17,13 @@ import json
 import sys
 from typing import Any
 
-from ..argtypes import nonnegative_float, positive_float, positive_int, writable_output_path
+from ..argtypes import (
+    nonnegative_float,
+    positive_float,
+    positive_int,
+    writable_directory,
+    writable_output_path,
+)
 from ..atomic import write_text_atomic
 from ..certificate import Certificate, load, load_default
 from ..diagnosis.config import GYRO_MODES, METHODS, DiagnosisConfig
@@ -83,6 +89,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--plots",
+        type=writable_directory,
         metavar="DIR",
         help="write PNG figures into DIR: each parameter's window estimates against the "
         "certificate (estimates_accel.png, estimates_gyro.png) and the F0 trace "
