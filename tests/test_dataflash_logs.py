@@ -1,7 +1,8 @@
 """ArduPilot DataFlash logs, read through pymavlink's DFReader.
 
-No DataFlash log is shipped and pymavlink cannot write one, so the files here are
-written byte for byte to ArduPilot's self-describing format (FMT messages, then
+One real log is shipped: pymavlink's own test.BIN (tests/data/real/ardupilot-dataflash,
+SOURCE.md there), read as pymavlink reads it. pymavlink cannot write a log, so the other
+files here are written byte for byte to ArduPilot's self-describing format (FMT messages, then
 ``A3 95 id payload`` records, as AP_Logger writes them) holding the real imucal
 recording (tests/data/real/imucal-ferraris, SOURCE.md there) as ``IMU`` messages in
 rad/s and m/s^2; every file is first checked with pymavlink's own reader.
@@ -18,6 +19,7 @@ from conftest import run_imudiag, run_imudiag_without
 from pymavlink import DFReader  # the [test] extra installs pymavlink
 
 from imudiag.logs import LogError, LogOptions, lookup, open_log, read_log
+from imudiag.samples import SampleBlock
 
 IMUCAL = Path(__file__).parent / "data" / "real" / "imucal-ferraris" / "session.csv.gz"
 HEAD = b"\xa3\x95"
@@ -122,3 +124,37 @@ def test_missing_pymavlink_is_exit_2_with_the_pip_command(tmp_path, session):
     assert r.returncode == 2, r.stderr
     assert "'pymavlink'" in r.stderr and "pip install 'imudiag[ardupilot]'" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+REAL = Path(__file__).parent / "data" / "real" / "ardupilot-dataflash" / "test.BIN"
+
+
+@pytest.mark.parametrize("instance", [0, 1])
+def test_a_real_ardupilot_log_reads_as_pymavlink_reads_it(instance: int) -> None:
+    """pymavlink's own test log (a real flight, SOURCE.md there): every IMU sample of the
+    instance, in SI units and seconds since boot, as pymavlink's DFReader decodes it."""
+    reader = DFReader.DFReader_binary(str(REAL))
+    want = []
+    while (m := reader.recv_match(type=["IMU", "IMU2"])) is not None:
+        # current logs tag the instance (field I); this 2019 one names it IMU, IMU2
+        if getattr(m, "I", {"IMU": 0, "IMU2": 1}[m.get_type()]) == instance:
+            want.append([m.TimeUS / 1e6, m.GyrX, m.GyrY, m.GyrZ, m.AccX, m.AccY, m.AccZ])
+    expected = np.array(want)
+    assert len(expected) > 40  # about a second at 50 Hz
+    with open_log(REAL, options=LogOptions(instance=instance)) as reader:
+        block = SampleBlock.concat(list(reader))
+        meta = reader.meta
+    assert meta["units"] == {"gyro": "rad/s", "accel": "m/s^2"}
+    np.testing.assert_allclose(block.t, expected[:, 0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(block.gyro, expected[:, 1:4], rtol=1e-6, atol=0)
+    np.testing.assert_allclose(block.accel, expected[:, 4:7], rtol=1e-6, atol=0)
+    g = np.linalg.norm(block.accel, axis=1)
+    assert 9.0 < float(np.median(g)) < 10.6  # a real unit in flight: about 1 g
+    assert "instances in the log: 0, 1" in meta["source"]
+
+
+def test_a_real_ardupilot_log_through_allan() -> None:
+    """The commands read it as they read any log: the rate and the gaps are stated."""
+    r = run_imudiag("allan", str(REAL))
+    assert r.returncode == 0, r.stderr
+    assert "samples at 49.9" in r.stdout and "gaps" in r.stdout
