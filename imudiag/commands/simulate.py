@@ -192,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
         write_gpspipe_log(args.gnss, gnss_reports(motion, seed=args.seed))  # type: ignore[arg-type]
     if args.true_certificate:
         t_end = (total - 1) / rate if total else 0.0
-        true_certificate(cert, effects, faults, t_end).save(args.true_certificate)
+        true_certificate(cert, effects, faults, t_end, rate).save(args.true_certificate)
     print(
         f"{args.out}: {written} samples, {total / rate:g} s at {rate:g} Hz, "
         f"scenario {scenario}, seed {args.seed}"
