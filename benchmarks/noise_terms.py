@@ -7,7 +7,8 @@ R, or none; seed mod 6) is hidden on a random gyro, magnitude and session length
 session of the bundled board is simulated (whole counts, as a real count log), and the
 noise-model selection of the model check (:func:`imudiag.modelcheck.noisemodel.select`,
 on bins of at most 0.05 s as ``imudiag model-check`` reads them) runs blind on all six
-sensors. Prints per seed the term and its value, what was named and its value, and the
+sensors. ``--lengths``: the shortest record that names each term (fixed magnitudes) in
+9 of 10 seeds. Prints per seed the term and its value, what was named and its value, and the
 largest measured/predicted Allan-deviation ratio over 0.1 s to a tenth of the record
 (figures of docs/model-check.md). ``tests/test_modelcheck_noise.py`` runs one 1 h case.
 """
@@ -54,6 +55,22 @@ class Case:
     effects: Effects
 
 
+def effects_for(term: str, sensor: str, value: float, rate_hz: float) -> Effects:
+    """Whole counts plus ``term`` of ``value`` (its :data:`VALUE_KEY` unit) on ``sensor``."""
+    if term == "white":  # value: the density, count/sqrt(Hz)
+        density = float(load_default().gyro.noise.density[0])
+        return Effects(quantize=True, noise_scale=value / density)
+    if term == "quantization":  # an integrating output in steps q = Q rate sqrt(12)
+        return Effects(quantize=True, quantization={sensor: value * rate_hz * math.sqrt(12.0)})
+    if term == "bias_instability":
+        return Effects(quantize=True, flicker={sensor: value})
+    if term == "bias_drift":
+        return Effects(quantize=True, bias_drift={sensor: value})
+    if term == "rate_ramp":
+        return Effects(quantize=True, rate_ramp={sensor: value})
+    return Effects(quantize=True)
+
+
 def draw(seed: int, rate_hz: float, duration_s: float | None = None) -> Case:
     """The term, gyro, magnitude and length (s) hidden under ``seed`` at ``rate_hz`` (Hz)."""
     rng = np.random.default_rng(seed)
@@ -61,26 +78,20 @@ def draw(seed: int, rate_hz: float, duration_s: float | None = None) -> Case:
     sensor = str(rng.choice(["gx", "gy", "gz"]))
     dur = float(rng.choice(DURATIONS_S)) if duration_s is None else float(duration_s)
     density = float(load_default().gyro.noise.density[0])  # count/sqrt(Hz), 6.55
-    value, eff = 0.0, Effects(quantize=True)
+    value = 0.0
     if term == "white":  # the data-sheet figure 1.5-3x too low (as on the MPU-6050)
-        scale = float(rng.uniform(1.5, 3.0))
-        value, eff = density * scale, Effects(quantize=True, noise_scale=scale)
+        value = density * float(rng.uniform(1.5, 3.0))
     elif term == "quantization":
-        # a coarse integrating output: at 0.1 s its Allan deviation sqrt(3) Q / tau is
-        # 0.8-2 times the white noise's (density / sqrt(2 tau)); step q = Q rate sqrt(12)
-        rel = float(rng.uniform(0.8, 2.0))
-        value = rel * density / math.sqrt(0.2) * 0.1 / math.sqrt(3.0)
-        step = value * rate_hz * math.sqrt(12.0)
-        eff = Effects(quantize=True, quantization={sensor: step})
+        # coarse: at 0.1 s its Allan deviation sqrt(3) Q / tau is 0.8-2 times the white
+        # noise's (density / sqrt(2 tau))
+        value = float(rng.uniform(0.8, 2.0)) * density / math.sqrt(0.2) * 0.1 / math.sqrt(3.0)
     elif term == "bias_instability":
         value = float(rng.uniform(12.0, 40.0))  # counts: floor 8-27
-        eff = Effects(quantize=True, flicker={sensor: value})
     elif term == "bias_drift":
         value = float(rng.uniform(0.3, 1.0))  # count/sqrt(s)
-        eff = Effects(quantize=True, bias_drift={sensor: value})
     elif term == "rate_ramp":
         value = float(rng.uniform(0.01, 0.03))  # count/s
-        eff = Effects(quantize=True, rate_ramp={sensor: value})
+    eff = effects_for(term, sensor, value, rate_hz)
     return Case(seed, term, sensor, value, dur, float(rate_hz), eff)
 
 
@@ -134,13 +145,76 @@ def fitted_value(case: Case, fits: dict[str, SensorNoise]) -> float:
     return float(fits[case.sensor].model.terms.get(VALUE_KEY.get(case.term, "density"), 0.0))
 
 
+#: fixed magnitudes of the record-length sweep (counts; the low end of the draws above) and
+#: the cluster time tau_c (s) where each term's Allan variance equals the white noise's
+#: N^2 / tau (N = density / sqrt(2)): B and K and R show above tau_c, Q below it
+SWEEP = {
+    "quantization": 0.35,  # count s: Allan deviation 6.1 counts at 0.1 s, white 14.6
+    "bias_instability": 12.0,  # count: floor 8.0
+    "bias_drift": 0.3,  # count/sqrt(s)
+    "rate_ramp": 0.01,  # count/s
+}
+#: record lengths, s
+SWEEP_S = (60.0, 120.0, 300.0, 600.0, 900.0, 1200.0, 1800.0, 2400.0, 3000.0, 3600.0)
+
+
+def crossover_s(term: str, value: float, density: float) -> float:
+    """tau_c (s): the term's Allan variance equals the white noise's, N^2 / tau."""
+    n2 = density**2 / 2.0
+    if term == "quantization":
+        return 3.0 * value**2 / n2
+    if term == "bias_instability":
+        return n2 / (0.664 * value) ** 2
+    if term == "bias_drift":
+        return math.sqrt(3.0 * n2) / value
+    if term == "rate_ramp":
+        return (2.0 * n2 / value**2) ** (1.0 / 3.0)
+    raise ValueError(term)
+
+
+def sweep(rate_hz: float, seeds: range, scale: float = 1.0) -> None:
+    """Per term of :data:`SWEEP` (magnitudes times ``scale``) and record length: in how
+    many seeds the term is named on its sensor with its value within 30 %; the shortest
+    length named in 90 % of them, also in units of tau_c."""
+    density = float(load_default().gyro.noise.density[0])
+    for term, value0 in SWEEP.items():
+        value = value0 * scale
+        tc = crossover_s(term, value, density)
+        row = []
+        for dur in SWEEP_S:
+            hits = 0
+            for seed in seeds:
+                case = Case(seed, term, "gy", value, dur, rate_hz, Effects())
+                case.effects = effects_for(term, "gy", value, rate_hz)
+                sn = noise_models(case, ("gy",))["gy"]
+                v = sn.model.terms.get(VALUE_KEY[term], 0.0)
+                hits += named(sn) == [term] and abs(v / value - 1.0) < 0.3
+            row.append(hits)
+        ok = [d for d, h in zip(SWEEP_S, row, strict=True) if h >= 0.9 * len(seeds)]
+        t_min = f"{ok[0]:g} s = {ok[0] / tc:.3g} tau_c" if ok else f"> {SWEEP_S[-1]:g} s"
+        print(
+            f"{term} {value:g} (tau_c {tc:.3g} s): named with its value in "
+            + ", ".join(f"{h}/{len(seeds)} at {d:g} s" for d, h in zip(SWEEP_S, row, strict=True))
+            + f"; 90 % from {t_min}"
+        )
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", default="0-11", help="first-last (default %(default)s)")
     p.add_argument("--rate", type=float, default=100.0, help="sample rate, Hz")
     p.add_argument("--duration", type=float, default=None, help="s (default: drawn, 1-3 h)")
+    p.add_argument(
+        "--lengths",
+        action="store_true",
+        help="record-length sweep instead: each term of SWEEP at 60 s to 1 h, per seed",
+    )
+    p.add_argument("--scale", type=float, default=1.0, help="sweep magnitudes times this")
     a = p.parse_args()
     lo, _, hi = a.seeds.partition("-")
+    if a.lengths:
+        sweep(a.rate, range(int(lo), int(hi or lo) + 1), a.scale)
+        return
     ok = strict = 0
     seeds = range(int(lo), int(hi or lo) + 1)
     for seed in seeds:

@@ -132,6 +132,16 @@ def test_mpu6050_still_recording_is_white_noise_and_predicted(tmp_path: Path) ->
         assert entry["max_ratio_extended_certificate"] <= 1.5, s  # (measured: 1.48 at most)
     gyro = res.extended.gyro.noise.density
     assert np.all(gyro / cert.gyro.noise.density > 2.0)
+    # one white-noise figure (issue 13 item 3): where the model is white, the noise model's
+    # density (an Allan-curve parameter, named as such, the one the extended certificate
+    # carries) is the median-second-difference figure of the comparison
+    measured = res.report["comparison"]["noise_density"]
+    for j, (s, entry) in enumerate(nm["sensors"].items()):
+        assert "Allan-curve fit" in entry["density_method"]
+        assert measured[s]["method"] == "median-second-difference"
+        assert entry["terms"]["density"] == pytest.approx(measured[s]["measured"], rel=0.03), s
+        tri = res.extended.gyro if j < 3 else res.extended.accel
+        assert tri.noise.density[j % 3] == pytest.approx(entry["terms"]["density"], rel=1e-5)
     if plots.available():
         names = {p.name for p in plots.write_plots(res, tmp_path)}
         assert {f"noise_model_{s}.png" for s in nm["sensors"]} <= names

@@ -246,6 +246,14 @@ def bin_means(y: np.ndarray, factor: int) -> np.ndarray:
     return y[:n].reshape(-1, factor, *y.shape[1:]).mean(axis=1)
 
 
+#: how the noise model's white-noise density is obtained (the report names it beside the
+#: figure; the model check's measured density is noise_estimate.METHOD's)
+DENSITY_METHOD = (
+    "Allan-curve fit beside the named terms (the figure the extended certificate carries; "
+    "it equals the median-second-difference figure of comparison.noise_density where the "
+    "model is white, and leaves out the quantisation that figure includes)"
+)
+
 UNITS = {
     "density": "u/sqrt(Hz) (one-sided white noise)",
     "quantization": "u s (quantisation Q: Allan variance 3 Q^2 / tau^2)",
@@ -267,6 +275,7 @@ def report_entry(sn: SensorNoise, unit: str) -> dict[str, Any]:
     return {
         "model": sn.model.name,
         "terms": dict(sn.model.terms),
+        "density_method": DENSITY_METHOD,
         "units": {
             k: v.replace("u", unit, 1) if v.startswith("u") else v
             for k, v in UNITS.items()
