@@ -128,3 +128,32 @@ def test_quantization_effect_text() -> None:
         parse_effects(["quantization:gx:0"])
     with pytest.raises(ValueError, match="expected quantization:SENSOR:STEP"):
         parse_effects(["quantization:gx"])
+
+
+def test_simulate_command_writes_the_quantization_it_simulates(tmp_path) -> None:
+    """`imudiag simulate --effect quantization:S:STEP` in a real subprocess: the log's gx
+    moves in whole steps, the true certificate carries Q = STEP / (rate sqrt(12)) (count
+    s); a step of 0 is refused in one line naming the effect, exit 2."""
+    from conftest import run_imudiag
+
+    from imudiag.certificate import load
+    from imudiag.logs import read_log
+
+    out, true = tmp_path / "q.csv.gz", tmp_path / "true.yaml"
+    r = run_imudiag(
+        "simulate", "still", "--duration", "20", "--rate", "50", "--effect",
+        "quantization:gx:200", "--out", str(out), "--true-certificate", str(true),
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    gx = read_log(out).gyro[:, 0]
+    assert np.all(np.abs((gx - gx[0]) / 200.0 - np.round((gx - gx[0]) / 200.0)) < 1e-9)
+    q = load(true).gyro.noise.quantization
+    assert q is not None and q.tolist() == pytest.approx([200.0 / (50.0 * math.sqrt(12)), 0, 0])
+    bad = run_imudiag(
+        "simulate", "still", "--duration", "5", "--effect", "quantization:gx:0",
+        "--out", str(tmp_path / "bad.csv.gz"),
+    )  # fmt: skip
+    assert bad.returncode == 2
+    last = bad.stderr.strip().splitlines()[-1]
+    assert "quantization:gx:0" in last and "STEP > 0" in last
+    assert not (tmp_path / "bad.csv.gz").exists()

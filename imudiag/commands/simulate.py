@@ -36,7 +36,7 @@ effects (--effect, applied in order to the 'board' preset):
   board | none | all | noise:SCALE | quantize | saturation:LOW:HIGH
   bias_drift:S:K (u/sqrt(s))   bias_instability:S:SIGMA:TAU (u, s; Gauss-Markov)
   flicker:S:B[:TAU_LOW:TAU_HIGH] (u; flat Allan floor 0.664 B over that band, s)
-  rate_ramp:S:R (u/s)
+  rate_ramp:S:R (u/s)   quantization:S:STEP (u; integrating output, Q = STEP/(rate sqrt 12))
   temperature:START:WARMUP:TAU[:RAMP] (degC, degC, s, degC/s)
   temperature_bias:S:C (u/degC)   temperature_scale:S:C (1/degC)
   g_sensitivity:GS:KX:KY:KZ (u per accel input unit)   scale_nonlinearity:S:Q (u/input^2)
