@@ -358,7 +358,14 @@ def model_check(
                 k_on_rows(res, j, first), walk_cert[ALL_SENSORS.index(d.sensor)]
             )
     noise_base = NoiseModel(density=density_model, walk=walk_cert)
-    noise_ext = NoiseModel(density=density_model, walk=walk_first, lines=lines, steps=steps)
+    # the named noise models, fitted on the first half of their still stretch (the Allan
+    # misfit is scored on the second half of the session)
+    noise_terms = {
+        s: dict((f.first_half or f.model).terms) for s, f in noise_fits.items() if f.terms_named
+    }
+    noise_ext = NoiseModel(
+        density=density_model, walk=walk_first, lines=lines, steps=steps, terms=noise_terms
+    )
 
     # -- simulations (common random numbers: the same seeds for both models) ------------------
     sims: dict[str, list[SegmentStats]] = {"baseline": [], "extended": []}

@@ -147,6 +147,8 @@ class SensorNoise:
     allan: AllanResult
     window: np.ndarray
     terms_named: list[str] = field(default_factory=list)
+    #: the chosen model fitted on the first half of the run only (for scoring on the second)
+    first_half: NoiseFit | None = None
 
     def significance(self) -> float:
         """Likelihood-ratio z of the chosen model against white noise."""
@@ -223,6 +225,7 @@ def select(y: np.ndarray, rate_hz: float, z_min: float = 5.0) -> SensorNoise:
         allan=whole,
         window=win,
         terms_named=named,
+        first_half=fit(chosen, curves[0], sels[0]),
     )
 
 
