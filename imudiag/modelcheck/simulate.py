@@ -76,23 +76,22 @@ def simulate_session(
     density = np.asarray(noise.density, dtype=float).copy()
     walk = np.asarray(noise.walk, dtype=float).copy()
     rate = session.rate_hz
-    extra: dict[str, dict] = {"flicker": {}, "bias_instability": {}, "rate_ramp": {}}
-    extra["quantization"] = {}
+    quantization: dict[str, float] = {}
+    flicker: dict[str, float] = {}
+    ramp: dict[str, float] = {}
+    markov: dict[str, tuple[float, float]] = {}
     for s, terms in noise.terms.items():
         j = SENSORS.index(s)
         density[j] = terms.get("density", density[j])
         walk[j] = terms.get("bias_drift", walk[j])
         if terms.get("quantization", 0.0) > 0:  # steps of an integrating output, u
-            extra["quantization"][s] = terms["quantization"] * rate * np.sqrt(12.0)
+            quantization[s] = terms["quantization"] * rate * float(np.sqrt(12.0))
         if terms.get("bias_instability", 0.0) > 0:
-            extra["flicker"][s] = terms["bias_instability"]
+            flicker[s] = terms["bias_instability"]
         if terms.get("rate_ramp", 0.0) > 0:
-            extra["rate_ramp"][s] = terms["rate_ramp"]
+            ramp[s] = terms["rate_ramp"]
         if terms.get("gauss_markov_sigma", 0.0) > 0:
-            extra["bias_instability"][s] = (
-                terms["gauss_markov_sigma"],
-                terms["gauss_markov_time"],
-            )
+            markov[s] = (terms["gauss_markov_sigma"], terms["gauss_markov_time"])
     cert = with_noise(certificate, density)
     temp_profile = None
     if session.has_temp:
@@ -116,7 +115,10 @@ def simulate_session(
             )
             for i, ln in enumerate(noise.lines)
         ],
-        **extra,
+        quantization=quantization,
+        flicker=flicker,
+        rate_ramp=ramp,
+        bias_instability=markov,
     )
     sim = Simulator(cert, effects, seed=seed)
     f_si = chunk_input * cert.accel.unit_to_si
