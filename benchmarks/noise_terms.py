@@ -184,8 +184,8 @@ def sweep(rate_hz: float, seeds: range, scale: float = 1.0) -> None:
         for dur in SWEEP_S:
             hits = 0
             for seed in seeds:
-                case = Case(seed, term, "gy", value, dur, rate_hz, Effects())
-                case.effects = effects_for(term, "gy", value, rate_hz)
+                eff = effects_for(term, "gy", value, rate_hz)
+                case = Case(seed, term, "gy", value, dur, rate_hz, eff)
                 sn = noise_models(case, ("gy",))["gy"]
                 v = sn.model.terms.get(VALUE_KEY[term], 0.0)
                 hits += named(sn) == [term] and abs(v / value - 1.0) < 0.3
