@@ -138,8 +138,9 @@ NOISE_FIELDS: dict[str, tuple[str, str]] = {
     "bias_random_walk": ("u/sqrt(s)", "rate random walk K: Allan variance K^2 tau / 3"),
     "quantization": (
         "u s",
-        "quantisation noise Q: Allan variance 3 Q^2 / tau^2 (an output "
-        "quantised in steps q at rate f has Q = q / (f sqrt(12)))",
+        "quantisation noise Q: Allan variance 3 Q^2 / tau^2 (an integrating output, "
+        "e.g. a delta-angle counter, quantised in steps q at rate f has "
+        "Q = q / (f sqrt(12)); a rate output rounded sample by sample is white noise)",
     ),
     "bias_instability": ("u", "bias instability (flicker floor) B: Allan deviation 0.664 B, flat"),
     "rate_ramp": ("u/s", "rate ramp R: Allan variance R^2 tau^2 / 2"),

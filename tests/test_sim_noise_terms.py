@@ -92,3 +92,68 @@ def test_the_ramp_is_a_straight_line(default_certificate) -> None:
     base = simulate(default_certificate, tr, seed=0, effects=Effects(white_noise=False))
     d = r.samples.gyro[:, 0] - base.samples.gyro[:, 0]
     assert np.allclose(d, 0.5 * tr.t)
+
+
+def test_quantization_is_simulated_and_predicted(default_certificate) -> None:
+    """An integrating output counted in steps q (remainder carried): outputs are the
+    certificate's bias plus whole steps, nothing is lost over the session, and the true
+    certificate's Q = q / (rate sqrt(12)) predicts the measured Allan deviation."""
+    step = 120.0  # counts per sample: Q = 1.73 count s at 20 Hz
+    eff = Effects(quantization={"gy": step})
+    r = simulate(default_certificate, still(1200.0, rate_hz=RATE), seed=6, effects=eff)
+    q = r.certificate.gyro.noise.quantization
+    assert q is not None and q.tolist() == pytest.approx([0.0, step / (RATE * math.sqrt(12)), 0.0])
+    y = r.samples.gyro[:, 1]
+    k = (y - y[0]) / step
+    assert np.all(np.abs(k - np.round(k)) < 1e-6)  # whole steps apart
+    # the remainder is carried: the mean is that of the unquantised output
+    bias = default_certificate.gyro.bias[1]
+    assert abs(np.mean(y) - bias) < 6.55 * math.sqrt(RATE / 2) / math.sqrt(y.shape[0]) * 5 + (
+        step / y.shape[0]
+    )
+    tau, meas, pred = _measured_vs_predicted(r, 1)
+    short = tau <= 0.3  # where 3 Q^2 / tau^2 dominates
+    ratio = meas / pred
+    assert np.all((ratio > 1 / 1.2) & (ratio < 1.2)), (tau, ratio)
+    # and it is not white noise there: the white noise alone predicts too little
+    white = default_certificate.gyro.noise.density[1] / np.sqrt(2.0 * tau[short])
+    assert np.all(meas[short] > 1.3 * white)
+
+
+def test_quantization_effect_text() -> None:
+    e = parse_effects(["quantization:gx:50", "quantization:ay:0.05"])
+    assert e.quantization == {"gx": 50.0, "ay": 0.05}
+    assert "quantization" in describe(e)
+    with pytest.raises(ValueError, match="quantization:gx:0"):
+        parse_effects(["quantization:gx:0"])
+    with pytest.raises(ValueError, match="expected quantization:SENSOR:STEP"):
+        parse_effects(["quantization:gx"])
+
+
+def test_simulate_command_writes_the_quantization_it_simulates(tmp_path) -> None:
+    """`imudiag simulate --effect quantization:S:STEP` in a real subprocess: the log's gx
+    moves in whole steps, the true certificate carries Q = STEP / (rate sqrt(12)) (count
+    s); a step of 0 is refused in one line naming the effect, exit 2."""
+    from conftest import run_imudiag
+
+    from imudiag.certificate import load
+    from imudiag.logs import read_log
+
+    out, true = tmp_path / "q.csv.gz", tmp_path / "true.yaml"
+    r = run_imudiag(
+        "simulate", "still", "--duration", "20", "--rate", "50", "--effect",
+        "quantization:gx:200", "--out", str(out), "--true-certificate", str(true),
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    gx = read_log(out).gyro[:, 0]
+    assert np.all(np.abs((gx - gx[0]) / 200.0 - np.round((gx - gx[0]) / 200.0)) < 1e-9)
+    q = load(true).gyro.noise.quantization
+    assert q is not None and q.tolist() == pytest.approx([200.0 / (50.0 * math.sqrt(12)), 0, 0])
+    bad = run_imudiag(
+        "simulate", "still", "--duration", "5", "--effect", "quantization:gx:0",
+        "--out", str(tmp_path / "bad.csv.gz"),
+    )  # fmt: skip
+    assert bad.returncode == 2
+    last = bad.stderr.strip().splitlines()[-1]
+    assert "quantization:gx:0" in last and "STEP > 0" in last
+    assert not (tmp_path / "bad.csv.gz").exists()

@@ -43,7 +43,7 @@ effects (--effect, applied in order to the 'board' preset):
   board | none | all | noise:SCALE | quantize | saturation:LOW:HIGH
   bias_drift:S:K (u/sqrt(s))   bias_instability:S:SIGMA:TAU (u, s; Gauss-Markov)
   flicker:S:B[:TAU_LOW:TAU_HIGH] (u; flat Allan floor 0.664 B over that band, s)
-  rate_ramp:S:R (u/s)
+  rate_ramp:S:R (u/s)   quantization:S:STEP (u; integrating output, Q = STEP/(rate sqrt 12))
   temperature:START:WARMUP:TAU[:RAMP] (degC, degC, s, degC/s)
   temperature_bias:S:C (u/degC)   temperature_scale:S:C (1/degC)
   g_sensitivity:GS:KX:KY:KZ (u per accel input unit)   scale_nonlinearity:S:Q (u/input^2)
@@ -263,7 +263,7 @@ def run(args: argparse.Namespace) -> int:
         write_gpspipe_log(args.gnss, gnss_reports(motion, seed=args.seed))  # type: ignore[arg-type]
     if args.true_certificate:
         t_end = (total - 1) / rate if total else 0.0
-        true_certificate(cert, effects, faults, t_end).save(args.true_certificate)
+        true_certificate(cert, effects, faults, t_end, rate).save(args.true_certificate)
     print(
         f"{args.out}: {written} samples, {total / rate:g} s at {rate:g} Hz, "
         f"scenario {scenario}, seed {args.seed}"

@@ -19,7 +19,7 @@ class ModelCheckConfig:
     max_segment_s: float = 1200.0  #: s, longest stretch analysed at full rate (Allan, PSD)
     max_motion_s: float = 20.0  #: s, longest motion between still runs kept for the gyro
     z_min: float = 5.0  #: significance an effect needs to be named
-    z_heldout: float = 0.0  #: held-out log-likelihood gain (nats) an effect needs
+    z_heldout: float = 0.0  #: held-out log-likelihood improvement (nats) an effect needs
     drift_margin: float = 5.0  #: nats a random walk must beat the best deterministic effect by
     max_step_candidates: int = 200  #: change-point positions scanned per sensor (then refined)
     max_lines: int = 3  #: periodic lines reported per sensor

@@ -7,7 +7,9 @@ first pass. :func:`imudiag.sim.simulate`'s streaming :class:`~imudiag.sim.Simula
 then produces raw outputs with the model's white noise (the certificate's
 density, or the one measured from the shortest-tau Allan deviation when the
 certificate has none), its bias random walk, and, for the extended model,
-the periodic lines and steps that a certificate cannot hold. Outputs are
+the periodic lines and steps that a certificate cannot hold and the noise
+terms the noise model names (quantisation, bias instability, random walk,
+rate ramp, Gauss-Markov bias, with that model's white noise). Outputs are
 quantised to the step seen in the data. The simulated segments go through the
 same statistics as the measured ones.
 """
@@ -36,6 +38,11 @@ class NoiseModel:
     walk: np.ndarray  #: (6,) bias random walk, output units / sqrt(s)
     lines: list[Line] = field(default_factory=list)
     steps: list[tuple[str, float, float]] = field(default_factory=list)  #: (sensor, t s, size)
+    #: per sensor, the named noise model's terms (noisemodel.NoiseFit.terms, output units):
+    #: its density replaces ``density`` there, and quantization Q (u s), bias_instability B
+    #: (u), bias_drift K (u/sqrt(s), replaces ``walk``), rate_ramp R (u/s) and a
+    #: Gauss-Markov bias (gauss_markov_sigma u, gauss_markov_time s) are simulated
+    terms: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 def with_noise(certificate: Certificate, density: np.ndarray) -> Certificate:
@@ -66,7 +73,26 @@ def simulate_session(
     c = session.chunks
     if len(c) == 0:
         return
-    cert = with_noise(certificate, noise.density)
+    density = np.asarray(noise.density, dtype=float).copy()
+    walk = np.asarray(noise.walk, dtype=float).copy()
+    rate = session.rate_hz
+    quantization: dict[str, float] = {}
+    flicker: dict[str, float] = {}
+    ramp: dict[str, float] = {}
+    markov: dict[str, tuple[float, float]] = {}
+    for s, terms in noise.terms.items():
+        j = SENSORS.index(s)
+        density[j] = terms.get("density", density[j])
+        walk[j] = terms.get("bias_drift", walk[j])
+        if terms.get("quantization", 0.0) > 0:  # steps of an integrating output, u
+            quantization[s] = terms["quantization"] * rate * float(np.sqrt(12.0))
+        if terms.get("bias_instability", 0.0) > 0:
+            flicker[s] = terms["bias_instability"]
+        if terms.get("rate_ramp", 0.0) > 0:
+            ramp[s] = terms["rate_ramp"]
+        if terms.get("gauss_markov_sigma", 0.0) > 0:
+            markov[s] = (terms["gauss_markov_sigma"], terms["gauss_markov_time"])
+    cert = with_noise(certificate, density)
     temp_profile = None
     if session.has_temp:
         tm, tv = c.t_mid, c.temp
@@ -76,7 +102,7 @@ def simulate_session(
 
     effects = Effects(
         white_noise=True,
-        bias_drift={s: float(k) for s, k in zip(SENSORS, noise.walk, strict=True) if k > 0},
+        bias_drift={s: float(k) for s, k in zip(SENSORS, walk, strict=True) if k > 0},
         temperature=temp_profile,
         temperature_reference=25.0,
         bias_step=[BiasStep(s, t, size) for s, t, size in noise.steps],
@@ -89,9 +115,12 @@ def simulate_session(
             )
             for i, ln in enumerate(noise.lines)
         ],
+        quantization=quantization,
+        flicker=flicker,
+        rate_ramp=ramp,
+        bias_instability=markov,
     )
     sim = Simulator(cert, effects, seed=seed)
-    rate = session.rate_hz
     f_si = chunk_input * cert.accel.unit_to_si
     quantum = session.quantum
     for seg in range(len(segments)):  # one simulator step per segment

@@ -88,6 +88,11 @@ class Effects:
     flicker_band: tuple[float, float] = (0.1, 1.0e4)
     #: rate ramp R, output units / s (a bias growing as R t), per sensor
     rate_ramp: dict[str, float] = field(default_factory=dict)
+    #: quantisation of an integrating output, per sensor: step q (output units per sample,
+    #: 1 = one count) of the accumulated output, each sample the increment with the remainder
+    #: carried (a delta-angle counter). IEEE 952 term Q = q / (rate sqrt(12)) u s, Allan
+    #: variance 3 Q^2 / tau^2. (``quantize`` rounds each sample on its own: white noise.)
+    quantization: dict[str, float] = field(default_factory=dict)
     #: board temperature over time (degC); None: constant ``temperature_reference``
     temperature: TemperatureProfile | Callable[[np.ndarray], np.ndarray] | None = None
     temperature_reference: float = 25.0  #: degC at which the certificate's B, S, E hold
@@ -124,12 +129,16 @@ class Effects:
             "bias_instability",
             "flicker",
             "rate_ramp",
+            "quantization",
             "temperature_bias",
             "temperature_scale",
             "scale_nonlinearity",
         ):
             for sensor in getattr(self, name):
                 sensor_index(sensor)
+        for sensor, q in self.quantization.items():
+            if not q > 0:
+                raise ValueError(f"quantization[{sensor}]: need a step > 0, got {q}")
         for s in self.bias_step:
             sensor_index(s.sensor)
         for p in self.periodic_disturbance:

@@ -28,6 +28,8 @@ for the bundled board):
 ``bias_instability:S:SIGMA:TAU``       Gauss-Markov, output units and s
 ``flicker:S:B[:TAU_LOW:TAU_HIGH]``     flicker floor B (output units), flat over that tau band
 ``rate_ramp:S:R``                      rate ramp, output units/s
+``quantization:S:STEP``                integrating output quantised in STEP output units
+                                       (remainder carried): Q = STEP / (rate sqrt(12))
 ``temperature:START:WARMUP:TAU[:RAMP]`` profile: degC, degC, s, degC/s
 ``temperature_bias:S:C``               output units/degC
 ``temperature_scale:S:C``              relative/degC
@@ -207,6 +209,7 @@ def apply_effect(effects: Effects, spec: str) -> Effects:
         bias_instability=dict(effects.bias_instability),
         flicker=dict(effects.flicker),
         rate_ramp=dict(effects.rate_ramp),
+        quantization=dict(effects.quantization),
         temperature_bias=dict(effects.temperature_bias),
         temperature_scale=dict(effects.temperature_scale),
         scale_nonlinearity=dict(effects.scale_nonlinearity),
@@ -246,6 +249,13 @@ def apply_effect(effects: Effects, spec: str) -> Effects:
         if len(rest) != 2:
             raise ValueError(f"effect {spec!r}: expected rate_ramp:SENSOR:R")
         e.rate_ramp[_sensor(rest[0], spec)] = _floats(rest[1:], 1, spec)[0]
+    elif name == "quantization":
+        if len(rest) != 2:
+            raise ValueError(f"effect {spec!r}: expected quantization:SENSOR:STEP")
+        step = _floats(rest[1:], 1, spec)[0]
+        if not step > 0:
+            raise ValueError(f"effect {spec!r}: need STEP > 0 (output units)")
+        e.quantization[_sensor(rest[0], spec)] = step
     elif name == "bias_instability":
         if not rest:
             raise ValueError(f"effect {spec!r}: expected bias_instability:SENSOR:SIGMA:TAU")
@@ -335,6 +345,7 @@ def describe(effects: Effects) -> list[str]:
         "bias_instability",
         "flicker",
         "rate_ramp",
+        "quantization",
         "temperature_bias",
         "temperature_scale",
         "scale_nonlinearity",

@@ -71,7 +71,7 @@ class SimResult:
     def certificate_at(self, t_s: float) -> Certificate:
         """The true model at time ``t_s`` (faults with fault.t_s <= t_s applied)."""
         base = self.nominal if self.nominal is not None else self.certificate
-        return true_certificate(base, self.effects, self.faults, t_s)
+        return true_certificate(base, self.effects, self.faults, t_s, self.truth.rate_hz)
 
 
 class Simulator:
@@ -119,6 +119,8 @@ class Simulator:
                 state = sig * self._rng["flicker"].standard_normal(tc.shape[0])
                 self._flicker.append((sensor_index(sname), sig, tc, state))
         self._ramp = Effects.per_sensor(e.rate_ramp)
+        self._quant_step = Effects.per_sensor(e.quantization)
+        self._quant_carry = np.zeros(6)  #: accumulated output not yet emitted, u samples
         self._stuck_hold: dict[int, float] = {}
         self.meta = dict(meta or {})
         self._meta_rate: float | None = None
@@ -259,6 +261,8 @@ class Simulator:
                 scale[t >= f.t_s, j] = sigma[j] * f.value
             u += xi * scale
 
+        if np.any(self._quant_step) and n:
+            u = self._quantize_integrated(u)
         flags = np.zeros(n, dtype=np.uint16)
         if e.quantize:
             u = np.round(u)
@@ -326,16 +330,35 @@ class Simulator:
             meta=meta,
         )
 
+    def _quantize_integrated(self, u: np.ndarray) -> np.ndarray:
+        """Outputs as increments of the accumulated output rounded to the sensor's step q
+        (output units), the remainder carried to the next sample: the error is the first
+        difference of a uniform rounding error, IEEE 952 quantisation Q = q / (rate sqrt(12))."""
+        out = u.copy()
+        for j in np.flatnonzero(self._quant_step).tolist():
+            q = float(self._quant_step[j])
+            base = q * math.floor(u[0, j] / q)  # a multiple of q: keeps the sums small
+            acc = self._quant_carry[j] + np.cumsum(u[:, j] - base)
+            levels = q * np.round(acc / q)
+            out[:, j] = base + np.diff(levels, prepend=0.0)
+            self._quant_carry[j] = acc[-1] - levels[-1]
+        return out
+
     def _adc_range(self, triad: str) -> tuple[float, float]:
         r = self.effects.saturation_range(triad)
         return r if r is not None else _DEFAULT_ADC_RANGE
 
 
 def true_certificate(
-    certificate: Certificate, effects: Effects, faults: Sequence[Fault], t_s: float
+    certificate: Certificate,
+    effects: Effects,
+    faults: Sequence[Fault],
+    t_s: float,
+    rate_hz: float | None = None,
 ) -> Certificate:
     """The model the simulation follows at ``t_s``: faults applied, representable effects
-    (temperature, nonlinearity, g-sensitivity, bias drift, noise level) written in."""
+    (temperature, nonlinearity, g-sensitivity, bias drift, noise terms) written in; the
+    quantisation Q (u s) of a step needs the sample rate ``rate_hz`` (Hz)."""
     cert = apply_faults(certificate, faults, t_s)
     e = effects
     for k, name in enumerate(("gyro", "accel")):
@@ -375,6 +398,9 @@ def true_certificate(
         ramp = Effects.per_sensor(e.rate_ramp)[cols]
         if np.any(ramp):
             tri.noise.rate_ramp = np.abs(ramp)
+        step = Effects.per_sensor(e.quantization)[cols]
+        if np.any(step) and rate_hz is not None:
+            tri.noise.quantization = step / (rate_hz * math.sqrt(12.0))
     return cert
 
 
@@ -403,7 +429,7 @@ def simulate(
     return SimResult(
         samples=block,
         truth=trajectory,
-        certificate=true_certificate(certificate, effects, faults, t_end),
+        certificate=true_certificate(certificate, effects, faults, t_end, trajectory.rate_hz),
         faults=faults,
         effects=effects,
         nominal=certificate,
