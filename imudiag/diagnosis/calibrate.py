@@ -43,11 +43,11 @@ from .gyro_fit import (
     RotationPair,
     earth_rate_observable,
     gyro_sample_var,
-    predict_end_directions,
     rest_bias,
     rotation_fit,
+    stack_pairs,
 )
-from .holdout import judge, rotation_leave_one_out
+from .holdout import direction_errors, judge, rms, rotation_leave_one_out
 from .intervals import QuasiStaticInterval
 from .known_rate import classify_plateaus
 from .params import TriadFit, certificate_vector, limit_vector, sensor_of, undetermined_fit
@@ -256,16 +256,12 @@ def accel_norm_spread(
 
 
 def _rotation_rms_deg(gyro: TriadModel, pairs: list[RotationPair]) -> float | None:
+    """RMS angle (deg) between the measured and the gyro-predicted gravity direction after
+    each motion, with ``gyro``'s correction; None without motions."""
     if not pairs:
         return None
-    from .gyro_fit import stack_pairs
-
-    stack = stack_pairs(gyro, pairs)
-    up0 = np.array([p.up0 for p in pairs])
-    up1 = np.array([p.up1 for p in pairs])
-    pred = predict_end_directions(stack, np.linalg.inv(gyro.n_matrix())[None], up0)[0]
-    r = np.linalg.norm(up1 - pred, axis=1)
-    return float(math.degrees(float(np.sqrt(np.mean(r * r)))))
+    err = direction_errors(pairs, stack_pairs(gyro, pairs), np.linalg.inv(gyro.n_matrix()))
+    return math.degrees(rms(err))
 
 
 def _noise_density(

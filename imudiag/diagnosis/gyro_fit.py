@@ -141,10 +141,6 @@ class RotationFitResult:
     excess_var: float = 0.0
     #: prediction error of the ``predict`` motion against this fit, sigma (NaN: not asked)
     predicted_z: float = float("nan")
-    #: (3, 3) N^-1 of the fit (shape, and frame when fitted), for predictions
-    ninv: np.ndarray | None = None
-    #: (npar,) the fitted parameters, the ``start`` of a refit without one motion
-    start: np.ndarray | None = None
     #: (pairs, npar) all fitted parameters (shape, frame) with each motion left out, by the
     #: deletion formula of :mod:`.robust`; NaN rows: the motion alone carries a direction
     loo_params: np.ndarray | None = None
@@ -234,7 +230,6 @@ def rotation_fit(
     max_iter: int = 6,
     scale_by_residual: bool = True,
     predict: RotationPair | None = None,
-    start: np.ndarray | None = None,
 ) -> RotationFitResult:
     """Fit the gyro shape (and with ``fit_frame`` its rotation against the accelerometers).
 
@@ -246,8 +241,6 @@ def rotation_fit(
     ``predict``: a motion not in the fit; its prediction error in sigma (its noise, the
     robust excess scatter of the fitted motions and the fit's uncertainty) goes to
     ``predicted_z``, on the scale of :attr:`RotationFitResult.point_z`.
-    ``start``: deviation (npar,) to start from (default the certificate's shape), e.g.
-    the fit to all motions when refitting without one.
     """
     shape_c, q_c = shape_of_triad(gyro)
     lim = limit_vector(gyro)[3:] / np.concatenate([gyro.scale_factor, np.ones(3)])
@@ -280,7 +273,7 @@ def rotation_fit(
         j = ((pred[1:] - pred[0][None]) / h).reshape(npar, -1).T
         return r, j, float(np.sum(r * r * wgt) + np.sum(prior_prec * x * x))
 
-    x = np.zeros(npar) if start is None else np.array(start, dtype=float)
+    x = np.zeros(npar)
     res, jac, cost = evaluate(x)
     lam = 1e-6
     done = False
@@ -356,8 +349,6 @@ def rotation_fit(
         point_z=point_z,
         excess_var=excess,
         predicted_z=predicted_z,
-        ninv=ninv_of(x[None])[0],
-        start=x,
         loo_params=loo_params,
         loo_var=loo_var,
     )
