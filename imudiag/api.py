@@ -98,8 +98,9 @@ def calibrate(
     :class:`~imudiag.diagnosis.calibrate.CalibrationResult`: ``.certificate`` (save it
     with ``.save(path)``), ``.summary()`` (the ``--json`` summary) and
     ``.generalisation`` (the held-out check; ``generalises`` False means the command
-    would refuse to write it). Raises :class:`~imudiag.errors.BadInput` when the
-    recording cannot calibrate.
+    would refuse to write it), ``.gyro_generalisation`` (the same for the gyros'
+    rotation calibration) and ``.refusals()`` (the reasons of the checks that failed).
+    Raises :class:`~imudiag.errors.BadInput` when the recording cannot calibrate.
     """
     return calibrate_recording(
         data,

@@ -99,16 +99,22 @@ def run(args: argparse.Namespace) -> int:
         plots = [str(p) for p in written]
     noise_report = result.noise or {}
     check = result.generalisation or {}
-    refused = check.get("generalises") is False
+    gcheck = result.gyro_generalisation or {}
+    reasons = result.refusals()
+    refused = bool(reasons)
     if refused:
         result.certificate.device["warning"] = (
-            f"written with --force: the calibration does not generalise: {check['reason']}"
+            f"written with --force: the calibration does not generalise: {'; '.join(reasons)}"
         )
-    elif check.get("generalises") is None and check.get("reason"):
-        result.certificate.device["calibration_check"] = check["reason"]
+    else:
+        unchecked = [
+            c["reason"] for c in (check, gcheck) if c.get("generalises") is None and c.get("reason")
+        ]
+        if unchecked:
+            result.certificate.device["calibration_check"] = "; ".join(unchecked)
     if refused and not args.force:
         print(
-            f"imudiag calibrate: refused: {args.log}: {check['reason']}; nothing written "
+            f"imudiag calibrate: refused: {args.log}: {'; '.join(reasons)}; nothing written "
             f"(--force writes it with a warning)",
             file=sys.stderr,
         )
@@ -170,17 +176,20 @@ def run(args: argparse.Namespace) -> int:
         )
     for line in noise_lines(noise_report):
         print(line, file=out)
-    if check.get("leave_one_out_rms") is not None:
-        print(
-            f"held-out check: {check['quantity']} rms {check['leave_one_out_rms']:.3e} "
-            f"leaving each of "
-            f"{check['held_out']} intervals out (in-sample {check['in_sample_rms']:.3e})",
-            file=out,
-        )
+    for c, what in ((check, "intervals"), (gcheck, "motions")):
+        if c.get("leave_one_out_rms") is not None:
+            print(
+                f"held-out check: {c['quantity']} rms {c['leave_one_out_rms']:.3e} "
+                f"leaving each of "
+                f"{c['held_out']} {what} out (in-sample {c['in_sample_rms']:.3e})",
+                file=out,
+            )
     if refused:
         print(f"WARNING: {result.certificate.device['warning']}", file=sys.stderr)
-    elif check.get("reason"):
-        print(f"  note: generalisation {check['reason']}", file=out)
+    else:
+        for c in (check, gcheck):
+            if c.get("reason"):
+                print(f"  note: generalisation {c['reason']}", file=out)
     for r in result.rejected():
         what = (
             f"set aside {r['point']}"

@@ -39,15 +39,19 @@ from ..reports import CALIBRATION_FORMAT, header
 from .config import DiagnosisConfig
 from .gauge import n_symmetric, p_matrix, shape_of_triad, small_rotation
 from .gyro_fit import (
+    RotationFitResult,
     RotationPair,
     earth_rate_observable,
-    predict_end_directions,
+    gyro_sample_var,
     rest_bias,
     rotation_fit,
+    stack_pairs,
 )
+from .holdout import direction_errors, judge, rms, rotation_leave_one_out
 from .intervals import QuasiStaticInterval
 from .known_rate import classify_plateaus
 from .params import TriadFit, certificate_vector, limit_vector, sensor_of, undetermined_fit
+from .robust import reject_outliers
 from .scalar_fit import (
     NormalEquations,
     exact_fit,
@@ -55,7 +59,13 @@ from .scalar_fit import (
     normal_equation_fit,
     robust_exact_fit,
 )
-from .window import count_rotations, distinct_attitudes, interval_labels, rotation_pairs
+from .window import (
+    count_rotations,
+    distinct_attitudes,
+    interval_labels,
+    motion_labels,
+    rotation_pairs,
+)
 
 #: Prior standard deviation (in limits) of the calibration fits: practically none.
 CALIBRATION_PRIOR = 1e4
@@ -152,6 +162,9 @@ class CalibrationResult:
     #: held-out check (:func:`_leave_one_out`) of the accelerometers (of the gyros with a known
     #: rate), None where not run
     generalisation: dict[str, Any] | None = None
+    #: held-out check of the MEMS gyros' rotation calibration
+    #: (:func:`.holdout.rotation_leave_one_out`), None where not run
+    gyro_generalisation: dict[str, Any] | None = None
     #: the known-rate route: rate (rad/s), plateaus used and set aside, |w|/rate - 1 spreads
     known_rate: dict[str, Any] | None = None
     #: the unit's white noise measured from the recording beside the certificate's (the
@@ -184,8 +197,17 @@ class CalibrationResult:
             "undetermined": self.undetermined,
             "rejected": self.rejected(),
             "generalisation": self.generalisation,
+            "gyro_generalisation": self.gyro_generalisation,
             "known_rate": self.known_rate,
         }
+
+    def refusals(self) -> list[str]:
+        """Why the calibration does not generalise (the held-out checks that failed), or []."""
+        return [
+            c["reason"]
+            for c in (self.generalisation, self.gyro_generalisation)
+            if c is not None and c.get("generalises") is False
+        ]
 
     def rejected(self) -> list[dict]:
         """Intervals (or motions) the fits rejected as outliers, with the triad and why."""
@@ -249,28 +271,22 @@ def accel_norm_spread(
     return spread(accel_norm_residuals(accel, intervals, gravity))
 
 
-def _rotation_residuals(gyro: TriadModel, pairs: list[RotationPair]) -> np.ndarray:
-    """|measured - predicted| unit gravity direction after each rotation (rad, small angle)."""
-    from .gyro_fit import stack_pairs
-
-    stack = stack_pairs(gyro, pairs)
-    up0 = np.array([p.up0 for p in pairs])
-    up1 = np.array([p.up1 for p in pairs])
-    pred = predict_end_directions(stack, np.linalg.inv(gyro.n_matrix())[None], up0)[0]
-    return np.asarray(np.linalg.norm(up1 - pred, axis=1))
-
-
 def rotation_residuals_deg(gyro: TriadModel, pairs: list[RotationPair]) -> np.ndarray:
     """Angle (deg) between the gravity direction measured after each rotation and the one
-    predicted by integrating the rotation with ``gyro``'s correction."""
-    return np.degrees(_rotation_residuals(gyro, pairs)) if pairs else np.zeros(0)
+    predicted by integrating the rotation with ``gyro``'s correction (the held-out check's
+    measure, :func:`.holdout.direction_errors`)."""
+    if not pairs:
+        return np.zeros(0)
+    ninv = np.linalg.inv(gyro.n_matrix())
+    return np.degrees(direction_errors(pairs, stack_pairs(gyro, pairs), ninv))
 
 
 def _rotation_rms_deg(gyro: TriadModel, pairs: list[RotationPair]) -> float | None:
+    """RMS angle (deg) between the measured and the gyro-predicted gravity direction after
+    each motion, with ``gyro``'s correction; None without motions."""
     if not pairs:
         return None
-    r = _rotation_residuals(gyro, pairs)
-    return float(math.degrees(float(np.sqrt(np.mean(r * r)))))
+    return math.degrees(rms(np.radians(rotation_residuals_deg(gyro, pairs))))
 
 
 def _noise_density(
@@ -397,9 +413,10 @@ def calibrate(
     gcovs = np.array([iv.gyro_cov for iv in intervals])
     w_in = like.earth_rate / gyr_like.unit_to_si
     pairs = rotation_pairs(like, acc, intervals)
-    rot_before = _rotation_rms_deg(gyr_like, pairs)
     rotations = count_rotations(pairs, cfg.attitude_separation_deg)
     gyr = new.gyro
+    used_pairs = pairs
+    gyro_generalisation = None
     mode = cfg.gyro_mode
     if mode == "auto":
         mode = "earth-rate" if earth_rate_observable(like) else "rotation"
@@ -446,15 +463,19 @@ def calibrate(
         _set_from_fit(gyr, gyr_like, gyr_fit)
     else:
         n_holder: dict[str, np.ndarray] = {}
+        rot_holder: dict[str, RotationFitResult] = {}
 
         def once(pf: np.ndarray, probe: bool) -> TriadFit:
-            fit, n_holder["n"] = _gyro_rest_rotation(
+            fit, n_holder["n"], n_holder["kept"], rot = _gyro_rest_rotation(
                 like, gyr_like, intervals, pairs, cfg, pf, probe
             )
+            if rot is not None:
+                rot_holder["rot"] = rot
             return fit
 
-        gyr_fit, _ = _pinned_fit(once, CALIBRATION_MIN_DOF)
+        gyr_fit, gprior = _pinned_fit(once, CALIBRATION_MIN_DOF)
         n_g = n_holder["n"]
+        used_pairs = [p for p, k in zip(pairs, n_holder["kept"], strict=True) if k]
         if gyr_fit.extra.get("frame_rad") is not None:
             # N from the final estimates, so pinned parameters are literally the --like values
             shape_c, q_c = shape_of_triad(gyr_like)
@@ -464,6 +485,16 @@ def calibrate(
             n_g = p_matrix(shape_c + dev) @ small_rotation(np.zeros(3) + frame) @ q_c
         gyr.bias = gyr_fit.estimate[:3].copy()
         gyr.scale_factor_error, gyr.misalignment = fields_from_n(n_g, gyr_like.scale_factor)
+        if gyr_fit.extra.get("frame_rad") is not None and "rot" in rot_holder:
+            gyro_generalisation = rotation_leave_one_out(
+                like,
+                used_pairs,
+                rot_holder["rot"],
+                gprior != PINNED_PRIOR,
+                bool(gyr_fit.extra["frame_applied"]),
+                ratio,
+                np.linalg.inv(n_g),
+            )
     gyr.noise = _with_density(
         gyr_like.noise, _noise_density(gyr_like, intervals, rate, noise_density)
     )
@@ -479,7 +510,8 @@ def calibrate(
     )
     new.device = device
     new.source = None
-    rot_after = _rotation_rms_deg(gyr, pairs)
+    rot_before = _rotation_rms_deg(gyr_like, used_pairs)
+    rot_after = _rotation_rms_deg(gyr, used_pairs)
     mid_t = np.array([0.5 * (iv.t_start + iv.t_end) for iv in intervals])
     residuals: dict[str, dict[str, np.ndarray]] = {
         "accel_norm": {
@@ -488,11 +520,11 @@ def calibrate(
             "after": accel_norm_residuals(acc, intervals, like.gravity),
         }
     }
-    if pairs:
+    if used_pairs:  # the motions the calibration kept (rejected ones are listed apart)
         residuals["rotation"] = {
-            "t": np.array([float(p.t[-1]) for p in pairs]),
-            "before": rotation_residuals_deg(gyr_like, pairs),
-            "after": rotation_residuals_deg(gyr, pairs),
+            "t": np.array([float(p.t[-1]) for p in used_pairs]),
+            "before": rotation_residuals_deg(gyr_like, used_pairs),
+            "after": rotation_residuals_deg(gyr, used_pairs),
         }
     return CalibrationResult(
         certificate=new,
@@ -511,6 +543,7 @@ def calibrate(
         undetermined=_undetermined(acc_fit) + _undetermined(gyr_fit),
         generalisation=generalisation,
         residuals=residuals,
+        gyro_generalisation=gyro_generalisation,
     )
 
 
@@ -653,14 +686,6 @@ def calibrate_known_rate(
     )
 
 
-#: A calibration generalises when its leave-one-interval-out |a| residual is at most this
-#: many times its in-sample residual, beyond what its redundancy explains: a correct fit of
-#: p effective parameters to K points already predicts held-out points about K / (K - p)
-#: times worse than it fits them (in-sample residuals shrink by 1 - h, held-out ones grow
-#: by 1 / (1 - h), h = p / K the mean leverage), 4x for 12 plateaus and 9 parameters
-LOO_RATIO_LIMIT = 3.0
-
-
 def _leave_one_out(
     like: TriadModel,
     means: np.ndarray,
@@ -675,9 +700,8 @@ def _leave_one_out(
     or |w|/rate - 1 on a turntable; ``g_in`` the reference magnitude, input units).
 
     Each interval is predicted by the fit to all the others (same pinned
-    parameters). The calibration generalises when the held-out RMS is below the
-    uncalibrated RMS (``like``) and at most :data:`LOO_RATIO_LIMIT` times the
-    in-sample RMS times K / dof (what the redundancy explains); a fit that only
+    parameters). The calibration generalises by the rule of :func:`.holdout.judge`
+    (below the uncalibrated RMS, at most 3 K / dof times the in-sample RMS); a fit that only
     reproduces the holds it was made from (too few holds, one outlier carrying a
     parameter) fails, with the reason.
     """
@@ -718,49 +742,7 @@ def _leave_one_out(
                 continue
             held[i] = norm_err(model_of(f), means[i : i + 1])[0]
 
-    def rms(r: np.ndarray) -> float:
-        return float(np.sqrt(np.nanmean(r * r)))
-
-    checked = int(np.isfinite(held).sum())
-    dof = fit.dof if np.isfinite(fit.dof) and fit.dof > 0 else 1.0
-    limit = LOO_RATIO_LIMIT * max(1.0, k / min(max(dof, 1.0), float(k)))
-    out: dict[str, Any] = {
-        "in_sample_rms": rms(inside),
-        "leave_one_out_rms": rms(held) if checked else None,
-        "uncalibrated_rms": rms(before),
-        "held_out": checked,
-        "essential": essential,
-        "ratio_limit": limit,
-        "quantity": quantity,
-        "generalises": None,
-        "reason": "",
-    }
-    loo = out["leave_one_out_rms"]
-    if checked < 3:
-        out["reason"] = (
-            f"not checked: {essential} of {k} intervals are essential (without any one of "
-            "them a parameter is unseen), too few redundant ones to hold out"
-        )
-    elif loo > out["uncalibrated_rms"]:
-        out["generalises"] = False
-        out["reason"] = (
-            f"held-out {quantity} rms {loo:.3g} is worse than without calibration "
-            f"({out['uncalibrated_rms']:.3g}): the fit does not predict holds it was not "
-            "made from"
-        )
-    elif loo > limit * max(out["in_sample_rms"], 1e-12):
-        out["generalises"] = False
-        out["reason"] = (
-            f"held-out {quantity} rms {loo:.3g} is {loo / out['in_sample_rms']:.1f}x the "
-            f"in-sample {out['in_sample_rms']:.3g} (limit {limit:.3g}x: {LOO_RATIO_LIMIT:g}x "
-            f"what {k} points for {k - fit.dof:.1f} parameters explain): the fit follows its "
-            "own holds"
-        )
-    else:
-        out["generalises"] = True
-    worst = int(np.nanargmax(np.abs(held))) if np.isfinite(held).any() else None
-    out["worst_interval"] = worst
-    return out
+    return judge(inside, held, before, k, fit.dof, essential, quantity)
 
 
 def _with_density(noise: Noise | None, density: np.ndarray) -> Noise:
@@ -777,10 +759,14 @@ def _gyro_rest_rotation(
     cfg: DiagnosisConfig,
     prior_factor: np.ndarray,
     probe: bool = False,
-) -> tuple[TriadFit, np.ndarray]:
+) -> tuple[TriadFit, np.ndarray, np.ndarray, RotationFitResult | None]:
     """MEMS gyro calibration: rest bias, then shape and frame from the rotations.
 
     ``prior_factor`` (9,): prior std in limits per parameter (the bias entries unused).
+    Unless ``probe``, motions that the fit to the others does not predict are rejected
+    (:func:`.robust.reject_outliers`, as the intervals of the exact fits) and listed in
+    the fit's ``extra["rejected"]``. Returns the fit, N (3, 3), the mask (pairs,) of
+    the motions it kept and the rotation fit to them (None without rotations).
     """
     ratio = cfg.determined_std_ratio
     gmeans = np.array([iv.gyro_mean for iv in intervals])
@@ -798,35 +784,58 @@ def _gyro_rest_rotation(
     extra: dict = {}
     moving = count_rotations(pairs, cfg.attitude_separation_deg) > 0
     dof = float("nan")
+    kept = np.ones(len(pairs), dtype=bool)
+    rot: RotationFitResult | None = None
     if moving:
-        sample_var = np.median(np.array([np.diag(iv.gyro_cov) for iv in intervals]), axis=0)
-        rot = rotation_fit(
-            gyr_like,
-            pairs,
-            sample_var,
-            like.earth_rate,
-            prior_factor=prior_factor[3:],
-            fit_frame=True,
-            max_iter=0 if probe else 30,
-            scale_by_residual=not probe,
-        )
+        sample_var = gyro_sample_var(intervals)
+
+        def once(
+            keep: np.ndarray, probe_i: int | None
+        ) -> tuple[RotationFitResult, np.ndarray | None, float, float]:
+            r = rotation_fit(
+                gyr_like,
+                [p for p, k in zip(pairs, keep, strict=True) if k],
+                sample_var,
+                like.earth_rate,
+                prior_factor=prior_factor[3:],
+                fit_frame=True,
+                max_iter=0 if probe else 30,
+                scale_by_residual=not probe,
+                predict=None if probe_i is None else pairs[probe_i],
+            )
+            return r, r.point_z, r.dof, r.predicted_z
+
+        rejected: list[dict] = []
+        note = ""
+        if probe:
+            rfit = once(kept, None)[0]
+        else:
+            rfit, kept, rejected, note = reject_outliers(
+                once, len(pairs), motion_labels(pairs), CALIBRATION_MIN_DOF
+            )
         scale = np.concatenate([gyr_like.scale_factor, np.ones(3)])
-        est[3:] = cert[3:] + rot.deviation * scale
-        std[3:] = np.sqrt(np.maximum(np.diag(rot.cov), 0.0)) * scale
-        assert rot.frame_cov is not None  # fit_frame=True: the frame rotation was fitted
-        frame_std = np.sqrt(np.maximum(np.diag(rot.frame_cov), 0.0))
+        est[3:] = cert[3:] + rfit.deviation * scale
+        std[3:] = np.sqrt(np.maximum(np.diag(rfit.cov), 0.0)) * scale
+        assert rfit.frame_cov is not None  # fit_frame=True: the frame rotation was fitted
+        frame_std = np.sqrt(np.maximum(np.diag(rfit.frame_cov), 0.0))
         # the frame rotation goes into N only where the rotations determine it as well as a
         # misalignment must be (a rotation fitted from 2 turns would be written as 0.3 rad)
         frame_ok = bool(np.all(frame_std <= ratio * gyr_like.limits.misalignment))
-        frame = rot.frame if frame_ok else np.zeros(3)
-        n_g = p_matrix(shape_c + rot.deviation) @ small_rotation(frame) @ q_c
+        frame = rfit.frame if frame_ok else np.zeros(3)
+        n_g = p_matrix(shape_c + rfit.deviation) @ small_rotation(frame) @ q_c
         extra = {
-            "frame_rad": [float(v) for v in rot.frame],
+            "frame_rad": [float(v) for v in rfit.frame],
             "frame_std_rad": [float(v) for v in frame_std],
             "frame_applied": frame_ok,
-            "rotation_rms_rad": rot.rms,
+            "rotation_rms_rad": rfit.rms,
+            "motions": int(kept.sum()),
         }
-        dof = rot.dof
+        if rejected:
+            extra["rejected"] = rejected
+        if note:
+            extra["outliers"] = note
+        dof = rfit.dof
+        rot = rfit
     determined = std <= ratio * limit
     for i in range(9):
         if not determined[i]:
@@ -848,7 +857,7 @@ def _gyro_rest_rotation(
         extra=extra,
         dof=dof,
     )
-    return fit, n_g
+    return fit, n_g, kept, rot
 
 
 __all__ = [

@@ -19,6 +19,7 @@ from the certificate's noise whether the stationary scalar fit with
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,8 +27,9 @@ import numpy as np
 from ..certificate import Certificate, TriadModel
 from ..rotations import ordered_product, quat_matrix, rotvec_quat
 from .gauge import p_matrix, shape_of_triad
+from .intervals import QuasiStaticInterval
 from .params import limit_vector
-from .robust import point_diagnostics
+from .robust import MAX_LEVERAGE, point_diagnostics
 
 #: Floor of the direction residual (rad): integration and modelling resolution.
 DIRECTION_FLOOR = 1e-4
@@ -95,6 +97,12 @@ def rest_bias(
     return est, np.sqrt(noise_var + earth**2 / 3.0)
 
 
+def gyro_sample_var(intervals: list[QuasiStaticInterval]) -> np.ndarray:
+    """Per-sample gyro output variance (3,) of a session, output units^2: the median over
+    its still intervals (a calibration's motions are weighted with it)."""
+    return np.median(np.array([np.diag(iv.gyro_cov) for iv in intervals]), axis=0)
+
+
 # ---------------------------------------------------------------------------
 # rotations between quasi-static intervals
 
@@ -127,6 +135,17 @@ class RotationFitResult:
     frame_cov: np.ndarray | None = None  #: (3, 3) covariance of ``frame``, rad^2 (fit_frame only)
     #: (pairs, 6) ``deviation`` with each motion left out (NaN where it alone carries one)
     loo_deviation: np.ndarray | None = None
+    #: (pairs,) robustly standardised deletion residual of each motion, sigma (:mod:`.robust`)
+    point_z: np.ndarray | None = None
+    #: robust excess variance of a direction component beyond the motions' noise, rad^2
+    excess_var: float = 0.0
+    #: prediction error of the ``predict`` motion against this fit, sigma (NaN: not asked)
+    predicted_z: float = float("nan")
+    #: (pairs, npar) all fitted parameters (shape, frame) with each motion left out, by the
+    #: deletion formula of :mod:`.robust`; NaN rows: the motion alone carries a direction
+    loo_params: np.ndarray | None = None
+    #: (pairs, npar) their variances (scaled as ``cov``); inf where the row is NaN
+    loo_var: np.ndarray | None = None
 
 
 def _block_increments(inc: np.ndarray, block_rad: float) -> np.ndarray:
@@ -174,6 +193,33 @@ def predict_end_directions(
     return np.einsum("pnji,nj->pni", c, up0)
 
 
+def direction_var(
+    gyro: TriadModel,
+    pairs: list[RotationPair],
+    path: np.ndarray,
+    gyro_sample_var: np.ndarray,
+    earth_rate_si: float,
+) -> np.ndarray:
+    """Variance (n,) of each component of a motion's end direction from noise alone, rad^2.
+
+    ``path`` (n,) the motions' rotation path lengths (rad); the rest as :func:`rotation_fit`.
+    """
+    durations = np.array([p.t[-1] - p.t[0] for p in pairs])
+    s_rad2 = float(np.mean(gyro_sample_var / gyro.scale_factor**2)) * gyro.unit_to_si**2
+    mean_dt = np.array([np.mean(np.diff(p.t)) if p.t.shape[0] > 1 else 0.0 for p in pairs])
+    bias_rad2 = np.array(
+        [float(np.mean(p.bias_var / gyro.scale_factor**2)) * gyro.unit_to_si**2 for p in pairs]
+    )
+    return (
+        (ROTATION_REL_FLOOR * path) ** 2
+        + np.array([p.dir_var for p in pairs]) * 2.0
+        + s_rad2 * mean_dt * durations
+        + bias_rad2 * durations**2
+        + (earth_rate_si * durations) ** 2
+        + DIRECTION_FLOOR**2
+    )
+
+
 def rotation_fit(
     gyro: TriadModel,
     pairs: list[RotationPair],
@@ -183,6 +229,7 @@ def rotation_fit(
     fit_frame: bool = False,
     max_iter: int = 6,
     scale_by_residual: bool = True,
+    predict: RotationPair | None = None,
 ) -> RotationFitResult:
     """Fit the gyro shape (and with ``fit_frame`` its rotation against the accelerometers).
 
@@ -191,6 +238,9 @@ def rotation_fit(
     certificate's shape; the frame rotation has a prior of 0.1 rad.
     ``scale_by_residual``: inflate the covariance by chi^2 / dof when above 1.
     ``max_iter=0`` gives the covariance of the linearisation at the certificate.
+    ``predict``: a motion not in the fit; its prediction error in sigma (its noise, the
+    robust excess scatter of the fitted motions and the fit's uncertainty) goes to
+    ``predicted_z``, on the scale of :attr:`RotationFitResult.point_z`.
     """
     shape_c, q_c = shape_of_triad(gyro)
     lim = limit_vector(gyro)[3:] / np.concatenate([gyro.scale_factor, np.ones(3)])
@@ -200,23 +250,8 @@ def rotation_fit(
     stack = stack_pairs(gyro, pairs)
     up0 = np.array([p.up0 for p in pairs])
     up1 = np.array([p.up1 for p in pairs])
-    durations = np.array([p.t[-1] - p.t[0] for p in pairs])
     # per-pair variance of a direction component
-    s_rad2 = float(np.mean(gyro_sample_var / gyro.scale_factor**2)) * gyro.unit_to_si**2
-    mean_dt = np.array([np.mean(np.diff(p.t)) if p.t.shape[0] > 1 else 0.0 for p in pairs])
-    bias_rad2 = np.array(
-        [float(np.mean(p.bias_var / gyro.scale_factor**2)) * gyro.unit_to_si**2 for p in pairs]
-    )
-    # rotation path length of each motion, rad
-    angles = stack["path"]
-    var = (
-        (ROTATION_REL_FLOOR * angles) ** 2
-        + np.array([p.dir_var for p in pairs]) * 2.0
-        + s_rad2 * mean_dt * durations
-        + bias_rad2 * durations**2
-        + (earth_rate_si * durations) ** 2
-        + DIRECTION_FLOOR**2
-    )
+    var = direction_var(gyro, pairs, stack["path"], gyro_sample_var, earth_rate_si)
     wgt = np.repeat(1.0 / var, 3)
 
     def ninv_of(x: np.ndarray) -> np.ndarray:
@@ -271,11 +306,32 @@ def rotation_fit(
     chi2 = float(np.sum(res * res * wgt))
     # two observations per motion (a direction), less the parameters the data determine
     dof = 2 * len(pairs) - float(np.trace(cov @ info))
-    loo = None
+    loo = loo_params = loo_var = None
+    point_z = None
+    excess = 0.0
     if pairs and max_iter > 0:
         groups = [np.arange(3 * i, 3 * i + 3) for i in range(len(pairs))]
         diag = point_diagnostics(-jac, res, 1.0 / wgt, cov, groups=groups, weights=wgt)
         loo = x[None, :6] + diag.shift[:, :6]
+        loo_params = x[None, :] + diag.shift
+        loo_var = _deletion_variances(jac * np.sqrt(wgt)[:, None], cov, groups)
+        if dof > 0.5 and scale_by_residual:
+            loo_var = loo_var * max(1.0, chi2 / dof)
+        point_z, excess = diag.z, diag.excess_var
+    predicted_z = float("nan")
+    if predict is not None:
+        predicted_z = _prediction_z(
+            gyro,
+            predict,
+            ninv_of,
+            x,
+            h,
+            jac,
+            1.0 / wgt,
+            excess,
+            prior_prec,
+            (gyro_sample_var, earth_rate_si),
+        )
     if dof > 0.5 and scale_by_residual:
         cov = cov * max(1.0, chi2 / dof)
     ang = [math.degrees(math.acos(float(np.clip(np.dot(p.up0, p.up1), -1.0, 1.0)))) for p in pairs]
@@ -290,12 +346,74 @@ def rotation_fit(
         dof=dof,
         frame_cov=cov[6:9, 6:9] if fit_frame else None,
         loo_deviation=loo,
+        point_z=point_z,
+        excess_var=excess,
+        predicted_z=predicted_z,
+        loo_params=loo_params,
+        loo_var=loo_var,
     )
+
+
+def _deletion_variances(a_all: np.ndarray, cov: np.ndarray, groups: list[np.ndarray]) -> np.ndarray:
+    """Diagonal (G, p) of the unscaled covariance with each group of rows left out.
+
+    ``a_all`` (n, p) the weighted Jacobian, ``cov`` (p, p) the unscaled covariance of the
+    fit to all rows: removing rows A gives C + C A^T (I - A C A^T)^-1 A C (Woodbury);
+    inf where the group's leverage exceeds :data:`.robust.MAX_LEVERAGE`.
+    """
+    out = np.full((len(groups), cov.shape[0]), np.inf)
+    for k, rows in enumerate(groups):
+        a = a_all[rows]
+        hk = a @ cov @ a.T
+        hk = 0.5 * (hk + hk.T)
+        if np.linalg.eigvalsh(hk)[-1] > MAX_LEVERAGE:
+            continue
+        m = cov @ a.T
+        out[k] = np.diag(cov) + np.einsum(
+            "ij,ji->i", m, np.linalg.solve(np.eye(len(rows)) - hk, m.T)
+        )
+    return out
+
+
+def _prediction_z(
+    gyro: TriadModel,
+    pair: RotationPair,
+    ninv_of: Callable[[np.ndarray], np.ndarray],
+    x: np.ndarray,
+    h: float,
+    jac: np.ndarray,
+    noise_var: np.ndarray,
+    excess: float,
+    prior_prec: np.ndarray,
+    noise: tuple[np.ndarray, float],
+) -> float:
+    """Prediction error (sigma) of a motion left out of the fit at ``x``.
+
+    Its end-direction residual (3,) against the covariance of its noise, the
+    robust ``excess`` scatter (rad^2) and the fit's parameter uncertainty (the
+    fitted motions weighted with that excess too), scaled per component as the
+    deletion residuals of :func:`.robust.point_diagnostics` are.
+    """
+    npar = x.shape[0]
+    stack = stack_pairs(gyro, [pair])
+    sets = np.vstack([x, x + h * np.eye(npar)])
+    pred = predict_end_directions(stack, ninv_of(sets), pair.up0[None])[:, 0]
+    r = pair.up1 - pred[0]
+    jp = ((pred[1:] - pred[0][None]) / h).T  # (3, npar)
+    w_rob = 1.0 / (noise_var + excess)
+    cov_rob = np.linalg.pinv(jac.T @ (jac * w_rob[:, None]) + np.diag(prior_prec))
+    nv = float(direction_var(gyro, [pair], stack["path"], *noise)[0])
+    total = (nv + excess) * np.eye(3) + jp @ cov_rob @ jp.T
+    u = float(r @ np.linalg.solve(total, r))
+    return math.sqrt(max(u, 0.0) / 3.0)
 
 
 __all__ = [
     "RotationPair",
     "RotationFitResult",
+    "direction_var",
+    "gyro_sample_var",
+    "predict_end_directions",
     "rotation_fit",
     "rest_bias",
     "earth_rate_observable",

@@ -270,8 +270,9 @@ def calibrate_recording(
     holds the unit's white noise measured from the recording.
 
     ``like`` gives scale factors, units, limits and starting values. The result's
-    ``generalisation`` says whether the held-out check accepts the calibration;
-    nothing is written here. ``progress``: told how far each pass has got. Raises
+    ``generalisation`` and ``gyro_generalisation`` say whether the held-out checks
+    accept the calibration (``refusals()``: why not); nothing is written here.
+    ``progress``: told how far each pass has got. Raises
     :class:`~imudiag.errors.BadInput` when the recording cannot calibrate (no still
     interval, too few attitudes).
     """

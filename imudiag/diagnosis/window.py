@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..certificate import Certificate, TriadModel
+from .changepoint import window_exact_fit
 from .config import DiagnosisConfig
 from .gauge import p_matrix, shape_of_triad
 from .gyro_fit import (
@@ -31,7 +32,7 @@ from .intervals import QuasiStaticInterval
 from .known_rate import classify_plateaus
 from .params import TriadFit, certificate_vector, limit_vector, undetermined_fit
 from .predicates import held_back
-from .scalar_fit import exact_fit, linear_fit
+from .scalar_fit import linear_fit
 
 
 @dataclass
@@ -156,19 +157,20 @@ def accel_window_fit(
             tri, means, covs, counts, g_in, config.determined_std_ratio, config.prior_factor
         )
     else:
-        # no outlier rejection in a sliding window: a unit that changed inside it makes
-        # the older intervals disagree with the newer ones, and dropping some of them
-        # leaves a mixture that names the wrong parameter; a single interval is kept from
-        # making a fault by the influence rule of the predicates instead
-        fit = exact_fit(
+        # outliers rejected unless the window spans a step change (a unit that changed
+        # inside it: dropping some of its intervals would leave a mixture that names the
+        # wrong parameter); a single interval is kept from making a fault by the
+        # influence rule of the predicates
+        fit = window_exact_fit(
             tri,
             means,
             mvar,
             g_in,
+            interval_labels(intervals),
+            config.min_dof,
             prior_factor=config.prior_factor,
             determined_std_ratio=config.determined_std_ratio,
         )
-        fit.point_labels = interval_labels(intervals)
     if method != "linear":
         fit.require_redundancy(fit.dof, config.min_dof, range(9), f"{len(intervals)} intervals")
     _with_reason(
@@ -280,16 +282,17 @@ def gyro_window_fit(
         _with_reason(fit, range(9), f"{attitudes} distinct attitude(s); |w| = Earth rate (eq. 8)")
         return fit, 0
     if mode == "earth-rate":
-        fit = exact_fit(
+        fit = window_exact_fit(
             tri,
             means,
             mvar,
             w_in,
+            interval_labels(intervals),
+            config.min_dof,
             prior_factor=config.prior_factor,
             determined_std_ratio=config.determined_std_ratio,
             method="exact-earth-rate",
         )
-        fit.point_labels = interval_labels(intervals)
         fit.require_redundancy(fit.dof, config.min_dof, range(9), f"{len(intervals)} intervals")
         _with_reason(
             fit,
@@ -382,7 +385,8 @@ def known_rate_window_fit(
 
     Plateaus off the rate (stopped, another speed) are left out and listed
     (``plateaus_set_aside``); the others are fitted with the table rate as the
-    magnitude (no outlier rejection in a window, see :func:`accel_window_fit`).
+    magnitude (outliers rejected unless the window spans a step change, as in
+    :func:`accel_window_fit`).
     """
     tri = cert.gyro
     assert config.known_rate_rad_s is not None
@@ -398,16 +402,17 @@ def known_rate_window_fit(
     else:
         means, mvar, _covs, _counts = _stack(plateaus, "gyro")
         means = _temperature_corrected(tri, means, [iv.temp for iv in plateaus])
-        fit = exact_fit(
+        fit = window_exact_fit(
             tri,
             means,
             mvar,
             rate_in,
+            interval_labels(plateaus),
+            config.min_dof,
             prior_factor=config.prior_factor,
             determined_std_ratio=config.determined_std_ratio,
             method="exact-known-rate",
         )
-        fit.point_labels = interval_labels(plateaus)
         fit.require_redundancy(fit.dof, config.min_dof, range(9), f"{len(plateaus)} plateaus")
         _with_reason(fit, range(9), f"{len(plateaus)} plateau(s) at the known rate")
     if set_aside:
