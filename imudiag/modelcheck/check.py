@@ -788,72 +788,24 @@ def _noise_effects(
         z = f.significance()
         terms = f.model.terms
         common = {"model": f.model.name, "density": terms["density"]}
+        # each named term: the effect's name, its coefficient and the coefficient's unit
+        # (IEEE Std 952 terms in the sensor's output unit u)
+        units = {
+            "quantization": f"{u} s",
+            "bias_instability": u,
+            "bias_drift": f"{u}/sqrt(s)",
+            "rate_ramp": f"{u}/s",
+        }
         for name in f.terms_named:
-            if name == "quantization":
-                out.append(
-                    Effect(
-                        "quantization",
-                        triad,
-                        s,
-                        terms["quantization"],
-                        f"{u} s",
-                        z,
-                        heldout=f.gain_nats,
-                        extra=dict(common),
-                    )
-                )
-            elif name == "bias_instability":
-                out.append(
-                    Effect(
-                        "bias_instability",
-                        triad,
-                        s,
-                        terms["bias_instability"],
-                        u,
-                        z,
-                        heldout=f.gain_nats,
-                        extra=dict(common),
-                    )
-                )
-            elif name == "bias_drift":
-                out.append(
-                    Effect(
-                        "bias_drift",
-                        triad,
-                        s,
-                        terms["bias_drift"],
-                        f"{u}/sqrt(s)",
-                        z,
-                        heldout=f.gain_nats,
-                        extra=dict(common),
-                    )
-                )
-            elif name == "rate_ramp":
-                out.append(
-                    Effect(
-                        "rate_ramp",
-                        triad,
-                        s,
-                        terms["rate_ramp"],
-                        f"{u}/s",
-                        z,
-                        heldout=f.gain_nats,
-                        extra=dict(common),
-                    )
-                )
+            if name in units:
+                effect, value, extra = name, terms[name], dict(common)
+                unit = units[name]
             elif name == "gauss_markov":
-                out.append(
-                    Effect(
-                        "gauss_markov_bias",
-                        triad,
-                        s,
-                        terms["gauss_markov_sigma"],
-                        u,
-                        z,
-                        heldout=f.gain_nats,
-                        extra=dict(common, correlation_time=terms["gauss_markov_time"]),
-                    )
-                )
+                effect, value, unit = "gauss_markov_bias", terms["gauss_markov_sigma"], u
+                extra = dict(common, correlation_time=terms["gauss_markov_time"])
+            else:
+                continue
+            out.append(Effect(effect, triad, s, value, unit, z, heldout=f.gain_nats, extra=extra))
     return out
 
 
