@@ -377,8 +377,9 @@ class QuasiStaticDetector:
     ) -> np.ndarray:
         """Accelerometer windows (M,) whose mean stepped from the window before it, both
         still: a change no smooth motion makes (a ramp across two windows that pass the
-        variance test moves the mean by at most sqrt(12 L) sigma per window, L the variance
-        ratio limit), so a sensor step or a knock, not an acceleration."""
+        variance test moves the mean by at most sqrt(12 (L - 3)) sigma from one window to
+        the next, L the variance ratio limit; the threshold, sqrt(12 L) sigma, keeps a
+        margin of 2 in the squares), so a sensor step or a knock, not an acceleration."""
         w = self.window
         s1, p1 = sums[:, 3:6], prev_sums[:, 3:6]
         p_mean = p1 / w
@@ -386,12 +387,7 @@ class QuasiStaticDetector:
         prev_still = np.sum(p_var / sigma2, axis=1) <= self.variance_ratio_limit
         step = (s1 - p1) / w
         size = np.sum(step * step / sigma2, axis=1)
-        return (
-            still
-            & prev_still
-            & (idx + 1 >= 2 * w)
-            & (size > 4.0 * 12.0 * self.variance_ratio_limit)
-        )
+        return still & prev_still & (idx + 1 >= 2 * w) & (size > 12.0 * self.variance_ratio_limit)
 
     def _starts(
         self, key: int, idx: np.ndarray, marks: list[tuple[np.ndarray, int]], span: int
