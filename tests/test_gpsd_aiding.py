@@ -104,9 +104,14 @@ def test_daemon_aided_by_real_gpsd(tmp_path):
                 # a healthy unit in motion: no fault; single epochs may fail at the 3-sigma
                 # threshold (the two streams' pacing jitter at 5 x real time adds to it)
                 assert not a["f0"]["fault"] and a["f0"]["failed"] <= 0.05 * a["f0"]["checked"]
-                # (the static path's own false alarms in turns without aiding are issue 15's
-                # "rest is rest" item, not judged here)
                 assert not [f for f in used["faults"] if f.get("source") == "moving_base"], used
+                # and the static path takes no manoeuvre of the drive for rest (issue 15,
+                # "rest is rest"): no fault at all
+                assert used["faults"] == [], used
+                # the lever arm is estimated (none configured), reported with its std
+                lev = a["lever_arm"]
+                assert lev["configured"] is False and len(a["lever_arm_m"]) == 3
+                assert len(lev["estimate_m"]) == 3 and len(lev["std_m"]) == 3
                 accel_checked = used["f0"]["accel"]["checked"]
                 # gpsd goes away: the status says why, the static checks carry on at stops
                 gf.terminate()

@@ -29,7 +29,8 @@ from ..samples import SampleBlock
 from .align import estimate_latency
 from .gpsd_client import GpsdClient
 from .isolation import IsolationTracker, isolate
-from .moving import MovingConfig, accel_noise, epoch_observations
+from .lever_arm import LeverArmEstimate
+from .moving import MovingConfig, accel_noise, epoch_observations, estimate_lever_arm
 from .specific_force import gnss_epochs, imu_epochs
 from .tpv import track_from_reports
 
@@ -87,6 +88,9 @@ class LiveAiding:
         self.latency_note = "configured" if self.cfg.latency_s is not None else "not yet estimated"
         self.windows = 0
         self.last_batch: dict = {}  #: GNSS epochs of the last batch: total, valid, rejected
+        #: the lever arm estimate over the buffer (None before the first), and the one used
+        self.lever_estimate: LeverArmEstimate | None = None
+        self.lever_arm_m = np.asarray(self.cfg.lever_arm_m or (0.0, 0.0, 0.0), dtype=float)
 
     def set_certificate(self, cert: Certificate) -> None:
         """A reloaded certificate: the history corrected with the old one is dropped."""
@@ -151,6 +155,16 @@ class LiveAiding:
                 self.latency_note = f"estimated (correlation {est.correlation:.2f})"
             elif not self.latency_determined:
                 self.latency_note = est.reason
+            sig = accel_noise(self._acc, acc.noise_sigma(rate)) / acc.scale_factor * acc.unit_to_si
+            plain = imu_epochs(
+                t_utc, f_si, ep.t0, ep.t1, gyro_si=w_si, sigma_sample_si=sig,
+                latency_s=self.latency_s,
+            )  # fmt: skip
+            self.lever_estimate = estimate_lever_arm(
+                t_utc, w_si, self._gyr, self.cert.gyro, ep, plain, self.latency_s, rate
+            )
+            if cfg.lever_arm_m is None:
+                self.lever_arm_m = self.lever_estimate.used()
         sig_raw = accel_noise(self._acc, acc.noise_sigma(rate))
         sig_si = sig_raw / acc.scale_factor * acc.unit_to_si
         im = imu_epochs(
@@ -162,7 +176,7 @@ class LiveAiding:
             accel_raw=self._acc,
             sigma_sample_si=sig_si,
             latency_s=self.latency_s,
-            lever_arm_m=np.asarray(cfg.lever_arm_m, dtype=float),
+            lever_arm_m=self.lever_arm_m,
         )
         use = ep.valid & im.covered & np.isfinite(im.mag) & (ep.t0 >= self._done_t)
         if not np.any(use):
@@ -254,7 +268,11 @@ class LiveAiding:
             "latency_s": round(self.latency_s, 4),
             "latency": self.latency_note,
             "clock_offset_s": round(float(np.median(self.offsets)), 4) if self.offsets else None,
-            "lever_arm_m": list(self.cfg.lever_arm_m),
+            "lever_arm_m": [round(float(x), 3) for x in self.lever_arm_m],
+            "lever_arm": dict(
+                self.lever_estimate.to_json() if self.lever_estimate else {},
+                configured=self.cfg.lever_arm_m is not None,
+            ),
         }
         return out
 

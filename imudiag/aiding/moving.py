@@ -39,6 +39,7 @@ from ..diagnosis.scalar_fit import exact_fit
 from ..samples import SampleBlock
 from .align import LatencyEstimate, estimate_latency
 from .isolation import IsolationTracker, isolate
+from .lever_arm import LeverArmEstimate, lever_arm_rows, row_noise_variance, solve_lever_arm
 from .specific_force import GateConfig, GnssEpochs, ImuEpochs, gnss_epochs, imu_epochs
 from .tpv import GnssTrack
 
@@ -50,7 +51,9 @@ class MovingConfig:
     interval_s: float = 1.0  #: GNSS epoch length used (whole GNSS periods)
     latency_s: float | None = None  #: None: estimate it
     max_latency_s: float = 0.5  #: search range of the estimate, s
-    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: IMU -> antenna, body, m
+    #: IMU -> antenna, body, m; None: estimated from the turns (:mod:`.lever_arm`) and
+    #: used on the axes it determines
+    lever_arm_m: tuple[float, float, float] | None = None
     window_s: float = 180.0  #: fit window, s
     step_s: float = 60.0  #: fit window step, s
     min_epochs: int = 60  #: valid epochs a window needs
@@ -129,7 +132,7 @@ def moving_base_diagnosis(
             "epochs": len(ep),
             "valid": int(np.sum(ep.valid)),
             "rejected": ep.counts,
-            "lever_arm_m": list(cfg.lever_arm_m),
+            "lever_arm_m": list(cfg.lever_arm_m or (0.0, 0.0, 0.0)),
         },
         "gyro": {
             "determined": False,
@@ -151,7 +154,18 @@ def moving_base_diagnosis(
         report["gnss"]["latency"] = dict(lat.to_json(), used_s=latency)
     sig_raw = accel_noise(block.accel, acc.noise_sigma(rate))
     sig_si = sig_raw / acc.scale_factor * acc.unit_to_si
-    lever = np.asarray(cfg.lever_arm_m, dtype=float)
+    plain = imu_epochs(
+        t, f_si, ep.t0, ep.t1, gyro_si=w_si, accel_raw=block.accel,
+        sigma_sample_si=sig_si, latency_s=latency,
+    )  # fmt: skip
+    est = estimate_lever_arm(t, w_si, block.gyro, gyr, ep, plain, latency, rate)
+    lever = est.used() if cfg.lever_arm_m is None else np.asarray(cfg.lever_arm_m, float)
+    report["gnss"]["lever_arm_m"] = [round(float(x), 3) for x in lever]
+    report["gnss"]["lever_arm"] = dict(
+        est.to_json(),
+        configured=cfg.lever_arm_m is not None,
+        used_m=[round(float(x), 3) for x in lever],
+    )
     im = imu_epochs(
         t,
         f_si,
@@ -169,6 +183,35 @@ def moving_base_diagnosis(
     report["accel_noise_per_sample"] = [float(x) for x in sig_raw]
     report.update(_windows(ep, im, use, cert, cfg, rate, block.accel))
     return report
+
+
+def estimate_lever_arm(
+    t: np.ndarray,
+    w_si: np.ndarray,
+    gyro_raw: np.ndarray,
+    gyro: TriadModel,
+    ep: GnssEpochs,
+    plain: ImuEpochs,
+    latency_s: float,
+    rate_hz: float,
+) -> LeverArmEstimate:
+    """The lever arm from the epochs' |f| mismatch (:mod:`.lever_arm`): ``plain`` the IMU
+    epochs without a lever arm; the gyro noise (rad/s per sample) the larger of the
+    certificate's and the one measured from the data (vibration)."""
+    use = ep.valid & plain.covered & np.isfinite(plain.mag)
+    rows = lever_arm_rows(t, w_si, ep.t0, ep.t1, plain.mean_si, latency_s)
+    sig = accel_noise(gyro_raw, gyro.noise_sigma(rate_hz)) / gyro.scale_factor * gyro.unit_to_si
+    epoch_s = float(np.median(ep.t1 - ep.t0)) if len(ep) else 1.0
+    rv = row_noise_variance(float(np.max(sig)), rate_hz * epoch_s, epoch_s)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = plain.mean_si / plain.mag[:, None]
+    return solve_lever_arm(
+        rows[use],
+        (ep.mag - plain.mag)[use],
+        (ep.sigma_mag**2 + plain.sigma_mag**2)[use],
+        u[use],
+        rv,
+    )
 
 
 def _f0_in_motion(ep: GnssEpochs, im: ImuEpochs, use: np.ndarray, limit: float, k: float) -> dict:
@@ -340,4 +383,10 @@ def _aggregate_findings(windows: list[dict], persist: int) -> list[dict]:
     return out
 
 
-__all__ = ["MovingConfig", "accel_noise", "epoch_observations", "moving_base_diagnosis"]
+__all__ = [
+    "MovingConfig",
+    "accel_noise",
+    "epoch_observations",
+    "estimate_lever_arm",
+    "moving_base_diagnosis",
+]

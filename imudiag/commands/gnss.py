@@ -25,7 +25,8 @@ def add_gnss_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--lever-arm",
         metavar="X,Y,Z",
-        help="antenna position from the IMU in body axes, m (default 0,0,0)",
+        help="antenna position from the IMU in body axes, m (default: estimated from the "
+        "turns, used on the axes it determines, 0 elsewhere)",
     )
     g.add_argument(
         "--gnss-latency",
@@ -49,17 +50,18 @@ def add_gnss_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def parse_lever_arm(text: str | None) -> tuple[float, float, float]:
-    """``X,Y,Z`` in m; BadInput naming the option otherwise."""
+def parse_lever_arm(text: str | None) -> tuple[float, float, float] | None:
+    """``X,Y,Z`` in m (None when not given: estimated); BadInput naming the option
+    otherwise."""
     if not text:
-        return (0.0, 0.0, 0.0)
+        return None
     try:
         vals = tuple(float(x) for x in text.split(","))
     except ValueError:
         raise BadInput(f"--lever-arm: expected X,Y,Z in m, got {text!r}") from None
     if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
         raise BadInput(f"--lever-arm: expected three finite numbers X,Y,Z in m, got {text!r}")
-    return vals
+    return (vals[0], vals[1], vals[2])
 
 
 def check_gnss_options(args: argparse.Namespace) -> None:
@@ -113,6 +115,14 @@ def moving_base_lines(mb: dict) -> list[str]:
         f"latency {lat.get('used_s')} s"
         + ("" if lat.get("determined") else f" ({lat.get('reason')})")
     ]
+    lev = g.get("lever_arm")
+    if lev:
+        est = ", ".join(
+            "undetermined" if not d else f"{v:+.2f} +- {s:.2f}"
+            for v, s, d in zip(lev["estimate_m"], lev["std_m"], lev["determined"], strict=True)
+        )
+        src = "configured" if lev["configured"] else "estimated"
+        lines.append(f"  lever arm used {lev['used_m']} m ({src}); estimate x, y, z: {est} m")
     if "f0" in mb:
         f0 = mb["f0"]
         lines.append(
