@@ -13,7 +13,9 @@ from __future__ import annotations
 import atexit
 import contextlib
 import os
+import signal
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
@@ -43,15 +45,32 @@ def temp_path(path: str | os.PathLike[str]) -> str:
     """
     dest = os.fspath(path)
     directory = os.path.dirname(dest) or "."
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{os.path.basename(dest)}.", suffix=TEMP_SUFFIX, dir=directory
-    )
-    try:
-        os.fchmod(fd, _MODE)
-    finally:
-        os.close(fd)
-    _live.add(tmp)
+    # Ctrl-C or SIGTERM between the file's creation and its registration would leave it
+    # behind: both are held off (delivered right after) until the exit clean-up knows it
+    with _signals_held():
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{os.path.basename(dest)}.", suffix=TEMP_SUFFIX, dir=directory
+        )
+        try:
+            os.fchmod(fd, _MODE)
+        finally:
+            os.close(fd)
+        _live.add(tmp)
     return tmp
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM off for the block (main thread, where the OS allows)."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    if threading.current_thread() is not threading.main_thread():
+        yield  # Python runs signal handlers on the main thread only
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def commit(tmp: str, path: str | os.PathLike[str]) -> None:

@@ -335,3 +335,20 @@ def test_diagnose_stopped_writes_no_report(long_log: Path, tmp_path: Path, sig, 
     assert word in _one_line(err)
     assert report.read_text() == "previous\n"
     assert atomic.leftovers(tmp_path) == []
+
+
+def test_a_signal_while_the_temporary_is_made_leaves_nothing(tmp_path: Path, monkeypatch):
+    """Ctrl-C arriving between the temporary file's creation and its registration (the
+    moment a test that waits for the first .part file sends its signal) is held off until
+    the exit clean-up knows the file: nothing is left once it has run."""
+    real_fchmod = os.fchmod
+
+    def fchmod_then_ctrl_c(fd: int, mode: int) -> None:
+        real_fchmod(fd, mode)
+        os.kill(os.getpid(), signal.SIGINT)  # Python's default handler: KeyboardInterrupt
+
+    monkeypatch.setattr(atomic.os, "fchmod", fchmod_then_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        atomic.temp_path(tmp_path / "out.csv")
+    atomic._remove_leftovers()  # what the interpreter runs at exit
+    assert list(tmp_path.iterdir()) == []
