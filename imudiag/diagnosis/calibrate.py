@@ -742,9 +742,7 @@ def _leave_one_out(
                 continue
             held[i] = norm_err(model_of(f), means[i : i + 1])[0]
 
-    return judge(
-        inside, held, before, k, fit.dof, essential, quantity, uncalibrated_allowance=True
-    )
+    return judge(inside, held, before, k, fit.dof, essential, quantity, uncalibrated_allowance=True)
 
 
 def _with_density(noise: Noise | None, density: np.ndarray) -> Noise:

@@ -118,6 +118,9 @@ class RotationPair:
     up1: np.ndarray  #: (3,) unit specific force at the second interval
     dir_var: float  #: variance of each direction component from accelerometer noise, rad^2
     bias_var: np.ndarray  #: (3,) variance of the bias, output units^2
+    #: the motion's :attr:`.intervals.MotionSegment.memo` (its increments are kept there
+    #: per gyro model: the same motion is in many windows), or None (not kept)
+    memo: dict | None = None
 
 
 @dataclass
@@ -162,6 +165,21 @@ def _block_increments(inc: np.ndarray, block_rad: float) -> np.ndarray:
     return np.add.reduceat(inc, starts, axis=0)
 
 
+def _pair_increments(gyro: TriadModel, p: RotationPair, block_deg: float) -> np.ndarray:
+    """One motion's blocked rotation increments before N^-1 (rad), kept in its memo for
+    ``gyro`` (the same model object: the window diagnosis refits each motion in every
+    window of its interval)."""
+    key = ("increments", block_deg)
+    if p.memo is not None and key in p.memo and p.memo[key][0] is gyro:
+        return p.memo[key][1]
+    y = (p.raw - p.bias) / gyro.scale_factor * gyro.unit_to_si
+    inc = 0.5 * (y[1:] + y[:-1]) * np.diff(p.t)[:, None]
+    out = _block_increments(inc, math.radians(block_deg)) if inc.shape[0] else inc
+    if p.memo is not None:
+        p.memo[key] = (gyro, out)
+    return out
+
+
 def stack_pairs(
     gyro: TriadModel, pairs: list[RotationPair], block_deg: float = 1.0
 ) -> dict[str, np.ndarray]:
@@ -170,11 +188,7 @@ def stack_pairs(
     ``inc`` (n, B, 3): per motion, blocks of at most about ``block_deg`` of turn
     (zero padding is the identity); ``path`` (n,): each motion's path length, rad.
     """
-    blocks = []
-    for p in pairs:
-        y = (p.raw - p.bias) / gyro.scale_factor * gyro.unit_to_si
-        inc = 0.5 * (y[1:] + y[:-1]) * np.diff(p.t)[:, None]
-        blocks.append(_block_increments(inc, math.radians(block_deg)) if inc.shape[0] else inc)
+    blocks = [_pair_increments(gyro, p, block_deg) for p in pairs]
     b = max(max(x.shape[0] for x in blocks), 1)
     out = np.zeros((len(pairs), b, 3))
     for i, x in enumerate(blocks):

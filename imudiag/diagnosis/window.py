@@ -28,7 +28,7 @@ from .gyro_fit import (
     rest_bias,
     rotation_fit,
 )
-from .intervals import QuasiStaticInterval
+from .intervals import MotionSegment, QuasiStaticInterval
 from .known_rate import classify_plateaus
 from .params import TriadFit, certificate_vector, limit_vector, undetermined_fit
 from .predicates import held_back
@@ -200,6 +200,29 @@ def clipped(raw: np.ndarray, rest: np.ndarray, sigma: np.ndarray, min_repeat: in
     return False
 
 
+def _motion_usable(
+    gyro: TriadModel,
+    prev: QuasiStaticInterval,
+    seg: MotionSegment,
+    max_step: float,
+    min_path: float,
+) -> bool:
+    """Whether a motion after interval ``prev`` turned slowly enough (``max_step`` rad per
+    sample at most), far enough (``min_path`` rad) and never clipped; kept in the motion's
+    memo for ``gyro`` (the same motion is screened again in every window of its interval)."""
+    key = ("usable", max_step, min_path)
+    if key in seg.memo and seg.memo[key][0] is gyro:
+        return bool(seg.memo[key][1])
+    rate = (seg.gyro - prev.gyro_mean) / gyro.scale_factor * gyro.unit_to_si
+    steps = np.linalg.norm(rate[:-1], axis=1) * np.diff(seg.t)
+    usable = not (np.max(steps) > max_step or np.sum(steps) < min_path)
+    if usable:
+        sigma = np.sqrt(np.maximum(np.diag(prev.gyro_cov), 1e-30))
+        usable = not clipped(seg.gyro, prev.gyro_mean, sigma)
+    seg.memo[key] = (gyro, usable)
+    return usable
+
+
 def rotation_pairs(
     cert: Certificate, accel: TriadModel, intervals: list[QuasiStaticInterval]
 ) -> list[RotationPair]:
@@ -220,12 +243,7 @@ def rotation_pairs(
         seg = cur.before
         if seg is None or not seg.usable or cur.index != prev.index + 1 or seg.t.shape[0] < 2:
             continue
-        rate = (seg.gyro - prev.gyro_mean) / gyro.scale_factor * gyro.unit_to_si
-        steps = np.linalg.norm(rate[:-1], axis=1) * np.diff(seg.t)
-        if np.max(steps) > max_step or np.sum(steps) < min_path:
-            continue
-        sigma = np.sqrt(np.maximum(np.diag(prev.gyro_cov), 1e-30))
-        if clipped(seg.gyro, prev.gyro_mean, sigma):
+        if not _motion_usable(gyro, prev, seg, max_step, min_path):
             continue
         f = accel.inverse(np.array([prev.accel_mean, cur.accel_mean]))
         nf = np.linalg.norm(f, axis=1)
@@ -248,6 +266,7 @@ def rotation_pairs(
                 up1=f[1] / nf[1],
                 dir_var=dir_var,
                 bias_var=0.25 * (prev.mean_var("gyro") + cur.mean_var("gyro")),
+                memo=seg.memo,
             )
         )
     return pairs
