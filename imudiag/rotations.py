@@ -93,4 +93,47 @@ def ordered_product(q: np.ndarray) -> np.ndarray:
     return q[..., 0, :]
 
 
-__all__ = ["matrix_quat", "ordered_product", "qmul", "quat_matrix", "rotvec_quat"]
+def _qmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products of quaternions stored component-major: (L, 4, M) by (L, 4, M),
+    each component a contiguous row of M (the arithmetic of :func:`qmul`, term for term)."""
+    aw, ax, ay, az = a[:, 0], a[:, 1], a[:, 2], a[:, 3]
+    bw, bx, by, bz = b[:, 0], b[:, 1], b[:, 2], b[:, 3]
+    out = np.empty(a.shape)
+    out[:, 0] = aw * bw - ax * bx - ay * by - az * bz
+    out[:, 1] = aw * bx + ax * bw + ay * bz - az * by
+    out[:, 2] = aw * by - ax * bz + ay * bw + az * bx
+    out[:, 3] = aw * bz + ax * by - ay * bx + az * bw
+    return out
+
+
+def ordered_product_of_rotvecs(theta: np.ndarray) -> np.ndarray:
+    """q(theta_0) * q(theta_1) * ... * q(theta_{L-1}) of rotation vectors (rad) along axis
+    -2 of (..., L, 3): quaternions (..., 4), equal to ``ordered_product(rotvec_quat(theta))``
+    bit for bit, faster.
+
+    The same pairwise reduction, with the L axis first and each component a contiguous row
+    over all the other axes (one product of whole rows per level, not one per strided
+    quaternion), and without padding L to a power of two: an element left unpaired at a
+    level passes up unchanged, as its product with the identity padding did exactly.
+    """
+    lead = theta.shape[:-2]
+    length = theta.shape[-2]
+    if length == 0:
+        return np.broadcast_to(np.array([1.0, 0.0, 0.0, 0.0]), lead + (4,)).copy()
+    rows = np.moveaxis(theta.reshape((-1, length, 3)), 1, 0)  # (L, M, 3), M = prod(lead)
+    q = np.moveaxis(rotvec_quat(rows), 2, 1).copy()  # (L, 4, M)
+    while q.shape[0] > 1:
+        half = q.shape[0] // 2
+        prod = _qmul_rows(q[0 : 2 * half : 2], q[1 : 2 * half : 2])
+        q = np.concatenate([prod, q[-1:]]) if q.shape[0] % 2 else prod
+    return q[0].T.reshape(lead + (4,))
+
+
+__all__ = [
+    "matrix_quat",
+    "ordered_product",
+    "ordered_product_of_rotvecs",
+    "qmul",
+    "quat_matrix",
+    "rotvec_quat",
+]

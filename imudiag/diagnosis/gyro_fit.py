@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..certificate import Certificate, TriadModel
-from ..rotations import ordered_product, quat_matrix, rotvec_quat
+from ..rotations import ordered_product_of_rotvecs, quat_matrix, rotvec_quat
 from .gauge import p_matrix, shape_of_triad
 from .intervals import QuasiStaticInterval
 from .params import limit_vector
@@ -202,7 +202,7 @@ def predict_end_directions(
 ) -> np.ndarray:
     """Predicted end directions (P, n, 3) for parameter sets with N^-1 (P, 3, 3)."""
     theta = np.matmul(stack["inc"][None], np.swapaxes(ninv, 1, 2)[:, None])
-    q = ordered_product(rotvec_quat(theta))
+    q = ordered_product_of_rotvecs(theta)
     c = quat_matrix(q)  # body at end -> body at start
     return np.einsum("pnji,nj->pni", c, up0)
 
