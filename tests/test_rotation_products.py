@@ -23,3 +23,49 @@ def test_equal_to_the_padded_pairwise_product(length, lead):
         return
     assert np.array_equal(fast, ordered_product(rotvec_quat(theta)))
     assert np.allclose(np.linalg.norm(fast, axis=-1), 1.0, atol=1e-12)
+
+
+def test_ragged_product_equals_the_padded_one():
+    """Only the blocks each row has go through the trigonometry; the result is the padded
+    product's, bit for bit, for every parameter set."""
+    from imudiag.rotations import ragged_product_of_rotvecs
+
+    rng = np.random.default_rng(7)
+    lengths = np.array([29, 101, 0, 67, 166, 1, 2])
+    n_sets, shape = 4, (int(lengths.max()), len(lengths))
+    padded = np.zeros((n_sets, len(lengths), shape[0], 3))
+    for r, n in enumerate(lengths):
+        padded[:, r, :n] = rng.normal(scale=0.02, size=(n_sets, n, 3))
+    block, row = np.nonzero(np.arange(shape[0])[:, None] < lengths[None, :])
+    assert np.all(np.diff(block) >= 0)
+    got = ragged_product_of_rotvecs(padded[:, row, block], block, row, shape)
+    assert got.shape == (n_sets, len(lengths), 4)
+    assert np.array_equal(got, ordered_product(rotvec_quat(padded)))
+    assert np.array_equal(got[:, 2], np.tile([1.0, 0.0, 0.0, 0.0], (n_sets, 1)))
+
+
+def test_predicted_directions_do_not_depend_on_the_padding():
+    """predict_end_directions with each motion's block count equals the fully padded
+    evaluation (a stack without ``blocks``) exactly."""
+    from imudiag.certificate import load_default
+    from imudiag.diagnosis.gyro_fit import RotationPair, predict_end_directions, stack_pairs
+
+    gyro = load_default().gyro
+    rng = np.random.default_rng(8)
+    pairs = []
+    for m in (40, 300, 150):  # samples of each motion at 200 Hz
+        t = np.arange(m) / 200.0
+        rate = rng.normal(scale=0.8, size=3)  # rad/s
+        raw = rate / gyro.unit_to_si * gyro.scale_factor + rng.normal(scale=3.0, size=(m, 3))
+        up0 = rng.normal(size=3)
+        pairs.append(
+            RotationPair(t, raw, np.zeros(3), up0 / np.linalg.norm(up0), up0, 1e-8, np.ones(3))
+        )
+    stack = stack_pairs(gyro, pairs)
+    assert len(set(stack["blocks"].tolist())) == 3
+    ninv = np.linalg.inv(gyro.n_matrix())[None] + rng.normal(scale=1e-3, size=(5, 3, 3))
+    up0 = np.array([p.up0 for p in pairs])
+    fast = predict_end_directions(stack, ninv, up0)
+    full = predict_end_directions({"inc": stack["inc"]}, ninv, up0)
+    assert fast.shape == (5, 3, 3)
+    assert np.array_equal(fast, full)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..certificate import Certificate, TriadModel
-from ..rotations import ordered_product_of_rotvecs, quat_matrix, rotvec_quat
+from ..rotations import quat_matrix, ragged_product_of_rotvecs, rotvec_quat
 from .gauge import p_matrix, shape_of_triad
 from .intervals import QuasiStaticInterval
 from .params import limit_vector
@@ -186,7 +186,8 @@ def stack_pairs(
     """Rotation increments of every motion before N^-1 (trapezoid rule, rad), padded.
 
     ``inc`` (n, B, 3): per motion, blocks of at most about ``block_deg`` of turn
-    (zero padding is the identity); ``path`` (n,): each motion's path length, rad.
+    (zero padding is the identity); ``path`` (n,): each motion's path length, rad;
+    ``blocks`` (n,): each motion's number of blocks (the rest of its row is padding).
     """
     blocks = [_pair_increments(gyro, p, block_deg) for p in pairs]
     b = max(max(x.shape[0] for x in blocks), 1)
@@ -194,15 +195,26 @@ def stack_pairs(
     for i, x in enumerate(blocks):
         out[i, : x.shape[0]] = x
     path = np.sum(np.linalg.norm(out, axis=2), axis=1)
-    return {"inc": out, "path": path}
+    return {"inc": out, "path": path, "blocks": np.array([x.shape[0] for x in blocks])}
 
 
 def predict_end_directions(
     stack: dict[str, np.ndarray], ninv: np.ndarray, up0: np.ndarray
 ) -> np.ndarray:
-    """Predicted end directions (P, n, 3) for parameter sets with N^-1 (P, 3, 3)."""
-    theta = np.matmul(stack["inc"][None], np.swapaxes(ninv, 1, 2)[:, None])
-    q = ordered_product_of_rotvecs(theta)
+    """Predicted end directions (P, n, 3) for parameter sets with N^-1 (P, 3, 3).
+
+    The rotation of each motion is the ordered product of its blocks' quaternions
+    (:func:`.rotations.ragged_product_of_rotvecs`: only the blocks a motion has, not the
+    padding to the longest, go through N^-1 and the trigonometry).
+    """
+    inc = stack["inc"]
+    n, b, _ = inc.shape
+    lengths = stack.get("blocks")
+    if lengths is None:  # a stack made by hand: every block may turn
+        lengths = np.full(n, b)
+    block, row = np.nonzero(np.arange(b)[:, None] < np.asarray(lengths)[None, :])
+    theta = np.matmul(inc[row, block][None], np.swapaxes(ninv, 1, 2))  # (P, K, 3)
+    q = ragged_product_of_rotvecs(theta, block, row, (b, n))
     c = quat_matrix(q)  # body at end -> body at start
     return np.einsum("pnji,nj->pni", c, up0)
 
