@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import signal
 import sys
 from collections.abc import Sequence
@@ -40,6 +41,22 @@ COMMANDS = (
 __all__ = ["COMMANDS", "EXIT_BAD_INPUT", "EXIT_ERROR", "EXIT_OK", "build_parser", "main"]
 EXIT_SIGINT = 130  #: 128 + SIGINT, as a shell reports Ctrl-C
 EXIT_SIGTERM = 143  #: 128 + SIGTERM
+
+
+#: environment variables that size the BLAS thread pools numpy starts on import
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def single_threaded_blas() -> None:
+    """One BLAS thread for this process unless the environment says otherwise (before numpy
+    is imported; no effect after). imudiag's matrices are small ((N, 3) by (3, 3)), where
+    a pool of threads only spins: ``imudiag diagnose`` on 10^6 frames took 10.2-10.9 s
+    with OpenBLAS's default threads on a loaded 2-core machine against 6.4-6.6 s with one
+    (docs/benchmarks.md)."""
+    if "numpy" in sys.modules:
+        return
+    for name in BLAS_THREAD_VARIABLES:
+        os.environ.setdefault(name, "1")
 
 
 class Terminated(KeyboardInterrupt):
@@ -91,6 +108,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``imudiag`` console script."""
+    single_threaded_blas()
     args_list = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(command_module(args_list))
     args = parser.parse_args(args_list)

@@ -10,6 +10,7 @@ exit 2.
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from imudiag.certificate import load_default
-from imudiag.cli import COMMANDS
+from imudiag.cli import BLAS_THREAD_VARIABLES, COMMANDS
 from imudiag.logs import open_writer
 from imudiag.sim import simulate, still
 
@@ -35,20 +36,30 @@ NOT_FOR_DIAGNOSE = (
 
 _LIST_AT_EXIT = """
 import atexit, sys
+import os
 atexit.register(lambda: sys.stderr.write("MODULES " + " ".join(sorted(sys.modules)) + "\\n"))
+blas = lambda: os.environ.get("OPENBLAS_NUM_THREADS", "-")  # noqa: E731
+atexit.register(lambda: sys.stderr.write("BLAS " + blas() + "\\n"))
 sys.argv = ["imudiag", *{args!r}]
 from imudiag.cli import main
 sys.exit(main())
 """
 
 
-def imported_modules(*args: str) -> tuple[subprocess.CompletedProcess[str], set[str]]:
-    """Run ``imudiag ARGS`` in a subprocess; (the process, the modules loaded at its exit)."""
+def imported_modules(
+    *args: str, blas_threads: str | None = None
+) -> tuple[subprocess.CompletedProcess[str], set[str]]:
+    """Run ``imudiag ARGS`` in a subprocess (``OPENBLAS_NUM_THREADS``: ``blas_threads``, or
+    unset); (the process, the modules loaded at its exit)."""
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_THREAD_VARIABLES}
+    if blas_threads is not None:
+        env["OPENBLAS_NUM_THREADS"] = blas_threads
     proc = subprocess.run(
         [sys.executable, "-c", _LIST_AT_EXIT.format(args=list(args))],
         capture_output=True,
         text=True,
         cwd=ROOT,
+        env=env,
         timeout=120,
         check=False,
     )
@@ -97,6 +108,22 @@ def test_help_lists_every_command_and_a_bad_one_is_one_line():
         assert f"imudiag.commands.{module}" in names
     proc, _ = imported_modules("model_check", "--help")  # the module's name is not a command
     assert proc.returncode == 2
-    errors = [line for line in proc.stderr.splitlines() if not line.startswith("MODULES ")]
+    errors = [line for line in proc.stderr.splitlines() if not line.startswith(("MODULES", "BLAS"))]
     assert len(errors) == 1 and "invalid choice: 'model_check'" in errors[0]
     assert "model-check" in errors[0]  # the full list of commands
+
+
+def blas_threads_at_exit(proc: subprocess.CompletedProcess[str]) -> str:
+    """The ``OPENBLAS_NUM_THREADS`` the process had at its exit ('-': unset)."""
+    return [ln for ln in proc.stderr.splitlines() if ln.startswith("BLAS ")][0].split()[1]
+
+
+def test_one_blas_thread_unless_the_environment_says(still_log):
+    """numpy's BLAS pool only spins on imudiag's (N, 3) by (3, 3) products: the command line
+    asks for one thread before numpy is imported, and keeps what the user set."""
+    proc, names = imported_modules("diagnose", str(still_log), "-q")
+    assert proc.returncode == 0 and "numpy" in names
+    assert blas_threads_at_exit(proc) == "1"
+    proc, _ = imported_modules("diagnose", str(still_log), "-q", blas_threads="2")
+    assert proc.returncode == 0
+    assert blas_threads_at_exit(proc) == "2"
