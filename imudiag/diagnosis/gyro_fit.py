@@ -29,7 +29,7 @@ from ..rotations import quat_matrix, ragged_product_of_rotvecs, rotvec_quat
 from .gauge import p_matrix, shape_of_triad
 from .intervals import QuasiStaticInterval
 from .params import limit_vector
-from .robust import MAX_LEVERAGE, point_diagnostics
+from .robust import MAX_LEVERAGE, group_leverages, point_diagnostics
 
 #: Floor of the direction residual (rad): integration and modelling resolution.
 DIRECTION_FLOOR = 1e-4
@@ -388,6 +388,15 @@ def _deletion_variances(a_all: np.ndarray, cov: np.ndarray, groups: list[np.ndar
     inf where the group's leverage exceeds :data:`.robust.MAX_LEVERAGE`.
     """
     out = np.full((len(groups), cov.shape[0]), np.inf)
+    blocks = group_leverages(a_all, cov, groups) if groups else None
+    if blocks is not None:
+        # every motion's three components at once
+        rows, a, hk, judged = blocks
+        a, hk = a[judged], hk[judged]
+        m = cov[None] @ np.swapaxes(a, 1, 2)  # (G, p, 3)
+        sol = np.linalg.solve(np.eye(rows.shape[1])[None] - hk, np.swapaxes(m, 1, 2))
+        out[judged] = np.diag(cov)[None] + np.einsum("gij,gji->gi", m, sol)
+        return out
     for k, rows in enumerate(groups):
         a = a_all[rows]
         hk = a @ cov @ a.T
