@@ -8,8 +8,8 @@ at the start) must carry the first measured specific-force direction into the
 second, ``f_1 = C^T f_0`` (Tedaldi et al., ICRA 2014). The fit finds the shape
 (e, d: the symmetric part P of N, see :mod:`.gauge`) that makes it so over all
 rotations of a window, by Gauss-Newton with a numerical Jacobian; every
-parameter set integrates all segments at once (segments padded, quaternion
-products reduced pairwise: no loop over samples).
+parameter set integrates all segments at once (each segment's blocks only,
+quaternion products reduced pairwise: no loop over samples or segments).
 
 Navigation-grade gyros see Earth rate; :func:`earth_rate_observable` decides
 from the certificate's noise whether the stationary scalar fit with
