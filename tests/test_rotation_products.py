@@ -69,3 +69,36 @@ def test_predicted_directions_do_not_depend_on_the_padding():
     full = predict_end_directions({"inc": stack["inc"]}, ninv, up0)
     assert fast.shape == (5, 3, 3)
     assert np.array_equal(fast, full)
+
+
+def test_a_motion_memo_follows_the_gyro_scale():
+    """The increments kept on a motion are reused for the same scale and recomputed for a
+    gyro model whose scale factors changed (in place too)."""
+    import copy
+
+    from imudiag.certificate import load_default
+    from imudiag.diagnosis.gyro_fit import RotationPair, stack_pairs
+
+    gyro = load_default().gyro
+    rng = np.random.default_rng(9)
+    t = np.arange(200) / 200.0
+    raw = rng.normal(scale=2000.0, size=(200, 3))
+    memo: dict = {}
+
+    def pair(m):
+        return RotationPair(t, raw, np.zeros(3), np.eye(3)[2], np.eye(3)[2], 1e-8, np.ones(3), m)
+
+    first = stack_pairs(gyro, [pair(memo)])["inc"]
+    assert len(memo) == 1
+    again = stack_pairs(copy.deepcopy(gyro), [pair(memo)])["inc"]  # same scale: kept
+    assert len(memo) == 1 and np.array_equal(again, first)
+    other = copy.deepcopy(gyro)
+    other.scale_factor = other.scale_factor * 1.01
+    changed = stack_pairs(other, [pair(memo)])["inc"]
+    assert len(memo) == 2
+    assert np.array_equal(changed, stack_pairs(other, [pair(None)])["inc"])
+    assert not np.array_equal(changed, first)
+    other.scale_factor[0] *= 1.01  # changed in place: a new key, not the stale entry
+    in_place = stack_pairs(other, [pair(memo)])["inc"]
+    assert len(memo) == 3
+    assert np.array_equal(in_place, stack_pairs(other, [pair(None)])["inc"])

@@ -119,7 +119,7 @@ class RotationPair:
     dir_var: float  #: variance of each direction component from accelerometer noise, rad^2
     bias_var: np.ndarray  #: (3,) variance of the bias, output units^2
     #: the motion's :attr:`.intervals.MotionSegment.memo` (its increments are kept there
-    #: per gyro model: the same motion is in many windows), or None (not kept)
+    #: per gyro scale, :func:`scale_key`: the same motion is in many windows), or None
     memo: dict | None = None
 
 
@@ -165,18 +165,23 @@ def _block_increments(inc: np.ndarray, block_rad: float) -> np.ndarray:
     return np.add.reduceat(inc, starts, axis=0)
 
 
+def scale_key(gyro: TriadModel) -> tuple[float, bytes]:
+    """What a motion's screening and increments depend on in a gyro model (its nominal
+    scale factors and unit), as a memo key: a model changed in place is a new key."""
+    return float(gyro.unit_to_si), np.asarray(gyro.scale_factor, dtype=float).tobytes()
+
+
 def _pair_increments(gyro: TriadModel, p: RotationPair, block_deg: float) -> np.ndarray:
-    """One motion's blocked rotation increments before N^-1 (rad), kept in its memo for
-    ``gyro`` (the same model object: the window diagnosis refits each motion in every
-    window of its interval)."""
-    key = ("increments", block_deg)
-    if p.memo is not None and key in p.memo and p.memo[key][0] is gyro:
-        return p.memo[key][1]
+    """One motion's blocked rotation increments before N^-1 (rad), kept in its memo per
+    gyro scale (the window diagnosis refits each motion in every window of its interval)."""
+    key = ("increments", block_deg, *scale_key(gyro))
+    if p.memo is not None and key in p.memo:
+        return p.memo[key]
     y = (p.raw - p.bias) / gyro.scale_factor * gyro.unit_to_si
     inc = 0.5 * (y[1:] + y[:-1]) * np.diff(p.t)[:, None]
     out = _block_increments(inc, math.radians(block_deg)) if inc.shape[0] else inc
     if p.memo is not None:
-        p.memo[key] = (gyro, out)
+        p.memo[key] = out
     return out
 
 
@@ -450,6 +455,7 @@ __all__ = [
     "gyro_sample_var",
     "predict_end_directions",
     "rotation_fit",
+    "scale_key",
     "rest_bias",
     "earth_rate_observable",
     "stack_pairs",

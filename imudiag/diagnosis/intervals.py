@@ -47,7 +47,7 @@ class MotionSegment:
     ``t`` (M,) s and ``gyro`` (M, 3) raw outputs. ``usable`` is false when the
     motion was too long to keep or the stream had a time gap inside it;
     ``reason`` says why. ``memo``: what the window diagnosis derived from the motion
-    alone for a given gyro model (whether it is usable, its rotation increments), kept
+    alone for a given gyro scale (whether it is usable, its rotation increments), kept
     because a motion is in every window of its interval (up to 24 of them).
     """
 

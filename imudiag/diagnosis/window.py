@@ -27,6 +27,7 @@ from .gyro_fit import (
     earth_rate_observable,
     rest_bias,
     rotation_fit,
+    scale_key,
 )
 from .intervals import MotionSegment, QuasiStaticInterval
 from .known_rate import classify_plateaus
@@ -209,17 +210,18 @@ def _motion_usable(
 ) -> bool:
     """Whether a motion after interval ``prev`` turned slowly enough (``max_step`` rad per
     sample at most), far enough (``min_path`` rad) and never clipped; kept in the motion's
-    memo for ``gyro`` (the same motion is screened again in every window of its interval)."""
-    key = ("usable", max_step, min_path)
-    if key in seg.memo and seg.memo[key][0] is gyro:
-        return bool(seg.memo[key][1])
+    memo per gyro scale (the same motion is screened again in every window of its
+    interval)."""
+    key = ("usable", max_step, min_path, *scale_key(gyro))
+    if key in seg.memo:
+        return bool(seg.memo[key])
     rate = (seg.gyro - prev.gyro_mean) / gyro.scale_factor * gyro.unit_to_si
     steps = np.linalg.norm(rate[:-1], axis=1) * np.diff(seg.t)
     usable = not (np.max(steps) > max_step or np.sum(steps) < min_path)
     if usable:
         sigma = np.sqrt(np.maximum(np.diag(prev.gyro_cov), 1e-30))
         usable = not clipped(seg.gyro, prev.gyro_mean, sigma)
-    seg.memo[key] = (gyro, usable)
+    seg.memo[key] = usable
     return usable
 
 
