@@ -121,7 +121,7 @@ _HAMILTON = (
 
 
 def _qmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton products of quaternions stored component-major, (4, L, M) by (4, L, M):
+    """Hamilton products of quaternions stored component-major, (4, ...) by (4, ...):
     the arithmetic of :func:`qmul` term for term (the same roundings), on whole rows and
     into two buffers (no temporary array per term)."""
     out = np.empty(a.shape)
@@ -136,66 +136,70 @@ def _qmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-def ordered_product_rows(q: np.ndarray) -> np.ndarray:
-    """q_0 * q_1 * ... * q_{L-1} of quaternions stored component-major (4, L, M): (4, M).
+#: one level of a segmented pairwise product: (first of each pair, where its product goes,
+#: the unpaired last element of each odd segment, where it goes, elements after the level)
+ProductLevel = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]
 
-    :func:`ordered_product` bit for bit, faster: the same pairwise reduction, each
-    component a contiguous row over M (one product of whole rows per level, not one per
-    strided quaternion), and without padding L to a power of two (an element left unpaired
-    at a level passes up unchanged, as its product with the identity padding did exactly).
+
+def segment_product_plan(lengths: np.ndarray) -> tuple[list[ProductLevel], np.ndarray]:
+    """The levels of the pairwise products of segments of ``lengths`` (S,) laid end to end,
+    and where each segment's product ends up (S,; -1: an empty segment, the identity).
+
+    Each level pairs consecutive elements inside each segment, (0, 1), (2, 3), ..., and
+    passes an odd segment's last element up unpaired: the tree of :func:`ordered_product`
+    over each segment padded to a power of two, without the padding.
     """
-    if q.shape[1] == 0:
-        out = np.zeros((4, q.shape[2]))
-        out[0] = 1.0
-        return out
-    while q.shape[1] > 1:
-        half = q.shape[1] // 2
-        prod = _qmul_rows(q[:, 0 : 2 * half : 2], q[:, 1 : 2 * half : 2])
-        q = np.concatenate([prod, q[:, -1:]], axis=1) if q.shape[1] % 2 else prod
-    return q[:, 0]
+    n = np.asarray(lengths, dtype=np.intp)
+    levels: list[ProductLevel] = []
+    while n.size and n.max() > 1:
+        start = np.cumsum(n) - n
+        pairs = n // 2
+        odd = (n % 2).astype(bool)
+        new_n = pairs + odd
+        new_start = np.cumsum(new_n) - new_n
+        seg = np.repeat(np.arange(n.size), pairs)
+        rank = np.arange(seg.size) - np.repeat(np.cumsum(pairs) - pairs, pairs)
+        levels.append(
+            (
+                start[seg] + 2 * rank,
+                new_start[seg] + rank,
+                start[odd] + n[odd] - 1,
+                new_start[odd] + pairs[odd],
+                int(new_n.sum()),
+            )
+        )
+        n = new_n
+    where = np.cumsum(n) - n
+    return levels, np.where(n > 0, where, -1)
 
 
-def ordered_product_of_rotvecs(theta: np.ndarray) -> np.ndarray:
-    """q(theta_0) * q(theta_1) * ... * q(theta_{L-1}) of rotation vectors (rad) along axis
-    -2 of (..., L, 3): quaternions (..., 4), ``ordered_product(rotvec_quat(theta))`` bit for
-    bit (:func:`ordered_product_rows`)."""
-    lead = theta.shape[:-2]
-    length = theta.shape[-2]
-    m = int(np.prod(lead, dtype=np.int64))
-    rows = np.moveaxis(theta.reshape((m, length, 3)), 1, 0)  # (L, M, 3)
-    return ordered_product_rows(_rotvec_rows(rows)).T.reshape(lead + (4,))
-
-
-def ragged_product_of_rotvecs(
-    theta: np.ndarray, block: np.ndarray, row: np.ndarray, shape: tuple[int, int]
+def segmented_product_of_rotvecs(
+    theta: np.ndarray, plan: tuple[list[ProductLevel], np.ndarray]
 ) -> np.ndarray:
-    """Ordered products of rotation vectors (rad) given only where they may be non-zero.
-
-    ``theta`` (P, K, 3): for each of P sets, the K vectors at (``block[k]``, ``row[k]``)
-    of a (L, R) = ``shape`` grid of blocks by rows whose other vectors are zero (the
-    padding of rows shorter than L); ``block`` must be non-decreasing. Returns (P, R, 4),
-    equal bit for bit to :func:`ordered_product_of_rotvecs` of the padded (P, R, L, 3)
-    (a zero vector's quaternion is the identity exactly): the trigonometry runs on the K
-    vectors only.
-    """
-    n_sets = theta.shape[0]
-    length, n_rows = shape
-    width = n_sets * n_rows
-    q = np.zeros((4, length, width))
-    q[0] = 1.0
-    flat = (block * width + row)[None, :] + (np.arange(n_sets) * n_rows)[:, None]  # (P, K)
-    vals = _rotvec_rows(theta)  # (4, P, K)
-    for c in range(4):
-        np.put(q[c], flat, vals[c])
-    return ordered_product_rows(q).T.reshape(n_sets, n_rows, 4)
+    """Ordered products of rotation vectors (rad) by segment: ``theta`` (P, K, 3), P sets
+    of the K vectors of segments laid end to end as ``plan`` (:func:`segment_product_plan`)
+    says; returns (P, S, 4). Bit for bit :func:`ordered_product_of_rotvecs` of each segment
+    padded with zero vectors (their quaternions are the identity exactly), with neither
+    the padding's trigonometry nor its products."""
+    levels, where = plan
+    q = _rotvec_rows(theta)  # (4, P, K)
+    for left, to, last, last_to, size in levels:
+        nxt = np.empty(q.shape[:2] + (size,))
+        nxt[:, :, to] = _qmul_rows(np.take(q, left, axis=2), np.take(q, left + 1, axis=2))
+        nxt[:, :, last_to] = np.take(q, last, axis=2)
+        q = nxt
+    out = np.zeros((q.shape[1], where.size, 4))
+    out[:, :, 0] = 1.0
+    full = where >= 0
+    out[:, full] = np.moveaxis(np.take(q, where[full], axis=2), 0, 2)
+    return out
 
 
 __all__ = [
     "matrix_quat",
     "ordered_product",
-    "ordered_product_of_rotvecs",
-    "ordered_product_rows",
-    "ragged_product_of_rotvecs",
+    "segment_product_plan",
+    "segmented_product_of_rotvecs",
     "qmul",
     "quat_matrix",
     "rotvec_quat",

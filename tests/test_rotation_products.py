@@ -5,43 +5,51 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imudiag.rotations import ordered_product, ordered_product_of_rotvecs, rotvec_quat
+from imudiag.rotations import (
+    ordered_product,
+    rotvec_quat,
+    segment_product_plan,
+    segmented_product_of_rotvecs,
+)
 
 
-@pytest.mark.parametrize("length", [0, 1, 2, 3, 5, 8, 9, 167])
-@pytest.mark.parametrize("lead", [(), (4,), (3, 5)])
-def test_equal_to_the_padded_pairwise_product(length, lead):
-    rng = np.random.default_rng(1000 + length)
-    theta = rng.normal(scale=0.02, size=lead + (length, 3))  # rad, 1 deg blocks
-    if length > 2:
-        theta[..., -2:, :] = 0.0  # zero padding, as stack_pairs leaves it
-        theta[..., 0, :] *= 1e-6  # below the series threshold of rotvec_quat
-    fast = ordered_product_of_rotvecs(theta)
-    assert fast.shape == lead + (4,)
-    if length == 0:
-        assert np.array_equal(fast, np.broadcast_to([1.0, 0.0, 0.0, 0.0], lead + (4,)))
-        return
-    assert np.array_equal(fast, ordered_product(rotvec_quat(theta)))
-    assert np.allclose(np.linalg.norm(fast, axis=-1), 1.0, atol=1e-12)
+def _segmented(padded: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """The segmented product of the first ``lengths`` vectors of each row of ``padded``
+    (P, S, L, 3)."""
+    width = padded.shape[2]
+    row, block = np.nonzero(np.arange(width)[None, :] < lengths[:, None])
+    return segmented_product_of_rotvecs(padded[:, row, block], segment_product_plan(lengths))
 
 
-def test_ragged_product_equals_the_padded_one():
-    """Only the blocks each row has go through the trigonometry; the result is the padded
-    product's, bit for bit, for every parameter set."""
-    from imudiag.rotations import ragged_product_of_rotvecs
-
-    rng = np.random.default_rng(7)
-    lengths = np.array([29, 101, 0, 67, 166, 1, 2])
-    n_sets, shape = 4, (int(lengths.max()), len(lengths))
-    padded = np.zeros((n_sets, len(lengths), shape[0], 3))
+@pytest.mark.parametrize(
+    "lengths",
+    [[29, 101, 0, 67, 166, 1, 2], [1], [0], [5, 3], [0, 0], [2, 2, 2], [8, 9, 7, 16, 17]],
+)
+def test_equal_to_the_padded_pairwise_product(lengths):
+    """Only the blocks each segment has are turned and multiplied; the result is the
+    padded product's (ordered_product of rotvec_quat), bit for bit, for every set."""
+    rng = np.random.default_rng(1000 + sum(lengths))
+    lengths = np.array(lengths)
+    n_sets, width = 4, max(int(lengths.max()), 1)
+    padded = np.zeros((n_sets, len(lengths), width, 3))
     for r, n in enumerate(lengths):
-        padded[:, r, :n] = rng.normal(scale=0.02, size=(n_sets, n, 3))
-    block, row = np.nonzero(np.arange(shape[0])[:, None] < lengths[None, :])
-    assert np.all(np.diff(block) >= 0)
-    got = ragged_product_of_rotvecs(padded[:, row, block], block, row, shape)
+        padded[:, r, :n] = rng.normal(scale=0.02, size=(n_sets, n, 3))  # rad, 1 deg blocks
+        if n > 2:
+            padded[:, r, 0] *= 1e-6  # below the series threshold of rotvec_quat
+    got = _segmented(padded, lengths)
     assert got.shape == (n_sets, len(lengths), 4)
     assert np.array_equal(got, ordered_product(rotvec_quat(padded)))
-    assert np.array_equal(got[:, 2], np.tile([1.0, 0.0, 0.0, 0.0], (n_sets, 1)))
+    assert np.allclose(np.linalg.norm(got, axis=-1), 1.0, atol=1e-12)
+    empty = lengths == 0
+    assert np.array_equal(got[:, empty], np.broadcast_to([1.0, 0, 0, 0], got[:, empty].shape))
+
+
+def test_the_plan_pairs_neighbours_inside_each_segment():
+    levels, where = segment_product_plan(np.array([3, 0, 2]))
+    left, to, last, last_to, size = levels[0]
+    assert left.tolist() == [0, 3] and to.tolist() == [0, 2]  # (0, 1) and (3, 4)
+    assert last.tolist() == [2] and last_to.tolist() == [1] and size == 3
+    assert len(levels) == 2 and where.tolist() == [0, -1, 1]
 
 
 def test_predicted_directions_do_not_depend_on_the_padding():

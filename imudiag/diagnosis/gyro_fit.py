@@ -25,7 +25,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..certificate import Certificate, TriadModel
-from ..rotations import quat_matrix, ragged_product_of_rotvecs, rotvec_quat
+from ..rotations import (
+    quat_matrix,
+    rotvec_quat,
+    segment_product_plan,
+    segmented_product_of_rotvecs,
+)
 from .gauge import p_matrix, shape_of_triad
 from .intervals import QuasiStaticInterval
 from .params import limit_vector
@@ -209,17 +214,21 @@ def predict_end_directions(
     """Predicted end directions (P, n, 3) for parameter sets with N^-1 (P, 3, 3).
 
     The rotation of each motion is the ordered product of its blocks' quaternions
-    (:func:`.rotations.ragged_product_of_rotvecs`: only the blocks a motion has, not the
-    padding to the longest, go through N^-1 and the trigonometry).
+    (:func:`.rotations.segmented_product_of_rotvecs`: only the blocks a motion has, not
+    the padding to the longest, go through N^-1, the trigonometry and the products; the
+    plan of the products is kept in ``stack``, which every evaluation of a fit shares).
     """
     inc = stack["inc"]
     n, b, _ = inc.shape
-    lengths = stack.get("blocks")
-    if lengths is None:  # a stack made by hand: every block may turn
-        lengths = np.full(n, b)
-    block, row = np.nonzero(np.arange(b)[:, None] < np.asarray(lengths)[None, :])
-    theta = np.matmul(inc[row, block][None], np.swapaxes(ninv, 1, 2))  # (P, K, 3)
-    q = ragged_product_of_rotvecs(theta, block, row, (b, n))
+    if "plan" not in stack:
+        lengths = stack.get("blocks")
+        if lengths is None:  # a stack made by hand: every block may turn
+            lengths = np.full(n, b)
+        row, block = np.nonzero(np.arange(b)[None, :] < np.asarray(lengths)[:, None])
+        stack["turning"] = inc[row, block]  # (K, 3): motion by motion, blocks in order
+        stack["plan"] = segment_product_plan(np.asarray(lengths))  # type: ignore[assignment]
+    theta = np.matmul(stack["turning"][None], np.swapaxes(ninv, 1, 2))  # (P, K, 3)
+    q = segmented_product_of_rotvecs(theta, stack["plan"])  # type: ignore[arg-type]
     c = quat_matrix(q)  # body at end -> body at start
     return np.einsum("pnji,nj->pni", c, up0)
 
