@@ -178,7 +178,7 @@ def segmented_product_of_rotvecs(
 ) -> np.ndarray:
     """Ordered products of rotation vectors (rad) by segment: ``theta`` (P, K, 3), P sets
     of the K vectors of segments laid end to end as ``plan`` (:func:`segment_product_plan`)
-    says; returns (P, S, 4). Bit for bit :func:`ordered_product_of_rotvecs` of each segment
+    says; returns (P, S, 4). Bit for bit ``ordered_product(rotvec_quat(.))`` of each segment
     padded with zero vectors (their quaternions are the identity exactly), with neither
     the padding's trigonometry nor its products."""
     levels, where = plan
