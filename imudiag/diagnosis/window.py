@@ -241,33 +241,36 @@ def rotation_pairs(
     gyro = cert.gyro
     max_step = math.radians(MAX_STEP_DEG)
     min_path = math.radians(MIN_ROTATION_DEG)
-    for prev, cur in zip(intervals[:-1], intervals[1:], strict=True):
+    ups = None  # every interval's specific force in this window's accelerometer model
+    for i, (prev, cur) in enumerate(zip(intervals[:-1], intervals[1:], strict=True)):
         seg = cur.before
         if seg is None or not seg.usable or cur.index != prev.index + 1 or seg.t.shape[0] < 2:
             continue
         if not _motion_usable(gyro, prev, seg, max_step, min_path):
             continue
-        f = accel.inverse(np.array([prev.accel_mean, cur.accel_mean]))
-        nf = np.linalg.norm(f, axis=1)
+        if ups is None:
+            f_all = accel.inverse(np.array([iv.accel_mean for iv in intervals]))
+            ups = (f_all, np.linalg.norm(f_all, axis=1))
+        f, nf = ups[0][i : i + 2], ups[1][i : i + 2]
         if not np.all(nf > 0):
             continue
-        dir_var = (
-            float(
-                np.mean(
-                    (prev.mean_var("accel") + cur.mean_var("accel")) / 2.0 / accel.scale_factor**2
-                )
+        if "pair" not in seg.memo:  # the two intervals' figures, the same in every window
+            seg.memo["pair"] = (
+                0.5 * (prev.gyro_mean + cur.gyro_mean),
+                0.25 * (prev.mean_var("gyro") + cur.mean_var("gyro")),
+                (prev.mean_var("accel") + cur.mean_var("accel")) / 2.0,
             )
-            / g_in**2
-        )
+        bias, bias_var, accel_var = seg.memo["pair"]
+        dir_var = float(np.mean(accel_var / accel.scale_factor**2)) / g_in**2
         pairs.append(
             RotationPair(
                 t=seg.t,
                 raw=seg.gyro,
-                bias=0.5 * (prev.gyro_mean + cur.gyro_mean),
+                bias=bias,
                 up0=f[0] / nf[0],
                 up1=f[1] / nf[1],
                 dir_var=dir_var,
-                bias_var=0.25 * (prev.mean_var("gyro") + cur.mean_var("gyro")),
+                bias_var=bias_var,
                 memo=seg.memo,
             )
         )
