@@ -180,8 +180,9 @@ def write_logs(directory: Path, n: int, rate_hz: float = 200.0, seed: int = 0) -
     return paths
 
 
-def run_child(cmd: Sequence[str]) -> tuple[float, int, int, str]:
-    """Run ``cmd``; wall time (s), exit status, peak resident memory (bytes), stderr tail."""
+def run_child(cmd: Sequence[str]) -> tuple[float, int, int, str, float]:
+    """Run ``cmd``; wall time (s), exit status, peak resident memory (bytes), stderr tail,
+    CPU time (user + system, s: steadier than the wall time on a shared machine)."""
     t0 = time.perf_counter()
     proc = subprocess.Popen(list(cmd), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=ROOT)
     assert proc.stderr is not None
@@ -189,7 +190,8 @@ def run_child(cmd: Sequence[str]) -> tuple[float, int, int, str]:
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
     proc.returncode = os.waitstatus_to_exitcode(status)
-    return wall, proc.returncode, usage.ru_maxrss * 1024, err.decode(errors="replace")[-1500:]
+    cpu = usage.ru_utime + usage.ru_stime
+    return wall, proc.returncode, usage.ru_maxrss * 1024, err.decode(errors="replace")[-1500:], cpu
 
 
 def read_rate(path: Path) -> float:
@@ -251,7 +253,7 @@ def bench_diagnose(n: int) -> dict[str, Any]:
     if not command_available("diagnose"):
         return {"skipped": "this build has no `imudiag diagnose` command"}
     out: dict[str, Any] = {"samples": n}
-    startup, code, _, err = run_child([sys.executable, "-m", "imudiag", "--version"])
+    startup, code, _, err, _ = run_child([sys.executable, "-m", "imudiag", "--version"])
     out["interpreter_startup_s"] = startup
     with tempfile.TemporaryDirectory() as tmp:
         paths = write_logs(Path(tmp), n)
@@ -268,10 +270,11 @@ def bench_diagnose(n: int) -> dict[str, Any]:
                 "--json",
                 str(report),
             ]
-            wall, code, peak, err = run_child(cmd)
+            wall, code, peak, err, cpu = run_child(cmd)
             row: dict[str, Any] = {
                 "bytes": path.stat().st_size,
                 "wall_s": wall,
+                "cpu_s": cpu,
                 "exit_status": code,
                 "peak_rss_mb": peak / 2**20,
                 "read_only_samples_per_s": read_rate(path),
@@ -286,17 +289,19 @@ def bench_diagnose(n: int) -> dict[str, Any]:
             out[ext.lstrip(".")] = row
         # issue 14: the command on the raw capture over a whole process doing the least
         # (python -m benchmarks.floor_process: start, frombuffer, table CRC, norms)
-        floor_wall, code, peak, err = run_child(
+        floor_wall, code, peak, err, floor_cpu = run_child(
             [sys.executable, "-m", "benchmarks.floor_process", str(paths[".bin"])]
         )
         out["floor_process"] = {
             "wall_s": floor_wall,
+            "cpu_s": floor_cpu,
             "exit_status": code,
             "peak_rss_mb": peak / 2**20,
         }
         raw = out.get("bin", {})
         if code == 0 and raw.get("exit_status") == 0:
             out["bin_floor_ratio"] = raw["wall_s"] / floor_wall
+            out["bin_floor_cpu_ratio"] = raw["cpu_s"] / floor_cpu
             out["target_floor_ratio"] = TARGET_DIAGNOSE_FLOOR_RATIO
             out["met"] = out["bin_floor_ratio"] <= TARGET_DIAGNOSE_FLOOR_RATIO
         try:
@@ -438,6 +443,16 @@ def table(results: dict[str, Any]) -> list[str]:
                         f"{_f(r['read_only_samples_per_s'])}/s",
                     )
                 )
+        if "bin_floor_ratio" in g:
+            rows.append(
+                (
+                    "imudiag diagnose bin / floor process",
+                    f"{g['bin_floor_ratio']:.1f}x wall",
+                    f"{g['bin_floor_cpu_ratio']:.1f}x CPU ({g['bin']['wall_s']:.2f} s vs "
+                    f"{g['floor_process']['wall_s']:.3f} s wall; target "
+                    f"<= {g['target_floor_ratio']:g}x)",
+                )
+            )
         w = g.get("window")
         if w and "error" not in w:
             rows.append(

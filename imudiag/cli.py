@@ -7,13 +7,16 @@ key, and the reason), 1 anything else; an error of the
 :class:`~imudiag.errors.ImudiagError` family maps to its status through
 :func:`imudiag.errors.exit_code`, here and nowhere else. Every module listed
 in :data:`COMMANDS` must import: a command that fails to load is an error,
-never a silently missing subcommand.
+never a silently missing subcommand. ``imudiag COMMAND ...`` imports that command's
+module only (start-up of ``imudiag diagnose``: issue 14); ``imudiag --help`` and an
+unknown command build the parser of them all.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import signal
 import sys
 from collections.abc import Sequence
@@ -40,6 +43,22 @@ EXIT_SIGINT = 130  #: 128 + SIGINT, as a shell reports Ctrl-C
 EXIT_SIGTERM = 143  #: 128 + SIGTERM
 
 
+#: environment variables that size the BLAS thread pools numpy starts on import
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def single_threaded_blas() -> None:
+    """One BLAS thread for this process unless the environment says otherwise (before numpy
+    is imported; no effect after). imudiag's matrices are small ((N, 3) by (3, 3)), where
+    a pool of threads only spins: ``imudiag diagnose`` on 10^6 frames took 10.2-10.9 s
+    with OpenBLAS's default threads on a loaded 2-core machine against 6.4-6.6 s with one
+    (docs/benchmarks.md)."""
+    if "numpy" in sys.modules:
+        return
+    for name in BLAS_THREAD_VARIABLES:
+        os.environ.setdefault(name, "1")
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM during a command: unwinds like Ctrl-C (temporary files removed), exit 143."""
 
@@ -61,16 +80,26 @@ class OneLineErrorParser(argparse.ArgumentParser):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The full argument parser with every available subcommand (subparsers of the same
-    class: a bad option value is one line, exit 2, before any command runs)."""
+def command_module(argv: Sequence[str]) -> str | None:
+    """The module in :data:`COMMANDS` of the subcommand ``argv`` names (its first word, as
+    ``imudiag COMMAND ...`` takes no option before the command but --help/--version), or None
+    (no such command: the full parser lists them)."""
+    names = {module.replace("_", "-"): module for module in COMMANDS}
+    return names.get(argv[0]) if argv else None
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The argument parser with every available subcommand, or with the one of module
+    ``only`` (imports nothing of the others: ``imudiag diagnose`` starts without the
+    daemon's, the simulator's or the model check's modules). Subparsers are of the same
+    class: a bad option value is one line, exit 2, before any command runs."""
     parser = OneLineErrorParser(
         prog="imudiag",
         description="Onboard IMU monitor and scalar diagnosis (Avrutov 2015).",
     )
     parser.add_argument("--version", action="version", version=f"imudiag {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
+    for name in COMMANDS if only is None else (only,):
         # every command is part of the build: one that fails to import is an error to see,
         # never a command silently missing from --help
         importlib.import_module(f"imudiag.commands.{name}").register(sub)
@@ -79,8 +108,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``imudiag`` console script."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    single_threaded_blas()
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(command_module(args_list))
+    args = parser.parse_args(args_list)
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT

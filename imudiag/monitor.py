@@ -776,7 +776,10 @@ class Monitor:
         ratio6 = np.empty((pos.size, 6))
         group = max(1, (1 << 20) // (6 * w))
         for g in range(0, pos.size, group):
-            ratio6[g : g + group] = np.median(windows[ends[g : g + group] - w], axis=2)
+            # the gathered windows are a copy of our own: partitioned in place, not copied again
+            ratio6[g : g + group] = np.median(
+                windows[ends[g : g + group] - w], axis=2, overwrite_input=True
+            )
         t = block.t[pos]
         for k, name in enumerate(TRIADS_RING):
             sigma = self._noise_sigma[name]

@@ -332,7 +332,8 @@ class QuasiStaticDetector:
         if self._noise_fixed[triad] or var.shape[0] < 10:
             return
         ratio = _chi2_quantile_ratio(self.window - 1, _Z_NOISE_QUANTILE)
-        est = np.quantile(var, _NOISE_QUANTILE, axis=0) / ratio
+        # ``var`` is the caller's boolean-mask copy: partitioned in place, not copied again
+        est = np.quantile(var, _NOISE_QUANTILE, axis=0, overwrite_input=True) / ratio
         est = np.maximum(est, 1e-30)
         prev = self._noise_var[triad]
         self._noise_var[triad] = est if prev is None else np.minimum(prev, est)

@@ -23,17 +23,34 @@ def qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-def rotvec_quat(theta: np.ndarray) -> np.ndarray:
-    """Quaternions (..., 4) of rotation vectors (..., 3), rad."""
+def _half_angle(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(cos(a/2), sin(a/2)/a) of rotation vectors (..., 3), rad, a = |theta| (the second
+    by its series near zero): a quaternion is (cos(a/2), theta sin(a/2)/a)."""
     a2 = np.einsum("...i,...i->...", theta, theta)
     a = np.sqrt(a2)
     half = 0.5 * a
     # sin(a/2)/a with its series near zero
     big = a > 1e-4
     k = np.where(big, np.sin(half) / np.where(big, a, 1.0), 0.5 - a2 / 48.0)
+    return np.cos(half), k
+
+
+def rotvec_quat(theta: np.ndarray) -> np.ndarray:
+    """Quaternions (..., 4) of rotation vectors (..., 3), rad."""
+    c, k = _half_angle(theta)
     out = np.empty(theta.shape[:-1] + (4,))
-    out[..., 0] = np.cos(half)
+    out[..., 0] = c
     out[..., 1:] = theta * k[..., None]
+    return out
+
+
+def _rotvec_rows(theta: np.ndarray) -> np.ndarray:
+    """:func:`rotvec_quat` component-major: (4, ...) of rotation vectors (..., 3), rad."""
+    c, k = _half_angle(theta)
+    out = np.empty((4,) + theta.shape[:-1])
+    out[0] = c
+    for i in range(3):
+        np.multiply(theta[..., i], k, out=out[i + 1])
     return out
 
 
@@ -93,4 +110,97 @@ def ordered_product(q: np.ndarray) -> np.ndarray:
     return q[..., 0, :]
 
 
-__all__ = ["matrix_quat", "ordered_product", "qmul", "quat_matrix", "rotvec_quat"]
+#: the terms of each component of a Hamilton product a * b, in the order :func:`qmul` adds
+#: them: (sign, component of a, component of b)
+_HAMILTON = (
+    ((1, 0, 0), (-1, 1, 1), (-1, 2, 2), (-1, 3, 3)),
+    ((1, 0, 1), (1, 1, 0), (1, 2, 3), (-1, 3, 2)),
+    ((1, 0, 2), (-1, 1, 3), (1, 2, 0), (1, 3, 1)),
+    ((1, 0, 3), (1, 1, 2), (-1, 2, 1), (1, 3, 0)),
+)
+
+
+def _qmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products of quaternions stored component-major, (4, ...) by (4, ...):
+    the arithmetic of :func:`qmul` term for term (the same roundings), on whole rows and
+    into two buffers (no temporary array per term)."""
+    out = np.empty(a.shape)
+    term = np.empty(a.shape[1:])
+    for c, terms in enumerate(_HAMILTON):
+        acc = out[c]
+        (_, i0, j0), *rest = terms
+        np.multiply(a[i0], b[j0], out=acc)
+        for sign, i, j in rest:
+            np.multiply(a[i], b[j], out=term)
+            (np.add if sign > 0 else np.subtract)(acc, term, out=acc)
+    return out
+
+
+#: one level of a segmented pairwise product: (first of each pair, where its product goes,
+#: the unpaired last element of each odd segment, where it goes, elements after the level)
+ProductLevel = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]
+
+
+def segment_product_plan(lengths: np.ndarray) -> tuple[list[ProductLevel], np.ndarray]:
+    """The levels of the pairwise products of segments of ``lengths`` (S,) laid end to end,
+    and where each segment's product ends up (S,; -1: an empty segment, the identity).
+
+    Each level pairs consecutive elements inside each segment, (0, 1), (2, 3), ..., and
+    passes an odd segment's last element up unpaired: the tree of :func:`ordered_product`
+    over each segment padded to a power of two, without the padding.
+    """
+    n = np.asarray(lengths, dtype=np.intp)
+    levels: list[ProductLevel] = []
+    while n.size and n.max() > 1:
+        start = np.cumsum(n) - n
+        pairs = n // 2
+        odd = (n % 2).astype(bool)
+        new_n = pairs + odd
+        new_start = np.cumsum(new_n) - new_n
+        seg = np.repeat(np.arange(n.size), pairs)
+        rank = np.arange(seg.size) - np.repeat(np.cumsum(pairs) - pairs, pairs)
+        levels.append(
+            (
+                start[seg] + 2 * rank,
+                new_start[seg] + rank,
+                start[odd] + n[odd] - 1,
+                new_start[odd] + pairs[odd],
+                int(new_n.sum()),
+            )
+        )
+        n = new_n
+    where = np.cumsum(n) - n
+    return levels, np.where(n > 0, where, -1)
+
+
+def segmented_product_of_rotvecs(
+    theta: np.ndarray, plan: tuple[list[ProductLevel], np.ndarray]
+) -> np.ndarray:
+    """Ordered products of rotation vectors (rad) by segment: ``theta`` (P, K, 3), P sets
+    of the K vectors of segments laid end to end as ``plan`` (:func:`segment_product_plan`)
+    says; returns (P, S, 4). Bit for bit ``ordered_product(rotvec_quat(.))`` of each segment
+    padded with zero vectors (their quaternions are the identity exactly), with neither
+    the padding's trigonometry nor its products."""
+    levels, where = plan
+    q = _rotvec_rows(theta)  # (4, P, K)
+    for left, to, last, last_to, size in levels:
+        nxt = np.empty(q.shape[:2] + (size,))
+        nxt[:, :, to] = _qmul_rows(np.take(q, left, axis=2), np.take(q, left + 1, axis=2))
+        nxt[:, :, last_to] = np.take(q, last, axis=2)
+        q = nxt
+    out = np.zeros((q.shape[1], where.size, 4))
+    out[:, :, 0] = 1.0
+    full = where >= 0
+    out[:, full] = np.moveaxis(np.take(q, where[full], axis=2), 0, 2)
+    return out
+
+
+__all__ = [
+    "matrix_quat",
+    "ordered_product",
+    "segment_product_plan",
+    "segmented_product_of_rotvecs",
+    "qmul",
+    "quat_matrix",
+    "rotvec_quat",
+]

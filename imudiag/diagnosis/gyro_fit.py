@@ -8,8 +8,8 @@ at the start) must carry the first measured specific-force direction into the
 second, ``f_1 = C^T f_0`` (Tedaldi et al., ICRA 2014). The fit finds the shape
 (e, d: the symmetric part P of N, see :mod:`.gauge`) that makes it so over all
 rotations of a window, by Gauss-Newton with a numerical Jacobian; every
-parameter set integrates all segments at once (segments padded, quaternion
-products reduced pairwise: no loop over samples).
+parameter set integrates all segments at once (each segment's blocks only,
+quaternion products reduced pairwise: no loop over samples or segments).
 
 Navigation-grade gyros see Earth rate; :func:`earth_rate_observable` decides
 from the certificate's noise whether the stationary scalar fit with
@@ -25,11 +25,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..certificate import Certificate, TriadModel
-from ..rotations import ordered_product, quat_matrix, rotvec_quat
+from ..rotations import (
+    quat_matrix,
+    rotvec_quat,
+    segment_product_plan,
+    segmented_product_of_rotvecs,
+)
 from .gauge import p_matrix, shape_of_triad
 from .intervals import QuasiStaticInterval
 from .params import limit_vector
-from .robust import MAX_LEVERAGE, point_diagnostics
+from .robust import MAX_LEVERAGE, group_leverages, point_diagnostics
 
 #: Floor of the direction residual (rad): integration and modelling resolution.
 DIRECTION_FLOOR = 1e-4
@@ -118,6 +123,9 @@ class RotationPair:
     up1: np.ndarray  #: (3,) unit specific force at the second interval
     dir_var: float  #: variance of each direction component from accelerometer noise, rad^2
     bias_var: np.ndarray  #: (3,) variance of the bias, output units^2
+    #: the motion's :attr:`.intervals.MotionSegment.memo` (its increments are kept there
+    #: per gyro scale, :func:`scale_key`: the same motion is in many windows), or None
+    memo: dict | None = None
 
 
 @dataclass
@@ -162,33 +170,65 @@ def _block_increments(inc: np.ndarray, block_rad: float) -> np.ndarray:
     return np.add.reduceat(inc, starts, axis=0)
 
 
+def scale_key(gyro: TriadModel) -> tuple[float, bytes]:
+    """What a motion's screening and increments depend on in a gyro model (its nominal
+    scale factors and unit), as a memo key: a model changed in place is a new key."""
+    return float(gyro.unit_to_si), np.asarray(gyro.scale_factor, dtype=float).tobytes()
+
+
+def _pair_increments(gyro: TriadModel, p: RotationPair, block_deg: float) -> np.ndarray:
+    """One motion's blocked rotation increments before N^-1 (rad), kept in its memo per
+    gyro scale (the window diagnosis refits each motion in every window of its interval)."""
+    key = ("increments", block_deg, *scale_key(gyro))
+    if p.memo is not None and key in p.memo:
+        return p.memo[key]
+    y = (p.raw - p.bias) / gyro.scale_factor * gyro.unit_to_si
+    inc = 0.5 * (y[1:] + y[:-1]) * np.diff(p.t)[:, None]
+    out = _block_increments(inc, math.radians(block_deg)) if inc.shape[0] else inc
+    if p.memo is not None:
+        p.memo[key] = out
+    return out
+
+
 def stack_pairs(
     gyro: TriadModel, pairs: list[RotationPair], block_deg: float = 1.0
 ) -> dict[str, np.ndarray]:
     """Rotation increments of every motion before N^-1 (trapezoid rule, rad), padded.
 
     ``inc`` (n, B, 3): per motion, blocks of at most about ``block_deg`` of turn
-    (zero padding is the identity); ``path`` (n,): each motion's path length, rad.
+    (zero padding is the identity); ``path`` (n,): each motion's path length, rad;
+    ``blocks`` (n,): each motion's number of blocks (the rest of its row is padding).
     """
-    blocks = []
-    for p in pairs:
-        y = (p.raw - p.bias) / gyro.scale_factor * gyro.unit_to_si
-        inc = 0.5 * (y[1:] + y[:-1]) * np.diff(p.t)[:, None]
-        blocks.append(_block_increments(inc, math.radians(block_deg)) if inc.shape[0] else inc)
+    blocks = [_pair_increments(gyro, p, block_deg) for p in pairs]
     b = max(max(x.shape[0] for x in blocks), 1)
     out = np.zeros((len(pairs), b, 3))
     for i, x in enumerate(blocks):
         out[i, : x.shape[0]] = x
     path = np.sum(np.linalg.norm(out, axis=2), axis=1)
-    return {"inc": out, "path": path}
+    return {"inc": out, "path": path, "blocks": np.array([x.shape[0] for x in blocks])}
 
 
 def predict_end_directions(
     stack: dict[str, np.ndarray], ninv: np.ndarray, up0: np.ndarray
 ) -> np.ndarray:
-    """Predicted end directions (P, n, 3) for parameter sets with N^-1 (P, 3, 3)."""
-    theta = np.matmul(stack["inc"][None], np.swapaxes(ninv, 1, 2)[:, None])
-    q = ordered_product(rotvec_quat(theta))
+    """Predicted end directions (P, n, 3) for parameter sets with N^-1 (P, 3, 3).
+
+    The rotation of each motion is the ordered product of its blocks' quaternions
+    (:func:`.rotations.segmented_product_of_rotvecs`: only the blocks a motion has, not
+    the padding to the longest, go through N^-1, the trigonometry and the products; the
+    plan of the products is kept in ``stack``, which every evaluation of a fit shares).
+    """
+    inc = stack["inc"]
+    n, b, _ = inc.shape
+    if "plan" not in stack:
+        lengths = stack.get("blocks")
+        if lengths is None:  # a stack made by hand: every block may turn
+            lengths = np.full(n, b)
+        row, block = np.nonzero(np.arange(b)[None, :] < np.asarray(lengths)[:, None])
+        stack["turning"] = inc[row, block]  # (K, 3): motion by motion, blocks in order
+        stack["plan"] = segment_product_plan(np.asarray(lengths))  # type: ignore[assignment]
+    theta = np.matmul(stack["turning"][None], np.swapaxes(ninv, 1, 2))  # (P, K, 3)
+    q = segmented_product_of_rotvecs(theta, stack["plan"])  # type: ignore[arg-type]
     c = quat_matrix(q)  # body at end -> body at start
     return np.einsum("pnji,nj->pni", c, up0)
 
@@ -362,6 +402,15 @@ def _deletion_variances(a_all: np.ndarray, cov: np.ndarray, groups: list[np.ndar
     inf where the group's leverage exceeds :data:`.robust.MAX_LEVERAGE`.
     """
     out = np.full((len(groups), cov.shape[0]), np.inf)
+    blocks = group_leverages(a_all, cov, groups) if groups else None
+    if blocks is not None:
+        # every motion's three components at once
+        rows, a, hk, judged = blocks
+        a, hk = a[judged], hk[judged]
+        m = cov[None] @ np.swapaxes(a, 1, 2)  # (G, p, 3)
+        sol = np.linalg.solve(np.eye(rows.shape[1])[None] - hk, np.swapaxes(m, 1, 2))
+        out[judged] = np.diag(cov)[None] + np.einsum("gij,gji->gi", m, sol)
+        return out
     for k, rows in enumerate(groups):
         a = a_all[rows]
         hk = a @ cov @ a.T
@@ -415,6 +464,7 @@ __all__ = [
     "gyro_sample_var",
     "predict_end_directions",
     "rotation_fit",
+    "scale_key",
     "rest_bias",
     "earth_rate_observable",
     "stack_pairs",

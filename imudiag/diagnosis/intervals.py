@@ -46,13 +46,16 @@ class MotionSegment:
 
     ``t`` (M,) s and ``gyro`` (M, 3) raw outputs. ``usable`` is false when the
     motion was too long to keep or the stream had a time gap inside it;
-    ``reason`` says why.
+    ``reason`` says why. ``memo``: what the window diagnosis derived from the motion
+    alone for a given gyro scale (whether it is usable, its rotation increments), kept
+    because a motion is in every window of its interval (up to 24 of them).
     """
 
     t: np.ndarray
     gyro: np.ndarray
     usable: bool = True
     reason: str = ""
+    memo: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def duration_s(self) -> float:

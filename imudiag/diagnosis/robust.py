@@ -67,6 +67,25 @@ class PointDiagnostics:
     excess_var: float  #: robust common excess variance added to every residual
 
 
+def group_leverages(
+    a_all: np.ndarray, cov: np.ndarray, groups: Sequence[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """For groups of rows all of one size m: (rows (G, m), their weighted Jacobian rows
+    a (G, m, p), hat blocks a cov a^T (G, m, m) symmetrised, and whether each group can be
+    left out (G,): its largest leverage at most :data:`MAX_LEVERAGE`); None for groups of
+    different sizes. ``a_all`` (n, p) weighted Jacobian, ``cov`` (p, p) unscaled covariance.
+    """
+    sizes = {len(g) for g in groups}
+    if len(sizes) > 1:
+        return None
+    rows = np.asarray(groups, dtype=np.intp).reshape(len(groups), -1)
+    a = a_all[rows]
+    hk = a @ cov[None] @ np.swapaxes(a, 1, 2)
+    hk = 0.5 * (hk + np.swapaxes(hk, 1, 2))
+    judged = np.linalg.eigvalsh(hk)[:, -1] <= MAX_LEVERAGE if rows.shape[1] else np.ones(0, bool)
+    return rows, a, hk, judged
+
+
 def point_diagnostics(
     jac: np.ndarray,
     r: np.ndarray,
@@ -102,19 +121,30 @@ def point_diagnostics(
         u = np.full(g_count, np.nan)  # squared deletion residual in units of the noise
         m_rows = np.array([len(g) for g in groups], dtype=float)
         nv_mean = np.ones(g_count)
-        for k, rows in enumerate(groups):
-            a = a_all[rows]
-            hk = a @ cov @ a.T
-            hk = 0.5 * (hk + hk.T)
-            if np.linalg.eigvalsh(hk)[-1] > MAX_LEVERAGE:
-                continue
+        blocks = group_leverages(a_all, cov, groups)
+        if blocks is not None and g_count:
+            # groups of one size (every motion's three direction components): all at once
+            rows, a, hk, judged = blocks
+            rows, a, hk = rows[judged], a[judged], hk[judged]
             s = s_all[rows]
-            sol_k = np.linalg.solve(np.eye(len(rows)) - hk, s)
-            shift[k] = cov @ a.T @ sol_k
-            # squared standardised deletion residual s^T (I - H)^-1 s, in weight units,
-            # rescaled to the noise-only variance
-            u[k] = float(s @ sol_k) / float(np.mean(noise_var[rows] * w[rows]))
-            nv_mean[k] = float(np.mean(noise_var[rows]))
+            sol = np.linalg.solve(np.eye(rows.shape[1])[None] - hk, s[:, :, None])[:, :, 0]
+            shift[judged] = ((cov[None] @ np.swapaxes(a, 1, 2)) @ sol[:, :, None])[:, :, 0]
+            u[judged] = np.sum(s * sol, axis=1) / np.mean(noise_var[rows] * w[rows], axis=1)
+            nv_mean[judged] = np.mean(noise_var[rows], axis=1)
+        else:
+            for k, rows in enumerate(groups):
+                a = a_all[rows]
+                hk = a @ cov @ a.T
+                hk = 0.5 * (hk + hk.T)
+                if np.linalg.eigvalsh(hk)[-1] > MAX_LEVERAGE:
+                    continue
+                s = s_all[rows]
+                sol_k = np.linalg.solve(np.eye(len(rows)) - hk, s)
+                shift[k] = cov @ a.T @ sol_k
+                # squared standardised deletion residual s^T (I - H)^-1 s, in weight units,
+                # rescaled to the noise-only variance
+                u[k] = float(s @ sol_k) / float(np.mean(noise_var[rows] * w[rows]))
+                nv_mean[k] = float(np.mean(noise_var[rows]))
     excess = _robust_excess(u, nv_mean, m_rows)
     z = np.sqrt(u / (m_rows * (1.0 + excess / nv_mean)))
     return PointDiagnostics(z=z, shift=shift, excess_var=excess)

@@ -27,8 +27,9 @@ from .gyro_fit import (
     earth_rate_observable,
     rest_bias,
     rotation_fit,
+    scale_key,
 )
-from .intervals import QuasiStaticInterval
+from .intervals import MotionSegment, QuasiStaticInterval
 from .known_rate import classify_plateaus
 from .params import TriadFit, certificate_vector, limit_vector, undetermined_fit
 from .predicates import held_back
@@ -200,6 +201,30 @@ def clipped(raw: np.ndarray, rest: np.ndarray, sigma: np.ndarray, min_repeat: in
     return False
 
 
+def _motion_usable(
+    gyro: TriadModel,
+    prev: QuasiStaticInterval,
+    seg: MotionSegment,
+    max_step: float,
+    min_path: float,
+) -> bool:
+    """Whether a motion after interval ``prev`` turned slowly enough (``max_step`` rad per
+    sample at most), far enough (``min_path`` rad) and never clipped; kept in the motion's
+    memo per gyro scale (the same motion is screened again in every window of its
+    interval)."""
+    key = ("usable", max_step, min_path, *scale_key(gyro))
+    if key in seg.memo:
+        return bool(seg.memo[key])
+    rate = (seg.gyro - prev.gyro_mean) / gyro.scale_factor * gyro.unit_to_si
+    steps = np.linalg.norm(rate[:-1], axis=1) * np.diff(seg.t)
+    usable = not (np.max(steps) > max_step or np.sum(steps) < min_path)
+    if usable:
+        sigma = np.sqrt(np.maximum(np.diag(prev.gyro_cov), 1e-30))
+        usable = not clipped(seg.gyro, prev.gyro_mean, sigma)
+    seg.memo[key] = usable
+    return usable
+
+
 def rotation_pairs(
     cert: Certificate, accel: TriadModel, intervals: list[QuasiStaticInterval]
 ) -> list[RotationPair]:
@@ -216,38 +241,37 @@ def rotation_pairs(
     gyro = cert.gyro
     max_step = math.radians(MAX_STEP_DEG)
     min_path = math.radians(MIN_ROTATION_DEG)
-    for prev, cur in zip(intervals[:-1], intervals[1:], strict=True):
+    ups = None  # every interval's specific force in this window's accelerometer model
+    for i, (prev, cur) in enumerate(zip(intervals[:-1], intervals[1:], strict=True)):
         seg = cur.before
         if seg is None or not seg.usable or cur.index != prev.index + 1 or seg.t.shape[0] < 2:
             continue
-        rate = (seg.gyro - prev.gyro_mean) / gyro.scale_factor * gyro.unit_to_si
-        steps = np.linalg.norm(rate[:-1], axis=1) * np.diff(seg.t)
-        if np.max(steps) > max_step or np.sum(steps) < min_path:
+        if not _motion_usable(gyro, prev, seg, max_step, min_path):
             continue
-        sigma = np.sqrt(np.maximum(np.diag(prev.gyro_cov), 1e-30))
-        if clipped(seg.gyro, prev.gyro_mean, sigma):
-            continue
-        f = accel.inverse(np.array([prev.accel_mean, cur.accel_mean]))
-        nf = np.linalg.norm(f, axis=1)
+        if ups is None:
+            f_all = accel.inverse(np.array([iv.accel_mean for iv in intervals]))
+            ups = (f_all, np.linalg.norm(f_all, axis=1))
+        f, nf = ups[0][i : i + 2], ups[1][i : i + 2]
         if not np.all(nf > 0):
             continue
-        dir_var = (
-            float(
-                np.mean(
-                    (prev.mean_var("accel") + cur.mean_var("accel")) / 2.0 / accel.scale_factor**2
-                )
+        if "pair" not in seg.memo:  # the two intervals' figures, the same in every window
+            seg.memo["pair"] = (
+                0.5 * (prev.gyro_mean + cur.gyro_mean),
+                0.25 * (prev.mean_var("gyro") + cur.mean_var("gyro")),
+                (prev.mean_var("accel") + cur.mean_var("accel")) / 2.0,
             )
-            / g_in**2
-        )
+        bias, bias_var, accel_var = seg.memo["pair"]
+        dir_var = float(np.mean(accel_var / accel.scale_factor**2)) / g_in**2
         pairs.append(
             RotationPair(
                 t=seg.t,
                 raw=seg.gyro,
-                bias=0.5 * (prev.gyro_mean + cur.gyro_mean),
+                bias=bias,
                 up0=f[0] / nf[0],
                 up1=f[1] / nf[1],
                 dir_var=dir_var,
-                bias_var=0.25 * (prev.mean_var("gyro") + cur.mean_var("gyro")),
+                bias_var=bias_var,
+                memo=seg.memo,
             )
         )
     return pairs

@@ -1,0 +1,169 @@
+"""`imudiag diagnose` reports equal those of the code before the speed work (issue 14).
+
+The reports in tests/data/frozen-reports/ were written by ``imudiag diagnose`` at main
+ce884e5 (before the diagnose speed work) on three inputs: the benchmark's own simulated
+board (static scenario, raw ``.bin`` capture, seeded), a seeded multi-position session with
+two injected faults (``.npz``), and the real Xsens MTi recording with
+tests/data/diagnosis/like-xsens.yaml. Every string, integer, boolean and null must be equal
+(verdicts, faults, undetermined parameters, windows, counts); every float equal to 1e-9
+relative. Regenerate only on purpose (a change meant to change the report):
+``python tests/test_diagnose_frozen_reports.py``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from imudiag.certificate import load_default
+from imudiag.drivers.wire import encode_samples
+from imudiag.logs import open_writer
+from imudiag.sim import Fault, multi_position, simulate
+from imudiag.sim.board import SimulatedBoard
+from imudiag.sim.scenarios import scenario_motion
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = ROOT / "tests" / "data"
+FROZEN = DATA / "frozen-reports"
+REL_TOL = 1e-9  #: relative tolerance of every float of the report
+#: keys that name this run's files, not the diagnosis
+RUN_KEYS = ("log",)
+
+
+def write_board_capture(path: Path) -> Path:
+    """480 s of the benchmark's simulated board (static scenario, 200 Hz, seed 3) as a raw
+    capture of sample frames, the way ``benchmarks.run.write_logs`` writes its ``.bin``."""
+    rate_hz = 200.0
+    board = SimulatedBoard(
+        load_default(), scenario_motion("static", 3), rate_hz, 3, duration_s=480.0
+    )
+    done = 0
+    with open(path, "wb") as raw:
+        while not board.exhausted:
+            _, block = board.generate(1 << 16)
+            time_us = np.rint(block.t * 1e6).astype(np.int64)
+            outputs = np.hstack([block.gyro, block.accel])
+            raw.write(encode_samples(done, time_us, outputs, block.temp, block.flags))
+            done += len(block)
+    return path
+
+
+def write_faulty_session(path: Path) -> Path:
+    """A seeded MEMS multi-position session (40 attitudes, 200 Hz) with a gyro gy scale-factor
+    fault of 5 limits and an accel ax bias fault of 4 limits from the start."""
+    cert = load_default()
+    traj = multi_position(n_attitudes=40, dwell_s=3.0, turn_s=1.5, rate_hz=200, seed=31)
+    faults = [
+        Fault("scale_factor", "gy", 0.0, 5 * cert.gyro.limits.scale_factor_error[1]),
+        Fault("bias", "ax", 0.0, 4 * cert.accel.limits.bias[0]),
+    ]
+    sim = simulate(cert, traj, seed=32, faults=faults)
+    meta = {"sample_rate": sim.truth.rate_hz, "units": "gyro=count accel=count"}
+    with open_writer(path, meta) as w:
+        w.write(sim.samples)
+    return path
+
+
+#: name -> (writes the input into a directory, or the input in the repository; extra options)
+CASES: dict[str, tuple[Any, list[str]]] = {
+    "board-static-bin": (
+        lambda d: write_board_capture(d / "board.bin"),
+        ["--window-intervals", "8"],
+    ),
+    "multiposition-faults-npz": (lambda d: write_faulty_session(d / "faulty.npz"), []),
+    "xsens-mti": (
+        lambda d: DATA / "real" / "xsens-mti-multiposition" / "session.csv.gz",
+        ["--certificate", str(DATA / "diagnosis" / "like-xsens.yaml")],
+    ),
+}
+
+
+def diagnose_report(name: str, directory: Path) -> dict:
+    """Run ``imudiag diagnose`` on case ``name`` as a subprocess; its JSON report without the
+    keys naming this run's files."""
+    make, options = CASES[name]
+    log = make(directory)
+    out = directory / f"{name}.json"
+    subprocess.run(
+        [sys.executable, "-m", "imudiag", "diagnose", str(log), *options, "--json", str(out)],
+        check=True,
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+    )
+    report = json.loads(out.read_text())
+    for key in RUN_KEYS:
+        report.pop(key, None)
+    return report
+
+
+def differences(got: Any, want: Any, where: str = "report") -> list[str]:
+    """Where ``got`` differs from ``want``: types, keys, lengths and non-float values exactly,
+    floats to :data:`REL_TOL` relative."""
+    if isinstance(want, dict):
+        if not isinstance(got, dict):
+            return [f"{where}: {type(got).__name__}, want an object"]
+        out = (
+            [f"{where}: keys {sorted(set(got) ^ set(want))} differ"]
+            if got.keys() != want.keys()
+            else []
+        )
+        for k in want.keys() & got.keys():
+            out += differences(got[k], want[k], f"{where}.{k}")
+        return out
+    if isinstance(want, list):
+        if not isinstance(got, list) or len(got) != len(want):
+            return [f"{where}: {got!r:.80} != {want!r:.80}"]
+        out = []
+        for i, (g, w) in enumerate(zip(got, want, strict=True)):
+            out += differences(g, w, f"{where}[{i}]")
+        return out
+    if isinstance(want, float) and isinstance(got, float):
+        if math.isclose(got, want, rel_tol=REL_TOL, abs_tol=0.0):
+            return []
+        return [f"{where}: {got!r} != {want!r}"]
+    if type(got) is not type(want) or got != want:
+        return [f"{where}: {got!r} != {want!r}"]
+    return []
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_report_unchanged(name, tmp_path):
+    want = json.loads((FROZEN / f"{name}.json").read_text())
+    got = diagnose_report(name, tmp_path)
+    diff = differences(got, want)
+    assert not diff, f"{len(diff)} differences, first: " + "; ".join(diff[:8])
+
+
+def test_the_comparison_sees_a_change():
+    """The comparison itself: a float off by 1e-8 relative, a verdict or a window less."""
+    want = json.loads((FROZEN / "multiposition-faults-npz.json").read_text())
+    assert want["verdict"]["gyro"] == "fault" and want["verdict"]["accel"] == "fault"
+    assert len(want["windows"]) >= 5
+    assert not differences(json.loads(json.dumps(want)), want)
+    got = json.loads(json.dumps(want))
+    got["windows"][-1]["accel"]["bias"]["estimate"][0] *= 1.0 + 1e-8
+    assert differences(got, want)
+    got = json.loads(json.dumps(want))
+    got["verdict"]["gyro"] = "ok"
+    assert differences(got, want)
+    got = json.loads(json.dumps(want))
+    got["windows"].pop()
+    assert differences(got, want)
+
+
+if __name__ == "__main__":
+    import tempfile
+
+    FROZEN.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        for case in sorted(CASES):
+            rep = diagnose_report(case, Path(tmp))
+            (FROZEN / f"{case}.json").write_text(json.dumps(rep, indent=1) + "\n")
+            print(case, rep["verdict"]["accel"], rep["verdict"]["gyro"], rep.get("windows_run"))
