@@ -1,12 +1,13 @@
 """`imudiag diagnose` reports equal those of the code before the speed work (issue 14).
 
 The reports in tests/data/frozen-reports/ were written by ``imudiag diagnose`` at main
-d021e2f (with the moving-base detector, before the diagnose speed work) on three inputs: the benchmark's own simulated
-board (static scenario, raw ``.bin`` capture, seeded), a seeded multi-position session with
-two injected faults (``.npz``), and the real Xsens MTi recording with
-tests/data/diagnosis/like-xsens.yaml. Every string, integer, boolean and null must be equal
-(verdicts, faults, undetermined parameters, windows, counts); every float equal to 1e-9
-relative. Regenerate only on purpose (a change meant to change the report):
+d021e2f (with the moving-base detector, before the diagnose speed work) on three inputs:
+the benchmark's own simulated board (static scenario, raw ``.bin`` capture, seeded), a
+seeded multi-position session with two injected faults (``.npz``), and the real Xsens MTi
+recording with tests/data/diagnosis/like-xsens.yaml. Every string, integer, boolean and
+null must be equal (verdicts, faults, undetermined parameters, windows, counts); every
+float equal to 1e-9 relative. Regenerate only on purpose (a change meant to change the
+report):
 ``python tests/test_diagnose_frozen_reports.py``.
 """
 
