@@ -12,10 +12,9 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import errno
 import os
-import signal
-import tempfile
-import threading
+import secrets
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
@@ -28,15 +27,6 @@ TEMP_SUFFIX = ".part"
 _live: set[str] = set()  # temporaries created and not yet renamed or removed
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-_MODE = 0o666 & ~_umask()  # what open(path, "w") gives a new file (mkstemp gives 0600)
-
-
 def temp_path(path: str | os.PathLike[str]) -> str:
     """Create and return a unique, empty temporary file beside ``path``.
 
@@ -45,32 +35,24 @@ def temp_path(path: str | os.PathLike[str]) -> str:
     """
     dest = os.fspath(path)
     directory = os.path.dirname(dest) or "."
-    # Ctrl-C or SIGTERM between the file's creation and its registration would leave it
-    # behind: both are held off (delivered right after) until the exit clean-up knows it
-    with _signals_held():
-        fd, tmp = tempfile.mkstemp(
-            prefix=f".{os.path.basename(dest)}.", suffix=TEMP_SUFFIX, dir=directory
+    # the name is registered for the exit clean-up before the file exists, so a Ctrl-C or
+    # SIGTERM at any point (in any thread's delivery) can never leave an unknown file behind
+    for _ in range(100):
+        tmp = os.path.join(
+            directory, f".{os.path.basename(dest)}.{secrets.token_hex(4)}{TEMP_SUFFIX}"
         )
-        try:
-            os.fchmod(fd, _MODE)
-        finally:
-            os.close(fd)
         _live.add(tmp)
-    return tmp
-
-
-@contextlib.contextmanager
-def _signals_held() -> Iterator[None]:
-    """Hold SIGINT and SIGTERM off for the block (main thread, where the OS allows)."""
-    held = {signal.SIGINT, signal.SIGTERM}
-    if threading.current_thread() is not threading.main_thread():
-        yield  # Python runs signal handlers on the main thread only
-        return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # umask applies
+        except FileExistsError:
+            _live.discard(tmp)
+            continue
+        except BaseException:
+            discard(tmp)  # interrupted (it may exist): removed, or at exit if cut short again
+            raise
+        os.close(fd)
+        return tmp
+    raise FileExistsError(errno.EEXIST, "no unused temporary name", directory)
 
 
 def commit(tmp: str, path: str | os.PathLike[str]) -> None:

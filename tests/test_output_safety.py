@@ -338,17 +338,31 @@ def test_diagnose_stopped_writes_no_report(long_log: Path, tmp_path: Path, sig, 
 
 
 def test_a_signal_while_the_temporary_is_made_leaves_nothing(tmp_path: Path, monkeypatch):
-    """Ctrl-C arriving between the temporary file's creation and its registration (the
-    moment a test that waits for the first .part file sends its signal) is held off until
-    the exit clean-up knows the file: nothing is left once it has run."""
-    real_fchmod = os.fchmod
+    """Ctrl-C arriving right after the temporary file is created (the moment a test that
+    waits for the first .part file sends its signal; in a process with threads the Python
+    handler may run there whatever the main thread's signal mask) leaves nothing once the
+    exit clean-up has run: the name is registered before the file exists."""
+    real_open = os.open
 
-    def fchmod_then_ctrl_c(fd: int, mode: int) -> None:
-        real_fchmod(fd, mode)
-        os.kill(os.getpid(), signal.SIGINT)  # Python's default handler: KeyboardInterrupt
+    def open_then_ctrl_c(*args, **kwargs):
+        fd = real_open(*args, **kwargs)
+        os.close(fd)
+        raise KeyboardInterrupt  # what the SIGINT handler raises at the next bytecode
 
-    monkeypatch.setattr(atomic.os, "fchmod", fchmod_then_ctrl_c)
+    monkeypatch.setattr(atomic.os, "open", open_then_ctrl_c)
     with pytest.raises(KeyboardInterrupt):
         atomic.temp_path(tmp_path / "out.csv")
+    monkeypatch.undo()
     atomic._remove_leftovers()  # what the interpreter runs at exit
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_temporary_gets_the_mode_of_a_new_file(tmp_path: Path):
+    """Not mkstemp's 0600: the mode open(path, "w") would give under the umask."""
+    mask = os.umask(0o022)
+    try:
+        tmp = atomic.temp_path(tmp_path / "out.csv")
+        assert os.stat(tmp).st_mode & 0o777 == 0o644
+    finally:
+        os.umask(mask)
+    atomic.discard(tmp)
