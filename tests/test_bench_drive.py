@@ -47,7 +47,7 @@ def test_drive_aided_names_the_az_fault_with_aiding_in_use(tmp_path: Path, imudi
     assert matched["triad"] == "accel"
     assert set(matched["sensor"].split("|")) == {"az"}
     assert "bias" in matched["cause"].split("|")
-    assert 0.0 < fault["latency_s"] <= fault["bound_s"] == 170.0
+    assert 0.0 < fault["latency_s"] <= fault["bound_s"] == 210.0
     # the status's aiding object: gpsd on the bench's loopback port, in use early on
     aiding = report["aiding"]
     assert aiding["problems"] == []
@@ -59,7 +59,7 @@ def test_drive_aided_names_the_az_fault_with_aiding_in_use(tmp_path: Path, imudi
     assert final["f0"]["checked"] > 150
     # the IMU stream arrived whole
     assert report["counters"]["exact"] is True
-    assert report["counters"]["observed"]["frames"] == 240 * 200
+    assert report["counters"]["observed"]["frames"] == 300 * 200
 
 
 def test_missing_gpsd_refuses_with_the_packages_named(tmp_path: Path) -> None:
@@ -73,7 +73,7 @@ def test_missing_gpsd_refuses_with_the_packages_named(tmp_path: Path) -> None:
         check=False,
     )
     assert proc.returncode == 2, proc.stderr
-    assert "gpsd" in proc.stderr and "apt-get install gpsd gpsd-clients" in proc.stderr
+    assert "package gpsd" in proc.stderr and "apt-get install gpsd" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
 
 

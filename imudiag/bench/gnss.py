@@ -54,8 +54,8 @@ def missing() -> str | None:
     if gpsd is None:
         where = f" (${GPSD_ENV}={os.environ[GPSD_ENV]})" if GPSD_ENV in os.environ else ""
         return (
-            f"a bench scenario with aiding needs Debian's gpsd{where}, not found: "
-            "apt-get install gpsd gpsd-clients"
+            f"a bench scenario with aiding needs gpsd (Debian package gpsd){where}, not found: "
+            "apt-get install gpsd (gpsfake is not needed: the bench feeds gpsd itself)"
         )
     try:
         import pyubx2  # noqa: F401
