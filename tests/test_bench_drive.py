@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from imudiag.bench import ScenarioError, load_bundled, loads
-from imudiag.bench.gnss import GPSD_ENV, missing
+from imudiag.bench.gnss import GPSD_ENV, missing, wait_listening
 from imudiag.bench.scenario import Expectation
 
 WHY_NOT = missing()
@@ -33,6 +33,7 @@ def test_drive_aided_names_the_az_fault_with_aiding_in_use(tmp_path: Path, imudi
     proc = imudiag_cli("bench", "drive-aided", "--json", str(out), "--strict", timeout=180.0)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "verdict: PASS" in proc.stdout
+    assert "aiding: gpsd://127.0.0.1:" in proc.stdout and "in use from t = " in proc.stdout
     report = json.loads(out.read_text())
     assert report["scenario"] == "drive-aided" and report["passed"] is True
     assert report["daemon"]["exit_status"] == 0 and report["daemon"]["problems"] == []
@@ -60,6 +61,25 @@ def test_drive_aided_names_the_az_fault_with_aiding_in_use(tmp_path: Path, imudi
     # the IMU stream arrived whole
     assert report["counters"]["exact"] is True
     assert report["counters"]["observed"]["frames"] == 300 * 200
+    # the bench stopped the gpsd it started: its port no longer listens
+    port = int(aiding["source"].rsplit(":", 1)[1])
+    assert not wait_listening(port, 0.0)
+
+
+def test_a_gpsd_that_dies_at_start_is_a_bench_error_with_its_status(tmp_path: Path) -> None:
+    if WHY_NOT is not None and "pyubx2" in WHY_NOT:
+        pytest.skip(WHY_NOT)
+    env = dict(os.environ, **{GPSD_ENV: "/bin/false"})
+    proc = subprocess.run(
+        [sys.executable, "-m", "imudiag", "bench", "drive-aided"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+        check=False,
+    )
+    assert proc.returncode == 1, proc.stderr
+    assert "imudiag bench: gpsd exited with status 1 at start" in proc.stderr
 
 
 def test_missing_gpsd_refuses_with_the_packages_named(tmp_path: Path) -> None:

@@ -24,6 +24,7 @@ import shutil
 import socket
 import subprocess
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from imudiag.bench.pty import PtyPair
@@ -84,6 +85,21 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def wait_listening(port: int, timeout_s: float, alive: Callable[[], bool] = lambda: True) -> bool:
+    """True once 127.0.0.1:``port`` accepts a connection, False after ``timeout_s`` wall s
+    or as soon as ``alive()`` is false (the server exited)."""
+    deadline = time.monotonic() + timeout_s
+    while alive():
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+            return True
+        except OSError:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.05)
+    return False
+
+
 class GnssFeed:
     """gpsd on ``127.0.0.1:port`` fed the UBX epochs of ``motion`` through a pty.
 
@@ -126,22 +142,15 @@ class GnssFeed:
                 stdout=subprocess.DEVNULL,
                 stderr=err,
             )
-        deadline = time.monotonic() + GPSD_START_TIMEOUT_S
-        while True:
-            if self.proc.poll() is not None:
-                raise BenchError(
-                    f"gpsd exited with status {self.proc.returncode} at start: {self.stderr()}"
-                )
-            try:
-                socket.create_connection(("127.0.0.1", self.port), timeout=0.2).close()
-                return self
-            except OSError:
-                if time.monotonic() > deadline:
-                    raise BenchError(
-                        f"gpsd did not listen on 127.0.0.1:{self.port} within "
-                        f"{GPSD_START_TIMEOUT_S:g} s: {self.stderr()}"
-                    ) from None
-                time.sleep(0.05)
+        proc = self.proc
+        if wait_listening(self.port, GPSD_START_TIMEOUT_S, lambda: proc.poll() is None):
+            return self
+        if proc.poll() is not None:
+            raise BenchError(f"gpsd exited with status {proc.returncode} at start: {self.stderr()}")
+        raise BenchError(
+            f"gpsd did not listen on 127.0.0.1:{self.port} within "
+            f"{GPSD_START_TIMEOUT_S:g} s: {self.stderr()}"
+        )
 
     def send_until(self, t_s: float) -> None:
         """Write every epoch due by board sample time ``t_s`` (s) into gpsd's pty."""
