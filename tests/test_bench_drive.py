@@ -109,7 +109,8 @@ def test_missing_pyubx2_refuses_with_the_pip_command(tmp_path: Path) -> None:
 
 def test_drive_aided_scenario_loads() -> None:
     sc = load_bundled("drive-aided")
-    assert sc.motion == "highway" and sc.aiding is not None
+    assert sc.motion == "highway" and sc.motion_params == {"length": "300"}
+    assert sc.aiding is not None
     assert sc.aiding.rate_hz == 5.0 and sc.aiding.in_use_within == 30.0
     (inj,) = sc.sensor_injections
     assert inj.sensor == "az" and inj.value == 63.0
@@ -127,22 +128,33 @@ def test_group_expectations_match_a_moving_base_group() -> None:
     assert not Expectation("accel", "bias", "az").matches(group)
 
 
-BASE = "duration: 60\nmotion: urban\n"
+BASE = "duration: 60\nmotion: drive\nmotion_params: {route: urban}\n"
 
 
 @pytest.mark.parametrize(
     ("text", "where", "reason"),
     [
         ("duration: 5\naiding: {rate_hz: 5}\n", ":2: aiding", "needs a drive motion"),
-        (BASE + "aiding: {rate: 5}\n", ":3: aiding.rate", "unknown key"),
-        (BASE + "aiding: {rate_hz: 0}\n", ":3: aiding.rate_hz", "out of range"),
-        (BASE + "aiding: {in_use_within: 90}\n", ":3: aiding.in_use_within", "out of range"),
-        (BASE + "daemon:\n  aiding: gpsd://127.0.0.1:2947\n", ":4: daemon.aiding", "aiding:"),
+        (BASE + "aiding: {rate: 5}\n", ":4: aiding.rate", "unknown key"),
+        (BASE + "aiding: {rate_hz: 0}\n", ":4: aiding.rate_hz", "out of range"),
+        (BASE + "aiding: {in_use_within: 90}\n", ":4: aiding.in_use_within", "out of range"),
+        (BASE + "daemon:\n  aiding: gpsd://127.0.0.1:2947\n", ":5: daemon.aiding", "aiding:"),
         (
             BASE + "injections:\n  - t: 2\n    kind: bias\n    sensor: az\n    value: 63\n"
             "    expect:\n      - {triad: accel, cause: bias, group: yes please}\n",
-            ":9: injections[0].expect[0].group",
+            ":10: injections[0].expect[0].group",
             "expected true or false",
+        ),
+        ("duration: 60\nmotion: drive\n", ":2: motion", "needs motion_params.route"),
+        (
+            "duration: 60\nmotion: drive\nmotion_params: {route: moon}\n",
+            ":3: motion_params.route",
+            "expected one of urban, highway, hilly, aircraft",
+        ),
+        (
+            "duration: 60\nmotion: drive\nmotion_params: {route: urban, dwell: 3}\n",
+            ":3: motion_params.dwell",
+            "unknown parameter of motion urban",
         ),
     ],
 )
@@ -176,3 +188,5 @@ def test_an_aiding_section_takes_the_receiver_settings() -> None:
         0.05,
     )
     assert loads("duration: 60\nmotion: hilly\n", "s.yaml").aiding is None
+    # motion: drive with a route is the same scenario as the route's name
+    assert loads(BASE, "s.yaml").motion == loads("duration: 60\nmotion: urban\n").motion

@@ -401,6 +401,7 @@ _TOP_KEYS = (
     "aiding",
 )
 _EXPECT_KEYS = ("triad", "sensor", "cause", "within", "requires", "group")
+DRIVE_MOTION = "drive"  #: ``motion: drive`` with ``motion_params.route`` (a DRIVES name)
 _AIDING_KEYS = tuple(f.name for f in dataclasses.fields(AidingSpec))
 _SENSOR_NAMES = {"gyro": ("gx", "gy", "gz"), "accel": ("ax", "ay", "az")}
 
@@ -556,6 +557,20 @@ def _plain(obj: Any) -> Any:
     return obj
 
 
+def _motion(r: _Reader, params: _Reader | None) -> str:
+    """The simulator scenario of ``motion:``; ``drive`` takes ``motion_params.route``."""
+    if r.get("motion") is not None and r.text("motion") == DRIVE_MOTION:
+        if params is None or params.get("route") is None:
+            raise r.fail(
+                "motion", f"motion drive needs motion_params.route: one of {', '.join(DRIVES)}"
+            )
+        return params.text("route", choices=DRIVES)
+    try:
+        return canonical_scenario(r.text("motion", "static"))
+    except ValueError as exc:
+        raise r.fail("motion", str(exc)) from None
+
+
 def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
     """Validate a parsed scenario document (see the module docstring)."""
     if not isinstance(doc, Mapping):
@@ -567,15 +582,14 @@ def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
     if r.get("format") is not None and r.text("format") != FORMAT:
         raise r.fail("format", f"expected {FORMAT!r}, got {r.get('format')!r}")
     name = r.text("name", Path(source).stem if source != "(scenario)" else "scenario")
-    try:
-        motion = canonical_scenario(r.text("motion", "static"))
-    except ValueError as exc:
-        raise r.fail("motion", str(exc)) from None
     params_reader = r.mapping("motion_params")
+    motion = _motion(r, params_reader)
     params: dict[str, str] = {}
     if params_reader is not None:
         allowed = scenario_params(motion)
         for k, v in params_reader.doc.items():
+            if k == "route" and r.text("motion") == DRIVE_MOTION:
+                continue
             if k not in allowed:
                 raise params_reader.fail(
                     str(k), f"unknown parameter of motion {motion}; known: {', '.join(allowed)}"
