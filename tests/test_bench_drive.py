@@ -147,6 +147,12 @@ BASE = "duration: 60\nmotion: drive\nmotion_params: {route: urban}\n"
         ),
         ("duration: 60\nmotion: drive\n", ":2: motion", "needs motion_params.route"),
         (
+            "duration: 400\nmotion: drive\nmotion_params: {route: hilly, length: 300}\n"
+            "aiding: {}\n",
+            ":1: duration",
+            "longer than the hilly drive of seed 0",
+        ),
+        (
             "duration: 60\nmotion: drive\nmotion_params: {route: moon}\n",
             ":3: motion_params.route",
             "expected one of urban, highway, hilly, aircraft",

@@ -662,6 +662,14 @@ def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
                 f"{MIN_TRANSPORT_GAP_S:g} s (their counter increments could not be told apart)",
             )
     aiding = _aiding(r, motion, duration)
+    if aiding is not None:
+        drive = scenario_motion(motion, seed, params)
+        if drive.duration_s < duration:
+            raise r.fail(
+                "duration",
+                f"{duration:g} s is longer than the {motion} drive of seed {seed} "
+                f"({drive.duration_s:.1f} s): raise motion_params.length",
+            )
     return BenchScenario(
         name=name,
         motion=motion,
