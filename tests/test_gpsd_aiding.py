@@ -8,22 +8,20 @@ Skips with the reason where gpsd/gpsfake or pyubx2 is missing (.ci/run installs 
 from __future__ import annotations
 
 import shutil
-import socket
 import subprocess
-import time
-from pathlib import Path
 
 import pytest
 
 from imudiag.aiding.gpsd_client import GpsdClient, parse_gpsd_url
 from imudiag.bench.daemon_process import DaemonProcess
+from imudiag.bench.gnss import find_gpsd, free_port, wait_listening
 from imudiag.bench.pty import BoardWriter, PtyPair
 from imudiag.certificate import load_default
 from imudiag.errors import BadInput
 from imudiag.sim.board import SimulatedBoard
 from imudiag.sim.drive import GnssSimConfig, drive_motion, gnss_reports
 
-GPSD = shutil.which("gpsd") or (Path("/usr/sbin/gpsd").exists() and "/usr/sbin/gpsd")
+GPSD = find_gpsd()
 GPSFAKE = shutil.which("gpsfake")
 needs_gpsd = pytest.mark.skipif(
     not (GPSD and GPSFAKE),
@@ -31,23 +29,6 @@ needs_gpsd = pytest.mark.skipif(
     "the real-gpsd aiding tests cannot run (.ci/run installs them when it runs as root)",
 )
 SPEED = 5.0  #: both streams at 5 x real time
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_port(port: int, timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
-            return
-        except OSError:
-            time.sleep(0.05)
-    raise TimeoutError(f"gpsd did not listen on {port}")
 
 
 def test_gpsd_url_and_unreachable_gpsd():
@@ -78,7 +59,7 @@ def test_daemon_aided_by_real_gpsd(tmp_path):
         stderr=subprocess.DEVNULL,
     )
     try:
-        wait_port(port)
+        assert wait_listening(port, 10.0, lambda: gf.poll() is None), "gpsd did not listen"
         board = SimulatedBoard(cert, motion, seed=5, duration_s=motion.duration_s)
         with PtyPair() as pair:
             writer = BoardWriter(pair, board.iter_bytes(0.05), rate_hz=SPEED / 0.05)

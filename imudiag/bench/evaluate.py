@@ -310,6 +310,41 @@ class Evaluation:
             out["result"] = "wrong"
         return out
 
+    # -- GNSS aiding ----------------------------------------------------------
+
+    def aiding_result(self) -> dict[str, Any] | None:
+        """With ``aiding:``: the receiver simulated, when the status's ``aiding`` object
+        first said ``in_use`` (sample time), on how many lines, its last state, and the
+        problems (never in use, or later than ``in_use_within``); None without aiding."""
+        spec = self.scenario.aiding
+        if spec is None:
+            return None
+        lines = [r.status for r in self.timed if isinstance(r.status.get("aiding"), dict)]
+        used = [s for s in lines if s["aiding"].get("in_use")]
+        t_first = float(used[0]["t"]) if used else None
+        problems: list[str] = []
+        if not lines:
+            problems.append("no status line has an aiding object")
+        elif t_first is None:
+            problems.append(f"aiding never in use: {lines[-1]['aiding'].get('reason')!r}")
+        elif t_first > spec.in_use_within + 1e-9:
+            problems.append(
+                f"aiding in use only at t = {t_first:.1f} s (bound {spec.in_use_within:g} s)"
+            )
+        last = lines[-1]["aiding"] if lines else {}
+        return {
+            **spec.as_dict(),
+            "source": last.get("source"),
+            "t_first_in_use": _r(t_first),
+            "lines_in_use": len(used),
+            "lines": len(lines),
+            "final": {
+                k: last.get(k)
+                for k in ("link", "in_use", "reason", "fixes", "mode", "f0", "windows", "latency_s")
+            },
+            "problems": problems,
+        }
+
     # -- whole run ----------------------------------------------------------
 
     def counters_summary(self) -> dict[str, Any]:
@@ -374,6 +409,7 @@ class Evaluation:
             else:
                 results.append(self.outage_result(inj))
         counters = self.counters_summary()
+        aiding = self.aiding_result()
         tally: dict[str, int] = {}
         for r in results:
             tally[r["result"]] = tally.get(r["result"], 0) + 1
@@ -383,6 +419,7 @@ class Evaluation:
             and not false_alarms
             and counters["exact"] is not False
             and counters["monotonic"]
+            and not (aiding and aiding["problems"])
         )
         return {
             "faults": results,
@@ -390,6 +427,7 @@ class Evaluation:
             "counters": counters,
             "max_status_delay_wall_s": _r(self.max_delay_wall_s(self.pace)),
             "summary": tally,
+            **({} if aiding is None else {"aiding": aiding}),
             "passed": passed,
         }
 

@@ -30,6 +30,7 @@ import os
 import select
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
@@ -96,6 +97,7 @@ class BoardFeeder:
         chunk_s: float = 0.05,
         seed: int = 0,
         connect_timeout_s: float = 30.0,
+        after_write: Callable[[float], None] | None = None,
     ) -> None:
         if not (speed > 0 and math.isfinite(speed)):
             raise ValueError(f"speed must be a positive number, got {speed!r}")
@@ -109,6 +111,9 @@ class BoardFeeder:
         self.chunk_n = max(1, int(round(chunk_s * self.rate_hz)))
         self.rng = np.random.default_rng(seed)
         self.connect_timeout_s = connect_timeout_s
+        #: called with the sample time (s) of the last sample sent after every write
+        #: (a second stream paced by the same clock, e.g. the GNSS receiver of a drive)
+        self.after_write = after_write
         self.pending = sorted(injections, key=lambda i: i.t_s)
         self.records: list[InjectionRecord] = []
         self.pair: PtyPair | None = None
@@ -219,6 +224,8 @@ class BoardFeeder:
                 break
             self._write(b"".join(parts))
             self.pace.append((time.monotonic(), index))
+            if self.after_write is not None:
+                self.after_write((index - 1) / self.rate_hz)
             if outage is not None:
                 if outage.kind == "unplug":
                     self._do_unplug(outage, index)

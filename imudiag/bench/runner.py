@@ -24,8 +24,10 @@ from imudiag import certificate as certmod
 from imudiag.errors import BenchError
 from imudiag.reports import BENCH_FORMAT, header
 from imudiag.sim.board import SimulatedBoard
+from imudiag.sim.drive import DriveMotion
 from imudiag.sim.scenarios import parse_effects, scenario_motion
 
+from . import gnss
 from .daemon_process import DaemonProcess, StatusRecord
 from .evaluate import Evaluation
 from .feeder import BoardFeeder
@@ -80,10 +82,16 @@ class DaemonHost:
 
 
 def daemon_args(
-    config_path: Path, link: Path, certificate: str | None, diagnosis: bool
+    config_path: Path,
+    link: Path,
+    certificate: str | None,
+    diagnosis: bool,
+    aiding_url: str | None = None,
 ) -> list[str]:
     """Command-line arguments of ``imudiag run`` for a bench run."""
     args = ["--config", str(config_path), "--source", f"serial://{link}", "--status", "-"]
+    if aiding_url:
+        args += ["--aiding", aiding_url]
     if certificate:
         args += ["--certificate", certificate]
     if not diagnosis:
@@ -102,6 +110,15 @@ def make_board(scenario: BenchScenario) -> SimulatedBoard:
         faults=[i.fault() for i in scenario.sensor_injections],
         duration_s=scenario.duration_s,
     )
+
+
+def make_gnss_feed(scenario: BenchScenario, workdir: Path) -> gnss.GnssFeed | None:
+    """The gpsd fed the drive's GNSS stream (not started), or None without ``aiding:``."""
+    if scenario.aiding is None:
+        return None
+    motion = scenario_motion(scenario.motion, scenario.seed, scenario.motion_params)
+    assert isinstance(motion, DriveMotion)  # the scenario's rules: aiding needs a drive
+    return gnss.GnssFeed(motion, scenario.aiding.gnss_config(), scenario.seed, workdir)
 
 
 @dataclass
@@ -141,12 +158,15 @@ def run_scenario(
             "not available to the daemon in this build"
         )
     use_diagnosis = available if diagnosis is None else bool(diagnosis)
+    if scenario.aiding is not None:
+        gnss.require()  # before anything runs: exit 2 naming the packages
     with tempfile.TemporaryDirectory(prefix="imudiag-bench-", dir=workdir) as tmp:
         tmp_path = Path(tmp)
         config_path = tmp_path / "daemon.yaml"
         config_path.write_text(yaml.safe_dump(scenario.daemon, sort_keys=False))
         link = tmp_path / "imu0"
         board = make_board(scenario)
+        feed = make_gnss_feed(scenario, tmp_path)
         feeder = BoardFeeder(
             board,
             link,
@@ -154,20 +174,29 @@ def run_scenario(
             scenario.speed,
             chunk_s=scenario.chunk_s,
             seed=scenario.seed,
+            after_write=None if feed is None else feed.send_until,
         )
         t_start = time.monotonic()
-        feeder.plug()
         try:
-            daemon = DaemonProcess(
-                [*daemon_args(config_path, link, scenario.certificate, use_diagnosis), *extra_args],
-                python=python,
+            if feed is not None:
+                feed.start()
+            feeder.plug()
+            args = daemon_args(
+                config_path,
+                link,
+                scenario.certificate,
+                use_diagnosis,
+                None if feed is None else feed.url,
             )
+            daemon = DaemonProcess([*args, *extra_args], python=python)
             try:
                 exit_status = _play(scenario, feeder, daemon)
             finally:
                 daemon.kill()
         finally:
             feeder.close()
+            if feed is not None:
+                feed.close()
         wall_s = time.monotonic() - t_start
     result = Evaluation(
         scenario,
@@ -261,6 +290,7 @@ __all__ = [
     "daemon_args",
     "diagnosis_available",
     "make_board",
+    "make_gnss_feed",
     "run_bench",
     "run_scenario",
 ]

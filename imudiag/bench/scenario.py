@@ -33,6 +33,7 @@ naming the file, the line and the key.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -42,9 +43,10 @@ from typing import Any
 
 from imudiag import yamlio
 from imudiag.errors import BadInput
+from imudiag.sim.drive import GnssSimConfig
 from imudiag.sim.faults import KINDS as SENSOR_KINDS
 from imudiag.sim.faults import Fault
-from imudiag.sim.scenarios import canonical_scenario, parse_effects, scenario_params
+from imudiag.sim.scenarios import DRIVES, canonical_scenario, parse_effects, scenario_params
 
 FORMAT = "imudiag-bench-scenario/1"
 COUNTER_KINDS = ("garbage", "crc", "lost", "duplicate")  #: checked by exact counter increments
@@ -97,12 +99,23 @@ class Expectation:
     sensor: str | None = None
     within_s: float = DEFAULT_WITHIN_S
     requires: str | None = None
+    #: also matched by a moving-base group ("one of", sensors and causes ``|``-joined)
+    #: that holds this sensor and cause
+    group: bool = False
 
     def matches(self, entry: Mapping[str, Any]) -> bool:
         """True if the status fault entry ``entry`` is this expectation."""
-        if entry.get("triad") != self.triad or entry.get("cause") != self.cause:
+        if entry.get("triad") != self.triad:
             return False
-        return self.sensor is None or entry.get("sensor") == self.sensor
+        cause, sensor = str(entry.get("cause") or ""), str(entry.get("sensor") or "")
+        if self.group and "|" in cause:
+            members = list(zip(sensor.split("|"), cause.split("|"), strict=False))
+            return any(
+                c == self.cause and (self.sensor is None or s == self.sensor) for s, c in members
+            )
+        if cause != self.cause:
+            return False
+        return self.sensor is None or sensor == self.sensor
 
     def describe(self) -> str:
         """``accel az bias`` style text."""
@@ -117,6 +130,8 @@ class Expectation:
         d["within_s"] = self.within_s
         if self.requires:
             d["requires"] = self.requires
+        if self.group:
+            d["group"] = True
         return d
 
 
@@ -192,6 +207,33 @@ class Injection:
 
 
 @dataclass(frozen=True)
+class AidingSpec:
+    """GNSS aiding of a drive scenario: the simulated receiver whose UBX stream the bench
+    feeds to a real gpsd, and the bound on when the daemon must report aiding in use."""
+
+    rate_hz: float = 5.0  #: GNSS epochs per second, Hz
+    sigma_h_m_s: float = 0.03  #: horizontal velocity noise per axis, m/s (1 sigma)
+    sigma_v_m_s: float = 0.05  #: vertical velocity noise, m/s (1 sigma)
+    latency_s: float = 0.12  #: receiver output latency (time tags late by it), s
+    outlier_rate: float = 0.005  #: fraction of epochs with a multipath velocity error
+    in_use_within: float = 60.0  #: sample time from the start until aiding is in use, s
+
+    def gnss_config(self) -> GnssSimConfig:
+        """The simulator's receiver (:class:`imudiag.sim.drive.GnssSimConfig`)."""
+        return GnssSimConfig(
+            rate_hz=self.rate_hz,
+            sigma_h_m_s=self.sigma_h_m_s,
+            sigma_v_m_s=self.sigma_v_m_s,
+            latency_s=self.latency_s,
+            outlier_rate=self.outlier_rate,
+        )
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON form."""
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
 class BenchScenario:
     """A whole bench run: motion, duration, board effects, daemon settings, injections."""
 
@@ -208,6 +250,7 @@ class BenchScenario:
     description: str = ""
     source: str = "(scenario)"  #: file it was read from
     chunk_s: float = 0.05  #: sample time per write to the pty, s
+    aiding: AidingSpec | None = None  #: GNSS aiding through a real gpsd (drives only)
 
     @property
     def sensor_injections(self) -> list[Injection]:
@@ -221,8 +264,6 @@ class BenchScenario:
 
     def with_options(self, seed: int | None = None, speed: float | None = None) -> BenchScenario:
         """A copy with a different seed or board speed."""
-        import dataclasses
-
         changes: dict[str, Any] = {}
         if seed is not None:
             changes["seed"] = int(seed)
@@ -357,8 +398,11 @@ _TOP_KEYS = (
     "daemon",
     "injections",
     "chunk",
+    "aiding",
 )
-_EXPECT_KEYS = ("triad", "sensor", "cause", "within", "requires")
+_EXPECT_KEYS = ("triad", "sensor", "cause", "within", "requires", "group")
+DRIVE_MOTION = "drive"  #: ``motion: drive`` with ``motion_params.route`` (a DRIVES name)
+_AIDING_KEYS = tuple(f.name for f in dataclasses.fields(AidingSpec))
 _SENSOR_NAMES = {"gyro": ("gx", "gy", "gz"), "accel": ("ax", "ay", "az")}
 
 
@@ -401,7 +445,7 @@ def _expectation(
     if requires and default_within == DEFAULT_WITHIN_S:
         default_within = DEFAULT_DIAGNOSIS_WITHIN_S
     within = r.number("within", default_within, lo=0.0, lo_open=True)
-    return Expectation(triad, cause, sensor, within, requires)
+    return Expectation(triad, cause, sensor, within, requires, r.boolean("group", False))
 
 
 def _injection(item: Any, reader: _Reader, index: int, duration: float) -> Injection:
@@ -513,6 +557,20 @@ def _plain(obj: Any) -> Any:
     return obj
 
 
+def _motion(r: _Reader, params: _Reader | None) -> str:
+    """The simulator scenario of ``motion:``; ``drive`` takes ``motion_params.route``."""
+    if r.get("motion") is not None and r.text("motion") == DRIVE_MOTION:
+        if params is None or params.get("route") is None:
+            raise r.fail(
+                "motion", f"motion drive needs motion_params.route: one of {', '.join(DRIVES)}"
+            )
+        return params.text("route", choices=DRIVES)
+    try:
+        return canonical_scenario(r.text("motion", "static"))
+    except ValueError as exc:
+        raise r.fail("motion", str(exc)) from None
+
+
 def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
     """Validate a parsed scenario document (see the module docstring)."""
     if not isinstance(doc, Mapping):
@@ -524,15 +582,14 @@ def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
     if r.get("format") is not None and r.text("format") != FORMAT:
         raise r.fail("format", f"expected {FORMAT!r}, got {r.get('format')!r}")
     name = r.text("name", Path(source).stem if source != "(scenario)" else "scenario")
-    try:
-        motion = canonical_scenario(r.text("motion", "static"))
-    except ValueError as exc:
-        raise r.fail("motion", str(exc)) from None
     params_reader = r.mapping("motion_params")
+    motion = _motion(r, params_reader)
     params: dict[str, str] = {}
     if params_reader is not None:
         allowed = scenario_params(motion)
         for k, v in params_reader.doc.items():
+            if k == "route" and r.text("motion") == DRIVE_MOTION:
+                continue
             if k not in allowed:
                 raise params_reader.fail(
                     str(k), f"unknown parameter of motion {motion}; known: {', '.join(allowed)}"
@@ -572,9 +629,13 @@ def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
     if r.get("daemon") is not None:
         dr = r.mapping("daemon")
         assert dr is not None
-        for bad in ("source", "certificate"):
+        for bad in ("source", "certificate", "aiding"):
             if bad in dr.doc:
-                raise dr.fail(bad, "set by the bench (the scenario's certificate: key, the pty)")
+                raise dr.fail(
+                    bad,
+                    "set by the bench (the scenario's certificate: key, the pty, "
+                    "its aiding: section)",
+                )
         daemon_doc = _plain(dr.doc)
     daemon_doc = _merge(BENCH_DAEMON_DEFAULTS, daemon_doc)
     from imudiag.service.config import ConfigError
@@ -600,6 +661,15 @@ def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
                 f"transport injections at {a:g} s and {b:g} s are closer than "
                 f"{MIN_TRANSPORT_GAP_S:g} s (their counter increments could not be told apart)",
             )
+    aiding = _aiding(r, motion, duration)
+    if aiding is not None:
+        drive = scenario_motion(motion, seed, params)
+        if drive.duration_s < duration:
+            raise r.fail(
+                "duration",
+                f"{duration:g} s is longer than the {motion} drive of seed {seed} "
+                f"({drive.duration_s:.1f} s): raise motion_params.length",
+            )
     return BenchScenario(
         name=name,
         motion=motion,
@@ -614,6 +684,32 @@ def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
         description=str(r.get("description") or "").strip(),
         source=source,
         chunk_s=chunk,
+        aiding=aiding,
+    )
+
+
+def _aiding(r: _Reader, motion: str, duration: float) -> AidingSpec | None:
+    """The ``aiding:`` section (None when absent); it needs a drive motion."""
+    if r.get("aiding") is None:
+        return None
+    ar = r.mapping("aiding")
+    assert ar is not None
+    if motion not in DRIVES:
+        raise r.fail(
+            "aiding",
+            f"GNSS aiding needs a drive motion ({', '.join(DRIVES)}), got {motion}",
+        )
+    ar.check_keys(_AIDING_KEYS)
+    d = AidingSpec()
+    return AidingSpec(
+        rate_hz=ar.number("rate_hz", d.rate_hz, lo=0.5, hi=20.0),
+        sigma_h_m_s=ar.number("sigma_h_m_s", d.sigma_h_m_s, lo=0.0, hi=5.0),
+        sigma_v_m_s=ar.number("sigma_v_m_s", d.sigma_v_m_s, lo=0.0, hi=5.0),
+        latency_s=ar.number("latency_s", d.latency_s, lo=0.0, hi=1.0),
+        outlier_rate=ar.number("outlier_rate", d.outlier_rate, lo=0.0, hi=0.5),
+        in_use_within=ar.number(
+            "in_use_within", d.in_use_within, lo=0.0, hi=duration, lo_open=True
+        ),
     )
 
 
@@ -662,6 +758,7 @@ def load_bundled(name: str) -> BenchScenario:
 
 
 __all__ = [
+    "AidingSpec",
     "BENCH_DAEMON_DEFAULTS",
     "BenchScenario",
     "COUNTER_KINDS",

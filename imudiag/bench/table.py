@@ -113,6 +113,19 @@ def format_table(report: dict[str, Any]) -> str:
         )
         + ("" if c["monotonic"] else "  NOT MONOTONIC")
     )
+    a = report.get("aiding")
+    if a:
+        fin = a["final"]
+        first = a["t_first_in_use"]
+        lines.append(
+            f"aiding: {a['source']}, "
+            + ("never in use" if first is None else f"in use from t = {first:.1f} s")
+            + f" (bound {a['in_use_within']:g} s); at the end {fin['link']}, "
+            f"{fin['fixes']} fixes, F0 {fin['f0']['checked']} epochs checked / "
+            f"{fin['f0']['failed']} failed, {fin['windows']} isolation windows"
+        )
+        for p in a["problems"]:
+            lines.append(f"aiding: {p}")
     for p in report["daemon"]["problems"]:
         lines.append(f"daemon: {p}")
     pending = report["summary"].get("pending", 0)
