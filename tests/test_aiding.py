@@ -332,3 +332,39 @@ def test_missing_velocity_rejects_only_its_epochs():
         ep = gnss_epochs(make_track(t, vel), span=span)
         assert list(ep.reason).count("no_velocity") == 1
         assert np.all(ep.valid[1:])
+
+
+@pytest.mark.parametrize(("scenario", "latency_s"), [("urban", 0.12), ("hilly", 0.4)])
+def test_latency_search_coarse_to_fine_equals_the_full_grid(scenario, latency_s, monkeypatch):
+    """The latency search correlates a coarse grid of lags, then the grid around its peak:
+    the same estimate as every lag of the grid (COARSE_LAG_S 0), at a tenth of the passes
+    over the record (the daemon's aiding batch spent 3 s of CPU on 401 lags)."""
+    from imudiag.aiding import align
+    from imudiag.aiding.tpv import parse_tpv, track_from_reports
+    from imudiag.certificate import load_default
+    from imudiag.sim.drive import GnssSimConfig, simulate_drive
+
+    cert = load_default()
+    res, reports, _ = simulate_drive(
+        scenario, 200.0, cert, seed=1, rate_hz=200.0, gnss=GnssSimConfig(latency_s=latency_s)
+    )
+    s = res.samples
+    f_si, w_si = cert.accel.inverse_si(s.accel), cert.gyro.inverse_si(s.gyro)
+    track = track_from_reports([x for x in (parse_tpv(r) for r in reports) if x])
+    epochs = gnss_epochs(track, span=max(1, int(round(1.0 / track.period_s()))))
+    passes = []
+    real = align.imu_epochs
+
+    def counted(*args, **kwargs):
+        passes.append(kwargs["latency_s"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(align, "imu_epochs", counted)
+    fast = align.estimate_latency(s.t, f_si, epochs, gyro_si=w_si)
+    n_fast = len(passes)
+    monkeypatch.setattr(align, "COARSE_LAG_S", 0.0)
+    full = align.estimate_latency(s.t, f_si, epochs, gyro_si=w_si)
+    n_full = len(passes) - n_fast
+    assert fast.determined and full.determined
+    assert fast.latency_s == full.latency_s and fast.correlation == full.correlation
+    assert n_full == 401 and n_fast <= 41 + 23  # 5 ms steps over +-1 s; coarse 50 ms + refine

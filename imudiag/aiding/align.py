@@ -19,6 +19,9 @@ import numpy as np
 
 from .specific_force import GnssEpochs, imu_epochs
 
+#: spacing of the first, coarse pass over the lags, s (refined around its peak)
+COARSE_LAG_S = 0.05
+
 
 @dataclass
 class LatencyEstimate:
@@ -80,15 +83,30 @@ def estimate_latency(
         )
     lags = np.arange(-max_latency_s, max_latency_s + 0.5 * step_s, step_s)
     corr = np.full(lags.shape, np.nan)
-    for i, lag in enumerate(lags):
-        im = imu_epochs(t, accel_si, use.t0, use.t1, gyro_si=gyro_si, latency_s=float(lag))
-        ok = np.isfinite(im.mag) & im.covered
-        if np.sum(ok) < min_epochs:
-            continue
-        a = im.mag[ok] - np.mean(im.mag[ok])
-        b = use.mag[ok] - np.mean(use.mag[ok])
-        den = math.sqrt(float(np.sum(a * a) * np.sum(b * b)))
-        corr[i] = float(np.sum(a * b) / den) if den > 0 else np.nan
+    done = np.zeros(lags.shape, dtype=bool)
+
+    def correlate(indices: np.ndarray) -> None:
+        for i in indices[~done[indices]]:
+            done[i] = True
+            im = imu_epochs(t, accel_si, use.t0, use.t1, gyro_si=gyro_si, latency_s=float(lags[i]))
+            ok = np.isfinite(im.mag) & im.covered
+            if np.sum(ok) < min_epochs:
+                continue
+            a = im.mag[ok] - np.mean(im.mag[ok])
+            b = use.mag[ok] - np.mean(use.mag[ok])
+            den = math.sqrt(float(np.sum(a * a) * np.sum(b * b)))
+            corr[i] = float(np.sum(a * b) / den) if den > 0 else np.nan
+
+    # coarse to fine: every lag costs a pass over the whole record (the daemon's aiding
+    # batch took 3 s of CPU with 401 lags of 5 ms over 210 s at 200 Hz). The correlation
+    # of 1 s epoch means is smooth on the scale of COARSE_LAG_S, so the grid's peak lies
+    # within one coarse step of the coarse peak: only that neighbourhood is refined
+    stride = max(1, int(round(COARSE_LAG_S / step_s)))
+    coarse = np.unique(np.append(np.arange(0, lags.size, stride), lags.size - 1))
+    correlate(coarse)
+    if stride > 1 and np.any(np.isfinite(corr)):
+        c = int(np.nanargmax(corr))
+        correlate(np.arange(max(0, c - stride - 1), min(lags.size, c + stride + 2)))
     if not np.any(np.isfinite(corr)):
         return LatencyEstimate(
             math.nan, math.nan, False, "the IMU does not cover the epochs", len(use), lags, corr
