@@ -143,9 +143,24 @@ def writable_directory(text: str) -> str:
     return text
 
 
+def named_paths(args: argparse.Namespace, keys: tuple[str, ...]) -> list[tuple[str, str | None]]:
+    """The paths a command was given under ``keys`` (argparse dests), each with the name the
+    user typed it as (``LOG``, ``--like``, ...), for :func:`imudiag.atomic.refuse_overwrite`."""
+    return [
+        (
+            k.upper()
+            if k in ("log", "input", "output")
+            else {"scenario_file": "--scenario"}.get(k, "--" + k.replace("_", "-")),
+            getattr(args, k, None),
+        )
+        for k in keys
+    ]
+
+
 __all__ = [
     "MAX_SEED",
     "finite_float",
+    "named_paths",
     "nonnegative_float",
     "nonnegative_int",
     "positive_float",

@@ -115,27 +115,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
+    from .argtypes import named_paths
     from .atomic import refuse_overwrite
 
     if args.command != "run":  # the daemon handles its own signals (exit 0 on SIGTERM)
         signal.signal(signal.SIGTERM, _on_signal)
         signal.signal(signal.SIGINT, _on_signal)
 
-    def named(keys: tuple[str, ...]) -> list[tuple[str, str | None]]:
-        return [
-            (
-                k.upper()
-                if k in ("log", "input", "output")
-                else {"scenario_file": "--scenario"}.get(k, "--" + k.replace("_", "-")),
-                getattr(args, k, None),
-            )
-            for k in keys
-        ]
-
     # the words naming the command in messages: a command with actions sets ``command_name``
     name = getattr(args, "command_name", None) or args.command
     try:
-        refuse_overwrite(named(getattr(args, "inputs", ())), named(getattr(args, "outputs", ())))
+        refuse_overwrite(
+            named_paths(args, getattr(args, "inputs", ())),
+            named_paths(args, getattr(args, "outputs", ())),
+        )
         return int(args.func(args) or 0)
     except ImudiagError as exc:
         print(f"imudiag {name}: error: {exc}", file=sys.stderr)

@@ -18,6 +18,7 @@ import sys
 from typing import Any
 
 from ..argtypes import (
+    named_paths,
     nonnegative_float,
     positive_float,
     positive_int,
@@ -30,7 +31,7 @@ from ..diagnosis.config import GYRO_MODES, METHODS, DiagnosisConfig
 from ..diagnosis.known_rate import parse_known_rate
 from ..diagnosis.session import DiagnosisTrace, diagnose_recording
 from ..errors import BadInput
-from ..logs import open_log
+from ..logs import DEFAULT_BLOCK_SIZE, open_log
 from ..logs.options import add_log_options, log_options
 from ..progress import for_command
 from .gnss import add_gnss_arguments, check_gnss_options, moving_base_lines, moving_base_section
@@ -131,9 +132,9 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--block-size",
         type=positive_int("samples per block"),
-        default=65536,
+        default=DEFAULT_BLOCK_SIZE,
         metavar="N",
-        help="samples per block read (default 65536)",
+        help=f"samples per block read (default {DEFAULT_BLOCK_SIZE})",
     )
     p.add_argument(
         "--min-interval",
@@ -171,8 +172,9 @@ def check_plots(args: argparse.Namespace, files: tuple[str, ...]) -> None:
 
     require()
     directory = check_directory(args.plots)
-    inputs = [(k.upper() if k == "log" else "--" + k, getattr(args, k, None)) for k in args.inputs]
-    refuse_overwrite(inputs, [("--plots", str(directory / f)) for f in files])
+    refuse_overwrite(
+        named_paths(args, args.inputs), [("--plots", str(directory / f)) for f in files]
+    )
 
 
 def plot_lines(paths: list[str]) -> list[str]:
@@ -266,8 +268,6 @@ def run(args: argparse.Namespace) -> int:
     cfg = make_config(args)
     if args.magnitude and cfg.method != "moving-base":
         raise BadInput("--magnitude: only the moving-base method uses independent magnitudes")
-    if args.block_size < 1:
-        raise BadInput(f"--block-size: must be >= 1, got {args.block_size}")
     if cfg.method == "moving-base" and not args.magnitude:
         print(
             "imudiag diagnose: warning: moving-base without --magnitude uses the magnitude "
