@@ -93,6 +93,10 @@ def test_daemon_aided_by_real_gpsd(tmp_path):
                 lev = a["lever_arm"]
                 assert lev["configured"] is False and len(a["lever_arm_m"]) == 3
                 assert len(lev["estimate_m"]) == 3 and len(lev["std_m"]) == 3
+                # the gyros in turns against the GNSS course rate, the assumption stated
+                turns = a["gyro_turns"]
+                assert "no-slip" in turns["assumption"] and turns["faults"] == []
+                assert turns["verdict"] in ("ok", "unknown")
                 accel_checked = used["f0"]["accel"]["checked"]
                 # gpsd goes away: the status says why, the static checks carry on at stops
                 gf.terminate()

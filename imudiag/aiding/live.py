@@ -9,10 +9,12 @@ window of epochs is there (or configured).
 
 Every ``batch_s`` of fixes the new GNSS epochs are checked (F0 in motion,
 :mod:`.moving`; a fault when 5 of the last 10 epochs fail) and their means
-kept; every ``step_s`` the isolation runs over the last ``window_s``
-(:mod:`.isolation`). The IMU buffer keeps ``window_s`` + 30 s. :meth:`status`
-says whether aiding is in use and why not: gpsd not reachable, no TPV yet, an
-outage, no 3D fix, still collecting.
+kept, and the gyros are checked in the buffer's turns against the GNSS course
+rate (:mod:`.course_rate`, no-slip assumption; faults latched); every
+``step_s`` the isolation runs over the last ``window_s`` (:mod:`.isolation`).
+The IMU buffer keeps ``window_s`` + 30 s. :meth:`status` says whether aiding
+is in use and why not: gpsd not reachable, no TPV yet, an outage, no 3D fix,
+still collecting.
 """
 
 from __future__ import annotations
@@ -27,12 +29,19 @@ import numpy as np
 from ..certificate import Certificate
 from ..samples import SampleBlock
 from .align import estimate_latency
+from .course_rate import turn_check
 from .gpsd_client import GpsdClient
 from .isolation import IsolationTracker, isolate
 from .lever_arm import LeverArmEstimate
-from .moving import MovingConfig, accel_noise, epoch_observations, estimate_lever_arm
-from .specific_force import gnss_epochs, imu_epochs
-from .tpv import track_from_reports
+from .moving import (
+    MovingConfig,
+    accel_noise,
+    epoch_observations,
+    estimate_lever_arm,
+    gyro_noise_si,
+)
+from .specific_force import GnssEpochs, ImuEpochs, gnss_epochs, imu_epochs
+from .tpv import GnssTrack, track_from_reports
 
 #: F0 in motion is a fault when k of the last n checked epochs fail
 F0_PERSIST_K, F0_PERSIST_N = 5, 10
@@ -91,6 +100,9 @@ class LiveAiding:
         #: the lever arm estimate over the buffer (None before the first), and the one used
         self.lever_estimate: LeverArmEstimate | None = None
         self.lever_arm_m = np.asarray(self.cfg.lever_arm_m or (0.0, 0.0, 0.0), dtype=float)
+        #: the gyros in turns over the buffer (status ``gyro_turns``); latched gyro faults
+        self.turns: dict = {"verdict": "unknown", "reason": "no GNSS epoch checked yet"}
+        self.gyro_faults: dict[tuple[str, str], dict] = {}
 
     def set_certificate(self, cert: Certificate) -> None:
         """A reloaded certificate: the history corrected with the old one is dropped."""
@@ -178,6 +190,7 @@ class LiveAiding:
             latency_s=self.latency_s,
             lever_arm_m=self.lever_arm_m,
         )
+        self._check_turns(track, ep, im, rate)
         use = ep.valid & im.covered & np.isfinite(im.mag) & (ep.t0 >= self._done_t)
         if not np.any(use):
             return
@@ -205,6 +218,22 @@ class LiveAiding:
             self.tracker.update(iso, self._window_t)
             self.windows += 1
 
+    def _check_turns(self, track: GnssTrack, ep: GnssEpochs, im: ImuEpochs, rate: float) -> None:
+        """The gyros in turns over the buffer (:mod:`.course_rate`, no-slip assumption);
+        its faults are latched."""
+        cfg = self.cfg
+        rep = turn_check(
+            track, ep, im, self.cert.gyro, gyro_noise_si(self._gyr, self.cert.gyro, rate),
+            k_sigma_f0=cfg.k_sigma_f0, k_sigma=cfg.k_sigma, prior_factor=cfg.prior_factor,
+            determined_std_ratio=cfg.determined_std_ratio,
+        )  # fmt: skip
+        for f in rep["faults"]:
+            self.gyro_faults.setdefault((f.get("sensor", ""), f["cause"]), f)
+        keys = ("assumption", "used", "rejected", "verdict", "reason", "f0", "turns")
+        self.turns = {k: rep[k] for k in keys if k in rep}
+        self.turns["span_s"] = round(float(ep.t1[-1] - ep.t0[0]), 1)
+        self.turns["determined"] = [f"{d['sensor']} {d['cause']}" for d in rep["determined"]]
+
     # -- status ----------------------------------------------------------------
 
     def faults(self) -> list[dict]:
@@ -213,6 +242,10 @@ class LiveAiding:
         out: list[dict] = []
         if self.f0_fault:
             out.append({"triad": "accel", "cause": "f0", "source": "moving_base"})
+        for (sensor, cause), _ in sorted(self.gyro_faults.items()):
+            out.append({"triad": "gyro", "cause": cause, "source": "moving_base"})
+            if sensor:
+                out[-1]["sensor"] = sensor
         for f in self.tracker.raised:
             if f["named"]:
                 out.append(
@@ -273,6 +306,7 @@ class LiveAiding:
                 self.lever_estimate.to_json() if self.lever_estimate else {},
                 configured=self.cfg.lever_arm_m is not None,
             ),
+            "gyro_turns": dict(self.turns, faults=[list(k) for k in sorted(self.gyro_faults)]),
         }
         return out
 

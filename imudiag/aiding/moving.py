@@ -21,9 +21,11 @@ track. Steps:
    specific force each axis saw. Faults: the statistical predicates with
    persistence over windows (:class:`~imudiag.diagnosis.predicates.PredicateTracker`).
 
-The gyros are not fitted in motion (the GNSS course rate is not used): their
-9 parameters are reported undetermined here, and the static path covers them
-at stops.
+4. The gyros in turns (``gyro_turns``, :mod:`.course_rate`): for a land vehicle
+   under the no-slip assumption, |omega| from the GNSS course rate, a gyro F0 in
+   turns and the bias and scale factor of the axes the turns excite. The full
+   9-parameter gyro fit is not done in motion (``gyro``); the static path covers
+   the gyros at stops.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ from ..diagnosis.params import CAUSES, sensor_of
 from ..diagnosis.scalar_fit import exact_fit
 from ..samples import SampleBlock
 from .align import LatencyEstimate, estimate_latency
+from .course_rate import turn_check
 from .isolation import IsolationTracker, isolate
 from .lever_arm import LeverArmEstimate, lever_arm_rows, row_noise_variance, solve_lever_arm
 from .specific_force import GateConfig, GnssEpochs, ImuEpochs, gnss_epochs, imu_epochs
@@ -77,6 +80,12 @@ def accel_noise(raw: np.ndarray, certificate_sigma: np.ndarray | None) -> np.nda
     )
     cert = certificate_sigma if certificate_sigma is not None else np.zeros(3)
     return np.maximum(measured, cert)
+
+
+def gyro_noise_si(gyro_raw: np.ndarray, gyro: TriadModel, rate_hz: float) -> np.ndarray:
+    """Per-sample gyro white noise (3,), rad/s: :func:`accel_noise` of the raw gyro outputs
+    (the larger of the certificate's and the measured one) in SI."""
+    return accel_noise(gyro_raw, gyro.noise_sigma(rate_hz)) / gyro.scale_factor * gyro.unit_to_si
 
 
 def epoch_observations(
@@ -136,7 +145,8 @@ def moving_base_diagnosis(
         },
         "gyro": {
             "determined": False,
-            "reason": "the moving-base gyro check (GNSS course rate) is not implemented; "
+            "reason": "the 9 gyro parameters are not fitted in motion; the turns check the "
+            "gyro magnitude against the GNSS course rate (gyro_turns, no-slip assumption) and "
             "the static path checks the gyros at stops",
         },
     }
@@ -181,6 +191,11 @@ def moving_base_diagnosis(
     report["gnss"]["used"] = int(np.sum(use))
     report["f0"] = _f0_in_motion(ep, im, use, acc.limits.f0, cfg.k_sigma_f0)
     report["accel_noise_per_sample"] = [float(x) for x in sig_raw]
+    report["gyro_turns"] = turn_check(
+        track, ep, im, gyr, gyro_noise_si(block.gyro, gyr, rate),
+        k_sigma_f0=cfg.k_sigma_f0, k_sigma=cfg.k_sigma, prior_factor=cfg.prior_factor,
+        determined_std_ratio=cfg.determined_std_ratio, gate=gate,
+    )  # fmt: skip
     report.update(_windows(ep, im, use, cert, cfg, rate, block.accel))
     return report
 
@@ -200,7 +215,7 @@ def estimate_lever_arm(
     certificate's and the one measured from the data (vibration)."""
     use = ep.valid & plain.covered & np.isfinite(plain.mag)
     rows = lever_arm_rows(t, w_si, ep.t0, ep.t1, plain.mean_si, latency_s)
-    sig = accel_noise(gyro_raw, gyro.noise_sigma(rate_hz)) / gyro.scale_factor * gyro.unit_to_si
+    sig = gyro_noise_si(gyro_raw, gyro, rate_hz)
     epoch_s = float(np.median(ep.t1 - ep.t0)) if len(ep) else 1.0
     rv = row_noise_variance(float(np.max(sig)), rate_hz * epoch_s, epoch_s)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -388,5 +403,6 @@ __all__ = [
     "accel_noise",
     "epoch_observations",
     "estimate_lever_arm",
+    "gyro_noise_si",
     "moving_base_diagnosis",
 ]

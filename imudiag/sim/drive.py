@@ -2,6 +2,10 @@
 
 The vehicle's body x axis points along its velocity (no side slip), body z
 down; the attitude is yaw psi (heading) and pitch theta (road grade), roll 0.
+``DriveMotion.slip_rad_per_m_s2`` (default 0) adds a side slip: the body's
+heading is the velocity's course plus beta = k a_lat (a_lat = v psi', m/s^2),
+so the yaw rate is psi' + beta' (what the no-slip test of
+:mod:`imudiag.aiding.course_rate` must reject).
 Speed v(t), heading psi(t) and grade theta(t) are sums of raised-cosine
 steps, so velocity, acceleration and body rate are exact derivatives:
 
@@ -90,6 +94,8 @@ class DriveMotion(Motion):
         self.gravity = float(normal_gravity(lat_deg, alt_m))
         self.stops: list[tuple[float, float]] = []
         self.coordinated = False  #: bank into turns (aircraft): f stays in the body x-z plane
+        #: rad per m/s^2: body heading = course + this x lateral acceleration (0: no slip)
+        self.slip_rad_per_m_s2 = 0.0
         self._pos: tuple[np.ndarray, np.ndarray] | None = None
 
     # building -----------------------------------------------------------------
@@ -154,7 +160,10 @@ class DriveMotion(Motion):
             phi, dphi = np.arctan(q), dq / (1.0 + q * q)
         else:
             phi, dphi = np.zeros_like(t), np.zeros_like(t)
+        k = self.slip_rad_per_m_s2
         return {
+            "psi_b": psi + k * v * dpsi,
+            "dpsi_b": dpsi + k * (dv * dpsi + v * ddpsi),
             "v": v,
             "dv": dv,
             "psi": psi,
@@ -185,7 +194,7 @@ class DriveMotion(Motion):
 
     def kinematics(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         p = self._profiles(t)
-        c = _attitude(p["psi"], p["th"], p["phi"])
+        c = _attitude(p["psi_b"], p["th"], p["phi"])
         w_nb = _body_rate(p)
         v, dv, psi, dpsi, th, dth = (p[k] for k in ("v", "dv", "psi", "dpsi", "th", "dth"))
         cth, sth, cps, sps = np.cos(th), np.sin(th), np.cos(psi), np.sin(psi)
@@ -245,9 +254,10 @@ def _attitude(psi: np.ndarray, th: np.ndarray, phi: np.ndarray | None = None) ->
 
 
 def _body_rate(p: dict[str, np.ndarray]) -> np.ndarray:
-    """omega_nb in body axes (N, 3), rad/s, of the ZYX Euler angles' rates."""
+    """omega_nb in body axes (N, 3), rad/s, of the ZYX Euler angles' rates (the body's
+    heading rate, course rate plus the slip angle's rate)."""
     th, phi = p["th"], p["phi"]
-    dpsi, dth, dphi = p["dpsi"], p["dth"], p["dphi"]
+    dpsi, dth, dphi = p["dpsi_b"], p["dth"], p["dphi"]
     return np.stack(
         [
             dphi - dpsi * np.sin(th),
@@ -369,7 +379,7 @@ def gnss_reports(
     vel = _vel(p)
     lev = np.asarray(cfg.lever_arm_m, dtype=float)
     if np.any(lev):
-        c = _attitude(p["psi"], p["th"], p["phi"])
+        c = _attitude(p["psi_b"], p["th"], p["phi"])
         w_nb = _body_rate(p)
         vel = vel + np.einsum("nij,nj->ni", c, np.cross(w_nb, lev))
     sig = np.array([cfg.sigma_h_m_s, cfg.sigma_h_m_s, cfg.sigma_v_m_s])
@@ -449,11 +459,14 @@ def simulate_drive(
     gnss: GnssSimConfig | None = None,
     faults: tuple = (),
     effects: object | None = None,
+    slip_rad_per_m_s2: float = 0.0,
 ) -> tuple[object, list[dict], DriveMotion]:
-    """(SimResult with t in UTC Unix s from :data:`EPOCH_UNIX`, TPV reports, motion)."""
+    """(SimResult with t in UTC Unix s from :data:`EPOCH_UNIX`, TPV reports, motion);
+    ``slip_rad_per_m_s2``: the side slip of :class:`DriveMotion` (0: none)."""
     from .simulator import simulate
 
     motion = drive_motion(scenario, duration_s, seed)
+    motion.slip_rad_per_m_s2 = float(slip_rad_per_m_s2)
     res = simulate(certificate, motion.sample(rate_hz), seed=seed, faults=faults, effects=effects)  # type: ignore[arg-type]
     res.samples.t = res.samples.t + EPOCH_UNIX
     return res, gnss_reports(motion, gnss, seed), motion

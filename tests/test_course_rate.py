@@ -1,0 +1,181 @@
+"""The gyro magnitude in turns from the GNSS course rate (imudiag.aiding.course_rate).
+
+Land vehicles under the no-slip assumption: the simulated drives (imudiag.sim.drive)
+keep the body x axis along the velocity unless a slip is asked for; faults come from
+the simulator (imudiag.sim.faults); the real drive is rtklibexplorer's drive_0708
+(tests/data/real/gnss-imu-drive/SOURCE.md).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from imudiag.aiding import gnss_epochs, imu_epochs, read_gpspipe_log
+from imudiag.aiding.course_rate import (
+    ASSUMPTION,
+    course_epochs,
+    fit_forward_axis,
+    turn_check,
+)
+from imudiag.aiding.moving import MovingConfig, moving_base_diagnosis
+from imudiag.aiding.specific_force import GateConfig
+from imudiag.aiding.tpv import parse_tpv, track_from_reports
+from imudiag.certificate import load, load_default
+from imudiag.logs import read_log
+from imudiag.sim.drive import EPOCH_UNIX, GnssSimConfig, drive_motion, gnss_reports, simulate_drive
+from imudiag.sim.faults import Fault
+
+REAL = Path(__file__).parent / "data" / "real" / "gnss-imu-drive"
+RTK = GnssSimConfig(sigma_h_m_s=0.01, sigma_v_m_s=0.015)
+EXACT = GnssSimConfig(sigma_h_m_s=0, sigma_v_m_s=0, outlier_rate=0, latency_s=0)
+
+
+def track_of(reports):
+    return track_from_reports([parse_tpv(r) for r in reports])
+
+
+def gyro_turns(scenario, seed, faults=(), gnss=None, slip=0.0, duration=600.0):
+    cert = load_default()
+    res, reports, _ = simulate_drive(
+        scenario, duration, cert, seed=seed, gnss=gnss, faults=faults, slip_rad_per_m_s2=slip
+    )
+    out = moving_base_diagnosis(res.samples, cert, track_of(reports), MovingConfig())
+    return out["gyro_turns"], cert
+
+
+def test_course_rate_is_the_body_rate_without_noise():
+    # exact kinematics, noise-free GNSS: the course rate plus the Earth and transport
+    # rates has the magnitude of the body's inertial rate in every turn epoch (the
+    # simulated car's pitch rate on grades is the only other term: 1e-3 rad/s allowed)
+    m = drive_motion("hilly", 300.0, seed=3)
+    tr = m.sample(100.0)
+    track = track_of(gnss_reports(m, EXACT))
+    ep = gnss_epochs(track)
+    ce = course_epochs(track, ep)
+    im = imu_epochs(tr.t + EPOCH_UNIX, tr.specific_force, ep.t0, ep.t1, gyro_si=tr.omega)
+    w = np.linalg.norm(im.gyro_mean, axis=1)
+    turn = ep.valid & im.covered & (ce.speed_min > 3.0) & (np.abs(ce.rate) > 0.05)
+    assert np.sum(turn) > 20
+    assert np.max(np.abs(w[turn] - ce.ref_rate[turn])) < 1e-3
+
+
+def test_course_noise_propagation():
+    # sigma of the course rate ~ sigma_v sqrt(2) / (v dt) at constant speed
+    m = drive_motion("highway", 200.0, seed=1)
+    sig = 0.03
+    cfg = GnssSimConfig(sigma_h_m_s=sig, sigma_v_m_s=0.05, outlier_rate=0, latency_s=0)
+    gate_track = track_of(gnss_reports(m, cfg, seed=1))
+    gate = GateConfig(velocity_noise="stated")
+    ep = gnss_epochs(gate_track, gate, span=5)
+    ce = course_epochs(gate_track, ep, gate)
+    fast = ep.valid & (ce.speed_min > 20.0)
+    v = ce.speed_min[fast]
+    expected = sig * math.sqrt(2.0) / (v * 1.0)
+    assert ce.sigma_rate[fast] == pytest.approx(expected, rel=0.1)
+
+
+def test_forward_axis_of_a_mounting_yawed_by_30_deg():
+    # straight epochs: f varies along the vehicle's forward axis (braking) and vertical
+    rng = np.random.default_rng(4)
+    n = 200
+    along = rng.normal(0.0, 1.0, n)
+    f_vehicle = np.stack([along, np.zeros(n), np.full(n, -9.81)], 1)
+    a = math.radians(30.0)
+    rz = np.array([[math.cos(a), math.sin(a), 0], [-math.sin(a), math.cos(a), 0], [0, 0, 1]])
+    f_body = f_vehicle @ rz.T + rng.normal(0.0, 0.02, (n, 3))
+    fa = fit_forward_axis(f_body, along + rng.normal(0.0, 0.02, n))
+    assert fa.determined
+    assert fa.axis == pytest.approx(rz @ np.array([1.0, 0.0, 0.0]), abs=0.02)
+    # without braking nothing tells the forward axis: undetermined with the reason
+    flat = fit_forward_axis(f_body * np.array([0.0, 0.0, 1.0]), np.zeros(n))
+    assert not flat.determined and "did not vary" in flat.reason
+
+
+def test_clean_urban_drive_gyro_magnitude_passes():
+    out, cert = gyro_turns("urban", seed=11)
+    assert "no-slip" in out["assumption"] and out["assumption"] == ASSUMPTION
+    assert out["verdict"] == "ok" and out["faults"] == []
+    assert out["f0"]["checked"] >= 5 and out["f0"]["failed"] == 0 and not out["f0"]["fault"]
+    assert out["forward_axis"]["determined"]
+    assert out["forward_axis"]["axis_body"] == pytest.approx([1.0, 0.0, 0.0], abs=0.01)
+    # the turns' integrated |omega| matches the GNSS course change
+    assert out["turns"]["ratio_total"] == pytest.approx(1.0, abs=0.01)
+    assert out["used"] == sum(round(b - a) for a, b in out["used_spans"])
+    # a level road excites the vertical gyro only: gz determined, gx and gy not
+    assert out["axes"]["gz"]["share_of_rate2"] > 0.99
+    det = {(d["sensor"], d["cause"]) for d in out["determined"]}
+    assert ("gz", "scale_factor") in det
+    assert not {s for s, _ in det} - {"gz"}
+    undet = {(u["sensor"], u["cause"]): u["reason"] for u in out["undetermined"]}
+    for key in [("gx", "scale_factor"), ("gy", "bias")]:
+        assert "did not excite" in undet[key]
+    assert "second order" in undet[("gx/gy", "misalignment")]
+    gz = out["fit"]["parameters"]["gz scale_factor"]
+    assert abs(gz["deviation"]) < 3 * gz["std"]
+
+
+def test_gz_scale_fault_is_named_never_a_wrong_sensor():
+    cert = load_default()
+    value = 3.0 * float(cert.gyro.limits.scale_factor_error[2])
+    out, _ = gyro_turns("urban", seed=11, faults=(Fault("scale_factor", "gz", 0.0, value),))
+    assert out["verdict"] == "fault"
+    named = [(f["sensor"], f["cause"]) for f in out["faults"] if f.get("named")]
+    assert named == [("gz", "scale_factor")]
+    f = out["faults"][-1]
+    assert f["deviation"] == pytest.approx(value, rel=0.3)
+    # the injected 3 % shows in the turns' ratio
+    assert out["turns"]["ratio_total"] == pytest.approx(
+        1.0 + value / cert.gyro.scale_factor[2], abs=0.01
+    )
+
+
+def test_slipping_car_is_rejected_not_blamed_on_the_gyros():
+    # a body heading that leads the course by 0.1 rad per m/s^2 of lateral acceleration:
+    # the no-slip test rejects the turns where it shows (and the rest of those turns);
+    # what is left determines nothing and no gyro fault is raised
+    out, _ = gyro_turns("urban", seed=11, gnss=RTK, slip=0.1)
+    assert out["rejected"]["slip"] >= 20
+    assert out["rejected"]["slip_in_turn"] >= 10
+    assert out["faults"] == [] and not out["f0"]["fault"]
+    assert out["determined"] == []
+
+
+def test_real_drive_gyro_magnitude_in_turns():
+    # rtklibexplorer drive_0708: 18 turns (1715 deg) pass the no-slip test; the gyros'
+    # integrated |omega| over them is the GNSS course change within 0.3 % (gz scale
+    # error 0.0000 +- 0.0021, limit 0.005); gz bias +0.13 +- 0.07 deg/s, against
+    # +0.17 deg/s measured at the drive's stops; no fault
+    cert = load(REAL / "nominal-certificate.yaml")
+    out = moving_base_diagnosis(
+        read_log(REAL / "imu.csv.gz"), cert, read_gpspipe_log(REAL / "gnss.tpv.json.gz")
+    )["gyro_turns"]
+    assert out["verdict"] == "ok" and out["faults"] == []
+    assert out["forward_axis"]["determined"]
+    assert 14 <= out["turns"]["count"] <= 24
+    assert out["turns"]["ratio_total"] == pytest.approx(1.0, abs=0.01)
+    assert out["rejected"]["slip"] > 0
+    gz_scale = out["fit"]["parameters"]["gz scale_factor"]
+    assert abs(gz_scale["deviation"]) < 0.003 and gz_scale["std"] < 0.003
+    gz_bias = out["fit"]["parameters"]["gz bias"]
+    assert gz_bias["deviation"] == pytest.approx(0.17, abs=0.1)
+    det = {(d["sensor"], d["cause"]) for d in out["determined"]}
+    assert det == {("gz", "bias"), ("gz", "scale_factor")}
+    json.dumps(out)  # JSON-ready
+
+
+def test_turn_check_without_turns_is_undetermined():
+    # a highway stretch with no turn fast enough: unknown, with the reason
+    m = drive_motion("highway", 120.0, seed=2)
+    tr = m.sample(100.0)
+    track = track_of(gnss_reports(m, EXACT))
+    ep = gnss_epochs(track)
+    im = imu_epochs(tr.t + EPOCH_UNIX, tr.specific_force, ep.t0, ep.t1, gyro_si=tr.omega)
+    out = turn_check(track, ep, im, load_default().gyro, np.full(3, 1e-3))
+    assert out["verdict"] == "unknown" and out["faults"] == []
+    assert out["reason"]
+    assert len(out["undetermined"]) == 6
