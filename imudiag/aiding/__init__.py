@@ -14,6 +14,8 @@ and |f_n| = |f_b| because a rotation keeps lengths. Modules:
 - :mod:`.specific_force`: |f| per GNSS epoch with its propagated noise and the
   quality gate; the IMU's mean |f| over the same epochs.
 - :mod:`.align`: the GNSS latency by cross-correlating the two magnitudes.
+- :mod:`.course_rate`: the gyro magnitude in turns from the GNSS course rate
+  (land vehicles, under the no-slip assumption).
 """
 
 from .align import LatencyEstimate, estimate_latency

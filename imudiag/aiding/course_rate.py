@@ -85,7 +85,7 @@ class CourseConfig:
     """Options of the turn check (units in the names)."""
 
     min_speed_m_s: float = 3.0  #: course undefined below: both ends of an epoch above it
-    min_rate_rad_s: float = 0.05  #: a turn (2.9 deg/s)
+    min_rate_rad_s: float = 0.02  #: a turn (1.15 deg/s: highway curves reach 2 deg/s)
     min_rate_sigmas: float = 5.0  #: and above this many course-rate noise std
     max_horizontal_acc_m_s2: float = 4.0  #: harder manoeuvres are rejected (0.4 g)
     slip_allowance_rad: float = 0.035  #: slip angle (2 deg) the no-slip test lets through

@@ -142,12 +142,38 @@ def moving_base_lines(mb: dict) -> list[str]:
     for fd in mb.get("findings", []):
         if not fd["fault"]:
             lines.append(f"  finding (not a fault): {fd['text']}")
+    if "gyro_turns" in mb:
+        lines += gyro_turn_lines(mb["gyro_turns"])
+    return lines
+
+
+def gyro_turn_lines(gt: dict) -> list[str]:
+    """A short account of the gyros in turns (``moving_base.gyro_turns``)."""
+    head = f"  gyro in turns (no-slip assumption): {gt['verdict']}"
+    if "turns" not in gt:
+        return [f"{head} ({gt.get('reason', '')})"]
+    tu, f0 = gt["turns"], gt["f0"]
+    det = ", ".join(f"{d['sensor']} {d['cause']}" for d in gt["determined"]) or "nothing"
+    lines = [
+        f"{head}: {gt['used']} epochs in {tu['count']} turns ({tu['angle_deg_total']} deg), "
+        f"gyro |omega| / course rate {tu['ratio_total']}, F0 failed in {f0['failed']} of "
+        f"{f0['checked']} turns; determined: {det}"
+    ]
+    for f in gt["faults"]:
+        if f.get("named"):
+            lines.append(
+                f"  FAULT gyro {f['sensor']} {f['cause']}: estimate {f['estimate']:.6g}, "
+                f"certificate {f['certificate']:.6g}, limit {f['limit']:.6g}"
+            )
+        else:
+            lines.append(f"  FAULT gyro {f['cause']} in turns ({f0['persist']} failed)")
     return lines
 
 
 __all__ = [
     "add_gnss_arguments",
     "check_gnss_options",
+    "gyro_turn_lines",
     "moving_base_lines",
     "moving_base_section",
     "parse_lever_arm",
