@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -25,11 +26,13 @@ from imudiag.aiding.course_rate import (
     fit_forward_axis,
     turn_check,
 )
+from imudiag.aiding.live import LiveAiding
 from imudiag.aiding.moving import MovingConfig, moving_base_diagnosis
 from imudiag.aiding.specific_force import GateConfig
 from imudiag.aiding.tpv import parse_tpv, track_from_reports
 from imudiag.certificate import load, load_default
 from imudiag.logs import read_log
+from imudiag.samples import SampleBlock
 from imudiag.sim.drive import EPOCH_UNIX, GnssSimConfig, drive_motion, gnss_reports, simulate_drive
 from imudiag.sim.faults import Fault
 
@@ -214,3 +217,49 @@ def test_diagnose_cli_reports_the_gyros_in_turns(tmp_path):
     assert gt["assumption"] == ASSUMPTION
     assert gt["verdict"] == "ok" and gt["used"] > 100
     assert gt["used_spans"] and all(b > a for a, b in gt["used_spans"])
+
+
+@pytest.mark.parametrize("fault_limits", [0.0, 3.0])
+def test_daemon_aiding_checks_the_gyros_in_turns(fault_limits):
+    # the daemon's aiding (LiveAiding) with its real gpsd client on a loopback socket that
+    # speaks gpsd's JSON: each TPV line is written when the IMU stream reaches its time,
+    # the IMU fed in 50 ms blocks as the daemon reads it; a 3-limit gz scale fault is
+    # latched as a named gyro fault of the moving base, a healthy unit raises nothing
+    cert = load_default()
+    value = fault_limits * float(cert.gyro.limits.scale_factor_error[2])
+    faults = (Fault("scale_factor", "gz", 0.0, value),) if value else ()
+    res, reports, _ = simulate_drive("urban", 400.0, cert, seed=11, faults=faults)
+    times = np.array([r["t"] if r else np.nan for r in map(parse_tpv, reports)])
+    s = res.samples
+    now = [0.0]
+    with socket.create_server(("127.0.0.1", 0)) as srv:
+        aid = LiveAiding(f"gpsd://127.0.0.1:{srv.getsockname()[1]}", cert, clock=lambda: now[0])
+        aid.update(None)  # connects
+        conn, _ = srv.accept()
+        with conn:
+            i = 0
+            for k in range(0, len(s.t), 10):
+                blk = SampleBlock(
+                    t=s.t[k : k + 10], gyro=s.gyro[k : k + 10], accel=s.accel[k : k + 10]
+                )
+                now[0] = float(blk.t[-1] - s.t[0])
+                lines = []
+                while i < len(reports) and not times[i] > blk.t[-1]:
+                    lines.append(json.dumps(reports[i]) + "\n")
+                    i += 1
+                if lines:
+                    conn.sendall("".join(lines).encode())
+                aid.update(blk)
+        st = aid.status()
+        aid.close()
+    gt = st["gyro_turns"]
+    assert "no-slip" in gt["assumption"] and gt["turns"]["count"] >= 2
+    gyro_faults = [f for f in aid.faults() if f["triad"] == "gyro"]
+    if value:
+        assert gt["faults"] == [["gz", "scale_factor"]]
+        assert aid.faults() == [
+            {"triad": "gyro", "cause": "scale_factor", "source": "moving_base", "sensor": "gz"}
+        ]
+    else:
+        assert gt["faults"] == [] and gyro_faults == [] and aid.faults() == []
+        assert gt["turns"]["ratio_total"] == pytest.approx(1.0, abs=0.02)
