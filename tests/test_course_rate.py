@@ -182,7 +182,12 @@ def test_turn_check_without_turns_is_undetermined():
     ep = gnss_epochs(track)
     im = imu_epochs(tr.t + EPOCH_UNIX, tr.specific_force, ep.t0, ep.t1, gyro_si=tr.omega)
     cfg = CourseConfig(min_rate_rad_s=math.radians(10.0))
-    out = turn_check(track, ep, im, load_default().gyro, np.full(3, 1e-3), cfg=cfg)
+    m_cfg = MovingConfig()
+    out = turn_check(
+        track, ep, im, load_default().gyro, np.full(3, 1e-3), cfg=cfg,
+        k_sigma_f0=m_cfg.k_sigma_f0, k_sigma=m_cfg.k_sigma, prior_factor=m_cfg.prior_factor,
+        determined_std_ratio=m_cfg.determined_std_ratio,
+    )  # fmt: skip
     assert out["verdict"] == "unknown" and out["faults"] == []
     assert out["reason"]
     assert len(out["undetermined"]) == 6

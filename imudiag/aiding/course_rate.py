@@ -63,7 +63,7 @@ import numpy as np
 from ..certificate import TriadModel
 from ..diagnosis.params import sensor_of
 from .earth import earth_rate_ned, transport_rate_ned
-from .specific_force import GateConfig, GnssEpochs, ImuEpochs, velocity_sigma
+from .specific_force import REASONS, GateConfig, GnssEpochs, ImuEpochs, velocity_sigma
 from .tpv import GnssTrack
 
 ASSUMPTION = (
@@ -101,9 +101,10 @@ class CourseConfig:
 
 @dataclass
 class CourseEpochs:
-    """The GNSS course over K epochs: rate (K,) rad/s (nan where undefined), sigma_rate
-    (K,) rad/s, ref_rate (K,) rad/s |omega_ref|, speed_min (K,) m/s the lower end speed,
-    v_dir (K, 3) unit mid-epoch velocity (NED), a_h (K,) m/s^2 horizontal acceleration."""
+    """The GNSS course over K epochs: rate (K,) rad/s (meaningful where the epoch is valid
+    and speed_min well above 0), sigma_rate (K,) rad/s, ref_rate (K,) rad/s |omega_ref|,
+    speed_min (K,) m/s the lowest horizontal speed of the epoch's fixes, v_dir (K, 3) unit
+    mid-epoch velocity (NED), a_h (K,) m/s^2 horizontal acceleration."""
 
     rate: np.ndarray
     sigma_rate: np.ndarray
@@ -127,12 +128,10 @@ def course_epochs(track: GnssTrack, ep: GnssEpochs, gate: GateConfig | None = No
     cum = np.concatenate([[0.0], np.cumsum(np.nan_to_num(d))])
     with np.errstate(invalid="ignore", divide="ignore"):
         dt = ep.t1 - ep.t0
-        # lowest horizontal speed over the epoch's fixes
-        slow_fix = ~(vh > 0.0)
+        # lowest horizontal speed over the epoch's fixes (nan where a velocity is missing)
         vmin = np.array(
             [np.min(vh[a : b + 1]) if b >= a else np.nan for a, b in zip(s, e, strict=True)]
         )
-        vmin[np.array([bool(np.any(slow_fix[a : b + 1])) for a, b in zip(s, e, strict=True)])] = 0.0
         rate = (cum[e] - cum[s]) / dt
         sig = velocity_sigma(track, gate)[:, 0]
         sigma_rate = np.sqrt((sig[s] / vh[s]) ** 2 + (sig[e] / vh[e]) ** 2) / dt
@@ -242,16 +241,19 @@ def turn_check(
     gyro: TriadModel,
     sigma_gyro_si: np.ndarray,
     *,
-    k_sigma_f0: float = 3.0,
-    k_sigma: float = 4.0,
-    prior_factor: float = 10.0,
-    determined_std_ratio: float = 0.5,
+    k_sigma_f0: float,
+    k_sigma: float,
+    prior_factor: float,
+    determined_std_ratio: float,
     cfg: CourseConfig | None = None,
     gate: GateConfig | None = None,
 ) -> dict:
     """The ``gyro_turns`` report object (module doc). ``im`` the IMU epochs (with
     ``gyro_mean``, rad/s, certificate-corrected) over the same epochs as ``ep``;
-    ``sigma_gyro_si`` (3,) rad/s per sample."""
+    ``sigma_gyro_si`` (3,) rad/s per sample; the thresholds are the moving base's
+    (:class:`~.moving.MovingConfig`): F0 limit + ``k_sigma_f0`` sigma, faults beyond the
+    limit and ``k_sigma`` std, prior std ``prior_factor`` limits, determined at a std of
+    ``determined_std_ratio`` limits."""
     cfg = cfg or CourseConfig()
     ce = course_epochs(track, ep, gate)
     out: dict = {"assumption": ASSUMPTION, "epochs": len(ep)}
@@ -289,7 +291,7 @@ def turn_check(
         "applied": fwd.determined,
     }
     _drop_turns_next_to(reason, ("slip", "hard_manoeuvre"), "slip_in_turn")
-    counts = {str(r): int(np.sum(reason == r)) for r in dict.fromkeys(reason) if r != ""}
+    counts = {r: int(np.sum(reason == r)) for r in REASONS + TURN_REASONS if np.any(reason == r)}
     out["rejected"] = counts
     use = reason == ""
     out["used"] = int(np.sum(use))
@@ -478,7 +480,7 @@ def _fit(
     cov = np.linalg.inv(n_mat)
     est = cov @ (a.T @ (w * y))
     r = y - a @ est
-    dof = max(len(y) - 2, 1)
+    dof = max(len(y) - 2, 1)  # a level road: the vertical gyro's bias and scale
     chi2_dof = float(np.sum(w * r * r) / dof)
     std = np.sqrt(np.diag(cov)) * math.sqrt(max(1.0, chi2_dof))
     cert = np.concatenate([gyro.bias, gyro.scale_factor_error]).astype(float)
@@ -553,6 +555,7 @@ def _fit(
 
 __all__ = [
     "ASSUMPTION",
+    "TURN_REASONS",
     "CourseConfig",
     "CourseEpochs",
     "ForwardAxis",
