@@ -35,6 +35,7 @@ from imudiag.logs import read_log
 from imudiag.samples import SampleBlock
 from imudiag.sim.drive import EPOCH_UNIX, GnssSimConfig, drive_motion, gnss_reports, simulate_drive
 from imudiag.sim.faults import Fault
+from imudiag.sim.scenarios import scenario_motion
 
 REAL = Path(__file__).parent / "data" / "real" / "gnss-imu-drive"
 RTK = GnssSimConfig(sigma_h_m_s=0.01, sigma_v_m_s=0.015)
@@ -268,3 +269,25 @@ def test_daemon_aiding_checks_the_gyros_in_turns(fault_limits):
     else:
         assert gt["faults"] == [] and gyro_faults == [] and aid.faults() == []
         assert gt["turns"]["ratio_total"] == pytest.approx(1.0, abs=0.02)
+
+
+def test_simulated_slip_turns_the_body_off_the_course():
+    # the drive simulator's side slip (--param slip=K): the body x axis leads the velocity
+    # by beta = K a_lat (a_lat = v psi', m/s^2); with K = 0 the body follows the course
+    for k in (0.0, 0.05):
+        m = scenario_motion("urban", 4, {"length": "300", "slip": str(k)})
+        assert m.slip_rad_per_m_s2 == k
+        tr = m.sample(50.0)
+        vel = m.velocity_ned(tr.t)
+        course = np.arctan2(vel[:, 1], vel[:, 0])
+        heading = np.arctan2(tr.attitude[:, 1, 0], tr.attitude[:, 0, 0])
+        p = m._profiles(tr.t)
+        moving = p["v"] > 1.0
+        beta = np.angle(np.exp(1j * (heading - course)))[moving]
+        assert beta == pytest.approx(k * (p["v"] * p["dpsi"])[moving], abs=1e-9)
+        # and the gyros sense the body's heading rate (course rate + beta'), Earth rate aside
+        yaw_rate = np.gradient(np.unwrap(heading), tr.t)
+        assert np.max(np.abs(yaw_rate - tr.omega[:, 2])) < 2e-3
+    assert np.max(np.abs(beta)) > 0.05  # a visible slip in the turns
+    with pytest.raises(ValueError, match="slip must be a number"):
+        scenario_motion("urban", 4, {"slip": "x"})

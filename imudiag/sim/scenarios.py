@@ -15,6 +15,9 @@ Scenarios (parameters as ``key=value``; times s, angles deg, rates deg/s):
 ``vehicle`` (finite, 32 s with the defaults)
     ``still`` (10) s, take-off run to ``speed`` (20) m/s in ``accel`` (8) s, ``cruise`` (4) s,
     a sharp ``turn_deg`` (90) deg turn in ``turn`` (4) s, ``final`` (6) s.
+``urban``, ``highway``, ``hilly``, ``aircraft`` (finite, about ``length`` (600) s)
+    Drives of :mod:`.drive`; ``slip`` (0) rad per m/s^2: the body heads that much per
+    m/s^2 of lateral acceleration off the course (a side slip, for the no-slip test).
 
 Effects (``--effect`` / ``effect=``; units of spec/reports.md, output units = counts
 for the bundled board):
@@ -82,7 +85,7 @@ _PARAMS: dict[str, tuple[str, ...]] = {
     "multiposition": ("n", "dwell", "turn", "first_dwell", "loop", "latitude"),
     "turntable": ("turn_rate", "axis", "ramp", "latitude"),
     "vehicle": ("still", "accel", "speed", "cruise", "turn", "turn_deg", "final", "latitude"),
-    **{d: ("length",) for d in DRIVES},
+    **{d: ("length", "slip") for d in DRIVES},
 }
 
 
@@ -134,7 +137,9 @@ def scenario_motion(name: str, seed: int = 0, params: Mapping[str, str] | None =
     if sc in DRIVES:
         from .drive import drive_motion
 
-        return drive_motion(sc, num("length", 600.0), seed)
+        drive = drive_motion(sc, num("length", 600.0), seed)
+        drive.slip_rad_per_m_s2 = num("slip", 0.0)
+        return drive
     lat = num("latitude", 45.0)
     if sc == "static":
         return static_cycle_motion(
