@@ -112,6 +112,7 @@ class LiveAiding:
         self._hist_var = self._hist_var[:0]
         self._hist_mag = self._hist_mag[:0]
         self.tracker = IsolationTracker(self.cfg.persist)
+        self.gyro_faults = {}
 
     # -- input -------------------------------------------------------------
 
