@@ -63,6 +63,16 @@ def _run_monitor(scenario, seed, duration, faults, drift):
     return cert, motion, mon, counts, blocks
 
 
+def _turns(out: dict) -> str:
+    """The gyro-in-turns check of a moving-base report in a few words."""
+    turns = out.get("gyro_turns") or {}
+    faults = turns.get("faults") or []
+    names = (
+        ", ".join(f"{f.get('sensor') or f.get('triad')} {f.get('cause')}" for f in faults) or "none"
+    )
+    return f"{turns.get('verdict')} (faults: {names})"
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--duration", type=float, default=3600.0, help="drive length, s")
@@ -94,8 +104,8 @@ def main(argv: list[str] | None = None) -> int:
         out = moving_base_diagnosis(whole, cert, track, MovingConfig())
         print(
             f"{sc:8s} clean, aided (standard GNSS): faults {len(out['faults'])}; F0 in motion "
-            f"failed {out['f0']['failed']} of {out['f0']['checked']} epochs; "
-            f"{time.perf_counter() - t0:.0f} s",
+            f"failed {out['f0']['failed']} of {out['f0']['checked']} epochs; gyros in turns "
+            f"{_turns(out)}; {time.perf_counter() - t0:.0f} s",
             flush=True,
         )
         lim = float(cert.accel.limits.bias[2])
