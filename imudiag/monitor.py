@@ -782,7 +782,7 @@ class Monitor:
                     thr[j, 3 * k : 3 * k + 3] = (r * sigma) ** 2 * (0.4549 * 6.0)
         fails, settled = median_side(d2sq, ends, w, thr)
         settled |= fails
-        exact = ~settled.all(axis=(1, 2))
+        exact = ~np.all(settled, axis=(1, 2))
         exact[-1] = True
         rows = np.flatnonzero(exact)
         # the medians of those windows in one call per group of checks (the group bounded

@@ -272,7 +272,7 @@ def segmented_product_sensitivity(
     full = where >= 0
     out[full] = np.take(q, where[full], axis=1).T
     # per block S_k^T J_r(theta_k) (9 rows of K); per segment the sum of its outer products
-    # with the block's inc, as one product with inc placed in its segment's columns
+    # with the block's inc
     rm = _matrix_rows(suffix)
     jr = _right_jacobian_rows(np.ascontiguousarray(theta.T))
     a = np.array(
@@ -282,11 +282,13 @@ def segmented_product_sensitivity(
             for j in range(3)
         ]
     )
+    terms = (a[:, None, :] * np.ascontiguousarray(inc.T)[None]).reshape(27, -1)  # (27, K)
     n = np.asarray(lengths, dtype=np.intp)
-    placed = np.zeros((inc.shape[0], s, 3))
-    placed[np.arange(inc.shape[0]), np.repeat(np.arange(s), n)] = inc
-    sens = a @ placed.reshape(-1, 3 * s)  # (9, S * 3)
-    return out, np.moveaxis(sens.reshape(3, 3, s, 3), 2, 0)
+    sens = np.zeros((s, 27))
+    if terms.shape[1]:
+        # each segment summed on its own: the same sums whatever else is in the batch
+        sens[n > 0] = np.add.reduceat(terms, (np.cumsum(n) - n)[n > 0], axis=1).T
+    return out, sens.reshape(s, 3, 3, 3)
 
 
 def _matrix_rows(q: np.ndarray) -> list[list[np.ndarray]]:

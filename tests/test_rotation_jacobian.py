@@ -147,3 +147,25 @@ def test_right_jacobian(angle):
         w = r0.T @ dr
         assert np.allclose([w[2, 1], w[0, 2], w[1, 0]], jr[:, j], rtol=0, atol=1e-9)
     assert rotvec_right_jacobian(np.tile(theta, (2, 4, 1))).shape == (2, 4, 3, 3)
+
+
+def test_kept_rotations_equal_the_batch_bit_for_bit(xsens_windows):
+    """A window's fit starts at the certificate, where each motion's rotation and
+    sensitivity are kept in its memo (a motion is in every window of its interval): the
+    kept ones, computed in another window's batch, equal this window's own bit for bit."""
+    from imudiag.diagnosis.gyro_fit import motion_sensitivities
+
+    cert, windows = xsens_windows
+    shape_c, q_c = shape_of_triad(cert.gyro)
+    ninv, _ = ninv_derivatives(shape_c, q_c, np.zeros(9), True)
+    pairs = windows[0]
+    plain = motion_sensitivities(stack_pairs(cert.gyro, pairs), ninv)
+    memos: list[dict | None] = [{} for _ in pairs]
+    half = len(pairs) // 2  # an earlier window held only the first half of them
+    motion_sensitivities(stack_pairs(cert.gyro, pairs[:half]), ninv, memos[:half])
+    assert all(len(m) == 1 for m in memos[:half]) and not any(memos[half:])
+    kept = motion_sensitivities(stack_pairs(cert.gyro, pairs), ninv, memos)
+    assert all(len(m) == 1 for m in memos)
+    assert np.array_equal(kept[0], plain[0]) and np.array_equal(kept[1], plain[1])
+    again = motion_sensitivities(stack_pairs(cert.gyro, pairs), ninv, memos)
+    assert np.array_equal(again[1], plain[1])

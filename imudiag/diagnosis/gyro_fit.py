@@ -245,8 +245,53 @@ def _product_plan(stack: dict[str, np.ndarray]) -> None:
     stack["plan"] = segment_product_plan(np.asarray(lengths))  # type: ignore[assignment]
 
 
+def motion_sensitivities(
+    stack: dict[str, np.ndarray], ninv: np.ndarray, memos: list[dict | None] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each motion's rotation (n, 4) for one N^-1 (3, 3) and its sensitivity to N^-1
+    (n, 3, 3, 3; :func:`.rotations.segmented_product_sensitivity`).
+
+    ``memos`` (one per motion, or None): where each motion's pair is kept, keyed by N^-1
+    and the motion's increments (every window starts its fit at the certificate's N^-1,
+    and a motion is in every window of its interval); when all are there, nothing is
+    computed.
+    """
+    _product_plan(stack)
+    turning = stack["turning"]
+    lengths = stack["lengths"]
+    if memos is None or any(m is None for m in memos):
+        theta = np.matmul(turning[None], ninv.T[None])[0]  # (K, 3)
+        return segmented_product_sensitivity(
+            theta,
+            turning,
+            lengths,
+            stack["plan"],  # type: ignore[arg-type]
+        )
+    first = np.cumsum(lengths) - lengths
+    parts = [turning[a : a + n] for a, n in zip(first, lengths, strict=True)]
+    keys = [("sensitivity", ninv.tobytes(), part.tobytes()) for part in parts]
+    missing = [i for i, (m, k) in enumerate(zip(memos, keys, strict=True)) if k not in m]  # type: ignore[operator]
+    if missing:
+        sub = np.concatenate([parts[i] for i in missing])
+        sub_lengths = lengths[missing]
+        q, sens = segmented_product_sensitivity(
+            np.matmul(sub[None], ninv.T[None])[0],
+            sub,
+            sub_lengths,
+            segment_product_plan(sub_lengths),
+        )
+        for j, i in enumerate(missing):
+            memos[i][keys[i]] = (q[j], sens[j])  # type: ignore[index]
+    kept = [m[k] for m, k in zip(memos, keys, strict=True)]  # type: ignore[index]
+    return np.array([v[0] for v in kept]), np.array([v[1] for v in kept])
+
+
 def predict_with_jacobian(
-    stack: dict[str, np.ndarray], ninv: np.ndarray, dninv: np.ndarray, up0: np.ndarray
+    stack: dict[str, np.ndarray],
+    ninv: np.ndarray,
+    dninv: np.ndarray,
+    up0: np.ndarray,
+    memos: list[dict | None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Predicted end directions (n, 3) for one N^-1 (3, 3), and their derivatives
     (n, 3, m) with respect to m parameters whose derivatives of N^-1 are ``dninv``
@@ -257,16 +302,9 @@ def predict_with_jacobian(
     a right perturbation omega (:func:`.rotations.segmented_product_sensitivity`: one
     pass down the product tree serves every parameter), and the prediction ``C^T up0``
     by ``pred x omega``. The prediction itself is :func:`predict_end_directions`'s.
+    ``memos``: as :func:`motion_sensitivities`.
     """
-    _product_plan(stack)
-    turning = stack["turning"]
-    theta = np.matmul(turning[None], ninv.T[None])[0]  # (K, 3)
-    q, sens = segmented_product_sensitivity(
-        theta,
-        turning,
-        stack["lengths"],
-        stack["plan"],  # type: ignore[arg-type]
-    )
+    q, sens = motion_sensitivities(stack, ninv, memos)
     omega = np.einsum("nacd,mcd->nam", sens, dninv)  # (n, 3, m), rad per parameter unit
     c = quat_matrix(q)  # body at end -> body at start
     pred = np.einsum("nji,nj->ni", c, up0)
@@ -360,10 +398,16 @@ def rotation_fit(
     var = direction_var(gyro, pairs, stack["path"], gyro_sample_var, earth_rate_si)
     wgt = np.repeat(1.0 / var, 3)
 
+    memos = [p.memo for p in pairs]
+
     def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Residuals (3 n,), Jacobian of the prediction (3 n, npar, analytic), cost at x."""
         pred, d_pred = predict_with_jacobian(
-            stack, *ninv_derivatives(shape_c, q_c, x, fit_frame), up0
+            stack,
+            *ninv_derivatives(shape_c, q_c, x, fit_frame),
+            up0,
+            # at the certificate (every fit's start) each motion's rotation is kept
+            memos=None if x.any() else memos,
         )
         r = (up1 - pred).ravel()
         j = d_pred.reshape(-1, npar)
@@ -513,6 +557,7 @@ __all__ = [
     "RotationFitResult",
     "direction_var",
     "gyro_sample_var",
+    "motion_sensitivities",
     "ninv_derivatives",
     "predict_end_directions",
     "predict_with_jacobian",
