@@ -748,7 +748,9 @@ class Monitor:
         the squared second differences over the trailing ``noise_window_s``
         (median of chi^2_1 = 0.4549; var(d2) = 6 sigma^2 for white noise): a
         burst over less than half the window (a hand grabbing the unit, a knock,
-        a step) leaves the median alone, where a mean would call it noise.
+        a step) leaves the median alone, where a mean would call it noise. The median
+        is taken only where counting the values beyond each threshold cannot settle
+        the comparison (:func:`.trailing.median_side`; the same decisions).
         ``calm`` (N,): the window ending at each sample saw no turn (angular
         acceleration below ``noise_motion_gate``); only those windows are judged.
         Excess noise (beyond ``noise_ratio``) must persist 3 s; gross noise
