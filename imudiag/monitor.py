@@ -48,7 +48,7 @@ from .samples import (
     SampleBlock,
 )
 from .scalar import f0
-from .trailing import PrefixSums
+from .trailing import PrefixSums, median_side
 
 #: triads in the ring's column order (raw gyro columns 1-3, accel 4-6)
 TRIADS_RING = ("gyro", "accel")
@@ -748,7 +748,9 @@ class Monitor:
         the squared second differences over the trailing ``noise_window_s``
         (median of chi^2_1 = 0.4549; var(d2) = 6 sigma^2 for white noise): a
         burst over less than half the window (a hand grabbing the unit, a knock,
-        a step) leaves the median alone, where a mean would call it noise.
+        a step) leaves the median alone, where a mean would call it noise. The median
+        is taken only where counting the values beyond each threshold cannot settle
+        the comparison (:func:`.trailing.median_side`; the same decisions).
         ``calm`` (N,): the window ending at each sample saw no turn (angular
         acceleration below ``noise_motion_gate``); only those windows are judged.
         Excess noise (beyond ``noise_ratio``) must persist 3 s; gross noise
@@ -770,15 +772,30 @@ class Monitor:
         raw_all = np.concatenate([hist[:, 1:7], np.concatenate([block.gyro, block.accel], axis=1)])
         d2sq = np.diff(raw_all, n=2, axis=0) ** 2  # row r ends at raw_all row r + 2
         ends = pos + back - 2 + 1  # d2sq rows end (exclusive) at each check sample
-        # the medians of every check's window in one call per group of checks (the group
-        # bounded to about 2^20 values copied)
+        # a check fails when sqrt(median / (0.4549 * 6)) / sigma exceeds a ratio: where the
+        # counts of values beyond that median settle it (nearly everywhere), no median is
+        # taken; the others, and the last check (its ratio is kept), get theirs
+        limits = self.config.noise_ratio, self.config.noise_gross_ratio
+        thr = np.full((2, 6), np.inf)
+        for k, name in enumerate(TRIADS_RING):
+            sigma = self._noise_sigma[name]
+            if sigma is not None:
+                for j, r in enumerate(limits):
+                    thr[j, 3 * k : 3 * k + 3] = (r * sigma) ** 2 * (0.4549 * 6.0)
+        fails, settled = median_side(d2sq, ends, w, thr)
+        settled |= fails
+        exact = ~np.all(settled, axis=(1, 2))
+        exact[-1] = True
+        rows = np.flatnonzero(exact)
+        # the medians of those windows in one call per group of checks (the group bounded
+        # to about 2^20 values copied)
         windows = sliding_window_view(d2sq, w, axis=0)  # (rows, 6, w), row i = d2sq[i:i+w]
-        ratio6 = np.empty((pos.size, 6))
+        ratio6 = np.empty((rows.size, 6))
         group = max(1, (1 << 20) // (6 * w))
-        for g in range(0, pos.size, group):
+        for g in range(0, rows.size, group):
             # the gathered windows are a copy of our own: partitioned in place, not copied again
             ratio6[g : g + group] = np.median(
-                windows[ends[g : g + group] - w], axis=2, overwrite_input=True
+                windows[ends[rows[g : g + group]] - w], axis=2, overwrite_input=True
             )
         t = block.t[pos]
         for k, name in enumerate(TRIADS_RING):
@@ -788,6 +805,8 @@ class Monitor:
             st = self._state[name]
             ratio = np.sqrt(ratio6[:, 3 * k : 3 * k + 3] / (0.4549 * 6.0)) / sigma
             st.noise_ratio_last = ratio[-1]
+            for j, r in enumerate(limits):
+                fails[rows, j, 3 * k : 3 * k + 3] = ratio > r
             for axis in range(3):
-                st.noise[axis].update(ratio[:, axis] > self.config.noise_ratio, t)
-                st.noise_gross[axis].update(ratio[:, axis] > self.config.noise_gross_ratio, t)
+                st.noise[axis].update(fails[:, 0, 3 * k + axis], t)
+                st.noise_gross[axis].update(fails[:, 1, 3 * k + axis], t)

@@ -195,6 +195,129 @@ def segmented_product_of_rotvecs(
     return out
 
 
+def _right_jacobian_coefficients(a2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(1 - cos a) / a^2`` and ``(a - sin a) / a^3`` of squared angles ``a2`` (rad^2), by
+    their series below a = 1e-2 (where the closed forms cancel; the series' first omitted
+    terms are below 1e-16 there)."""
+    a = np.sqrt(a2)
+    small = a < 1e-2
+    safe = np.where(small, 1.0, a)
+    c1 = np.where(small, 0.5 - a2 / 24.0 + a2 * a2 / 720.0, (1.0 - np.cos(safe)) / safe**2)
+    c2 = np.where(small, 1.0 / 6.0 - a2 / 120.0 + a2 * a2 / 5040.0, (safe - np.sin(safe)) / safe**3)
+    return c1, c2
+
+
+def rotvec_right_jacobian(theta: np.ndarray) -> np.ndarray:
+    """Right Jacobians (..., 3, 3) of the rotation vectors ``theta`` (..., 3), rad:
+    ``R(theta + d) = R(theta) exp([J_r(theta) d]x)`` to first order in d, with
+    ``J_r = I - (1 - cos a) / a^2 [theta]x + (a - sin a) / a^3 [theta]x^2``, a = |theta|."""
+    theta = np.asarray(theta, dtype=float)
+    rows = _right_jacobian_rows(np.moveaxis(theta, -1, 0))
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices (..., 3, 3) of vectors (..., 3): ``skew(v) @ u = v x u``."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros(v.shape + (3,))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def segmented_product_sensitivity(
+    theta: np.ndarray,
+    inc: np.ndarray,
+    lengths: np.ndarray,
+    plan: tuple[list[ProductLevel], np.ndarray],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Ordered products by segment of rotation vectors ``theta = L inc`` (rad) and their
+    sensitivity to the matrix L.
+
+    ``theta`` (K, 3) and ``inc`` (K, 3): the vectors of segments of ``lengths`` (S,)
+    laid end to end (``plan``: :func:`segment_product_plan` of them), with
+    ``theta[k] = L @ inc[k]`` for one 3x3 matrix L. Returns the products (S, 4), equal to
+    :func:`segmented_product_of_rotvecs` of ``theta[None]`` bit for bit, and G
+    (S, 3, 3, 3): a change dL moves each product by the right perturbation
+    ``omega_a = sum_cd G[s, a, c, d] dL[c, d]`` (rad), ``R(L + dL) = R(L) exp([omega]x)``
+    to first order. A block k perturbed by ``d_k``
+    moves its segment's product by ``S_k^T J_r(theta_k) d_k``, with S_k the product of
+    the blocks after it (:func:`rotvec_right_jacobian`); the S_k come down the same
+    pairwise tree the products went up (one quaternion product per pair and level), so
+    one evaluation serves every parameter.
+    """
+    levels, where = plan
+    q = _rotvec_rows(theta[None])[:, 0]  # (4, K)
+    ups = [q]
+    for left, to, last, last_to, size in levels:
+        nxt = np.empty((4, size))
+        nxt[:, to] = _qmul_rows(np.take(q, left, axis=1), np.take(q, left + 1, axis=1))
+        nxt[:, last_to] = np.take(q, last, axis=1)
+        q = nxt
+        ups.append(q)
+    # products of what follows each element inside its segment, top down
+    suffix: np.ndarray = np.zeros((4, q.shape[1]))
+    suffix[0] = 1.0
+    for (left, to, last, last_to, _), below in zip(levels[::-1], ups[-2::-1], strict=True):
+        down: np.ndarray = np.empty(below.shape)
+        parent = np.take(suffix, to, axis=1)
+        down[:, left + 1] = parent
+        down[:, left] = _qmul_rows(np.take(below, left + 1, axis=1), parent)
+        down[:, last] = np.take(suffix, last_to, axis=1)
+        suffix = down
+    s = where.size
+    out = np.zeros((s, 4))
+    out[:, 0] = 1.0
+    full = where >= 0
+    out[full] = np.take(q, where[full], axis=1).T
+    # per block S_k^T J_r(theta_k) (9 rows of K); per segment the sum of its outer products
+    # with the block's inc
+    rm = _matrix_rows(suffix)
+    jr = _right_jacobian_rows(np.ascontiguousarray(theta.T))
+    a = np.array(
+        [
+            rm[0][i] * jr[0][j] + rm[1][i] * jr[1][j] + rm[2][i] * jr[2][j]
+            for i in range(3)
+            for j in range(3)
+        ]
+    )
+    terms = (a[:, None, :] * np.ascontiguousarray(inc.T)[None]).reshape(27, -1)  # (27, K)
+    n = np.asarray(lengths, dtype=np.intp)
+    sens = np.zeros((s, 27))
+    if terms.shape[1]:
+        # each segment summed on its own: the same sums whatever else is in the batch
+        sens[n > 0] = np.add.reduceat(terms, (np.cumsum(n) - n)[n > 0], axis=1).T
+    return out, sens.reshape(s, 3, 3, 3)
+
+
+def _matrix_rows(q: np.ndarray) -> list[list[np.ndarray]]:
+    """Rotation matrices of unit quaternions stored component-major (4, K), as 3 x 3
+    nested lists of (K,) rows (the arithmetic of :func:`quat_matrix`, normalised)."""
+    w, x, y, z = q / np.sqrt(np.einsum("ik,ik->k", q, q))
+    return [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+
+
+def _right_jacobian_rows(th: np.ndarray) -> list[list[np.ndarray]]:
+    """:func:`rotvec_right_jacobian` of rotation vectors component-major (3, ...), rad, as
+    3 x 3 nested lists of (...) rows."""
+    a2 = np.einsum("i...,i...->...", th, th)
+    c1, c2 = _right_jacobian_coefficients(a2)
+    diag = 1.0 - c2 * a2
+    x, y, z = th
+    cx, cy, cz = c1 * x, c1 * y, c1 * z
+    gx, gy, gz = c2 * x, c2 * y, c2 * z
+    return [
+        [diag + gx * x, gx * y + cz, gx * z - cy],
+        [gy * x - cz, diag + gy * y, gy * z + cx],
+        [gz * x + cy, gz * y - cx, diag + gz * z],
+    ]
+
+
 __all__ = [
     "matrix_quat",
     "ordered_product",
@@ -203,4 +326,7 @@ __all__ = [
     "qmul",
     "quat_matrix",
     "rotvec_quat",
+    "rotvec_right_jacobian",
+    "segmented_product_sensitivity",
+    "skew",
 ]

@@ -1,4 +1,5 @@
-"""Trailing-window sums over a stream of rows, carried across blocks (running sums)."""
+"""Trailing-window sums over a stream of rows, carried across blocks (running sums), and
+where a window's median is certainly above or below a threshold (counts, no sorting)."""
 
 from __future__ import annotations
 
@@ -142,3 +143,37 @@ class PrefixSums:
             back = back - shift
             self._next_rebase = self._rows + (1 << 20)
         return now, back, idx
+
+
+#: relative margin of :func:`median_side` around each threshold: a median this far beyond it
+#: stays beyond it through the roundings of the caller's own comparison
+MEDIAN_SIDE_MARGIN = 1e-9
+
+
+def median_side(
+    x: np.ndarray, ends: np.ndarray, w: int, thresholds: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where the median of a window of ``x`` is certainly above, or certainly not above, a
+    threshold, from counts of the values beyond it (no median computed).
+
+    ``x`` (R, C) values; the windows are ``x[e - w : e]`` for ``e`` in ``ends`` (P,);
+    ``thresholds`` (k, C), in the units of x. Returns ``above`` and ``below`` (P, k, C):
+    ``above`` when at least ``w // 2 + 1`` of the window's values exceed the threshold
+    raised by :data:`MEDIAN_SIDE_MARGIN` (then both middle values, and so ``np.median``,
+    are above it); ``below`` when at most ``(w - 1) // 2`` exceed the threshold lowered by
+    the margin (the median is at most that). Neither: the median is within the margin or
+    the window holds a NaN; only there does a caller need the median itself.
+    """
+    x = np.asarray(x, dtype=float)
+    thr = np.asarray(thresholds, dtype=float)
+    k = thr.shape[0]
+    bounds = np.concatenate([thr * (1.0 + MEDIAN_SIDE_MARGIN), thr * (1.0 - MEDIAN_SIDE_MARGIN)])
+    beyond = np.empty((x.shape[0] + 1, 2 * k + 1, x.shape[1]), dtype=np.int32)
+    beyond[0] = 0
+    np.cumsum(x[:, None, :] > bounds[None], axis=0, out=beyond[1:, : 2 * k])
+    np.cumsum(np.isnan(x), axis=0, out=beyond[1:, 2 * k])
+    counts = beyond[ends] - beyond[ends - w]  # (P, 2 k + 1, C)
+    clean = (counts[:, 2 * k] == 0)[:, None, :]
+    above = (counts[:, :k] >= w // 2 + 1) & clean
+    below = (counts[:, k : 2 * k] <= (w - 1) // 2) & clean
+    return above, below

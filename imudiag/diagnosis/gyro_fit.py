@@ -7,9 +7,11 @@ quasi-static intervals the gyro-integrated rotation C (body at the end to body
 at the start) must carry the first measured specific-force direction into the
 second, ``f_1 = C^T f_0`` (Tedaldi et al., ICRA 2014). The fit finds the shape
 (e, d: the symmetric part P of N, see :mod:`.gauge`) that makes it so over all
-rotations of a window, by Gauss-Newton with a numerical Jacobian; every
-parameter set integrates all segments at once (each segment's blocks only,
-quaternion products reduced pairwise: no loop over samples or segments).
+rotations of a window, by Gauss-Newton with an analytic Jacobian (the
+derivatives carried through the product of each motion's rotations,
+:func:`predict_with_jacobian`); all segments are integrated at once (each
+segment's blocks only, quaternion products reduced pairwise: no loop over
+samples or segments).
 
 Navigation-grade gyros see Earth rate; :func:`earth_rate_observable` decides
 from the certificate's noise whether the stationary scalar fit with
@@ -19,7 +21,6 @@ from the certificate's noise whether the stationary scalar fit with
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,8 +29,11 @@ from ..certificate import Certificate, TriadModel
 from ..rotations import (
     quat_matrix,
     rotvec_quat,
+    rotvec_right_jacobian,
     segment_product_plan,
     segmented_product_of_rotvecs,
+    segmented_product_sensitivity,
+    skew,
 )
 from .gauge import p_matrix, shape_of_triad
 from .intervals import QuasiStaticInterval
@@ -218,19 +222,119 @@ def predict_end_directions(
     the padding to the longest, go through N^-1, the trigonometry and the products; the
     plan of the products is kept in ``stack``, which every evaluation of a fit shares).
     """
-    inc = stack["inc"]
-    n, b, _ = inc.shape
-    if "plan" not in stack:
-        lengths = stack.get("blocks")
-        if lengths is None:  # a stack made by hand: every block may turn
-            lengths = np.full(n, b)
-        row, block = np.nonzero(np.arange(b)[None, :] < np.asarray(lengths)[:, None])
-        stack["turning"] = inc[row, block]  # (K, 3): motion by motion, blocks in order
-        stack["plan"] = segment_product_plan(np.asarray(lengths))  # type: ignore[assignment]
+    _product_plan(stack)
     theta = np.matmul(stack["turning"][None], np.swapaxes(ninv, 1, 2))  # (P, K, 3)
     q = segmented_product_of_rotvecs(theta, stack["plan"])  # type: ignore[arg-type]
     c = quat_matrix(q)  # body at end -> body at start
     return np.einsum("pnji,nj->pni", c, up0)
+
+
+def _product_plan(stack: dict[str, np.ndarray]) -> None:
+    """Keep in ``stack`` the blocks that turn, motion by motion, and the plan of their
+    products (every evaluation of a fit shares them)."""
+    if "plan" in stack:
+        return
+    inc = stack["inc"]
+    n, b, _ = inc.shape
+    lengths = stack.get("blocks")
+    if lengths is None:  # a stack made by hand: every block may turn
+        lengths = np.full(n, b)
+    row, block = np.nonzero(np.arange(b)[None, :] < np.asarray(lengths)[:, None])
+    stack["turning"] = inc[row, block]  # (K, 3): motion by motion, blocks in order
+    stack["lengths"] = np.asarray(lengths)
+    stack["plan"] = segment_product_plan(np.asarray(lengths))  # type: ignore[assignment]
+
+
+def motion_sensitivities(
+    stack: dict[str, np.ndarray], ninv: np.ndarray, memos: list[dict | None] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each motion's rotation (n, 4) for one N^-1 (3, 3) and its sensitivity to N^-1
+    (n, 3, 3, 3; :func:`.rotations.segmented_product_sensitivity`).
+
+    ``memos`` (one per motion, or None): where each motion's pair is kept, keyed by N^-1
+    and the motion's increments (every window starts its fit at the certificate's N^-1,
+    and a motion is in every window of its interval); when all are there, nothing is
+    computed.
+    """
+    _product_plan(stack)
+    turning = stack["turning"]
+    lengths = stack["lengths"]
+    if memos is None or any(m is None for m in memos):
+        theta = np.matmul(turning[None], ninv.T[None])[0]  # (K, 3)
+        return segmented_product_sensitivity(
+            theta,
+            turning,
+            lengths,
+            stack["plan"],  # type: ignore[arg-type]
+        )
+    first = np.cumsum(lengths) - lengths
+    parts = [turning[a : a + n] for a, n in zip(first, lengths, strict=True)]
+    keys = [("sensitivity", ninv.tobytes(), part.tobytes()) for part in parts]
+    missing = [i for i, (m, k) in enumerate(zip(memos, keys, strict=True)) if k not in m]  # type: ignore[operator]
+    if missing:
+        sub = np.concatenate([parts[i] for i in missing])
+        sub_lengths = lengths[missing]
+        q, sens = segmented_product_sensitivity(
+            np.matmul(sub[None], ninv.T[None])[0],
+            sub,
+            sub_lengths,
+            segment_product_plan(sub_lengths),
+        )
+        for j, i in enumerate(missing):
+            memos[i][keys[i]] = (q[j], sens[j])  # type: ignore[index]
+    kept = [m[k] for m, k in zip(memos, keys, strict=True)]  # type: ignore[index]
+    return np.array([v[0] for v in kept]), np.array([v[1] for v in kept])
+
+
+def predict_with_jacobian(
+    stack: dict[str, np.ndarray],
+    ninv: np.ndarray,
+    dninv: np.ndarray,
+    up0: np.ndarray,
+    memos: list[dict | None] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted end directions (n, 3) for one N^-1 (3, 3), and their derivatives
+    (n, 3, m) with respect to m parameters whose derivatives of N^-1 are ``dninv``
+    (m, 3, 3) (per parameter unit).
+
+    The analytic Jacobian of :func:`predict_end_directions`: each block's rotation
+    vector ``N^-1 inc`` moves by ``dN^-1 inc``, which moves each motion's rotation C by
+    a right perturbation omega (:func:`.rotations.segmented_product_sensitivity`: one
+    pass down the product tree serves every parameter), and the prediction ``C^T up0``
+    by ``pred x omega``. The prediction itself is :func:`predict_end_directions`'s.
+    ``memos``: as :func:`motion_sensitivities`.
+    """
+    q, sens = motion_sensitivities(stack, ninv, memos)
+    omega = np.einsum("nacd,mcd->nam", sens, dninv)  # (n, 3, m), rad per parameter unit
+    c = quat_matrix(q)  # body at end -> body at start
+    pred = np.einsum("nji,nj->ni", c, up0)
+    return pred, np.cross(pred[:, :, None], omega, axis=1)
+
+
+def ninv_derivatives(
+    shape_c: np.ndarray, q_c: np.ndarray, x: np.ndarray, fit_frame: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """N^-1 (3, 3) of the rotation fit's parameters ``x`` (npar,) and its derivatives
+    (npar, 3, 3) per parameter unit (shape parameters dimensionless or rad, frame rad).
+
+    ``N = P(shape_c + x[:6]) [R(x[6:9])] Q_c`` (:func:`.gauge.p_matrix`; the frame
+    rotation when ``fit_frame``), and ``dN^-1 = -N^-1 dN N^-1``.
+    """
+    npar = x.shape[0]
+    p = p_matrix(shape_c + x[:6])
+    d_p = p_matrix(np.eye(6)) - np.eye(3)[None]  # (6, 3, 3): dP per shape parameter
+    if fit_frame:
+        phi = x[6:9]
+        rf = quat_matrix(rotvec_quat(phi))
+        # dR/dphi_j = R [J_r(phi) e_j]x
+        d_rf = rf[None] @ skew(rotvec_right_jacobian(phi).T)  # (3, 3, 3)
+    else:
+        rf = np.eye(3)
+        d_rf = np.zeros((0, 3, 3))
+    n = p @ rf @ q_c
+    d_n = np.concatenate([d_p @ (rf @ q_c)[None], (p[None] @ d_rf @ q_c[None])])[:npar]
+    ninv = np.linalg.inv(n)
+    return ninv, -ninv[None] @ d_n @ ninv[None]
 
 
 def direction_var(
@@ -294,23 +398,19 @@ def rotation_fit(
     var = direction_var(gyro, pairs, stack["path"], gyro_sample_var, earth_rate_si)
     wgt = np.repeat(1.0 / var, 3)
 
-    def ninv_of(x: np.ndarray) -> np.ndarray:
-        """N^-1 (P, 3, 3) for parameter sets x (P, npar) (deviations from the certificate)."""
-        p = p_matrix(shape_c + x[:, :6])
-        if fit_frame:
-            n = p @ quat_matrix(rotvec_quat(x[:, 6:9])) @ q_c
-        else:
-            n = p @ q_c
-        return np.linalg.inv(n)
-
-    h = 1e-6
+    memos = [p.memo for p in pairs]
 
     def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """Residuals (3 n,), Jacobian of the prediction (3 n, npar), cost at x."""
-        sets = np.vstack([x, x + h * np.eye(npar)])
-        pred = predict_end_directions(stack, ninv_of(sets), up0)
-        r = (up1 - pred[0]).ravel()
-        j = ((pred[1:] - pred[0][None]) / h).reshape(npar, -1).T
+        """Residuals (3 n,), Jacobian of the prediction (3 n, npar, analytic), cost at x."""
+        pred, d_pred = predict_with_jacobian(
+            stack,
+            *ninv_derivatives(shape_c, q_c, x, fit_frame),
+            up0,
+            # at the certificate (every fit's start) each motion's rotation is kept
+            memos=None if x.any() else memos,
+        )
+        r = (up1 - pred).ravel()
+        j = d_pred.reshape(-1, npar)
         return r, j, float(np.sum(r * r * wgt) + np.sum(prior_prec * x * x))
 
     x = np.zeros(npar)
@@ -363,9 +463,7 @@ def rotation_fit(
         predicted_z = _prediction_z(
             gyro,
             predict,
-            ninv_of,
-            x,
-            h,
+            ninv_derivatives(shape_c, q_c, x, fit_frame),
             jac,
             1.0 / wgt,
             excess,
@@ -427,28 +525,25 @@ def _deletion_variances(a_all: np.ndarray, cov: np.ndarray, groups: list[np.ndar
 def _prediction_z(
     gyro: TriadModel,
     pair: RotationPair,
-    ninv_of: Callable[[np.ndarray], np.ndarray],
-    x: np.ndarray,
-    h: float,
+    ninv: tuple[np.ndarray, np.ndarray],
     jac: np.ndarray,
     noise_var: np.ndarray,
     excess: float,
     prior_prec: np.ndarray,
     noise: tuple[np.ndarray, float],
 ) -> float:
-    """Prediction error (sigma) of a motion left out of the fit at ``x``.
+    """Prediction error (sigma) of a motion left out of the fit whose N^-1 and its
+    derivatives are ``ninv`` (:func:`ninv_derivatives`).
 
     Its end-direction residual (3,) against the covariance of its noise, the
     robust ``excess`` scatter (rad^2) and the fit's parameter uncertainty (the
     fitted motions weighted with that excess too), scaled per component as the
     deletion residuals of :func:`.robust.point_diagnostics` are.
     """
-    npar = x.shape[0]
     stack = stack_pairs(gyro, [pair])
-    sets = np.vstack([x, x + h * np.eye(npar)])
-    pred = predict_end_directions(stack, ninv_of(sets), pair.up0[None])[:, 0]
+    pred, d_pred = predict_with_jacobian(stack, *ninv, pair.up0[None])
     r = pair.up1 - pred[0]
-    jp = ((pred[1:] - pred[0][None]) / h).T  # (3, npar)
+    jp = d_pred[0]  # (3, npar)
     w_rob = 1.0 / (noise_var + excess)
     cov_rob = np.linalg.pinv(jac.T @ (jac * w_rob[:, None]) + np.diag(prior_prec))
     nv = float(direction_var(gyro, [pair], stack["path"], *noise)[0])
@@ -462,7 +557,10 @@ __all__ = [
     "RotationFitResult",
     "direction_var",
     "gyro_sample_var",
+    "motion_sensitivities",
+    "ninv_derivatives",
     "predict_end_directions",
+    "predict_with_jacobian",
     "rotation_fit",
     "scale_key",
     "rest_bias",

@@ -184,6 +184,10 @@ def accel_window_fit(
 
 #: Smallest rotation (path length, deg) of a motion the rotation fit uses.
 MIN_ROTATION_DEG = 5.0
+#: Largest condition number (dimensionless) of the gyro rotation fit's limit-scaled
+#: information matrix that is reported: above it the smallest eigenvalue is within about
+#: a hundred roundings of zero (rounding noise of the Jacobian), and the window is singular
+CONDITION_RESOLUTION = 1.0 / (100.0 * float(np.finfo(float).eps))
 
 
 def clipped(raw: np.ndarray, rest: np.ndarray, sigma: np.ndarray, min_repeat: int = 3) -> bool:
@@ -355,7 +359,10 @@ def gyro_window_fit(
         lim_int = limit[3:] / scale
         m = rot.info * np.outer(lim_int, lim_int)
         ev = np.linalg.eigvalsh(m)
-        cond = float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
+        # beyond CONDITION_RESOLUTION the smallest eigenvalue is rounding noise (a window
+        # whose motions leave a direction unseen): singular, reported as null
+        resolved = ev[0] > ev[-1] / CONDITION_RESOLUTION
+        cond = float(ev[-1] / ev[0]) if resolved else float("inf")
         rms = rot.rms
         rot_dof = rot.dof
         extra = {"rotation_rms_rad": rot.rms, "frame_rad": [float(v) for v in rot.frame]}
