@@ -11,12 +11,15 @@ without the onset test both seeds raise the ax group.
 
 from __future__ import annotations
 
+import json
+import socket
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from imudiag.aiding import read_gpspipe_log
+from imudiag.aiding.live import LiveAiding
 from imudiag.aiding.moving import (
     MovingConfig,
     accel_noise,
@@ -25,12 +28,14 @@ from imudiag.aiding.moving import (
 )
 from imudiag.aiding.onset import ONSET_CHI2, find_onset, isolate_window
 from imudiag.aiding.specific_force import gnss_epochs, imu_epochs
-from imudiag.aiding.tpv import parse_tpv, track_from_reports
+from imudiag.aiding.tpv import parse_time, parse_tpv, track_from_reports
 from imudiag.bench import load_bundled
+from imudiag.bench.runner import make_board
 from imudiag.certificate import load, load_default
 from imudiag.diagnosis.params import CAUSES, sensor_of
 from imudiag.logs import read_log
-from imudiag.sim.drive import EPOCH_UNIX, simulate_drive
+from imudiag.sim.drive import EPOCH_UNIX, gnss_reports, simulate_drive
+from imudiag.sim.scenarios import scenario_motion
 
 REAL = Path(__file__).parent / "data" / "real" / "gnss-imu-drive"
 AZ_GROUP = {("az", "bias"), ("az", "scale_factor")}
@@ -152,3 +157,57 @@ def test_onset_located_and_a_short_after_part_withheld():
 
 def acc_param(j: int) -> tuple[str, str]:
     return sensor_of("accel", j), CAUSES[j]
+
+
+def test_daemon_aiding_through_a_gpsd_socket_names_the_az_group_alone():
+    # The daemon's path (imudiag.aiding.live.LiveAiding, its GpsdClient on a loopback TCP
+    # socket): the bench scenario's board and receiver at seed 22, the receiver's gpsd JSON
+    # lines written to the socket as the board's clock passes each epoch (as the bench
+    # paces gpsd), the first fix 6.8 s into the drive. Its isolation windows grow from the
+    # first epochs (7-76, 7-136, 16-196 s), so two of them straddle the onset at 60 s:
+    # without the onset test they raised "ax bias, ax scale or ax/az misalignment" at 197 s
+    # beside the az group.
+    sc = load_bundled("drive-aided").with_options(seed=22)
+    board = make_board(sc)
+    cert = load_default()
+    motion = scenario_motion(sc.motion, sc.seed, sc.motion_params)
+    lines = []
+    for r in gnss_reports(motion, sc.aiding.gnss_config(), seed=sc.seed):
+        t = parse_time(r["time"]) - EPOCH_UNIX  # true epoch time + the receiver's latency
+        if t >= 6.8:
+            lines.append((t, (json.dumps(r) + "\n").encode()))
+    t_fault = sc.sensor_injections[0].fault().t_s
+    with socket.create_server(("127.0.0.1", 0)) as srv:
+        port = srv.getsockname()[1]
+        aiding = LiveAiding(f"gpsd://127.0.0.1:{port}", cert, MovingConfig())
+        aiding.update(None)  # connects and sends ?WATCH
+        conn, _ = srv.accept()
+        with conn:
+            assert b"?WATCH" in conn.recv(4096)
+            first: dict[tuple[str, str], float] = {}
+            onsets = []
+            k = 0
+            while not board.exhausted:
+                _, block = board.generate(50)  # 0.25 s at 200 Hz
+                now = float(block.t[-1])
+                while k < len(lines) and lines[k][0] <= now:
+                    conn.sendall(lines[k][1])
+                    k += 1
+                windows = aiding.windows
+                aiding.update(block)
+                if aiding.windows > windows:
+                    onsets.append(aiding.status()["onset"])
+                for f in aiding.faults():
+                    if f["cause"] == "f0":  # F0 in motion: allowed (the scenario's "also")
+                        continue
+                    first.setdefault((f["sensor"], f["cause"]), now)
+        aiding.close()
+    # every fix sent was read (loopback delivers at once; the last update may trail a few)
+    assert k - 5 <= aiding.status()["fixes"] <= k and k > 1400
+    assert list(first) == [("az|az", "bias|scale_factor")]
+    assert 100.0 < first[("az|az", "bias|scale_factor")] - t_fault <= 150.0
+    # the windows that held the onset found it and fitted after it, or named nothing
+    held = [o for o in onsets if o["found"]]
+    assert len(held) >= 2
+    for o in held:
+        assert o["t"] - EPOCH_UNIX == pytest.approx(t_fault, abs=2.0)
