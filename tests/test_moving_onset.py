@@ -139,16 +139,17 @@ def test_onset_located_and_a_short_after_part_withheld():
     win = t < t_fault + 100.0
     on = find_onset(acc, means[win], var[win], mag[win], t[win])
     assert on.index is not None and on.t == pytest.approx(t_fault, abs=2.0)
-    wi = isolate_window(acc, means[win], var[win], mag[win], t[win], min_epochs=60)
+    min_after = MovingConfig().min_epochs_after_onset  # 30
+    wi = isolate_window(acc, means[win], var[win], mag[win], t[win], min_after)
     assert wi.withheld == "" and wi.iso is not None
     assert t[win][wi.first] == pytest.approx(t_fault, abs=2.0)
     for f in wi.iso.faults:  # from the epochs after the onset: the az group alone
         assert {acc_param(j) for j in f.group} & AZ_GROUP
-    # a window ending 30 s after the onset: too few epochs after it to judge: withheld
-    short = (t > t_fault - 120.0) & (t < t_fault + 30.0)
-    wi = isolate_window(acc, means[short], var[short], mag[short], t[short], min_epochs=60)
+    # a window ending 20 s after the onset: too few epochs after it to judge: withheld
+    short = (t > t_fault - 120.0) & (t < t_fault + 20.0)
+    wi = isolate_window(acc, means[short], var[short], mag[short], t[short], min_after)
     assert wi.iso is None and wi.onset.t == pytest.approx(t_fault, abs=2.0)
-    assert "only" in wi.withheld and "fewer than 60" in wi.withheld
+    assert "only" in wi.withheld and f"fewer than {min_after}" in wi.withheld
     assert wi.to_json()["withheld"] == wi.withheld
     # before the onset: nothing found
     pre = t < t_fault - 1.0

@@ -206,7 +206,7 @@ class LiveAiding:
             self._window_t = float(self._hist_t[-1])
             wi = isolate_window(
                 acc, self._hist_means, self._hist_var, self._hist_mag, self._hist_t,
-                cfg.min_epochs, k_sigma=cfg.k_sigma, prior_factor=cfg.prior_factor,
+                cfg.min_epochs_after_onset, k_sigma=cfg.k_sigma, prior_factor=cfg.prior_factor,
             )  # fmt: skip
             if wi.iso is not None:  # a withheld window neither raises nor breaks a streak
                 self.tracker.update(wi.iso, self._window_t)

@@ -58,6 +58,9 @@ class MovingConfig:
     window_s: float = 180.0  #: fit window, s
     step_s: float = 60.0  #: fit window step, s
     min_epochs: int = 60  #: valid epochs a window needs
+    #: valid epochs after a fault onset inside a window (:mod:`.onset`) for the window to
+    #: be judged on them; with fewer it is withheld
+    min_epochs_after_onset: int = 30
     k_sigma_f0: float = 3.0  #: F0 threshold: limit + k sigma
     k_sigma: float = 4.0  #: fault predicates: beyond the limit and k std
     persist: int = 2  #: consecutive windows a fault must persist
@@ -264,7 +267,7 @@ def _windows(
                 # a fault onset inside the window: only the epochs after it (.onset)
                 win = np.flatnonzero(sel)
                 wi = isolate_window(
-                    acc, means[win], var[win], mag_in[win], t_mid[win], cfg.min_epochs,
+                    acc, means[win], var[win], mag_in[win], t_mid[win], cfg.min_epochs_after_onset,
                     k_sigma=cfg.k_sigma, prior_factor=cfg.prior_factor,
                 )  # fmt: skip
                 sel = np.zeros_like(sel)

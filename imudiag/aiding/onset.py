@@ -134,23 +134,23 @@ def isolate_window(
     mean_var: np.ndarray,
     magnitude: np.ndarray,
     t: np.ndarray,
-    min_epochs: int,
+    min_after: int,
     k_sigma: float = 4.0,
     prior_factor: float = 10.0,
 ) -> WindowIsolation:
     """The isolation of one window (epochs in time order, times ``t`` in s): when the onset
     test finds a change, only the epochs after it are isolated, and with fewer than
-    ``min_epochs`` of them the window is withheld (it names nothing and must not count
+    ``min_after`` of them the window is withheld (it names nothing and must not count
     for or against persistence)."""
     means = np.asarray(means, dtype=float).reshape(-1, 3)
     on = find_onset(triad, means, mean_var, magnitude, t, prior_factor=prior_factor)
     if on.index is None:
         return WindowIsolation(on, 0, isolate(triad, means, mean_var, magnitude, k_sigma), "")
     after = means.shape[0] - on.index
-    if after < min_epochs:
+    if after < min_after:
         why = (
             f"the window holds a change at t = {on.t:.1f} s (a step explains chi^2 "
-            f"{on.chi2:.0f}), and only {after} epochs follow it (fewer than {min_epochs}): "
+            f"{on.chi2:.0f}), and only {after} epochs follow it (fewer than {min_after}): "
             "a window mixing the unit before and after a fault onset can name a wrong "
             "parameter, so it names nothing"
         )
