@@ -40,8 +40,8 @@ from .isolation import Isolation, isolate, linearised_at_certificate
 
 #: chi^2 (inflated by the scatter beyond the noise model) that a step of one parameter at
 #: one epoch must remove for a window to hold an onset. Under no change each D(k, i) is a
-#: chi^2 with 1 dof; the largest of ~9 x 160 correlated ones stays below 25 on clean
-#: simulated drives (docs/moving-base.md, "Fault onsets inside a window").
+#: chi^2 with 1 dof; the largest of ~9 x 160 correlated ones was 17.0 at most over 334
+#: windows of clean simulated drives (docs/moving-base.md, "Fault onsets inside a window").
 ONSET_CHI2 = 25.0
 #: epochs each side of a candidate onset (s at 1 s epochs)
 ONSET_MIN_SIDE = 10
@@ -57,13 +57,14 @@ class Onset:
     chi2: float  #: the best step's chi^2 reduction, inflated (0 with too few epochs)
     t: float | None  #: time of the first epoch after the change, s (None: no step)
     triad: str = "accel"
+    threshold: float = ONSET_CHI2  #: the chi^2 the test required
 
     def to_json(self) -> dict:
         return {
             "found": self.index is not None,
             "t": None if self.t is None else round(self.t, 3),
             "chi2": round(self.chi2, 2),
-            "threshold": ONSET_CHI2,
+            "threshold": self.threshold,
             "step_of": f"{sensor_of(self.triad, self.parameter)} {CAUSES[self.parameter]}",
         }
 
@@ -83,7 +84,7 @@ def find_onset(
     jw, rw, lim, _ = linearised_at_certificate(triad, means, mean_var, magnitude)
     k = jw.shape[0]
     if k < 2 * min_side + 1:
-        return Onset(None, 0, 0.0, None, triad.name)
+        return Onset(None, 0, 0.0, None, triad.name, threshold)
     prior = np.diag(1.0 / (prior_factor * lim) ** 2)
     hat = jw @ np.linalg.solve(jw.T @ jw + prior, jw.T)
     m = np.eye(k) - hat
@@ -107,8 +108,8 @@ def find_onset(
     infl = max(1.0, (chi_common - drop_best) / dof)
     chi2 = drop_best / infl
     if chi2 <= threshold:
-        return Onset(None, i_best, chi2, None, triad.name)
-    return Onset(k_best, i_best, chi2, float(t[k_best]), triad.name)
+        return Onset(None, i_best, chi2, None, triad.name, threshold)
+    return Onset(k_best, i_best, chi2, float(t[k_best]), triad.name, threshold)
 
 
 @dataclass
