@@ -95,6 +95,28 @@ def _wls(jw: np.ndarray, rw: np.ndarray, cols: list[int]) -> tuple[np.ndarray, n
     return x, cov, float(res @ res)
 
 
+def linearised_at_certificate(
+    triad: TriadModel, means: np.ndarray, mean_var: np.ndarray, magnitude: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The epochs' weighted residual problem at the certificate: (J_w (K, 9), r_w (K,),
+    limits (9,) and the factors to certificate units (9,)), both internal (dimensionless:
+    the means, output units, and magnitudes, input units, are normalised by the median
+    magnitude). r_w + J_w delta is the whitened residual after moving the parameters by
+    delta (internal units) from the certificate, to first order."""
+    means = np.asarray(means, dtype=float).reshape(-1, 3)
+    mag = np.asarray(magnitude, dtype=float)
+    m0 = float(np.median(mag))
+    s = triad.scale_factor
+    v = means / (s * m0)
+    var_v = np.asarray(mean_var, dtype=float).reshape(-1, 3) / (s * m0) ** 2
+    mu = mag / m0
+    theta_c, _ = certificate_internal(triad, m0)
+    r, jac, w = residuals_and_jacobian(theta_c, v, mu)
+    sig2 = np.einsum("kj,kj->k", w * w, var_v) + RESIDUAL_FLOOR**2
+    sw = 1.0 / np.sqrt(sig2)
+    return jac * sw[:, None], r * sw, internal_limits(triad, m0), internal_scale(triad, m0)
+
+
 def isolate(
     triad: TriadModel,
     means: np.ndarray,
@@ -110,22 +132,8 @@ def isolate(
     that alone removes most of the chi^2, then, given it, the next, while the
     next one removes more than ``k_sigma``^2 (module doc for groups and faults).
     """
-    means = np.asarray(means, dtype=float).reshape(-1, 3)
-    k = means.shape[0]
-    mag = np.asarray(magnitude, dtype=float)
-    m0 = float(np.median(mag))
-    s = triad.scale_factor
-    v = means / (s * m0)
-    var_v = np.asarray(mean_var, dtype=float) / (s * m0) ** 2
-    mu = mag / m0
-    theta_c, _ = certificate_internal(triad, m0)
-    r, jac, w = residuals_and_jacobian(theta_c, v, mu)
-    sig2 = np.einsum("kj,kj->k", w * w, var_v) + RESIDUAL_FLOOR**2
-    sw = 1.0 / np.sqrt(sig2)
-    jw = jac * sw[:, None]
-    rw = r * sw
-    lim = internal_limits(triad, m0)
-    scale = internal_scale(triad, m0)
+    jw, rw, lim, scale = linearised_at_certificate(triad, means, mean_var, magnitude)
+    k = jw.shape[0]
     norms = np.maximum(np.linalg.norm(jw, axis=0), 1e-300)
     corr = (jw.T @ jw) / np.outer(norms, norms)
     chi_prev = float(rw @ rw)
@@ -246,4 +254,4 @@ class IsolationTracker:
         return out
 
 
-__all__ = ["Finding", "Isolation", "IsolationTracker", "isolate"]
+__all__ = ["Finding", "Isolation", "IsolationTracker", "isolate", "linearised_at_certificate"]

@@ -31,7 +31,7 @@ from ..samples import SampleBlock
 from .align import estimate_latency
 from .course_rate import turn_check
 from .gpsd_client import GpsdClient
-from .isolation import IsolationTracker, isolate
+from .isolation import IsolationTracker
 from .lever_arm import LeverArmEstimate
 from .moving import (
     MovingConfig,
@@ -40,6 +40,7 @@ from .moving import (
     estimate_lever_arm,
     gyro_noise_si,
 )
+from .onset import isolate_window
 from .specific_force import GnssEpochs, ImuEpochs, gnss_epochs, imu_epochs
 from .tpv import GnssTrack, track_from_reports
 
@@ -96,6 +97,8 @@ class LiveAiding:
         self.latency_determined = self.cfg.latency_s is not None
         self.latency_note = "configured" if self.cfg.latency_s is not None else "not yet estimated"
         self.windows = 0
+        #: the last isolation window's onset test (:mod:`.onset`), None before the first
+        self.last_onset: dict | None = None
         self.last_batch: dict = {}  #: GNSS epochs of the last batch: total, valid, rejected
         #: the lever arm estimate over the buffer (None before the first), and the one used
         self.lever_estimate: LeverArmEstimate | None = None
@@ -215,8 +218,13 @@ class LiveAiding:
         self._hist_var, self._hist_mag = self._hist_var[keep], self._hist_mag[keep]
         if self._hist_t.size >= cfg.min_epochs and self._hist_t[-1] - self._window_t >= cfg.step_s:
             self._window_t = float(self._hist_t[-1])
-            iso = isolate(acc, self._hist_means, self._hist_var, self._hist_mag, cfg.k_sigma)
-            self.tracker.update(iso, self._window_t)
+            wi = isolate_window(
+                acc, self._hist_means, self._hist_var, self._hist_mag, self._hist_t,
+                cfg.min_epochs_after_onset, k_sigma=cfg.k_sigma, prior_factor=cfg.prior_factor,
+            )  # fmt: skip
+            if wi.iso is not None:  # a withheld window neither raises nor breaks a streak
+                self.tracker.update(wi.iso, self._window_t)
+            self.last_onset = dict(wi.to_json(), t_window=round(self._window_t, 3))
             self.windows += 1
 
     def _check_turns(self, track: GnssTrack, ep: GnssEpochs, im: ImuEpochs, rate: float) -> None:
@@ -298,6 +306,7 @@ class LiveAiding:
             "mode": self.last_mode,
             "f0": {"checked": self.f0_checked, "failed": self.f0_failed, "fault": self.f0_fault},
             "windows": self.windows,
+            "onset": self.last_onset,
             "last_batch": self.last_batch,
             "latency_s": round(self.latency_s, 4),
             "latency": self.latency_note,

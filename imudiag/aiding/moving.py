@@ -41,8 +41,9 @@ from ..diagnosis.scalar_fit import exact_fit
 from ..samples import SampleBlock
 from .align import LatencyEstimate, estimate_latency
 from .course_rate import turn_check
-from .isolation import IsolationTracker, isolate
+from .isolation import IsolationTracker
 from .lever_arm import LeverArmEstimate, lever_arm_rows, row_noise_variance, solve_lever_arm
+from .onset import isolate_window
 from .specific_force import GateConfig, GnssEpochs, ImuEpochs, gnss_epochs, imu_epochs
 from .tpv import GnssTrack
 
@@ -60,6 +61,9 @@ class MovingConfig:
     window_s: float = 180.0  #: fit window, s
     step_s: float = 60.0  #: fit window step, s
     min_epochs: int = 60  #: valid epochs a window needs
+    #: valid epochs after a fault onset inside a window (:mod:`.onset`) for the window to
+    #: be judged on them; with fewer it is withheld
+    min_epochs_after_onset: int = 30
     k_sigma_f0: float = 3.0  #: F0 threshold: limit + k sigma
     k_sigma: float = 4.0  #: fault predicates: beyond the limit and k std
     persist: int = 2  #: consecutive windows a fault must persist
@@ -275,6 +279,14 @@ def _windows(
             w1 = w0 + cfg.window_s
             sel = use & (t_mid >= w0) & (t_mid < w1)
             if np.sum(sel) >= cfg.min_epochs:
+                # a fault onset inside the window: only the epochs after it (.onset)
+                win = np.flatnonzero(sel)
+                wi = isolate_window(
+                    acc, means[win], var[win], mag_in[win], t_mid[win], cfg.min_epochs_after_onset,
+                    k_sigma=cfg.k_sigma, prior_factor=cfg.prior_factor,
+                )  # fmt: skip
+                sel = np.zeros_like(sel)
+                sel[win[wi.first :] if wi.iso is not None else win] = True
                 fit = exact_fit(
                     acc,
                     means[sel],
@@ -287,18 +299,21 @@ def _windows(
                 fit.require_redundancy(
                     fit.dof, cfg.min_dof, range(9), "the window's epochs fit exactly"
                 )
-                iso = isolate(acc, means[sel], var[sel], mag_in[sel], k_sigma=cfg.k_sigma)
-                cands = tracker.update(iso, min(w1, end))
+                iso = wi.iso
+                # a withheld window is not judged: it neither raises nor breaks a streak
+                cands = tracker.update(iso, min(w1, end)) if iso is not None else []
                 determined_any |= fit.determined
                 last_fit = fit
                 last_reason = fit.reasons
-                alone |= iso.alone_std <= cfg.determined_std_ratio * iso.limit
-                last_iso = iso
+                if iso is not None:
+                    alone |= iso.alone_std <= cfg.determined_std_ratio * iso.limit
+                    last_iso = iso
                 windows.append(
                     {
                         "t_start": round(w0, 3),
                         "t_end": round(min(w1, end), 3),
                         "epochs": int(np.sum(sel)),
+                        "onset": wi.to_json(),
                         "excitation": _excitation(im.mean_si[sel], ("ax", "ay", "az")),
                         "accel": fit.to_json(),
                         "candidates": cands,
@@ -310,7 +325,7 @@ def _windows(
                                 "chi2_drop": round(float(f.chi2_drop[f.best]), 2),
                                 "fault": f.fault,
                             }
-                            for f in iso.findings
+                            for f in (iso.findings if iso is not None else [])
                         ],
                     }
                 )
