@@ -135,7 +135,7 @@ class TrailingSpread:
         """Forget the history."""
         c = self.columns
         self._idx = np.zeros(0, dtype=np.int64)
-        self._val = np.zeros((0, c))
+        self._val = np.zeros((0, 2 * c))  # each kept value and its negative
         self._start = np.zeros(0, dtype=np.int64)
         self._max = np.zeros((0, c))
         self._min = np.zeros((0, c))
@@ -144,27 +144,25 @@ class TrailingSpread:
         """Spreads (M, C) for the M consecutive stream rows from row ``first``, with
         ``values`` (M, C) and the first row of each row's history ``start`` (M,)."""
         m = values.shape[0]
-        step, k = self.step, self.k
-        d_idx, d_val, d_start = self._idx, self._val, self._start
-        d_max, d_min = self._max, self._min
-        old = d_idx.shape[0]
+        step, k, c = self.step, self.k, self.columns
+        old = self._idx.shape[0]
         k0 = -first % step  # block row of the first kept value
         if k0 < m:
-            d_idx = np.concatenate([d_idx, np.arange(first + k0, first + m, step)])
-            d_val = np.concatenate([d_val, values[k0::step]])
-            d_start = np.concatenate([d_start, start[k0::step]])
+            kept = values[k0::step]
+            d_idx = np.concatenate([self._idx, np.arange(first + k0, first + m, step)])
+            d_val = np.concatenate([self._val, np.concatenate([kept, -kept], axis=1)])
+            d_start = np.concatenate([self._start, start[k0::step]])
             total = d_idx.shape[0]
-            d_max = np.concatenate([d_max, np.empty((total - old, self.columns))])
-            d_min = np.concatenate([d_min, np.empty((total - old, self.columns))])
-            for j in range(old, total):
-                # the kept values of j's history: among its k last, those from its start
-                lo = max(j - k + 1, int(np.searchsorted(d_idx, d_start[j])))
-                if lo <= j:
-                    d_max[j] = d_val[lo : j + 1].max(axis=0)
-                    d_min[j] = d_val[lo : j + 1].min(axis=0)
-                else:
-                    d_max[j] = -np.inf
-                    d_min[j] = np.inf
+            # the extremes of each new kept value's history: the maxima of the values and of
+            # their negatives (minus the minima) in one reduction
+            ext = np.empty((total - old, 2 * c))
+            firsts = np.searchsorted(d_idx, d_start[old:]).tolist()
+            for i, lo in enumerate(firsts):
+                j = old + i
+                lo = max(j - k + 1, lo)  # among its k last kept values, those from its start
+                ext[i] = d_val[lo : j + 1].max(axis=0) if lo <= j else -np.inf
+            d_max = np.concatenate([self._max, ext[:, :c]])
+            d_min = np.concatenate([self._min, -ext[:, c:]])
             # each row's last kept value (at or before it)
             p = old + (np.arange(m) - k0) // step
             pc = np.maximum(p, 0)
@@ -175,9 +173,9 @@ class TrailingSpread:
             self._idx, self._val, self._start = d_idx[keep], d_val[keep], d_start[keep]
             self._max, self._min = d_max[keep], d_min[keep]
         elif old:
-            have = d_idx[-1] >= start
-            hi = np.maximum(d_max[-1], values)
-            lo_ = np.minimum(d_min[-1], values)
+            have = self._idx[-1] >= start
+            hi = np.maximum(self._max[-1], values)
+            lo_ = np.minimum(self._min[-1], values)
         else:
             return np.zeros(values.shape)
         spread = hi - lo_
@@ -330,6 +328,7 @@ class QuasiStaticDetector:
         )
         #: accelerometer output units to m/s^2, per axis
         self._to_si = a.unit_to_si / np.asarray(a.scale_factor, dtype=float)
+        self._to_si2 = self._to_si**2
         self.reset()
         # the certificate's inverse matrices, once (inverting them per block cost more than
         # the detection itself on a daemon's small blocks)
@@ -350,7 +349,11 @@ class QuasiStaticDetector:
         est = np.quantile(var, _NOISE_QUANTILE, axis=0, overwrite_input=True) / ratio
         est = np.maximum(est, 1e-30)
         prev = self._noise_var[triad]
-        self._noise_var[triad] = est if prev is None else np.minimum(prev, est)
+        if prev is not None:
+            est = np.minimum(prev, est)
+            if np.array_equal(est, prev):
+                return
+        self._noise_var[triad] = est
         self._lim = None  # the thresholds follow the estimate
 
     # -- detection -----------------------------------------------------------
@@ -488,32 +491,43 @@ class QuasiStaticDetector:
             return out
         vertical_ok, turning, rotating, vertical_long = self._rate_band(mean, long_sums, first)
         ok &= vertical_ok
-        # far beyond the variance test
-        moved = (ratio[:, lim.checked] > self.restart_variance_factor * limit).any(axis=1)
+        # the histories' restarts (module doc)
+        bad = long_sums[:, 12] >= 0.5  # in either window (the long one holds the short one)
+        long_mark = turning | bad
+        short_mark = long_mark
+        if rotating.any():  # and far beyond the variance test
+            moved = (ratio[:, lim.checked] > self.restart_variance_factor * limit).any(axis=1)
+            short_mark = long_mark | (rotating & moved)
         jump = settle = np.zeros(m, dtype=bool)
         if 1 in lim.checked:
             # a re-orientation by a large angle inside one window (by hand)
-            settle = np.sum(var[:, 3:6] * self._to_si**2, axis=1) > self._settle_var_si
+            settle = np.sum(var[:, 3:6] * self._to_si2, axis=1) > self._settle_var_si
             jump = self._jump(first, sums, back, still[:, 1], lim.var_ref[3:6])
-        bad = long_sums[:, 12] >= 0.5  # in either window (the long one holds the short one)
-        short_mark = turning | (rotating & moved) | bad
-        long_mark = turning | bad
+        if (short_mark | jump | settle).any():
+            start_short = self._starts(
+                0, idx, [(short_mark, w), (jump, 0), (settle, self._settle)], self._short_span
+            )
+            start_long = self._starts(
+                1, idx, [(long_mark, self.rate_window), (jump, 0)], self._long_span
+            )
+        else:  # no restart in this block
+            start_short = np.maximum(idx - self._short_span, self._restart[0])
+            start_long = np.maximum(idx - self._long_span, self._restart[1])
         # the drift tests (module doc): the accelerometer window mean over the short history
         accel_mean = mean[:, 3:6]
-        start = self._starts(
-            0, idx, [(short_mark, w), (jump, 0), (settle, self._settle)], self._short_span
-        )
-        spread = self._drift[0].update(first, accel_mean, start) * self._to_si
+        spread = self._drift[0].update(first, accel_mean, start_short) * self._to_si
         ok &= np.sqrt(np.einsum("ij,ij->i", spread, spread)) <= lim.drift_limit
         # a curve: the rate about the vertical and the specific force changed together
-        start = self._starts(1, idx, [(long_mark, self.rate_window), (jump, 0)], self._long_span)
-        spread = self._drift[1].update(first, np.column_stack([accel_mean, vertical_long]), start)
+        values = np.column_stack([accel_mean, vertical_long])
+        spread = self._drift[1].update(first, values, start_long)
         acc = spread[:, :3] * self._to_si
         curve = np.sqrt(np.einsum("ij,ij->i", acc, acc)) > lim.drift_limit
         curve &= spread[:, 3] > lim.rate_limit
         ok &= ~curve
-        out[skip:] = ok
-        return out
+        if skip:
+            out[skip:] = ok
+            return out
+        return ok
 
     def _rate_band(
         self, mean: np.ndarray, long_sums: np.ndarray, first: int
@@ -537,13 +551,13 @@ class QuasiStaticDetector:
         rates = cert.gyro.inverse(
             np.concatenate([mean[:, 0:3], gyro_long]), n_inv_t=self._n_inv_t["gyro"]
         )
-        rate, rate_long = rates[:m], rates[m:]
+        rate = rates[:m]
         down = cert.accel.inverse(mean[:, 3:6], n_inv_t=self._n_inv_t["accel"])
         norm = np.sqrt(np.einsum("ij,ij->i", down, down))
         norm = np.where(norm > 0, norm, 1.0)
-        vertical = np.einsum("ij,ij->i", rate, down) / norm
+        # about the vertical: the window means' rates and the longer means' (2, M)
+        vertical, vertical_long = np.einsum("kij,ij->ki", rates.reshape(2, m, 3), down) / norm
         magnitude = np.sqrt(np.einsum("ij,ij->i", rate, rate))
-        vertical_long = np.einsum("ij,ij->i", rate_long, down) / norm
         return (
             np.abs(vertical) <= lim.band,
             magnitude > lim.band,
@@ -563,19 +577,15 @@ class QuasiStaticDetector:
         back; ``sigma2``: the accelerometers' noise variance (output units^2)."""
         w = self.window
         limit = self.variance_ratio_limit
-        prev = back[:, 0, :] - back[:, 2, :]  # the window before the window
-        p1 = prev[:, 3:6]
-        p_mean = p1 / w
-        # the previous window's variances and the step of the mean, over the noise
-        terms = np.empty((sums.shape[0], 2, 3))
-        np.maximum((prev[:, 9:12] - p1 * p_mean) / (w - 1), 0.0, out=terms[:, 0])
+        p1 = back[:, 0, 3:6] - back[:, 2, 3:6]  # the window before the window
         step = (sums[:, 3:6] - p1) / w
-        np.multiply(step, step, out=terms[:, 1])
-        terms /= sigma2
-        tot = terms.sum(axis=2)
-        jump = still & (tot[:, 0] <= limit) & (tot[:, 1] > 12.0 * limit)
+        jump = still & (np.sum(step * step / sigma2, axis=1) > 12.0 * limit)
         if first + 1 < 2 * w:
             jump &= np.arange(first + 1, first + 1 + sums.shape[0]) >= 2 * w
+        if jump.any():  # and the window before was still too
+            p_mean = p1 / w
+            p_var = np.maximum((back[:, 0, 9:12] - back[:, 2, 9:12] - p1 * p_mean) / (w - 1), 0.0)
+            jump &= np.sum(p_var / sigma2, axis=1) <= limit
         return jump
 
     def reset(self) -> None:
