@@ -520,10 +520,11 @@ class QuasiStaticDetector:
         # a curve: the rate about the vertical and the specific force changed together
         values = np.column_stack([accel_mean, vertical_long])
         spread = self._drift[1].update(first, values, start_long)
-        acc = spread[:, :3] * self._to_si
-        curve = np.sqrt(np.einsum("ij,ij->i", acc, acc)) > lim.drift_limit
-        curve &= spread[:, 3] > lim.rate_limit
-        ok &= ~curve
+        curve = spread[:, 3] > lim.rate_limit
+        if curve.any():  # (the specific force only where the rate drifted)
+            acc = spread[:, :3] * self._to_si
+            curve &= np.sqrt(np.einsum("ij,ij->i", acc, acc)) > lim.drift_limit
+            ok &= ~curve
         if skip:
             out[skip:] = ok
             return out
