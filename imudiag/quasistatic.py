@@ -547,7 +547,9 @@ class QuasiStaticDetector:
             count: np.ndarray | int = self.rate_window
         else:
             count = np.minimum(np.arange(first + 1, first + 1 + m), self.rate_window)[:, None]
-        gyro_long = long_sums[:, 0:3] / count + self._ref[0:3]
+        ref = self._ref
+        assert ref is not None  # set by the first block
+        gyro_long = long_sums[:, 0:3] / count + ref[0:3]
         # the window means and the longer means in one pass (gyro input units)
         rates = cert.gyro.inverse(
             np.concatenate([mean[:, 0:3], gyro_long]), n_inv_t=self._n_inv_t["gyro"]
