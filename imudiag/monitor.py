@@ -37,6 +37,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from .certificate import SENSOR_NAMES, TRIADS, Certificate, TriadModel
+from .noise_estimate import medians
 from .persistence import Persistence
 from .quasistatic import QuasiStaticDetector
 from .ringbuffer import SampleRing
@@ -770,7 +771,9 @@ class Monitor:
         back = min(w + 1, seen, len(self.ring))
         hist = self.ring.latest(back)
         raw_all = np.concatenate([hist[:, 1:7], np.concatenate([block.gyro, block.accel], axis=1)])
-        d2sq = np.diff(raw_all, n=2, axis=0) ** 2  # row r ends at raw_all row r + 2
+        # channel by channel, each channel's values contiguous: column c, row r ends at
+        # raw_all row r + 2
+        d2sq = np.diff(raw_all.T, n=2, axis=1) ** 2
         ends = pos + back - 2 + 1  # d2sq rows end (exclusive) at each check sample
         # a check fails when sqrt(median / (0.4549 * 6)) / sigma exceeds a ratio: where the
         # counts of values beyond that median settle it (nearly everywhere), no median is
@@ -782,21 +785,19 @@ class Monitor:
             if sigma is not None:
                 for j, r in enumerate(limits):
                     thr[j, 3 * k : 3 * k + 3] = (r * sigma) ** 2 * (0.4549 * 6.0)
-        fails, settled = median_side(d2sq, ends, w, thr)
+        fails, settled = median_side(d2sq.T, ends, w, thr)
         settled |= fails
         exact = ~np.all(settled, axis=(1, 2))
         exact[-1] = True
         rows = np.flatnonzero(exact)
         # the medians of those windows in one call per group of checks (the group bounded
         # to about 2^20 values copied)
-        windows = sliding_window_view(d2sq, w, axis=0)  # (rows, 6, w), row i = d2sq[i:i+w]
+        windows = sliding_window_view(d2sq, w, axis=1)  # (6, rows, w), row i = d2sq[:, i:i+w]
         ratio6 = np.empty((rows.size, 6))
         group = max(1, (1 << 20) // (6 * w))
         for g in range(0, rows.size, group):
-            # the gathered windows are a copy of our own: partitioned in place, not copied again
-            ratio6[g : g + group] = np.median(
-                windows[ends[rows[g : g + group]] - w], axis=2, overwrite_input=True
-            )
+            # the gathered windows are a copy of our own: partitioned in place
+            ratio6[g : g + group] = medians(windows[:, ends[rows[g : g + group]] - w]).T
         t = block.t[pos]
         for k, name in enumerate(TRIADS_RING):
             sigma = self._noise_sigma[name]

@@ -88,6 +88,22 @@ def second_difference_sigma(x: np.ndarray) -> np.ndarray:
     return out
 
 
+def medians(x: np.ndarray) -> np.ndarray:
+    """The medians along the last axis of ``x`` (same units), equal to ``np.median``'s
+    (NaN where a row holds one); ``x`` is partitioned in place. Rows of numbers take one
+    partition and the mean of the middle values, without ``np.median``'s generic path:
+    the monitor's noise check, medians of 1 s windows every 0.1 s, at half the cost."""
+    n = x.shape[-1]
+    if n == 0 or np.isnan(x).any():
+        return np.median(x, axis=-1, overwrite_input=True)
+    h = n // 2
+    if n % 2:
+        x.partition(h, axis=-1)
+        return x[..., h].copy()
+    x.partition([h - 1, h], axis=-1)
+    return (x[..., h - 1] + x[..., h]) / 2.0
+
+
 def second_difference_sigmas(chunks: np.ndarray) -> np.ndarray:
     """:func:`second_difference_sigma` of each of ``chunks`` (K, N, C), all finite, N >= 5,
     in a few numpy calls over all of them: (K, C), same units."""
@@ -226,6 +242,7 @@ __all__ = [
     "NoiseFigure",
     "NoiseMeter",
     "compare",
+    "medians",
     "second_difference_sigma",
     "second_difference_sigmas",
 ]

@@ -82,7 +82,7 @@ inside a block everything is vectorised with cumulative sums.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -112,23 +112,6 @@ def _chi2_quantile_ratio(dof: float, z: float) -> float:
     return max((1.0 - a + z * math.sqrt(a)) ** 3, 1e-3)
 
 
-def _windowed_mean_var(x: np.ndarray, w: int) -> tuple[np.ndarray, np.ndarray]:
-    """Means and unbiased variances (per column) of every full trailing window of ``w`` rows.
-
-    ``x`` (M, C) with M >= w; returns two (M - w + 1, C) arrays, row i for rows i..i+w-1.
-    Values are centred on the first row first, so large offsets (ADC counts) do
-    not cancel catastrophically.
-    """
-    xc = x - x[0]
-    s1 = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(xc, axis=0)])
-    s2 = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(xc * xc, axis=0)])
-    w1 = s1[w:] - s1[:-w]
-    w2 = s2[w:] - s2[:-w]
-    mean_c = w1 / w
-    var = np.maximum((w2 - w1 * mean_c) / (w - 1), 0.0)
-    return mean_c + x[0], var
-
-
 class TrailingSpread:
     """Per-column spread (max - min) of a stream's values over a trailing history: the
     drift test of :class:`QuasiStaticDetector`.
@@ -136,10 +119,10 @@ class TrailingSpread:
     Values are kept every ``step`` stream rows (absolute row index a multiple of
     ``step``); the spread at row i covers the kept values from its history's first
     row (given) up to i, and row i's own value. Results depend on the absolute row
-    indices only, not on the blocks.
+    indices only, not on the blocks. Each kept value's extremes over its own history
+    are worked out once, when it is kept (every ``step`` rows), so the rows between
+    cost one comparison with the last kept value's.
     """
-
-    _BIG = 1 << 62
 
     def __init__(self, columns: int, step: int, span: int) -> None:
         self.columns = int(columns)
@@ -152,46 +135,63 @@ class TrailingSpread:
         """Forget the history."""
         c = self.columns
         self._idx = np.zeros(0, dtype=np.int64)
-        self._val = np.zeros((0, c))
+        self._val = np.zeros((0, 2 * c))  # each kept value and its negative
         self._start = np.zeros(0, dtype=np.int64)
         self._max = np.zeros((0, c))
         self._min = np.zeros((0, c))
 
-    def update(self, idx: np.ndarray, values: np.ndarray, start: np.ndarray) -> np.ndarray:
-        """Spreads (M, C) for stream rows ``idx`` (M,) increasing, with ``values`` (M, C)
-        and the first row of each row's history ``start`` (M,)."""
-        big = self._BIG
-        sel = idx % self.step == 0
-        k = self.k
-        d_idx = np.concatenate([self._idx, idx[sel]])
-        d_val = np.concatenate([self._val, values[sel]])
-        d_start = np.concatenate([self._start, start[sel]])
+    def update(self, first: int, values: np.ndarray, start: np.ndarray) -> np.ndarray:
+        """Spreads (M, C) for the M consecutive stream rows from row ``first``, with
+        ``values`` (M, C) and the first row of each row's history ``start`` (M,)."""
+        m = values.shape[0]
+        step, k, c = self.step, self.k, self.columns
         old = self._idx.shape[0]
-        new = d_idx.shape[0] - old
-        d_max = np.concatenate([self._max, np.empty((new, self.columns))])
-        d_min = np.concatenate([self._min, np.empty((new, self.columns))])
-        if new:
-            pad = k - 1
-            pi = np.concatenate([np.full(pad, -big), d_idx])
-            pv = np.concatenate([np.zeros((pad, self.columns)), d_val])
-            vi = np.lib.stride_tricks.sliding_window_view(pi, k)[old:]  # (new, k)
-            vv = np.lib.stride_tricks.sliding_window_view(pv, k, axis=0)[old:]  # (new, C, k)
-            use = (vi >= d_start[old:, None])[:, None, :]
-            d_max[old:] = np.max(np.where(use, vv, -np.inf), axis=2)
-            d_min[old:] = np.min(np.where(use, vv, np.inf), axis=2)
-        p = np.searchsorted(d_idx, idx, side="right") - 1
-        pc = np.maximum(p, 0)
-        have = (p >= 0) & (d_idx[pc] >= start) if d_idx.size else np.zeros(idx.shape, bool)
-        if d_idx.size:
+        k0 = -first % step  # block row of the first kept value
+        if k0 < m:
+            kept = values[k0::step]
+            d_idx = np.concatenate([self._idx, np.arange(first + k0, first + m, step)])
+            d_val = np.concatenate([self._val, np.concatenate([kept, -kept], axis=1)])
+            d_start = np.concatenate([self._start, start[k0::step]])
+            total = d_idx.shape[0]
+            # the extremes of each new kept value's history: the maxima of the values and of
+            # their negatives (minus the minima) in one reduction
+            ext = np.empty((total - old, 2 * c))
+            firsts = np.searchsorted(d_idx, d_start[old:]).tolist()
+            for i, lo in enumerate(firsts):
+                j = old + i
+                lo = max(j - k + 1, lo)  # among its k last kept values, those from its start
+                ext[i] = d_val[lo : j + 1].max(axis=0) if lo <= j else -np.inf
+            d_max = np.concatenate([self._max, ext[:, :c]])
+            d_min = np.concatenate([self._min, -ext[:, c:]])
+            # each row's last kept value (at or before it)
+            p = old + (np.arange(m) - k0) // step
+            pc = np.maximum(p, 0)
+            have = (p >= 0) & (d_idx[pc] >= start)
             hi = np.maximum(d_max[pc], values)
-            lo = np.minimum(d_min[pc], values)
-            spread = np.where(have[:, None] & np.isfinite(hi - lo), hi - lo, 0.0)
+            lo_ = np.minimum(d_min[pc], values)
+            keep = slice(max(0, total - k), None)
+            self._idx, self._val, self._start = d_idx[keep], d_val[keep], d_start[keep]
+            self._max, self._min = d_max[keep], d_min[keep]
+        elif old:
+            have = self._idx[-1] >= start
+            hi = np.maximum(self._max[-1], values)
+            lo_ = np.minimum(self._min[-1], values)
         else:
-            spread = np.zeros(values.shape)
-        keep = slice(max(0, d_idx.shape[0] - k), None)
-        self._idx, self._val, self._start = d_idx[keep], d_val[keep], d_start[keep]
-        self._max, self._min = d_max[keep], d_min[keep]
-        return spread
+            return np.zeros(values.shape)
+        spread = hi - lo_
+        return np.where(have[:, None] & np.isfinite(spread), spread, 0.0)
+
+
+class _Limits(NamedTuple):
+    """The detector's thresholds that depend on its noise figures (worked out once each)."""
+
+    var_ref: np.ndarray  #: (6,) per-axis noise variance of the variance test, output units^2
+    checked: tuple[int, ...]  #: triads (0 gyro, 1 accel) checked, with a noise figure
+    missing: bool  #: a triad to check has no noise figure yet: nothing is still
+    band: float | None  #: gyro rate band about the vertical, input units (None: no band)
+    rot_band: float | None  #: the rest level of the rate magnitude, input units
+    drift_limit: float  #: the drift tests' accelerometer limit, m/s^2
+    rate_limit: float  #: the curve test's limit on the rate about the vertical, input units
 
 
 class QuasiStaticDetector:
@@ -316,6 +316,19 @@ class QuasiStaticDetector:
             else:
                 self._noise_var[name] = None
                 self._noise_fixed[name] = False
+        self._lim: _Limits | None = None
+        #: the columns (gyro 0-2, accel 3-5) of the triads checked
+        self._cols = np.array(
+            [
+                3 * k + j
+                for k, name in enumerate(("gyro", "accel"))
+                if name in self.triads
+                for j in range(3)
+            ]
+        )
+        #: accelerometer output units to m/s^2, per axis
+        self._to_si = a.unit_to_si / np.asarray(a.scale_factor, dtype=float)
+        self._to_si2 = self._to_si**2
         self.reset()
         # the certificate's inverse matrices, once (inverting them per block cost more than
         # the detection itself on a daemon's small blocks)
@@ -336,112 +349,85 @@ class QuasiStaticDetector:
         est = np.quantile(var, _NOISE_QUANTILE, axis=0, overwrite_input=True) / ratio
         est = np.maximum(est, 1e-30)
         prev = self._noise_var[triad]
-        self._noise_var[triad] = est if prev is None else np.minimum(prev, est)
+        if prev is not None:
+            est = np.minimum(prev, est)
+            if np.array_equal(est, prev):
+                return
+        self._noise_var[triad] = est
+        self._lim = None  # the thresholds follow the estimate
 
     # -- detection -----------------------------------------------------------
 
-    def _rate_band(
-        self, mean: np.ndarray, sigma2: np.ndarray, gyro_long: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """For window means (M, 6): whose gyro rate about the vertical is within the band
-        (M,); whose rate magnitude is beyond it (M,): the unit is turning; whose rate
-        magnitude is beyond the rest level (``restart_margin`` bias limits instead of
-        ``bias_margin``) (M,); and the rate about the vertical (M,), gyro input units, of
-        the longer gyro means ``gyro_long`` (M, 3) output units."""
+    def _limits(self) -> _Limits:
+        """The thresholds that depend on the noise figures, worked out once per figure."""
+        if self._lim is not None:
+            return self._lim
         cert = self.certificate
-        g, a = cert.gyro, cert.accel
-        rate = g.inverse(mean[:, 0:3], n_inv_t=self._n_inv_t["gyro"])  # gyro input units
-        down = a.inverse(mean[:, 3:6], n_inv_t=self._n_inv_t["accel"])
-        norm = np.sqrt(np.einsum("ij,ij->i", down, down))
-        vertical = np.einsum("ij,ij->i", rate, down) / np.where(norm > 0, norm, 1.0)
-        margin = self.bias_margin
-        assert margin is not None  # the caller checks the band only with a margin
-        bias = float(np.max(g.limits.bias / g.scale_factor))
-        floor = cert.earth_rate / g.unit_to_si + self.k_sigma * float(
-            np.max(np.sqrt(sigma2 / self.window) / g.scale_factor)
+        g = cert.gyro
+        k = self.k_sigma
+        var_ref = np.ones(6)  # per-axis noise variance of the variance test (output units^2)
+        checked = []
+        missing = False
+        for c, name in enumerate(("gyro", "accel")):
+            if name not in self.triads:
+                continue
+            sigma2 = self._noise_var[name]
+            if sigma2 is None:
+                missing = True
+                continue
+            checked.append(c)
+            var_ref[3 * c : 3 * c + 3] = (
+                np.maximum(sigma2, self._gyro_floor_var) if name == "gyro" else sigma2
+            )
+        band = rot_band = None
+        gyro_var = self._noise_var["gyro"]
+        if (
+            gyro_var is not None
+            and 0 in checked
+            and self.bias_margin is not None
+            and "accel" in self.triads
+        ):
+            bias = float(np.max(g.limits.bias / g.scale_factor))
+            floor = cert.earth_rate / g.unit_to_si + k * float(
+                np.max(np.sqrt(gyro_var / self.window) / g.scale_factor)
+            )
+            band = float(self.bias_margin) * bias + floor
+            rot_band = self.restart_margin * bias + floor
+        accel_var = self._noise_var["accel"]
+        noise = 0.0
+        if accel_var is not None:
+            noise = k * math.sqrt(2.0 * float(np.sum(accel_var * self._to_si**2)) / self.window)
+        rate_limit = math.inf
+        if gyro_var is not None:
+            var = np.maximum(gyro_var, self._gyro_floor_var) / np.asarray(g.scale_factor) ** 2
+            rate_limit = self.rate_drift_limit + k * math.sqrt(
+                2.0 * float(np.max(var)) / self.rate_window
+            )
+        self._lim = _Limits(
+            var_ref,
+            tuple(checked),
+            missing,
+            band,
+            rot_band,
+            self.drift_limit_si + noise,
+            rate_limit,
         )
-        band = float(margin) * bias + floor
-        magnitude = np.sqrt(np.einsum("ij,ij->i", rate, rate))
-        turning = magnitude > band
-        rotating = magnitude > self.restart_margin * bias + floor
-        rate_long = g.inverse(gyro_long, n_inv_t=self._n_inv_t["gyro"])
-        vertical_long = np.einsum("ij,ij->i", rate_long, down) / np.where(norm > 0, norm, 1.0)
-        return np.abs(vertical) <= band, turning, rotating, vertical_long
-
-    def _jump(
-        self,
-        idx: np.ndarray,
-        sums: np.ndarray,
-        prev_sums: np.ndarray,
-        still: np.ndarray,
-        sigma2: np.ndarray,
-    ) -> np.ndarray:
-        """Accelerometer windows (M,) whose mean stepped from the window before it, both
-        still: a change no smooth motion makes (a ramp across two windows that pass the
-        variance test moves the mean by at most sqrt(12 (L - 3)) sigma from one window to
-        the next, L the variance ratio limit; the threshold, sqrt(12 L) sigma, keeps a
-        margin of 2 in the squares), so a sensor step or a knock, not an acceleration."""
-        w = self.window
-        s1, p1 = sums[:, 3:6], prev_sums[:, 3:6]
-        p_mean = p1 / w
-        p_var = np.maximum((prev_sums[:, 9:12] - p1 * p_mean) / (w - 1), 0.0)
-        prev_still = np.sum(p_var / sigma2, axis=1) <= self.variance_ratio_limit
-        step = (s1 - p1) / w
-        size = np.sum(step * step / sigma2, axis=1)
-        return still & prev_still & (idx + 1 >= 2 * w) & (size > 12.0 * self.variance_ratio_limit)
+        return self._lim
 
     def _starts(
         self, key: int, idx: np.ndarray, marks: list[tuple[np.ndarray, int]], span: int
     ) -> np.ndarray:
         """First row of each row's history (M,): ``lag`` rows after the last row each
         (flags, lag) of ``marks`` flags, ``span`` rows back at most."""
+        marks = [(flags, lag) for flags, lag in marks if flags.any()]
+        if not marks:  # no restart in this block
+            return np.maximum(idx - span, self._restart[key])
         at = np.full(idx.shape, -(1 << 62), dtype=np.int64)
         for flags, lag in marks:
             at = np.maximum(at, np.where(flags, idx + lag, -(1 << 62)))
         last = np.maximum.accumulate(np.concatenate([[self._restart[key]], at]))[1:]
-        if last.size:
-            self._restart[key] = int(last[-1])
+        self._restart[key] = int(last[-1])
         return np.maximum(last, idx - span)
-
-    def _drift_ok(
-        self,
-        idx: np.ndarray,
-        accel_mean: np.ndarray,
-        vertical_rate: np.ndarray,
-        restarts: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-    ) -> np.ndarray:
-        """The drift tests (module doc) for the windows ending at stream rows ``idx`` (M,):
-        accelerometer window means (M, 3) output units, rates about the vertical (M,) gyro
-        input units; ``restarts`` (each (M,) flags): rows after which the short history
-        restarts one window later, the same for the long history, rows where both
-        restart at once (a step), rows after which the short one restarts ``settle_s``
-        later (a re-orientation by hand)."""
-        a, g = self.certificate.accel, self.certificate.gyro
-        spread_short, spread_long = self._drift
-        short_mark, long_mark, jump, settle = restarts
-        to_si = a.unit_to_si / np.asarray(a.scale_factor, dtype=float)
-        sigma2 = self._noise_var["accel"]
-        noise = 0.0
-        if sigma2 is not None:
-            noise = self.k_sigma * math.sqrt(2.0 * float(np.sum(sigma2 * to_si**2)) / self.window)
-        limit = self.drift_limit_si + noise
-        start = self._starts(
-            0, idx, [(short_mark, self.window), (jump, 0), (settle, self._settle)], self._short_span
-        )
-        spread = spread_short.update(idx, accel_mean, start) * to_si
-        ok = np.sqrt(np.einsum("ij,ij->i", spread, spread)) <= limit
-        # a curve: the rate about the vertical and the specific force changed together
-        start = self._starts(1, idx, [(long_mark, self.rate_window), (jump, 0)], self._long_span)
-        spread = spread_long.update(idx, np.column_stack([accel_mean, vertical_rate]), start)
-        acc = spread[:, :3] * to_si
-        gyro_var = self._noise_var["gyro"]
-        assert gyro_var is not None  # the caller tests the drift with a gyro noise only
-        var = np.maximum(gyro_var, self._gyro_floor_var) / np.asarray(g.scale_factor) ** 2
-        rate_limit = self.rate_drift_limit + self.k_sigma * math.sqrt(
-            2.0 * float(np.max(var)) / self.rate_window
-        )
-        curve = (np.sqrt(np.einsum("ij,ij->i", acc, acc)) > limit) & (spread[:, 3] > rate_limit)
-        return ok & ~curve
 
     def update(self, block: SampleBlock) -> np.ndarray:
         """Static flags (N,) bool for the samples of ``block``, in order."""
@@ -449,84 +435,161 @@ class QuasiStaticDetector:
         if n == 0:
             return np.zeros(0, dtype=bool)
         x_new = np.concatenate([block.gyro, block.accel], axis=1)
-        bad_new = np.zeros(n, dtype=bool)
+        bad_new = None
         if block.flags is not None:
             bad_new = (np.asarray(block.flags).astype(np.int64) & BAD_FLAGS) != 0
-        cols = np.concatenate(
-            [
-                np.arange(3 * k, 3 * k + 3)
-                for k, name in enumerate(("gyro", "accel"))
-                if name in self.triads
-            ]
-        )
-        bad_new |= ~np.all(np.isfinite(x_new[:, cols]), axis=1)
-        x_new = np.where(np.isfinite(x_new), x_new, 0.0)
+        finite = np.isfinite(x_new)
+        if not finite.all():
+            unusable = ~np.all(finite[:, self._cols], axis=1)
+            bad_new = unusable if bad_new is None else bad_new | unusable
+            x_new = np.where(finite, x_new, 0.0)
         w = self.window
         # running sums of the window: prefix sums of the outputs (centred on the stream's
         # first sample, so squares of ADC counts stay small), their squares and the bad
         # flags; each window's sums are two rows of them, whatever the window's length
         if self._ref is None:
-            self._ref = x_new[0].copy()
-        xc = x_new - self._ref
+            self._ref = np.array(x_new[0], dtype=float)
         rows = np.empty((n, 13))
-        rows[:, :6] = xc
+        xc = np.subtract(x_new, self._ref, out=rows[:, :6])
         np.multiply(xc, xc, out=rows[:, 6:12])
-        rows[:, 12] = bad_new
+        rows[:, 12] = 0.0 if bad_new is None else bad_new
         now, back, idx = self._prefix.update(rows, self._offsets)
-        sums = now - back[:, 0, :]
-        long_sums = now - back[:, 1, :]  # the gyro means over rate_window rows
-        prev_sums = back[:, 0, :] - back[:, 2, :]  # the window before the window
+        first = int(idx[0])
+        skip = max(0, w - 1 - first)  # the first w - 1 samples of a stream have no whole window
         out = np.zeros(n, dtype=bool)
-        full = idx + 1 >= w  # the first w - 1 samples of a stream have no whole window
-        if full.any():
-            if not full.all():
-                sums, long_sums, prev_sums = sums[full], long_sums[full], prev_sums[full]
-            count_long = np.minimum(idx[full] + 1, self.rate_window)[:, None]
-            gyro_long = long_sums[:, 0:3] / count_long + self._ref[0:3]
-            s1 = sums[:, :6]
-            mean_c = s1 / w
-            var = np.maximum((sums[:, 6:12] - s1 * mean_c) / (w - 1), 0.0)
-            mean = mean_c + self._ref
-            ok = sums[:, 12] < 0.5  # no bad sample in the window
-            for k, name in enumerate(("gyro", "accel")):
-                v = var[:, 3 * k : 3 * k + 3]
+        if skip >= n:
+            return out
+        if skip:
+            now, back, idx = now[skip:], back[skip:], idx[skip:]
+            first += skip
+        m = n - skip
+        both = now[:, None, :] - back[:, :2, :]
+        sums = both[:, 0]  # the window's
+        long_sums = both[:, 1]  # over rate_window rows: the gyro means
+        s1 = sums[:, :6]
+        mean_c = s1 / w
+        var = np.maximum((sums[:, 6:12] - s1 * mean_c) / (w - 1), 0.0)
+        mean = mean_c + self._ref
+        ok = sums[:, 12] < 0.5  # no bad sample in the window
+        if not (self._noise_fixed["gyro"] and self._noise_fixed["accel"]):
+            for c, name in enumerate(("gyro", "accel")):
+                v = var[:, 3 * c : 3 * c + 3]
                 self._update_noise_estimate(name, v[ok] if ok.any() else v[:0])
-            turning = np.zeros(ok.shape, dtype=bool)
-            vertical_long = np.zeros(ok.shape)
-            jump = np.zeros(ok.shape, dtype=bool)
-            rotating = np.zeros(ok.shape, dtype=bool)
-            moved = np.zeros(ok.shape, dtype=bool)  # far beyond the variance test
-            settle = np.zeros(ok.shape, dtype=bool)
-            for k, name in enumerate(("gyro", "accel")):
-                if name not in self.triads:
-                    continue
-                sigma2 = self._noise_var[name]
-                if sigma2 is None:
-                    ok[:] = False
-                    continue
-                v = var[:, 3 * k : 3 * k + 3]
-                ref = np.maximum(sigma2, self._gyro_floor_var) if name == "gyro" else sigma2
-                still = np.sum(v / ref, axis=1) <= self.variance_ratio_limit
-                ok &= still
-                ratio = np.sum(v / ref, axis=1)
-                moved |= ratio > self.restart_variance_factor * self.variance_ratio_limit
-                if name == "accel":
-                    # a re-orientation by a large angle inside one window (by hand)
-                    to_si = self.certificate.accel.unit_to_si / self.certificate.accel.scale_factor
-                    settle = np.sum(v * to_si**2, axis=1) > self._settle_var_si
-                if name == "accel":
-                    jump = self._jump(idx[full], sums, prev_sums, still, ref)
-                if name == "gyro" and self.bias_margin is not None and "accel" in self.triads:
-                    vertical_ok, turning, rotating, vertical_long = self._rate_band(
-                        mean, sigma2, gyro_long
-                    )
-                    ok &= vertical_ok
-            if self.drift_enabled and self._noise_var["gyro"] is not None:
-                bad = (sums[:, 12] >= 0.5) | (long_sums[:, 12] >= 0.5)
-                restarts = (turning | (rotating & moved) | bad, turning | bad, jump, settle)
-                ok &= self._drift_ok(idx[full], mean[:, 3:6], vertical_long, restarts)
-            out[full] = ok
-        return out
+        lim = self._limits()
+        limit = self.variance_ratio_limit
+        # sum over each triad's axes of var_j / sigma_j^2
+        ratio = (var / lim.var_ref).reshape(m, 2, 3).sum(axis=2)
+        still = ratio <= limit
+        if lim.missing:
+            ok[:] = False
+        for c in lim.checked:
+            ok &= still[:, c]
+        if not self.drift_enabled or lim.band is None:
+            if lim.band is not None:
+                ok &= self._rate_band(mean, long_sums, first)[0]
+            out[skip:] = ok
+            return out
+        vertical_ok, turning, rotating, vertical_long = self._rate_band(mean, long_sums, first)
+        ok &= vertical_ok
+        # the histories' restarts (module doc)
+        bad = long_sums[:, 12] >= 0.5  # in either window (the long one holds the short one)
+        long_mark = turning | bad
+        short_mark = long_mark
+        if rotating.any():  # and far beyond the variance test
+            moved = (ratio[:, lim.checked] > self.restart_variance_factor * limit).any(axis=1)
+            short_mark = long_mark | (rotating & moved)
+        jump = settle = np.zeros(m, dtype=bool)
+        if 1 in lim.checked:
+            # a re-orientation by a large angle inside one window (by hand)
+            settle = np.sum(var[:, 3:6] * self._to_si2, axis=1) > self._settle_var_si
+            jump = self._jump(first, sums, back, still[:, 1], lim.var_ref[3:6])
+        if (short_mark | jump | settle).any():
+            start_short = self._starts(
+                0, idx, [(short_mark, w), (jump, 0), (settle, self._settle)], self._short_span
+            )
+            start_long = self._starts(
+                1, idx, [(long_mark, self.rate_window), (jump, 0)], self._long_span
+            )
+        else:  # no restart in this block
+            start_short = np.maximum(idx - self._short_span, self._restart[0])
+            start_long = np.maximum(idx - self._long_span, self._restart[1])
+        # the drift tests (module doc): the accelerometer window mean over the short history
+        accel_mean = mean[:, 3:6]
+        spread = self._drift[0].update(first, accel_mean, start_short) * self._to_si
+        ok &= np.sqrt(np.einsum("ij,ij->i", spread, spread)) <= lim.drift_limit
+        # a curve: the rate about the vertical and the specific force changed together
+        values = np.column_stack([accel_mean, vertical_long])
+        spread = self._drift[1].update(first, values, start_long)
+        curve = spread[:, 3] > lim.rate_limit
+        if curve.any():  # (the specific force only where the rate drifted)
+            acc = spread[:, :3] * self._to_si
+            curve &= np.sqrt(np.einsum("ij,ij->i", acc, acc)) > lim.drift_limit
+            ok &= ~curve
+        if skip:
+            out[skip:] = ok
+            return out
+        return ok
+
+    def _rate_band(
+        self, mean: np.ndarray, long_sums: np.ndarray, first: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """For window means (M, 6) of the rows from stream row ``first``: whose gyro rate
+        about the vertical is within the band (M,); whose rate magnitude is beyond it (M,):
+        the unit is turning; whose rate magnitude is beyond the rest level
+        (``restart_margin`` bias limits instead of ``bias_margin``) (M,); and the rate about
+        the vertical (M,), gyro input units, of the longer gyro means (over ``rate_window``
+        rows, from the prefix-sum differences ``long_sums`` (M, 13))."""
+        cert = self.certificate
+        lim = self._limits()
+        assert lim.band is not None and lim.rot_band is not None
+        m = mean.shape[0]
+        if first + 1 >= self.rate_window:
+            count: np.ndarray | int = self.rate_window
+        else:
+            count = np.minimum(np.arange(first + 1, first + 1 + m), self.rate_window)[:, None]
+        ref = self._ref
+        assert ref is not None  # set by the first block
+        gyro_long = long_sums[:, 0:3] / count + ref[0:3]
+        # the window means and the longer means in one pass (gyro input units)
+        rates = cert.gyro.inverse(
+            np.concatenate([mean[:, 0:3], gyro_long]), n_inv_t=self._n_inv_t["gyro"]
+        )
+        rate = rates[:m]
+        down = cert.accel.inverse(mean[:, 3:6], n_inv_t=self._n_inv_t["accel"])
+        norm = np.sqrt(np.einsum("ij,ij->i", down, down))
+        norm = np.where(norm > 0, norm, 1.0)
+        # about the vertical: the window means' rates and the longer means' (2, M)
+        vertical, vertical_long = np.einsum("kij,ij->ki", rates.reshape(2, m, 3), down) / norm
+        magnitude = np.sqrt(np.einsum("ij,ij->i", rate, rate))
+        return (
+            np.abs(vertical) <= lim.band,
+            magnitude > lim.band,
+            magnitude > lim.rot_band,
+            vertical_long,
+        )
+
+    def _jump(
+        self, first: int, sums: np.ndarray, back: np.ndarray, still: np.ndarray, sigma2: np.ndarray
+    ) -> np.ndarray:
+        """Accelerometer windows (M,) whose mean stepped from the window before it, both
+        still: a change no smooth motion makes (a ramp across two windows that pass the
+        variance test moves the mean by at most sqrt(12 (L - 3)) sigma from one window to
+        the next, L the variance ratio limit; the threshold, sqrt(12 L) sigma, keeps a
+        margin of 2 in the squares), so a sensor step or a knock, not an acceleration.
+        ``back`` (M, 3, 13): the prefix sums one window, rate_window rows and two windows
+        back; ``sigma2``: the accelerometers' noise variance (output units^2)."""
+        w = self.window
+        limit = self.variance_ratio_limit
+        p1 = back[:, 0, 3:6] - back[:, 2, 3:6]  # the window before the window
+        step = (sums[:, 3:6] - p1) / w
+        jump = still & (np.sum(step * step / sigma2, axis=1) > 12.0 * limit)
+        if first + 1 < 2 * w:
+            jump &= np.arange(first + 1, first + 1 + sums.shape[0]) >= 2 * w
+        if jump.any():  # and the window before was still too
+            p_mean = p1 / w
+            p_var = np.maximum((back[:, 0, 9:12] - back[:, 2, 9:12] - p1 * p_mean) / (w - 1), 0.0)
+            jump &= np.sum(p_var / sigma2, axis=1) <= limit
+        return jump
 
     def reset(self) -> None:
         """Forget the carried samples (after a gap in the stream); the noise estimate stays."""

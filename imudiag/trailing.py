@@ -127,12 +127,21 @@ class PrefixSums:
         now = np.cumsum(rows, axis=0)
         now += self._last
         idx = np.arange(first, first + n)
-        slots = idx & (self.depth - 1)
-        self._p[slots] = now
-        back_idx = idx[:, None] - offsets[None, :]
-        back = self._p[back_idx & (self.depth - 1)]
-        if first < self.reach:  # P before the stream's start is 0
-            back[back_idx < 0] = 0.0
+        depth, mask = self.depth, self.depth - 1
+        s0 = first & mask
+        if s0 + n <= depth:  # contiguous slots: slices, not gathers
+            self._p[s0 : s0 + n] = now
+        else:
+            self._p[idx & mask] = now
+        back = np.empty((n, len(offsets), self.width))
+        for j, off in enumerate(offsets.tolist()):
+            b0 = (first - off) & mask
+            if b0 + n <= depth:
+                back[:, j] = self._p[b0 : b0 + n]
+            else:
+                back[:, j] = self._p[(idx - off) & mask]
+            if first < off:  # P before the stream's start is 0
+                back[: off - first, j] = 0.0
         self._last = now[-1].copy()
         self._rows = first + n
         if self._rows >= self._next_rebase:

@@ -86,3 +86,35 @@ def test_trailing_sum_matches_direct_windows_under_any_blocking():
         counts.append(c)
     np.testing.assert_allclose(np.concatenate(got), direct, atol=1e-12)
     np.testing.assert_array_equal(np.concatenate(counts), np.minimum(np.arange(1, 501), w))
+
+
+def test_prefix_sums_give_every_window_exactly_under_any_blocking():
+    """Whole-number rows, so every sum is exact: the windows ``offsets`` back from each row
+    equal the direct sums (zero before the stream's start), through the ring's wraps, blocks
+    longer than it holds, and the shift back to zero every 2^20 rows."""
+    from imudiag.trailing import PrefixSums
+
+    rng = np.random.default_rng(8)
+    n = (1 << 20) + 5000
+    x = rng.integers(-50, 50, size=(n, 2)).astype(float)
+    p = np.concatenate([np.zeros((1, 2)), np.cumsum(x, axis=0)])  # p[i]: the first i rows
+    offsets = np.array([1, 37, 500])
+    ps = PrefixSums(2, 500)
+    start = 0
+    # small reads through every alignment of the ring's slots, then any size
+    sizes = [1 + i % 7 for i in range(3000)] + [250, 3000, 499]
+    sizes += list(rng.integers(1, 20000, size=200))
+    k = 0
+    while start < n:
+        size = int(sizes[k % len(sizes)])
+        k += 1
+        rows = x[start : start + size]
+        now, back, idx = ps.update(rows, offsets)
+        m = len(rows)
+        np.testing.assert_array_equal(idx, np.arange(start, start + m))
+        ends = idx + 1  # rows of the stream up to and including each new row
+        for j, off in enumerate(offsets):
+            window = p[ends] - p[np.maximum(ends - off, 0)]
+            np.testing.assert_array_equal(now - back[:, j], window)
+        start += m
+    assert ps.depth < n  # the ring wrapped
