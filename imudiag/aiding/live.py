@@ -13,6 +13,13 @@ kept; every ``step_s`` the isolation runs over the last ``window_s``
 (:mod:`.isolation`). The IMU buffer keeps ``window_s`` + 30 s. :meth:`status`
 says whether aiding is in use and why not: gpsd not reachable, no TPV yet, an
 outage, no 3D fix, still collecting.
+
+A batch (latency search, lever arm, isolation) costs up to about 0.5 s of CPU
+per minute of fixes at 200 Hz: it runs in one worker thread
+(:mod:`.worker`), so the sampling loop only appends samples and fixes, hands a
+batch its inputs (:class:`BatchInput`: the buffers as they are, not copied)
+and reads the last published :class:`BatchResult`. ``threaded=False`` runs the
+same batches inline (offline, deterministic tests).
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -33,66 +41,73 @@ from .lever_arm import LeverArmEstimate
 from .moving import MovingConfig, accel_noise, epoch_observations, estimate_lever_arm
 from .specific_force import gnss_epochs, imu_epochs
 from .tpv import track_from_reports
+from .worker import JOIN_TIMEOUT_S, BatchWorker
 
 #: F0 in motion is a fault when k of the last n checked epochs fail
 F0_PERSIST_K, F0_PERSIST_N = 5, 10
 
 
-class LiveAiding:
-    """GNSS aiding of the daemon (module doc)."""
+@dataclass(frozen=True)
+class BatchInput:
+    """What one aiding batch reads: the buffers as they were when it was due. The sampling
+    loop replaces its arrays (concatenation, slicing), never writes into them, so the
+    arrays are shared, not copied; the fixes are a copy of the list."""
 
-    def __init__(
-        self,
-        url: str,
-        certificate: Certificate,
-        cfg: MovingConfig | None = None,
-        batch_s: float = 10.0,
-        outage_s: float = 2.0,
-        client: GpsdClient | None = None,
-        clock: Callable[[], float] = time.monotonic,
-        reconnect_min_s: float = 0.5,
-        reconnect_max_s: float = 10.0,
-    ) -> None:
-        self.url = url
+    t: np.ndarray  #: IMU sample times, s (device clock)
+    accel: np.ndarray  #: (N, 3) raw accelerometer samples, certificate units
+    gyro: np.ndarray  #: (N, 3) raw gyro samples, certificate units
+    fixes: list[dict]  #: parsed TPV reports over the buffer, oldest first
+    offset_s: float  #: clock offset, s: UTC = device time + offset
+    certificate: Certificate
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    """What a batch publishes (the loop reads it for :meth:`LiveAiding.status`)."""
+
+    batches: int = 0  #: batches completed so far (a failed one is not counted)
+    latency_s: float = 0.0
+    latency_note: str = "not yet estimated"
+    lever_estimate: LeverArmEstimate | None = None
+    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    last_batch: dict = field(default_factory=dict)
+    f0_checked: int = 0
+    f0_failed: int = 0
+    f0_fault: bool = False
+    windows: int = 0
+    raised: tuple[dict, ...] = ()  #: the isolation's latched faults
+
+
+class AidingBatches:
+    """The state the batches carry from one to the next (epoch history, isolation
+    tracker, latency and lever arm) and the batch itself, :meth:`process`. Only one
+    thread calls :meth:`process` (the worker, or the loop in synchronous mode)."""
+
+    def __init__(self, certificate: Certificate, cfg: MovingConfig) -> None:
         self.cert = certificate
-        self.cfg = cfg or MovingConfig()
-        self.batch_s = batch_s
-        self.outage_s = outage_s
-        self.clock = clock
-        self.client = client or GpsdClient(
-            url, min_backoff_s=reconnect_min_s, max_backoff_s=reconnect_max_s, clock=clock
-        )
-        self.buffer_s = self.cfg.window_s + 30.0
-        self._t = np.zeros(0)
-        self._acc = np.zeros((0, 3))
-        self._gyr = np.zeros((0, 3))
-        self.fixes: list[dict] = []
-        self.offsets: deque[float] = deque(maxlen=50)
-        self.last_fix_wall: float | None = None
-        self.last_mode = 0
+        self.cfg = cfg
+        self.batches = 0
         self.f0_checked = 0
         self.f0_failed = 0
         self._recent: deque[bool] = deque(maxlen=F0_PERSIST_N)  #: last epochs' F0 failures
         self.f0_fault = False
-        self.tracker = IsolationTracker(self.cfg.persist)
+        self.tracker = IsolationTracker(cfg.persist)
         self._hist_t = np.zeros(0)
         self._hist_means = np.zeros((0, 3))
         self._hist_var = np.zeros((0, 3))
         self._hist_mag = np.zeros(0)
         self._done_t = -math.inf  #: end (GNSS time) of the last epoch checked
-        self._batch_t = -math.inf  #: GNSS time of the last batch
         self._window_t = -math.inf  #: GNSS time of the last isolation window
-        self._last_batch_wall: float | None = None
-        self.latency_s = self.cfg.latency_s if self.cfg.latency_s is not None else 0.0
-        self.latency_determined = self.cfg.latency_s is not None
-        self.latency_note = "configured" if self.cfg.latency_s is not None else "not yet estimated"
+        self.latency_s = cfg.latency_s if cfg.latency_s is not None else 0.0
+        self.latency_determined = cfg.latency_s is not None
+        self.latency_note = "configured" if cfg.latency_s is not None else "not yet estimated"
         self.windows = 0
         self.last_batch: dict = {}  #: GNSS epochs of the last batch: total, valid, rejected
         #: the lever arm estimate over the buffer (None before the first), and the one used
         self.lever_estimate: LeverArmEstimate | None = None
-        self.lever_arm_m = np.asarray(self.cfg.lever_arm_m or (0.0, 0.0, 0.0), dtype=float)
+        self.lever_arm_m = np.asarray(cfg.lever_arm_m or (0.0, 0.0, 0.0), dtype=float)
 
-    def set_certificate(self, cert: Certificate) -> None:
+    def _set_certificate(self, cert: Certificate) -> None:
         """A reloaded certificate: the history corrected with the old one is dropped."""
         self.cert = cert
         self._hist_t = self._hist_t[:0]
@@ -101,42 +116,36 @@ class LiveAiding:
         self._hist_mag = self._hist_mag[:0]
         self.tracker = IsolationTracker(self.cfg.persist)
 
-    # -- input -------------------------------------------------------------
+    def result(self) -> BatchResult:
+        """The state as published."""
+        lever = self.lever_arm_m
+        return BatchResult(
+            batches=self.batches,
+            latency_s=float(self.latency_s),
+            latency_note=self.latency_note,
+            lever_estimate=self.lever_estimate,
+            lever_arm_m=(float(lever[0]), float(lever[1]), float(lever[2])),
+            last_batch=dict(self.last_batch),
+            f0_checked=self.f0_checked,
+            f0_failed=self.f0_failed,
+            f0_fault=self.f0_fault,
+            windows=self.windows,
+            raised=tuple(dict(f) for f in self.tracker.raised),
+        )
 
-    def update(self, block: SampleBlock | None) -> None:
-        """Take new IMU samples (or None), read gpsd, check new epochs when a batch is due."""
-        if block is not None and len(block):
-            self._t = np.concatenate([self._t, block.t])
-            self._acc = np.concatenate([self._acc, block.accel])
-            self._gyr = np.concatenate([self._gyr, block.gyro])
-            keep = self._t >= self._t[-1] - self.buffer_s
-            if not keep[0]:
-                self._t, self._acc, self._gyr = self._t[keep], self._acc[keep], self._gyr[keep]
-        reports = self.client.poll()
-        now = self.clock()
-        for r in reports:
-            self.last_fix_wall = now
-            self.last_mode = r["mode"]
-            if self._t.size:
-                self.offsets.append(r["t"] - self._t[-1])
-            self.fixes.append(r)
-        if reports:
-            horizon = self.fixes[-1]["t"] - self.buffer_s
-            if self.fixes[0]["t"] < horizon:
-                self.fixes = [f for f in self.fixes if f["t"] >= horizon]
-            if self.fixes[-1]["t"] - self._batch_t >= self.batch_s and self._t.size > 10:
-                self._process()
+    def process(self, job: BatchInput) -> BatchResult:
+        """Run one batch on ``job`` (module doc) and return the state to publish."""
+        if job.certificate is not self.cert:
+            self._set_certificate(job.certificate)
+        self._process(job)  # a failure here leaves the state as far as it got
+        self.batches += 1
+        return self.result()
 
-    # -- processing ----------------------------------------------------------
-
-    def _process(self) -> None:
+    def _process(self, job: BatchInput) -> None:
         cfg = self.cfg
         acc = self.cert.accel
-        self._batch_t = self.fixes[-1]["t"]
-        self._last_batch_wall = self.clock()
-        offset = float(np.median(self.offsets)) if self.offsets else 0.0
-        t_utc = self._t + offset
-        track = track_from_reports(self.fixes)
+        t_utc = job.t + job.offset_s
+        track = track_from_reports(job.fixes)
         period = track.period_s()
         if not math.isfinite(period) or period <= 0:
             return
@@ -145,9 +154,9 @@ class LiveAiding:
         self.last_batch = {"epochs": len(ep), "valid": int(np.sum(ep.valid)), "rejected": ep.counts}
         if not len(ep):
             return
-        f_si = acc.inverse_si(self._acc)
-        w_si = self.cert.gyro.inverse_si(self._gyr)
-        rate = 1.0 / float(np.median(np.diff(self._t)))
+        f_si = acc.inverse_si(job.accel)
+        w_si = self.cert.gyro.inverse_si(job.gyro)
+        rate = 1.0 / float(np.median(np.diff(job.t)))
         if cfg.latency_s is None and ep.t1[-1] - self._window_t >= cfg.step_s:
             est = estimate_latency(t_utc, f_si, ep, gyro_si=w_si, max_latency_s=cfg.max_latency_s)
             if est.determined:
@@ -155,17 +164,17 @@ class LiveAiding:
                 self.latency_note = f"estimated (correlation {est.correlation:.2f})"
             elif not self.latency_determined:
                 self.latency_note = est.reason
-            sig = accel_noise(self._acc, acc.noise_sigma(rate)) / acc.scale_factor * acc.unit_to_si
+            sig = accel_noise(job.accel, acc.noise_sigma(rate)) / acc.scale_factor * acc.unit_to_si
             plain = imu_epochs(
                 t_utc, f_si, ep.t0, ep.t1, gyro_si=w_si, sigma_sample_si=sig,
                 latency_s=self.latency_s,
             )  # fmt: skip
             self.lever_estimate = estimate_lever_arm(
-                t_utc, w_si, self._gyr, self.cert.gyro, ep, plain, self.latency_s, rate
+                t_utc, w_si, job.gyro, self.cert.gyro, ep, plain, self.latency_s, rate
             )
             if cfg.lever_arm_m is None:
                 self.lever_arm_m = self.lever_estimate.used()
-        sig_raw = accel_noise(self._acc, acc.noise_sigma(rate))
+        sig_raw = accel_noise(job.accel, acc.noise_sigma(rate))
         sig_si = sig_raw / acc.scale_factor * acc.unit_to_si
         im = imu_epochs(
             t_utc,
@@ -173,7 +182,7 @@ class LiveAiding:
             ep.t0,
             ep.t1,
             gyro_si=w_si,
-            accel_raw=self._acc,
+            accel_raw=job.accel,
             sigma_sample_si=sig_si,
             latency_s=self.latency_s,
             lever_arm_m=self.lever_arm_m,
@@ -205,15 +214,115 @@ class LiveAiding:
             self.tracker.update(iso, self._window_t)
             self.windows += 1
 
+
+class LiveAiding:
+    """GNSS aiding of the daemon (module doc).
+
+    ``threaded`` (default): the batches run in one worker thread
+    (:class:`~.worker.BatchWorker`); :meth:`update` only appends samples and fixes and
+    hands a :class:`BatchInput` over when a batch is due and the worker is idle (a due
+    batch waits for the next call otherwise). ``threaded=False`` runs each batch inline
+    in :meth:`update`: the same results for the same inputs (offline, tests)."""
+
+    def __init__(
+        self,
+        url: str,
+        certificate: Certificate,
+        cfg: MovingConfig | None = None,
+        batch_s: float = 10.0,
+        outage_s: float = 2.0,
+        client: GpsdClient | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        reconnect_min_s: float = 0.5,
+        reconnect_max_s: float = 10.0,
+        threaded: bool = True,
+    ) -> None:
+        self.url = url
+        self.cert = certificate
+        self.cfg = cfg or MovingConfig()
+        self.batch_s = batch_s
+        self.outage_s = outage_s
+        self.clock = clock
+        self.client = client or GpsdClient(
+            url, min_backoff_s=reconnect_min_s, max_backoff_s=reconnect_max_s, clock=clock
+        )
+        self.buffer_s = self.cfg.window_s + 30.0
+        self._t = np.zeros(0)
+        self._acc = np.zeros((0, 3))
+        self._gyr = np.zeros((0, 3))
+        self.fixes: list[dict] = []
+        self.offsets: deque[float] = deque(maxlen=50)
+        self.last_fix_wall: float | None = None
+        self.last_mode = 0
+        self._batch_t = -math.inf  #: GNSS time of the last batch handed over
+        self._last_batch_wall: float | None = None
+        self.batches = AidingBatches(certificate, self.cfg)
+        self.worker: BatchWorker[BatchInput, BatchResult] = BatchWorker(
+            self.batches.process, threaded=threaded, name="aiding batch"
+        )
+        self._initial = self.batches.result()
+
+    def set_certificate(self, cert: Certificate) -> None:
+        """A reloaded certificate, applied at the next batch (which drops the history
+        corrected with the old one)."""
+        self.cert = cert
+
+    @property
+    def published(self) -> BatchResult:
+        """The last published batch result (before the first: the initial state)."""
+        return self.worker.result or self._initial
+
+    # -- input -------------------------------------------------------------
+
+    def update(self, block: SampleBlock | None) -> None:
+        """Take new IMU samples (or None), read gpsd, hand a batch over when one is due."""
+        if block is not None and len(block):
+            self._t = np.concatenate([self._t, block.t])
+            self._acc = np.concatenate([self._acc, block.accel])
+            self._gyr = np.concatenate([self._gyr, block.gyro])
+            keep = self._t >= self._t[-1] - self.buffer_s
+            if not keep[0]:
+                self._t, self._acc, self._gyr = self._t[keep], self._acc[keep], self._gyr[keep]
+        reports = self.client.poll()
+        now = self.clock()
+        for r in reports:
+            self.last_fix_wall = now
+            self.last_mode = r["mode"]
+            if self._t.size:
+                self.offsets.append(r["t"] - self._t[-1])
+            self.fixes.append(r)
+        if reports:
+            horizon = self.fixes[-1]["t"] - self.buffer_s
+            if self.fixes[0]["t"] < horizon:
+                self.fixes = [f for f in self.fixes if f["t"] >= horizon]
+        if (
+            self.fixes
+            and self.fixes[-1]["t"] - self._batch_t >= self.batch_s
+            and self._t.size > 10
+            and not self.worker.busy
+        ):
+            job = BatchInput(
+                self._t,
+                self._acc,
+                self._gyr,
+                list(self.fixes),
+                float(np.median(self.offsets)) if self.offsets else 0.0,
+                self.cert,
+            )
+            if self.worker.submit(job):
+                self._batch_t = self.fixes[-1]["t"]
+                self._last_batch_wall = now
+
     # -- status ----------------------------------------------------------------
 
     def faults(self) -> list[dict]:
         """Faults for the status ``faults`` list: named ones as (triad, sensor, cause),
         groups with ``|``-joined sensors and causes and their ``one_of``."""
+        res = self.published
         out: list[dict] = []
-        if self.f0_fault:
+        if res.f0_fault:
             out.append({"triad": "accel", "cause": "f0", "source": "moving_base"})
-        for f in self.tracker.raised:
+        for f in res.raised:
             if f["named"]:
                 out.append(
                     {
@@ -239,6 +348,8 @@ class LiveAiding:
 
     def status(self) -> dict:
         """The ``aiding`` object of the daemon's status."""
+        res = self.published
+        worker = self.worker
         now = self.clock()
         age = None if self.last_fix_wall is None else now - self.last_fix_wall
         reason = ""
@@ -252,7 +363,7 @@ class LiveAiding:
             reason = f"no 3D fix (mode {self.last_mode}): no vertical velocity"
         elif self._t.size == 0:
             reason = "no IMU samples"
-        elif self.f0_checked == 0:
+        elif res.f0_checked == 0:
             reason = f"collecting GNSS epochs (first check after {self.batch_s:g} s of fixes)"
         out: dict = {
             "source": self.url,
@@ -262,22 +373,34 @@ class LiveAiding:
             "fixes": self.client.counters.tpv,
             "last_fix_age_s": None if age is None else round(age, 3),
             "mode": self.last_mode,
-            "f0": {"checked": self.f0_checked, "failed": self.f0_failed, "fault": self.f0_fault},
-            "windows": self.windows,
-            "last_batch": self.last_batch,
-            "latency_s": round(self.latency_s, 4),
-            "latency": self.latency_note,
+            "f0": {"checked": res.f0_checked, "failed": res.f0_failed, "fault": res.f0_fault},
+            "windows": res.windows,
+            "last_batch": res.last_batch,
+            "latency_s": round(res.latency_s, 4),
+            "latency": res.latency_note,
             "clock_offset_s": round(float(np.median(self.offsets)), 4) if self.offsets else None,
-            "lever_arm_m": [round(float(x), 3) for x in self.lever_arm_m],
+            "lever_arm_m": [round(float(x), 3) for x in res.lever_arm_m],
             "lever_arm": dict(
-                self.lever_estimate.to_json() if self.lever_estimate else {},
+                res.lever_estimate.to_json() if res.lever_estimate else {},
                 configured=self.cfg.lever_arm_m is not None,
             ),
+            # the batches: how they run, how many ran, the last failure (kept, not fatal)
+            "batches": {
+                "mode": "thread" if worker.threaded else "inline",
+                "submitted": worker.submitted,
+                "published": res.batches,
+                "running": worker.busy,
+                "errors": worker.errors,
+                "last_error": worker.last_error,
+            },
         }
         return out
 
-    def close(self) -> None:
+    def close(self, timeout_s: float = JOIN_TIMEOUT_S) -> None:
+        """Stop the batch worker (waits at most ``timeout_s`` s for a running batch) and
+        disconnect from gpsd."""
+        self.worker.close(timeout_s)
         self.client.close()
 
 
-__all__ = ["LiveAiding"]
+__all__ = ["AidingBatches", "BatchInput", "BatchResult", "LiveAiding"]

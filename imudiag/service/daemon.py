@@ -100,6 +100,9 @@ class DaemonSettings:
     #: GNSS aiding: gpsd://HOST:PORT, or None (docs/moving-base.md)
     aiding_url: str | None = None
     aiding_options: dict[str, Any] = field(default_factory=dict)
+    #: run the aiding batches in their own thread (False: inline in the sampling loop,
+    #: which then stalls for each batch; for comparisons)
+    aiding_threaded: bool = True
 
 
 class _ReloadThread(threading.Thread):
@@ -193,6 +196,7 @@ class Daemon:
             MovingConfig(**self.settings.aiding_options),
             reconnect_min_s=self.settings.reconnect_min_s,
             reconnect_max_s=self.settings.reconnect_max_s,
+            threaded=self.settings.aiding_threaded,
         )
 
     def install_signal_handlers(self) -> None:
