@@ -20,16 +20,17 @@ Not included: the status line (written at 1 Hz and at once on a change, after
 the diagnosis update of the same loop turn), which :func:`alarm_latency` could
 add; the hook itself costs one Python call per block.
 
-With ``--aiding thread|inline`` the board drives (an urban drive of
+With ``--aiding process|thread|inline`` the board drives (an urban drive of
 :mod:`imudiag.sim.drive`) and a real gpsd (:class:`imudiag.bench.gnss.GnssFeed`) is fed
 the same drive's GNSS, paced by the board's sample time like the bench's
 ``drive-aided``; the daemon runs with ``--aiding`` and its aiding batches in their
-worker thread (``thread``, as shipped) or inline in the sampling loop (``inline``,
+worker process (``process``, as shipped), a thread (``thread``) or inline in the
+sampling loop (``inline``,
 as before). ``max_loop_gap_ms`` is then the longest wall time between two consecutive
 monitor updates after the warm-up: a batch that stalls the loop shows there.
 
 Run: ``.venv/bin/python -m benchmarks.latency [--rate 1000] [--duration 60]
-[--aiding thread --aiding inline]``.
+[--aiding process --aiding thread --aiding inline]``.
 """
 
 from __future__ import annotations
@@ -114,7 +115,8 @@ def _child(argv: Sequence[str]) -> int:
         help="daemon read interval, s (default: the daemon's)",
     )
     p.add_argument("--aiding", default=None, help="gpsd://HOST:PORT")
-    p.add_argument("--aiding-inline", action="store_true", help="aiding batches in the loop")
+    p.add_argument("--aiding-mode", default="process", help="where the aiding batches run")
+    p.add_argument("--switch-interval", type=float, default=None, help="GIL switch interval, s")
     a = p.parse_args(argv)
 
     from imudiag.service.config import default_config, merge_cli
@@ -127,9 +129,11 @@ def _child(argv: Sequence[str]) -> int:
     if a.read_interval is not None:
         settings.read_interval_s = a.read_interval
     settings.aiding_url = a.aiding
-    settings.aiding_threaded = not a.aiding_inline
+    settings.aiding_batches = a.aiding_mode
     devnull = open(os.devnull, "w")  # noqa: SIM115 - lives as long as the process
     daemon = Daemon(settings, [JsonLinesSink(devnull)])
+    if a.switch_interval is not None:
+        sys.setswitchinterval(a.switch_interval)
     daemon.install_signal_handlers()
 
     t_first = np.zeros(_TRACE_CAPACITY)
@@ -199,9 +203,10 @@ def measure_latency(
     warmup_s: float | None = None,
     seed: int = 0,
     aiding: str | None = None,
+    switch_interval_s: float | None = None,
 ) -> dict[str, Any]:
     """Latency percentiles (ms) of the F0 verdict at ``rate_hz`` over ``duration_s`` s;
-    ``aiding``: None, ``"thread"`` or ``"inline"`` (module doc)."""
+    ``aiding``: None, ``"process"``, ``"thread"`` or ``"inline"`` (module doc)."""
     warm = warmup_s if warmup_s is not None else min(5.0, duration_s / 4)
     with contextlib.ExitStack() as stack:
         tmp = stack.enter_context(tempfile.TemporaryDirectory())
@@ -230,8 +235,10 @@ def measure_latency(
             cmd.append("--no-diagnosis")
         if read_interval_s is not None:
             cmd += ["--read-interval", str(read_interval_s)]
+        if switch_interval_s is not None:
+            cmd += ["--switch-interval", str(switch_interval_s)]
         if feed is not None:
-            cmd += ["--aiding", feed.url] + (["--aiding-inline"] if aiding == "inline" else [])
+            cmd += ["--aiding", feed.url, "--aiding-mode", str(aiding)]
         proc = subprocess.Popen(
             cmd,
             stdout=subprocess.PIPE,
@@ -280,6 +287,7 @@ def measure_latency(
         "duration_s": duration_s,
         "diagnosis": diagnosis,
         "aiding": aiding,
+        "switch_interval_s": switch_interval_s,
         "max_loop_gap_ms": 1e3 * float(gaps.max()) if gaps.size else None,
         # the daemon's last aiding status: batches run, F0 epochs checked, windows
         "aiding_status": None
@@ -311,17 +319,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument(
         "--aiding",
-        choices=("thread", "inline"),
+        choices=("process", "thread", "inline"),
         action="append",
-        help="drive with GNSS aiding through gpsd, batches in their thread or inline "
+        help="drive with GNSS aiding through gpsd, batches in a process, a thread or inline "
         "(repeatable, to compare)",
+    )
+    p.add_argument(
+        "--switch-interval",
+        type=float,
+        action="append",
+        help="the daemon's GIL switch interval(s) to compare, s (default: the daemon's)",
     )
     a = p.parse_args(argv)
     for rate in a.rate or [1000.0]:
         for interval in a.read_interval or [None]:
             for aiding in a.aiding or [None]:
-                r = measure_latency(rate, a.duration, not a.no_diagnosis, interval, aiding=aiding)
-                print(json.dumps(r), flush=True)
+                for switch in a.switch_interval or [None]:
+                    r = measure_latency(
+                        rate, a.duration, not a.no_diagnosis, interval, aiding=aiding,
+                        switch_interval_s=switch,
+                    )  # fmt: skip
+                    print(json.dumps(r), flush=True)
     return 0
 
 

@@ -1,9 +1,9 @@
-"""The daemon's aiding batches off the sampling loop (issue 15): one worker thread.
+"""The daemon's aiding batches off the sampling loop (issue 15): a worker process.
 
-The batches run in :class:`imudiag.aiding.worker.BatchWorker`'s thread; the results must
-equal the inline (synchronous) mode's for the same inputs. Nothing here depends on
-thread timing: the threaded side is waited for through the worker's ``done`` count
-(a condition the worker signals when it publishes), never by sleeping.
+The batches run in :class:`imudiag.aiding.worker.BatchWorker`'s process (as in the
+daemon) or thread; the results must equal the inline (synchronous) mode's for the same
+inputs. Nothing here depends on timing: the worker is waited for through its ``done``
+count (a condition set when a result is published), never by sleeping.
 
 The drive's GNSS reaches :class:`LiveAiding` through a scripted feed of the simulator's
 real TPV reports (parsed by the real :func:`parse_tpv`) in place of the gpsd socket, so
@@ -13,6 +13,10 @@ both modes see exactly the same fixes with the same samples; gpsd over its socke
 
 from __future__ import annotations
 
+import functools
+import operator
+import os
+import signal
 import threading
 
 import numpy as np
@@ -27,6 +31,7 @@ from imudiag.sim.drive import EPOCH_UNIX, GnssSimConfig, simulate_drive
 from imudiag.sim.faults import Fault
 
 RATE_HZ = 100.0
+STEP_S = 0.25  #: s of samples per update (the daemon's reads are shorter)
 WAIT_S = 120.0  #: a bound for a stuck worker, not a timing assertion
 
 
@@ -73,7 +78,7 @@ def drive():
     return res.samples, parsed, gnss.latency_s
 
 
-def _aiding(drive, threaded: bool) -> tuple[LiveAiding, ScriptedGpsd]:
+def _aiding(drive, mode: str) -> tuple[LiveAiding, ScriptedGpsd]:
     _, reports, latency = drive
     feed = ScriptedGpsd(reports, latency)
     clock = [0.0]
@@ -83,7 +88,7 @@ def _aiding(drive, threaded: bool) -> tuple[LiveAiding, ScriptedGpsd]:
         MovingConfig(),
         client=feed,  # type: ignore[arg-type]
         clock=lambda: clock[0],
-        threaded=threaded,
+        mode=mode,
     )
     aid._test_clock = clock  # type: ignore[attr-defined]
     return aid, feed
@@ -107,45 +112,52 @@ def _feed(aid: LiveAiding, feed: ScriptedGpsd, samples, t0: float, t1: float) ->
     aid.update(block)
 
 
-def test_threaded_batches_equal_the_inline_ones(drive):
-    """The same drive fed in 1 s blocks to a threaded and an inline LiveAiding: after
-    every batch the published results (status, faults) are identical; a certificate
-    reload at 150 s is applied at the next batch (the published state is unchanged
-    until then), in both modes alike; the fault is raised."""
+@pytest.mark.parametrize("mode", ["process", "thread"])
+def test_batches_off_the_loop_equal_the_inline_ones(drive, mode):
+    """The same drive fed in 0.25 s blocks to a LiveAiding whose batches run in a worker
+    process (thread) and to an inline one: after every batch the published results
+    (status, faults) are identical; a certificate reload at 150 s is applied at the next
+    batch (the published state is unchanged until then), in both alike; the fault is
+    raised."""
     samples = drive[0]
-    inline, f_in = _aiding(drive, threaded=False)
-    threaded, f_th = _aiding(drive, threaded=True)
+    inline, f_in = _aiding(drive, "inline")
+    threaded, f_th = _aiding(drive, mode)
     reloaded = load_default()
     batches = 0
+    reload_batch = 10**9  #: the first batch after the reload
     try:
-        for k in range(int(samples.t[-1] - EPOCH_UNIX)):
-            if k == 150:
+        for k in range(int((samples.t[-1] - EPOCH_UNIX) / STEP_S)):
+            if k * STEP_S == 150.0:
                 before = _comparable(threaded)
                 inline.set_certificate(reloaded)
                 threaded.set_certificate(reloaded)
                 assert _comparable(threaded) == before  # nothing applied yet
-                assert threaded.batches.cert is not reloaded
+                assert before["batches"]["certificate_version"] == 0
                 reload_batch = threaded.worker.submitted + 1
-            _feed(inline, f_in, samples, k, k + 1)
-            _feed(threaded, f_th, samples, k, k + 1)
+            _feed(inline, f_in, samples, k * STEP_S, (k + 1) * STEP_S)
+            _feed(threaded, f_th, samples, k * STEP_S, (k + 1) * STEP_S)
             n = threaded.worker.submitted
             assert n == inline.worker.submitted  # the threaded one is never left busy here
             if n > batches:
                 batches = n
                 assert threaded.worker.wait(n, WAIT_S)
                 assert _comparable(threaded) == _comparable(inline), k
-                if k >= 150 and n == reload_batch:
-                    assert threaded.batches.cert is reloaded
-                    assert inline.batches.cert is reloaded
+                version = threaded.status()["batches"]["certificate_version"]
+                assert version == (1 if n >= reload_batch else 0)
         st = threaded.status()
-        assert st["batches"]["mode"] == "thread" and inline.status()["batches"]["mode"] == "inline"
+        assert st["batches"]["mode"] == mode and inline.status()["batches"]["mode"] == "inline"
         assert st["batches"]["errors"] == 0 and st["batches"]["published"] == batches >= 20
         assert st["windows"] >= 2 and st["f0"]["checked"] > 100
+        # the joint latency-lever solution ran and says whether it was used
+        assert st["latency"].startswith("estimated")
+        assert set(st["latency_lever"]) >= {"latency_s", "latency_std_s", "used", "note"}
         assert any(f["source"] == "moving_base" and "az" in f["sensor"] for f in threaded.faults())
     finally:
         threaded.close()
         inline.close()
     assert threaded.worker._thread is not None and not threaded.worker._thread.is_alive()
+    if mode == "process":
+        assert threaded.worker._proc.exitcode == 0
 
 
 def test_an_exception_in_a_batch_is_reported_and_the_next_batch_runs(drive, monkeypatch):
@@ -155,7 +167,7 @@ def test_an_exception_in_a_batch_is_reported_and_the_next_batch_runs(drive, monk
     import imudiag.aiding.live as live
 
     samples = drive[0]
-    aid, feed = _aiding(drive, threaded=True)
+    aid, feed = _aiding(drive, "thread")
     real = live.track_from_reports
     calls = [0]
 
@@ -198,7 +210,7 @@ def test_worker_refuses_while_busy_and_close_joins():
         assert release.wait(WAIT_S)
         return job * 10
 
-    w: BatchWorker[int, int] = BatchWorker(slow, threaded=True, name="test")
+    w: BatchWorker[int, int] = BatchWorker(lambda: slow, mode="thread", name="test")
     assert w.submit(1)
     assert started.wait(WAIT_S)
     assert w.busy and not w.submit(2)
@@ -222,9 +234,32 @@ def test_inline_worker_runs_in_the_callers_thread():
             raise ValueError("negative")
         return x + 1
 
-    w: BatchWorker[int, int] = BatchWorker(job, threaded=False)
+    w: BatchWorker[int, int] = BatchWorker(lambda: job, mode="inline")
     assert w.submit(1) and w.result == 2 and w.done == 1
     assert w.submit(-1) and w.result == 2 and w.errors == 1
     assert w.last_error == "ValueError: negative"
     assert names == [threading.current_thread().name] * 2
     assert w.close() is True
+
+
+def test_worker_process_errors_and_death_are_reported():
+    """Mode "process": an exception in the child is reported with its message and the
+    child carries on; a child that dies (SIGKILL) is reported and started again at the
+    next job."""
+    w: BatchWorker[tuple, int] = BatchWorker(
+        functools.partial(operator.itemgetter, 0), mode="process", name="test"
+    )
+    try:
+        assert w.submit((5,)) and w.wait(1, WAIT_S) and w.result == 5
+        assert w.submit(()) and w.wait(2, WAIT_S)
+        assert w.errors == 1 and w.last_error == "IndexError: tuple index out of range"
+        assert w.result == 5  # the last good result stays published
+        first = w._proc
+        os.kill(first.pid, signal.SIGKILL)
+        w._reader.join(WAIT_S)  # the reader sees the pipe close
+        assert "process ended (exit code -9)" in w.last_error
+        assert w.submit((7,)) and w.wait(3, WAIT_S) and w.result == 7
+        assert w._proc is not first and w.errors == 1
+    finally:
+        assert w.close()
+    assert w._proc.exitcode == 0

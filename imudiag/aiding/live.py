@@ -15,15 +15,17 @@ says whether aiding is in use and why not: gpsd not reachable, no TPV yet, an
 outage, no 3D fix, still collecting.
 
 A batch (latency search, lever arm, isolation) costs up to about 0.5 s of CPU
-per minute of fixes at 200 Hz: it runs in one worker thread
-(:mod:`.worker`), so the sampling loop only appends samples and fixes, hands a
-batch its inputs (:class:`BatchInput`: the buffers as they are, not copied)
-and reads the last published :class:`BatchResult`. ``threaded=False`` runs the
-same batches inline (offline, deterministic tests).
+per minute of fixes at 200 Hz, several at 1 kHz: it runs in a worker process
+(:mod:`.worker`), so the sampling loop only gathers samples and fixes, hands a
+batch the new ones (:class:`BatchInput`; the batches keep the IMU buffer) and
+reads the last published :class:`BatchResult`. ``mode="thread"`` or
+``"inline"`` run the same batches in a thread or in :meth:`LiveAiding.update`
+(offline, deterministic tests).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections import deque
@@ -38,7 +40,13 @@ from .align import estimate_latency
 from .gpsd_client import GpsdClient
 from .isolation import IsolationTracker, isolate
 from .lever_arm import LeverArmEstimate
-from .moving import MovingConfig, accel_noise, epoch_observations, estimate_lever_arm
+from .moving import (
+    MovingConfig,
+    accel_noise,
+    epoch_observations,
+    estimate_lever_arm,
+    solve_jointly,
+)
 from .specific_force import gnss_epochs, imu_epochs
 from .tpv import track_from_reports
 from .worker import JOIN_TIMEOUT_S, BatchWorker
@@ -49,16 +57,18 @@ F0_PERSIST_K, F0_PERSIST_N = 5, 10
 
 @dataclass(frozen=True)
 class BatchInput:
-    """What one aiding batch reads: the buffers as they were when it was due. The sampling
-    loop replaces its arrays (concatenation, slicing), never writes into them, so the
-    arrays are shared, not copied; the fixes are a copy of the list."""
+    """What the sampling loop hands a batch: the IMU samples that arrived since the last
+    batch (the batches keep the buffer of ``buffer_s``; the loop copies nothing big and
+    concatenates nothing per block), the fixes over the buffer, the clock offset and the
+    certificate with its version (a reload is applied by the batch that first sees it)."""
 
-    t: np.ndarray  #: IMU sample times, s (device clock)
-    accel: np.ndarray  #: (N, 3) raw accelerometer samples, certificate units
-    gyro: np.ndarray  #: (N, 3) raw gyro samples, certificate units
+    t: np.ndarray  #: new IMU sample times, s (device clock)
+    accel: np.ndarray  #: (N, 3) new raw accelerometer samples, certificate units
+    gyro: np.ndarray  #: (N, 3) new raw gyro samples, certificate units
     fixes: list[dict]  #: parsed TPV reports over the buffer, oldest first
     offset_s: float  #: clock offset, s: UTC = device time + offset
     certificate: Certificate
+    certificate_version: int = 0  #: 0 at start, +1 per reload
 
 
 @dataclass(frozen=True)
@@ -69,6 +79,7 @@ class BatchResult:
     latency_s: float = 0.0
     latency_note: str = "not yet estimated"
     lever_estimate: LeverArmEstimate | None = None
+    joint: dict = field(default_factory=dict)  #: the joint latency-lever solution's report
     lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     last_batch: dict = field(default_factory=dict)
     f0_checked: int = 0
@@ -76,16 +87,23 @@ class BatchResult:
     f0_fault: bool = False
     windows: int = 0
     raised: tuple[dict, ...] = ()  #: the isolation's latched faults
+    certificate_version: int = 0  #: the certificate version the batches use
 
 
 class AidingBatches:
     """The state the batches carry from one to the next (epoch history, isolation
-    tracker, latency and lever arm) and the batch itself, :meth:`process`. Only one
-    thread calls :meth:`process` (the worker, or the loop in synchronous mode)."""
+    tracker, latency and lever arm), the IMU buffer of ``buffer_s`` s, and the batch
+    itself (call the instance with a :class:`BatchInput`). One caller at a time: the
+    worker process or thread, or the loop in inline mode."""
 
-    def __init__(self, certificate: Certificate, cfg: MovingConfig) -> None:
+    def __init__(self, certificate: Certificate, cfg: MovingConfig, buffer_s: float) -> None:
         self.cert = certificate
+        self.cert_version = 0
         self.cfg = cfg
+        self.buffer_s = buffer_s
+        self._t = np.zeros(0)
+        self._acc = np.zeros((0, 3))
+        self._gyr = np.zeros((0, 3))
         self.batches = 0
         self.f0_checked = 0
         self.f0_failed = 0
@@ -106,6 +124,7 @@ class AidingBatches:
         #: the lever arm estimate over the buffer (None before the first), and the one used
         self.lever_estimate: LeverArmEstimate | None = None
         self.lever_arm_m = np.asarray(cfg.lever_arm_m or (0.0, 0.0, 0.0), dtype=float)
+        self.joint: dict = {}  #: the joint latency and lever solution (:mod:`.joint`) reported
 
     def _set_certificate(self, cert: Certificate) -> None:
         """A reloaded certificate: the history corrected with the old one is dropped."""
@@ -124,6 +143,7 @@ class AidingBatches:
             latency_s=float(self.latency_s),
             latency_note=self.latency_note,
             lever_estimate=self.lever_estimate,
+            joint=dict(self.joint),
             lever_arm_m=(float(lever[0]), float(lever[1]), float(lever[2])),
             last_batch=dict(self.last_batch),
             f0_checked=self.f0_checked,
@@ -131,12 +151,22 @@ class AidingBatches:
             f0_fault=self.f0_fault,
             windows=self.windows,
             raised=tuple(dict(f) for f in self.tracker.raised),
+            certificate_version=self.cert_version,
         )
 
-    def process(self, job: BatchInput) -> BatchResult:
-        """Run one batch on ``job`` (module doc) and return the state to publish."""
-        if job.certificate is not self.cert:
+    def __call__(self, job: BatchInput) -> BatchResult:
+        """Take the new samples of ``job`` into the buffer (the last ``buffer_s`` s), run
+        one batch (module doc) and return the state to publish."""
+        if job.certificate_version != self.cert_version:
+            self.cert_version = job.certificate_version
             self._set_certificate(job.certificate)
+        if job.t.size:
+            self._t = np.concatenate([self._t, job.t])
+            self._acc = np.concatenate([self._acc, job.accel])
+            self._gyr = np.concatenate([self._gyr, job.gyro])
+            keep = self._t >= self._t[-1] - self.buffer_s
+            if not keep[0]:
+                self._t, self._acc, self._gyr = self._t[keep], self._acc[keep], self._gyr[keep]
         self._process(job)  # a failure here leaves the state as far as it got
         self.batches += 1
         return self.result()
@@ -144,7 +174,7 @@ class AidingBatches:
     def _process(self, job: BatchInput) -> None:
         cfg = self.cfg
         acc = self.cert.accel
-        t_utc = job.t + job.offset_s
+        t_utc = self._t + job.offset_s
         track = track_from_reports(job.fixes)
         period = track.period_s()
         if not math.isfinite(period) or period <= 0:
@@ -154,9 +184,9 @@ class AidingBatches:
         self.last_batch = {"epochs": len(ep), "valid": int(np.sum(ep.valid)), "rejected": ep.counts}
         if not len(ep):
             return
-        f_si = acc.inverse_si(job.accel)
-        w_si = self.cert.gyro.inverse_si(job.gyro)
-        rate = 1.0 / float(np.median(np.diff(job.t)))
+        f_si = acc.inverse_si(self._acc)
+        w_si = self.cert.gyro.inverse_si(self._gyr)
+        rate = 1.0 / float(np.median(np.diff(self._t)))
         if cfg.latency_s is None and ep.t1[-1] - self._window_t >= cfg.step_s:
             est = estimate_latency(t_utc, f_si, ep, gyro_si=w_si, max_latency_s=cfg.max_latency_s)
             if est.determined:
@@ -164,17 +194,28 @@ class AidingBatches:
                 self.latency_note = f"estimated (correlation {est.correlation:.2f})"
             elif not self.latency_determined:
                 self.latency_note = est.reason
-            sig = accel_noise(job.accel, acc.noise_sigma(rate)) / acc.scale_factor * acc.unit_to_si
+            sig = accel_noise(self._acc, acc.noise_sigma(rate)) / acc.scale_factor * acc.unit_to_si
             plain = imu_epochs(
                 t_utc, f_si, ep.t0, ep.t1, gyro_si=w_si, sigma_sample_si=sig,
                 latency_s=self.latency_s,
             )  # fmt: skip
             self.lever_estimate = estimate_lever_arm(
-                t_utc, w_si, job.gyro, self.cert.gyro, ep, plain, self.latency_s, rate
+                t_utc, w_si, self._gyr, self.cert.gyro, ep, plain, self.latency_s, rate
             )
+            if cfg.lever_arm_m is None and est.determined:
+                lat, self.lever_estimate, self.joint = solve_jointly(
+                    t_utc, f_si, w_si, self._gyr, self.cert.gyro, ep, sig, rate,
+                    self.latency_s, self.lever_estimate, cfg.max_latency_s,
+                )  # fmt: skip
+                if self.joint["used"]:
+                    self.latency_s = lat
+                    self.latency_note = (
+                        f"estimated (correlation {est.correlation:.2f}), solved with the "
+                        f"lever arm (std {1e3 * self.joint['latency_std_s']:.3g} ms)"
+                    )
             if cfg.lever_arm_m is None:
                 self.lever_arm_m = self.lever_estimate.used()
-        sig_raw = accel_noise(job.accel, acc.noise_sigma(rate))
+        sig_raw = accel_noise(self._acc, acc.noise_sigma(rate))
         sig_si = sig_raw / acc.scale_factor * acc.unit_to_si
         im = imu_epochs(
             t_utc,
@@ -182,7 +223,7 @@ class AidingBatches:
             ep.t0,
             ep.t1,
             gyro_si=w_si,
-            accel_raw=job.accel,
+            accel_raw=self._acc,
             sigma_sample_si=sig_si,
             latency_s=self.latency_s,
             lever_arm_m=self.lever_arm_m,
@@ -218,11 +259,11 @@ class AidingBatches:
 class LiveAiding:
     """GNSS aiding of the daemon (module doc).
 
-    ``threaded`` (default): the batches run in one worker thread
-    (:class:`~.worker.BatchWorker`); :meth:`update` only appends samples and fixes and
-    hands a :class:`BatchInput` over when a batch is due and the worker is idle (a due
-    batch waits for the next call otherwise). ``threaded=False`` runs each batch inline
-    in :meth:`update`: the same results for the same inputs (offline, tests)."""
+    ``mode`` (:class:`~.worker.BatchWorker`): ``"process"`` (default, the daemon) runs
+    the batches in a worker process, ``"thread"`` in a thread, ``"inline"`` in
+    :meth:`update` itself; the same results for the same inputs. :meth:`update` only
+    gathers samples and fixes and hands a :class:`BatchInput` over when a batch is due
+    and the worker is idle (a due batch waits for a later call otherwise)."""
 
     def __init__(
         self,
@@ -235,7 +276,7 @@ class LiveAiding:
         clock: Callable[[], float] = time.monotonic,
         reconnect_min_s: float = 0.5,
         reconnect_max_s: float = 10.0,
-        threaded: bool = True,
+        mode: str = "process",
     ) -> None:
         self.url = url
         self.cert = certificate
@@ -247,25 +288,33 @@ class LiveAiding:
             url, min_backoff_s=reconnect_min_s, max_backoff_s=reconnect_max_s, clock=clock
         )
         self.buffer_s = self.cfg.window_s + 30.0
-        self._t = np.zeros(0)
-        self._acc = np.zeros((0, 3))
-        self._gyr = np.zeros((0, 3))
+        #: samples not yet handed to a batch: (t, accel, gyro) per block
+        self._pending: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = deque()
+        self._t_last: float | None = None  #: newest sample time, s
+        self._samples = 0  #: samples taken
+        self._cert_version = 0
         self.fixes: list[dict] = []
         self.offsets: deque[float] = deque(maxlen=50)
         self.last_fix_wall: float | None = None
         self.last_mode = 0
         self._batch_t = -math.inf  #: GNSS time of the last batch handed over
         self._last_batch_wall: float | None = None
-        self.batches = AidingBatches(certificate, self.cfg)
         self.worker: BatchWorker[BatchInput, BatchResult] = BatchWorker(
-            self.batches.process, threaded=threaded, name="aiding batch"
+            functools.partial(AidingBatches, certificate, self.cfg, self.buffer_s),
+            mode=mode,
+            name="aiding-batch",
         )
-        self._initial = self.batches.result()
+        self._initial = BatchResult(
+            latency_s=self.cfg.latency_s if self.cfg.latency_s is not None else 0.0,
+            latency_note="configured" if self.cfg.latency_s is not None else "not yet estimated",
+            lever_arm_m=tuple(float(x) for x in (self.cfg.lever_arm_m or (0.0, 0.0, 0.0))),  # type: ignore[arg-type]
+        )
 
     def set_certificate(self, cert: Certificate) -> None:
         """A reloaded certificate, applied at the next batch (which drops the history
         corrected with the old one)."""
         self.cert = cert
+        self._cert_version += 1
 
     @property
     def published(self) -> BatchResult:
@@ -277,19 +326,19 @@ class LiveAiding:
     def update(self, block: SampleBlock | None) -> None:
         """Take new IMU samples (or None), read gpsd, hand a batch over when one is due."""
         if block is not None and len(block):
-            self._t = np.concatenate([self._t, block.t])
-            self._acc = np.concatenate([self._acc, block.accel])
-            self._gyr = np.concatenate([self._gyr, block.gyro])
-            keep = self._t >= self._t[-1] - self.buffer_s
-            if not keep[0]:
-                self._t, self._acc, self._gyr = self._t[keep], self._acc[keep], self._gyr[keep]
+            self._pending.append((block.t, block.accel, block.gyro))
+            self._t_last = float(block.t[-1])
+            self._samples += len(block)
+            # blocks the batch would drop from its buffer anyway (a worker long busy)
+            while self._pending[0][0][-1] < self._t_last - self.buffer_s:
+                self._pending.popleft()
         reports = self.client.poll()
         now = self.clock()
         for r in reports:
             self.last_fix_wall = now
             self.last_mode = r["mode"]
-            if self._t.size:
-                self.offsets.append(r["t"] - self._t[-1])
+            if self._t_last is not None:
+                self.offsets.append(r["t"] - self._t_last)
             self.fixes.append(r)
         if reports:
             horizon = self.fixes[-1]["t"] - self.buffer_s
@@ -298,18 +347,21 @@ class LiveAiding:
         if (
             self.fixes
             and self.fixes[-1]["t"] - self._batch_t >= self.batch_s
-            and self._t.size > 10
+            and self._samples > 10
             and not self.worker.busy
         ):
+            new = list(self._pending)
             job = BatchInput(
-                self._t,
-                self._acc,
-                self._gyr,
+                np.concatenate([b[0] for b in new]) if new else np.zeros(0),
+                np.concatenate([b[1] for b in new]) if new else np.zeros((0, 3)),
+                np.concatenate([b[2] for b in new]) if new else np.zeros((0, 3)),
                 list(self.fixes),
                 float(np.median(self.offsets)) if self.offsets else 0.0,
                 self.cert,
+                self._cert_version,
             )
             if self.worker.submit(job):
+                self._pending.clear()
                 self._batch_t = self.fixes[-1]["t"]
                 self._last_batch_wall = now
 
@@ -361,7 +413,7 @@ class LiveAiding:
             reason = f"GNSS outage: no fix for {age:.1f} s; the static checks carry on at stops"
         elif self.last_mode < 3:
             reason = f"no 3D fix (mode {self.last_mode}): no vertical velocity"
-        elif self._t.size == 0:
+        elif self._samples == 0:
             reason = "no IMU samples"
         elif res.f0_checked == 0:
             reason = f"collecting GNSS epochs (first check after {self.batch_s:g} s of fixes)"
@@ -384,14 +436,16 @@ class LiveAiding:
                 res.lever_estimate.to_json() if res.lever_estimate else {},
                 configured=self.cfg.lever_arm_m is not None,
             ),
+            "latency_lever": res.joint,
             # the batches: how they run, how many ran, the last failure (kept, not fatal)
             "batches": {
-                "mode": "thread" if worker.threaded else "inline",
+                "mode": worker.mode,
                 "submitted": worker.submitted,
                 "published": res.batches,
                 "running": worker.busy,
                 "errors": worker.errors,
                 "last_error": worker.last_error,
+                "certificate_version": res.certificate_version,
             },
         }
         return out
