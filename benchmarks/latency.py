@@ -20,12 +20,23 @@ Not included: the status line (written at 1 Hz and at once on a change, after
 the diagnosis update of the same loop turn), which :func:`alarm_latency` could
 add; the hook itself costs one Python call per block.
 
-Run: ``.venv/bin/python -m benchmarks.latency [--rate 1000] [--duration 60]``.
+With ``--aiding process|thread|inline`` the board drives (an urban drive of
+:mod:`imudiag.sim.drive`) and a real gpsd (:class:`imudiag.bench.gnss.GnssFeed`) is fed
+the same drive's GNSS, paced by the board's sample time like the bench's
+``drive-aided``; the daemon runs with ``--aiding`` and its aiding batches in their
+worker process (``process``, as shipped), a thread (``thread``) or inline in the
+sampling loop (``inline``,
+as before). ``max_loop_gap_ms`` is then the longest wall time between two consecutive
+monitor updates after the warm-up: a batch that stalls the loop shows there.
+
+Run: ``.venv/bin/python -m benchmarks.latency [--rate 1000] [--duration 60]
+[--aiding process --aiding thread --aiding inline]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import signal
@@ -34,16 +45,19 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from imudiag.bench.gnss import GnssFeed
 from imudiag.bench.pty import PtyPair, _write_all
 from imudiag.certificate import load_default
+from imudiag.sim.board import SimulatedBoard
+from imudiag.sim.drive import DriveMotion, GnssSimConfig, drive_motion
 
-from .daemon_live import BoardStream, board_stream, rate_certificate
+from .daemon_live import BoardStream, board_stream, rate_certificate, split_frames
 from .procstat import cpu_seconds
 
 _TRACE_CAPACITY = 1 << 20  #: monitor updates recorded at most by the child
@@ -52,11 +66,19 @@ _TRACE_CAPACITY = 1 << 20  #: monitor updates recorded at most by the child
 class TimedWriter(threading.Thread):
     """Writes chunk i to ``fd`` at ``start + i / rate_hz`` s; stamps each write's return."""
 
-    def __init__(self, fd: int, chunks: Sequence[bytes], rate_hz: float) -> None:
+    def __init__(
+        self,
+        fd: int,
+        chunks: Sequence[bytes],
+        rate_hz: float,
+        after_write: Callable[[float], None] | None = None,
+    ) -> None:
         super().__init__(daemon=True, name="TimedWriter")
         self.fd = fd
         self.chunks = chunks
         self.period = 1.0 / rate_hz
+        #: called with the sample time (s) of each chunk after its write (the GNSS feed)
+        self.after_write = after_write
         self.done = np.full(len(chunks), np.nan)  #: monotonic s when the write returned
         self._stop_event = threading.Event()
 
@@ -70,6 +92,8 @@ class TimedWriter(threading.Thread):
                 break
             _write_all(self.fd, chunk, self._stop_event)
             self.done[i] = time.monotonic()
+            if self.after_write is not None:
+                self.after_write(i * self.period)
 
     def stop(self) -> None:
         """Stop writing and wait for the thread."""
@@ -90,6 +114,9 @@ def _child(argv: Sequence[str]) -> int:
         default=None,
         help="daemon read interval, s (default: the daemon's)",
     )
+    p.add_argument("--aiding", default=None, help="gpsd://HOST:PORT")
+    p.add_argument("--aiding-mode", default="process", help="where the aiding batches run")
+    p.add_argument("--switch-interval", type=float, default=None, help="GIL switch interval, s")
     a = p.parse_args(argv)
 
     from imudiag.service.config import default_config, merge_cli
@@ -101,8 +128,12 @@ def _child(argv: Sequence[str]) -> int:
     settings.diagnosis = not a.no_diagnosis
     if a.read_interval is not None:
         settings.read_interval_s = a.read_interval
+    settings.aiding_url = a.aiding
+    settings.aiding_batches = a.aiding_mode
     devnull = open(os.devnull, "w")  # noqa: SIM115 - lives as long as the process
     daemon = Daemon(settings, [JsonLinesSink(devnull)])
+    if a.switch_interval is not None:
+        sys.setswitchinterval(a.switch_interval)
     daemon.install_signal_handlers()
 
     t_first = np.zeros(_TRACE_CAPACITY)
@@ -125,7 +156,24 @@ def _child(argv: Sequence[str]) -> int:
     daemon.run()
     n = count[0]
     np.savez(a.trace, t_first=t_first[:n], t_last=t_last[:n], stamp=stamp[:n])
+    if daemon.aiding is not None:  # what the aiding did, for the figures
+        Path(a.trace + ".aiding.json").write_text(json.dumps(daemon.aiding.status()))
     return 0
+
+
+def drive_stream(
+    rate_hz: float, duration_s: float, seed: int = 0, route: str = "urban"
+) -> tuple[BoardStream, DriveMotion]:
+    """``duration_s`` s of the simulated board on a drive at ``rate_hz``, and its motion
+    (for the GNSS feed)."""
+    motion = drive_motion(route, duration_s + 30.0, seed)
+    board = SimulatedBoard(load_default(), motion, rate_hz, seed, duration_s=duration_s)
+    parts = []
+    while not board.exhausted:
+        data, _ = board.generate(int(rate_hz * 10))
+        parts.append(data)
+    chunks, times = split_frames(b"".join(parts))
+    return BoardStream(chunks, np.asarray(times, dtype=np.int64), float(rate_hz)), motion
 
 
 def match_latency(
@@ -154,11 +202,21 @@ def measure_latency(
     read_interval_s: float | None = None,
     warmup_s: float | None = None,
     seed: int = 0,
+    aiding: str | None = None,
+    switch_interval_s: float | None = None,
 ) -> dict[str, Any]:
-    """Latency percentiles (ms) of the F0 verdict at ``rate_hz`` over ``duration_s`` s."""
+    """Latency percentiles (ms) of the F0 verdict at ``rate_hz`` over ``duration_s`` s;
+    ``aiding``: None, ``"process"``, ``"thread"`` or ``"inline"`` (module doc)."""
     warm = warmup_s if warmup_s is not None else min(5.0, duration_s / 4)
-    stream = board_stream(load_default(), rate_hz, duration_s, seed)
-    with tempfile.TemporaryDirectory() as tmp, PtyPair() as pair:
+    with contextlib.ExitStack() as stack:
+        tmp = stack.enter_context(tempfile.TemporaryDirectory())
+        pair = stack.enter_context(PtyPair())
+        feed = None
+        if aiding is None:
+            stream = board_stream(load_default(), rate_hz, duration_s, seed)
+        else:
+            stream, motion = drive_stream(rate_hz, duration_s, seed)
+            feed = stack.enter_context(GnssFeed(motion, GnssSimConfig(), seed, tmp))
         cert_path = rate_certificate(rate_hz, Path(tmp))
         trace_path = Path(tmp) / "trace.npz"
         cmd = [
@@ -177,6 +235,10 @@ def measure_latency(
             cmd.append("--no-diagnosis")
         if read_interval_s is not None:
             cmd += ["--read-interval", str(read_interval_s)]
+        if switch_interval_s is not None:
+            cmd += ["--switch-interval", str(switch_interval_s)]
+        if feed is not None:
+            cmd += ["--aiding", feed.url, "--aiding-mode", str(aiding)]
         proc = subprocess.Popen(
             cmd,
             stdout=subprocess.PIPE,
@@ -189,7 +251,9 @@ def measure_latency(
             if proc.stdout.readline().strip() != "ready":
                 raise RuntimeError(f"latency child failed: {proc.stderr.read()[-2000:]}")
             time.sleep(0.5)  # the daemon opens the port after printing "ready"
-            writer = TimedWriter(pair.master_fd, stream.chunks, rate_hz)
+            writer = TimedWriter(
+                pair.master_fd, stream.chunks, rate_hz, None if feed is None else feed.send_until
+            )
             writer.start()
             writer.join(warm)
             cpu0, wall0 = cpu_seconds(proc.pid), time.monotonic()
@@ -203,6 +267,8 @@ def measure_latency(
             raise RuntimeError(f"latency child exited {proc.returncode}: {err[-2000:]}")
         with np.load(trace_path) as z:
             trace = {k: z[k] for k in z.files}
+        aid_path = Path(str(trace_path) + ".aiding.json")
+        aid = json.loads(aid_path.read_text()) if aid_path.exists() else None
     keep = stream.time_us * 1e-6 >= warm
     lat = match_latency(
         BoardStream(
@@ -214,15 +280,25 @@ def measure_latency(
         trace,
     )
     ms = 1e3 * lat
+    after = trace["t_first"] >= warm
+    gaps = np.diff(trace["stamp"][after]) if np.sum(after) > 1 else np.zeros(0)
     return {
         "rate_hz": rate_hz,
         "duration_s": duration_s,
         "diagnosis": diagnosis,
+        "aiding": aiding,
+        "switch_interval_s": switch_interval_s,
+        "max_loop_gap_ms": 1e3 * float(gaps.max()) if gaps.size else None,
+        # the daemon's last aiding status: batches run, F0 epochs checked, windows
+        "aiding_status": None
+        if aid is None
+        else {k: aid[k] for k in ("in_use", "reason", "batches", "f0", "windows", "latency_s")},
         "read_interval_s": read_interval_s,
         "frames": int(ms.size),
         "frames_written": int(np.count_nonzero(np.isfinite(writer.done))),
         "p50_ms": float(np.percentile(ms, 50)) if ms.size else None,
         "p99_ms": float(np.percentile(ms, 99)) if ms.size else None,
+        "p999_ms": float(np.percentile(ms, 99.9)) if ms.size else None,
         "max_ms": float(ms.max()) if ms.size else None,
         "blocks": int(trace["stamp"].size),
         # CPU of the instrumented daemon after the warm-up, % of one core
@@ -241,11 +317,29 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument(
         "--read-interval", type=float, action="append", help="daemon read interval(s) to compare, s"
     )
+    p.add_argument(
+        "--aiding",
+        choices=("process", "thread", "inline"),
+        action="append",
+        help="drive with GNSS aiding through gpsd, batches in a process, a thread or inline "
+        "(repeatable, to compare)",
+    )
+    p.add_argument(
+        "--switch-interval",
+        type=float,
+        action="append",
+        help="the daemon's GIL switch interval(s) to compare, s (default: the daemon's)",
+    )
     a = p.parse_args(argv)
     for rate in a.rate or [1000.0]:
         for interval in a.read_interval or [None]:
-            r = measure_latency(rate, a.duration, not a.no_diagnosis, interval)
-            print(json.dumps(r))
+            for aiding in a.aiding or [None]:
+                for switch in a.switch_interval or [None]:
+                    r = measure_latency(
+                        rate, a.duration, not a.no_diagnosis, interval, aiding=aiding,
+                        switch_interval_s=switch,
+                    )  # fmt: skip
+                    print(json.dumps(r), flush=True)
     return 0
 
 

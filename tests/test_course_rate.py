@@ -239,7 +239,9 @@ def test_daemon_aiding_checks_the_gyros_in_turns(fault_limits):
     s = res.samples
     now = [0.0]
     with socket.create_server(("127.0.0.1", 0)) as srv:
-        aid = LiveAiding(f"gpsd://127.0.0.1:{srv.getsockname()[1]}", cert, clock=lambda: now[0])
+        aid = LiveAiding(
+            f"gpsd://127.0.0.1:{srv.getsockname()[1]}", cert, clock=lambda: now[0], mode="inline"
+        )
         aid.update(None)  # connects
         conn, _ = srv.accept()
         with conn:

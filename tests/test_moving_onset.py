@@ -180,7 +180,8 @@ def test_daemon_aiding_through_a_gpsd_socket_names_the_az_group_alone():
     t_fault = sc.sensor_injections[0].fault().t_s
     with socket.create_server(("127.0.0.1", 0)) as srv:
         port = srv.getsockname()[1]
-        aiding = LiveAiding(f"gpsd://127.0.0.1:{port}", cert, MovingConfig())
+        # inline batches: each one runs in update(), so the windows are seen as they close
+        aiding = LiveAiding(f"gpsd://127.0.0.1:{port}", cert, MovingConfig(), mode="inline")
         aiding.update(None)  # connects and sends ?WATCH
         conn, _ = srv.accept()
         with conn:
@@ -194,9 +195,9 @@ def test_daemon_aiding_through_a_gpsd_socket_names_the_az_group_alone():
                 while k < len(lines) and lines[k][0] <= now:
                     conn.sendall(lines[k][1])
                     k += 1
-                windows = aiding.windows
+                windows = aiding.published.windows
                 aiding.update(block)
-                if aiding.windows > windows:
+                if aiding.published.windows > windows:
                     onsets.append(aiding.status()["onset"])
                 for f in aiding.faults():
                     if f["cause"] == "f0":  # F0 in motion: allowed (the scenario's "also")

@@ -132,6 +132,49 @@ def row_noise_variance(gyro_sigma_si: float, samples_per_epoch: float, epoch_s: 
     return 2.0 * gyro_sigma_si**2 / max(samples_per_epoch, 1.0) / (2.0 * epoch_s) ** 2
 
 
+def row_noise_correction(
+    unit_f: np.ndarray, weights: np.ndarray, row_noise_var: float
+) -> np.ndarray:
+    """What the noise of the lever-arm rows adds to the normal matrix (3, 3): a row's
+    noise is u x delta with delta the angular-acceleration noise (variance
+    ``row_noise_var`` (rad/s^2)^2 per axis), covariance s^2 (I - u u^T); ``weights``
+    (K,) the epochs' weights, 1 / (m/s^2)^2."""
+    proj = np.eye(3)[None] - unit_f[:, :, None] * unit_f[:, None, :]
+    return row_noise_var * np.einsum("k,kij->ij", weights, proj)
+
+
+def weighted_solve(
+    h: np.ndarray, y: np.ndarray, var: np.ndarray, correction: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Weighted least squares y = h x with variances ``var`` (K,): (x, cov, std,
+    chi^2/dof); ``correction`` is subtracted from the normal matrix (noisy regressors).
+    A pseudo-inverse keeps unexcited directions at 0 (a straight drive has no rotation
+    terms); their parameters get an infinite std. The covariance is inflated by
+    chi^2/dof when the data scatter more than ``var`` says."""
+    wts = 1.0 / var
+    normal = h.T @ (h * wts[:, None])
+    if correction is not None:
+        normal -= correction
+    rhs = h.T @ (y * wts)
+    scale = np.sqrt(np.maximum(np.diag(normal), 1e-300))
+    ns = normal / np.outer(scale, scale)
+    evals, evecs = np.linalg.eigh(ns)
+    keep = evals > 1e-9 * max(float(evals.max()), 1e-300)
+    inv = (evecs[:, keep] / evals[keep]) @ evecs[:, keep].T / np.outer(scale, scale)
+    x = inv @ rhs
+    res = y - h @ x
+    dof = max(y.size - int(np.sum(keep)), 1)
+    chi2_dof = float(np.sum(res * res * wts)) / dof
+    cov = inv * max(chi2_dof, 1.0)
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    # an eigen-direction dropped as unexcited leaves its parameters undetermined
+    weak = ~keep
+    if np.any(weak):
+        unexcited = np.any(np.abs(evecs[:, weak]) > 0.1, axis=1)
+        std = np.where(unexcited, np.inf, std)
+    return x, cov, std, chi2_dof
+
+
 def solve_lever_arm(
     rows: np.ndarray,
     mismatch: np.ndarray,
@@ -160,31 +203,13 @@ def solve_lever_arm(
             f"{n} usable GNSS epochs, {min_epochs} needed",
         )  # fmt: skip
     h = np.column_stack([rows[ok], np.ones(n)])
-    wts = 1.0 / var[ok]
-    normal = h.T @ (h * wts[:, None])
+    correction = None
     if unit_f is not None and row_noise_var > 0:
-        u = np.asarray(unit_f, dtype=float)[ok]
-        proj = np.eye(3)[None] - u[:, :, None] * u[:, None, :]
-        normal[:3, :3] -= row_noise_var * np.einsum("k,kij->ij", wts, proj)
-    rhs = h.T @ (y[ok] * wts)
-    # the rotation terms of a straight drive are zero: a pseudo-inverse keeps the
-    # unexcited axes at 0 with an infinite std instead of failing
-    scale = np.sqrt(np.maximum(np.diag(normal), 1e-300))
-    ns = normal / np.outer(scale, scale)
-    evals, evecs = np.linalg.eigh(ns)
-    keep = evals > 1e-9 * max(float(evals.max()), 1e-300)
-    inv = (evecs[:, keep] / evals[keep]) @ evecs[:, keep].T / np.outer(scale, scale)
-    x = inv @ rhs
-    res = y[ok] - h @ x
-    dof = max(n - int(np.sum(keep)), 1)
-    chi2_dof = float(np.sum(res * res * wts)) / dof
-    cov = inv * max(chi2_dof, 1.0)
-    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    # an eigen-direction dropped as unexcited leaves its axes undetermined
-    weak = ~keep
-    if np.any(weak):
-        unexcited = np.any(np.abs(evecs[:, weak]) > 0.1, axis=1)
-        std = np.where(unexcited, np.inf, std)
+        correction = np.zeros((4, 4))
+        correction[:3, :3] = row_noise_correction(
+            np.asarray(unit_f, dtype=float)[ok], 1.0 / var[ok], row_noise_var
+        )
+    x, cov, std, chi2_dof = weighted_solve(h, y[ok], var[ok], correction)
     lever, lever_std = x[:3], std[:3]
     determined = lever_std <= determined_std_m
     reason = ""
@@ -196,4 +221,10 @@ def solve_lever_arm(
     return LeverArmEstimate(lever, lever_std, determined, float(x[3]), n, chi2_dof, reason)
 
 
-__all__ = ["LeverArmEstimate", "lever_arm_rows", "solve_lever_arm"]
+__all__ = [
+    "LeverArmEstimate",
+    "lever_arm_rows",
+    "row_noise_correction",
+    "solve_lever_arm",
+    "weighted_solve",
+]

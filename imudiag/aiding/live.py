@@ -11,18 +11,28 @@ Every ``batch_s`` of fixes the new GNSS epochs are checked (F0 in motion,
 :mod:`.moving`; a fault when 5 of the last 10 epochs fail) and their means
 kept, and the gyros are checked in the buffer's turns against the GNSS course
 rate (:mod:`.course_rate`, no-slip assumption; faults latched); every
-``step_s`` the isolation runs over the last ``window_s`` (:mod:`.isolation`).
-The IMU buffer keeps ``window_s`` + 30 s. :meth:`status` says whether aiding
-is in use and why not: gpsd not reachable, no TPV yet, an outage, no 3D fix,
-still collecting.
+``step_s`` the isolation runs over the last ``window_s`` (:mod:`.isolation`,
+with the onset test of :mod:`.onset`). The IMU buffer keeps ``window_s`` + 30 s. :meth:`status`
+says whether aiding is in use and why not: gpsd not reachable, no TPV yet, an
+outage, no 3D fix, still collecting.
+
+A batch (latency search, lever arm, isolation) costs up to about 0.5 s of CPU
+per minute of fixes at 200 Hz, several at 1 kHz: it runs in a worker process
+(:mod:`.worker`), so the sampling loop only gathers samples and fixes, hands a
+batch the new ones (:class:`BatchInput`; the batches keep the IMU buffer) and
+reads the last published :class:`BatchResult`. ``mode="thread"`` or
+``"inline"`` run the same batches in a thread or in :meth:`LiveAiding.update`
+(offline, deterministic tests).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -39,75 +49,102 @@ from .moving import (
     epoch_observations,
     estimate_lever_arm,
     gyro_noise_si,
+    solve_jointly,
 )
 from .onset import isolate_window
 from .specific_force import GnssEpochs, ImuEpochs, gnss_epochs, imu_epochs
 from .tpv import GnssTrack, track_from_reports
+from .worker import JOIN_TIMEOUT_S, BatchWorker
 
 #: F0 in motion is a fault when k of the last n checked epochs fail
 F0_PERSIST_K, F0_PERSIST_N = 5, 10
 
 
-class LiveAiding:
-    """GNSS aiding of the daemon (module doc)."""
+@dataclass(frozen=True)
+class BatchInput:
+    """What the sampling loop hands a batch: the IMU samples that arrived since the last
+    batch (the batches keep the buffer of ``buffer_s``; the loop copies nothing big and
+    concatenates nothing per block), the fixes over the buffer, the clock offset and the
+    certificate with its version (a reload is applied by the batch that first sees it)."""
 
-    def __init__(
-        self,
-        url: str,
-        certificate: Certificate,
-        cfg: MovingConfig | None = None,
-        batch_s: float = 10.0,
-        outage_s: float = 2.0,
-        client: GpsdClient | None = None,
-        clock: Callable[[], float] = time.monotonic,
-        reconnect_min_s: float = 0.5,
-        reconnect_max_s: float = 10.0,
-    ) -> None:
-        self.url = url
+    t: np.ndarray  #: new IMU sample times, s (device clock)
+    accel: np.ndarray  #: (N, 3) new raw accelerometer samples, certificate units
+    gyro: np.ndarray  #: (N, 3) new raw gyro samples, certificate units
+    fixes: list[dict]  #: parsed TPV reports over the buffer, oldest first
+    offset_s: float  #: clock offset, s: UTC = device time + offset
+    certificate: Certificate
+    certificate_version: int = 0  #: 0 at start, +1 per reload
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    """What a batch publishes (the loop reads it for :meth:`LiveAiding.status`)."""
+
+    batches: int = 0  #: batches completed so far (a failed one is not counted)
+    latency_s: float = 0.0
+    latency_note: str = "not yet estimated"
+    lever_estimate: LeverArmEstimate | None = None
+    joint: dict = field(default_factory=dict)  #: the joint latency-lever solution's report
+    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    last_batch: dict = field(default_factory=dict)
+    f0_checked: int = 0
+    f0_failed: int = 0
+    f0_fault: bool = False
+    windows: int = 0
+    raised: tuple[dict, ...] = ()  #: the isolation's latched faults
+    #: the last isolation window's onset test (:mod:`.onset`), None before the first
+    onset: dict | None = None
+    #: the gyros in turns over the buffer (:mod:`.course_rate`), and the latched gyro
+    #: faults as (sensor, cause), sorted
+    turns: dict = field(
+        default_factory=lambda: {"verdict": "unknown", "reason": "no GNSS epoch checked yet"}
+    )
+    gyro_faults: tuple[tuple[str, str], ...] = ()
+    certificate_version: int = 0  #: the certificate version the batches use
+
+
+class AidingBatches:
+    """The state the batches carry from one to the next (epoch history, isolation
+    tracker, latency and lever arm), the IMU buffer of ``buffer_s`` s, and the batch
+    itself (call the instance with a :class:`BatchInput`). One caller at a time: the
+    worker process or thread, or the loop in inline mode."""
+
+    def __init__(self, certificate: Certificate, cfg: MovingConfig, buffer_s: float) -> None:
         self.cert = certificate
-        self.cfg = cfg or MovingConfig()
-        self.batch_s = batch_s
-        self.outage_s = outage_s
-        self.clock = clock
-        self.client = client or GpsdClient(
-            url, min_backoff_s=reconnect_min_s, max_backoff_s=reconnect_max_s, clock=clock
-        )
-        self.buffer_s = self.cfg.window_s + 30.0
+        self.cert_version = 0
+        self.cfg = cfg
+        self.buffer_s = buffer_s
         self._t = np.zeros(0)
         self._acc = np.zeros((0, 3))
         self._gyr = np.zeros((0, 3))
-        self.fixes: list[dict] = []
-        self.offsets: deque[float] = deque(maxlen=50)
-        self.last_fix_wall: float | None = None
-        self.last_mode = 0
+        self.batches = 0
         self.f0_checked = 0
         self.f0_failed = 0
         self._recent: deque[bool] = deque(maxlen=F0_PERSIST_N)  #: last epochs' F0 failures
         self.f0_fault = False
-        self.tracker = IsolationTracker(self.cfg.persist)
+        self.tracker = IsolationTracker(cfg.persist)
         self._hist_t = np.zeros(0)
         self._hist_means = np.zeros((0, 3))
         self._hist_var = np.zeros((0, 3))
         self._hist_mag = np.zeros(0)
         self._done_t = -math.inf  #: end (GNSS time) of the last epoch checked
-        self._batch_t = -math.inf  #: GNSS time of the last batch
         self._window_t = -math.inf  #: GNSS time of the last isolation window
-        self._last_batch_wall: float | None = None
-        self.latency_s = self.cfg.latency_s if self.cfg.latency_s is not None else 0.0
-        self.latency_determined = self.cfg.latency_s is not None
-        self.latency_note = "configured" if self.cfg.latency_s is not None else "not yet estimated"
+        self.latency_s = cfg.latency_s if cfg.latency_s is not None else 0.0
+        self.latency_determined = cfg.latency_s is not None
+        self.latency_note = "configured" if cfg.latency_s is not None else "not yet estimated"
         self.windows = 0
         #: the last isolation window's onset test (:mod:`.onset`), None before the first
         self.last_onset: dict | None = None
         self.last_batch: dict = {}  #: GNSS epochs of the last batch: total, valid, rejected
         #: the lever arm estimate over the buffer (None before the first), and the one used
         self.lever_estimate: LeverArmEstimate | None = None
-        self.lever_arm_m = np.asarray(self.cfg.lever_arm_m or (0.0, 0.0, 0.0), dtype=float)
+        self.lever_arm_m = np.asarray(cfg.lever_arm_m or (0.0, 0.0, 0.0), dtype=float)
+        self.joint: dict = {}  #: the joint latency and lever solution (:mod:`.joint`) reported
         #: the gyros in turns over the buffer (status ``gyro_turns``); latched gyro faults
         self.turns: dict = {"verdict": "unknown", "reason": "no GNSS epoch checked yet"}
         self.gyro_faults: dict[tuple[str, str], dict] = {}
 
-    def set_certificate(self, cert: Certificate) -> None:
+    def _set_certificate(self, cert: Certificate) -> None:
         """A reloaded certificate: the history corrected with the old one is dropped."""
         self.cert = cert
         self._hist_t = self._hist_t[:0]
@@ -117,42 +154,50 @@ class LiveAiding:
         self.tracker = IsolationTracker(self.cfg.persist)
         self.gyro_faults = {}
 
-    # -- input -------------------------------------------------------------
+    def result(self) -> BatchResult:
+        """The state as published."""
+        lever = self.lever_arm_m
+        return BatchResult(
+            batches=self.batches,
+            latency_s=float(self.latency_s),
+            latency_note=self.latency_note,
+            lever_estimate=self.lever_estimate,
+            joint=dict(self.joint),
+            lever_arm_m=(float(lever[0]), float(lever[1]), float(lever[2])),
+            last_batch=dict(self.last_batch),
+            f0_checked=self.f0_checked,
+            f0_failed=self.f0_failed,
+            f0_fault=self.f0_fault,
+            windows=self.windows,
+            raised=tuple(dict(f) for f in self.tracker.raised),
+            onset=None if self.last_onset is None else dict(self.last_onset),
+            turns=dict(self.turns),
+            gyro_faults=tuple(sorted(self.gyro_faults)),
+            certificate_version=self.cert_version,
+        )
 
-    def update(self, block: SampleBlock | None) -> None:
-        """Take new IMU samples (or None), read gpsd, check new epochs when a batch is due."""
-        if block is not None and len(block):
-            self._t = np.concatenate([self._t, block.t])
-            self._acc = np.concatenate([self._acc, block.accel])
-            self._gyr = np.concatenate([self._gyr, block.gyro])
+    def __call__(self, job: BatchInput) -> BatchResult:
+        """Take the new samples of ``job`` into the buffer (the last ``buffer_s`` s), run
+        one batch (module doc) and return the state to publish."""
+        if job.certificate_version != self.cert_version:
+            self.cert_version = job.certificate_version
+            self._set_certificate(job.certificate)
+        if job.t.size:
+            self._t = np.concatenate([self._t, job.t])
+            self._acc = np.concatenate([self._acc, job.accel])
+            self._gyr = np.concatenate([self._gyr, job.gyro])
             keep = self._t >= self._t[-1] - self.buffer_s
             if not keep[0]:
                 self._t, self._acc, self._gyr = self._t[keep], self._acc[keep], self._gyr[keep]
-        reports = self.client.poll()
-        now = self.clock()
-        for r in reports:
-            self.last_fix_wall = now
-            self.last_mode = r["mode"]
-            if self._t.size:
-                self.offsets.append(r["t"] - self._t[-1])
-            self.fixes.append(r)
-        if reports:
-            horizon = self.fixes[-1]["t"] - self.buffer_s
-            if self.fixes[0]["t"] < horizon:
-                self.fixes = [f for f in self.fixes if f["t"] >= horizon]
-            if self.fixes[-1]["t"] - self._batch_t >= self.batch_s and self._t.size > 10:
-                self._process()
+        self._process(job)  # a failure here leaves the state as far as it got
+        self.batches += 1
+        return self.result()
 
-    # -- processing ----------------------------------------------------------
-
-    def _process(self) -> None:
+    def _process(self, job: BatchInput) -> None:
         cfg = self.cfg
         acc = self.cert.accel
-        self._batch_t = self.fixes[-1]["t"]
-        self._last_batch_wall = self.clock()
-        offset = float(np.median(self.offsets)) if self.offsets else 0.0
-        t_utc = self._t + offset
-        track = track_from_reports(self.fixes)
+        t_utc = self._t + job.offset_s
+        track = track_from_reports(job.fixes)
         period = track.period_s()
         if not math.isfinite(period) or period <= 0:
             return
@@ -179,6 +224,17 @@ class LiveAiding:
             self.lever_estimate = estimate_lever_arm(
                 t_utc, w_si, self._gyr, self.cert.gyro, ep, plain, self.latency_s, rate
             )
+            if cfg.lever_arm_m is None and est.determined:
+                lat, self.lever_estimate, self.joint = solve_jointly(
+                    t_utc, f_si, w_si, self._gyr, self.cert.gyro, ep, sig, rate,
+                    self.latency_s, self.lever_estimate, cfg.max_latency_s,
+                )  # fmt: skip
+                if self.joint["used"]:
+                    self.latency_s = lat
+                    self.latency_note = (
+                        f"estimated (correlation {est.correlation:.2f}), solved with the "
+                        f"lever arm (std {1e3 * self.joint['latency_std_s']:.3g} ms)"
+                    )
             if cfg.lever_arm_m is None:
                 self.lever_arm_m = self.lever_estimate.used()
         sig_raw = accel_noise(self._acc, acc.noise_sigma(rate))
@@ -243,19 +299,130 @@ class LiveAiding:
         self.turns["span_s"] = round(float(ep.t1[-1] - ep.t0[0]), 1)
         self.turns["determined"] = [f"{d['sensor']} {d['cause']}" for d in rep["determined"]]
 
+
+class LiveAiding:
+    """GNSS aiding of the daemon (module doc).
+
+    ``mode`` (:class:`~.worker.BatchWorker`): ``"process"`` (default, the daemon) runs
+    the batches in a worker process, ``"thread"`` in a thread, ``"inline"`` in
+    :meth:`update` itself; the same results for the same inputs. :meth:`update` only
+    gathers samples and fixes and hands a :class:`BatchInput` over when a batch is due
+    and the worker is idle (a due batch waits for a later call otherwise)."""
+
+    def __init__(
+        self,
+        url: str,
+        certificate: Certificate,
+        cfg: MovingConfig | None = None,
+        batch_s: float = 10.0,
+        outage_s: float = 2.0,
+        client: GpsdClient | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        reconnect_min_s: float = 0.5,
+        reconnect_max_s: float = 10.0,
+        mode: str = "process",
+    ) -> None:
+        self.url = url
+        self.cert = certificate
+        self.cfg = cfg or MovingConfig()
+        self.batch_s = batch_s
+        self.outage_s = outage_s
+        self.clock = clock
+        self.client = client or GpsdClient(
+            url, min_backoff_s=reconnect_min_s, max_backoff_s=reconnect_max_s, clock=clock
+        )
+        self.buffer_s = self.cfg.window_s + 30.0
+        #: samples not yet handed to a batch: (t, accel, gyro) per block
+        self._pending: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = deque()
+        self._t_last: float | None = None  #: newest sample time, s
+        self._samples = 0  #: samples taken
+        self._cert_version = 0
+        self.fixes: list[dict] = []
+        self.offsets: deque[float] = deque(maxlen=50)
+        self.last_fix_wall: float | None = None
+        self.last_mode = 0
+        self._batch_t = -math.inf  #: GNSS time of the last batch handed over
+        self._last_batch_wall: float | None = None
+        self.worker: BatchWorker[BatchInput, BatchResult] = BatchWorker(
+            functools.partial(AidingBatches, certificate, self.cfg, self.buffer_s),
+            mode=mode,
+            name="aiding-batch",
+        )
+        self._initial = BatchResult(
+            latency_s=self.cfg.latency_s if self.cfg.latency_s is not None else 0.0,
+            latency_note="configured" if self.cfg.latency_s is not None else "not yet estimated",
+            lever_arm_m=tuple(float(x) for x in (self.cfg.lever_arm_m or (0.0, 0.0, 0.0))),  # type: ignore[arg-type]
+        )
+
+    def set_certificate(self, cert: Certificate) -> None:
+        """A reloaded certificate, applied at the next batch (which drops the history
+        corrected with the old one)."""
+        self.cert = cert
+        self._cert_version += 1
+
+    @property
+    def published(self) -> BatchResult:
+        """The last published batch result (before the first: the initial state)."""
+        return self.worker.result or self._initial
+
+    # -- input -------------------------------------------------------------
+
+    def update(self, block: SampleBlock | None) -> None:
+        """Take new IMU samples (or None), read gpsd, hand a batch over when one is due."""
+        if block is not None and len(block):
+            self._pending.append((block.t, block.accel, block.gyro))
+            self._t_last = float(block.t[-1])
+            self._samples += len(block)
+            # blocks the batch would drop from its buffer anyway (a worker long busy)
+            while self._pending[0][0][-1] < self._t_last - self.buffer_s:
+                self._pending.popleft()
+        reports = self.client.poll()
+        now = self.clock()
+        for r in reports:
+            self.last_fix_wall = now
+            self.last_mode = r["mode"]
+            if self._t_last is not None:
+                self.offsets.append(r["t"] - self._t_last)
+            self.fixes.append(r)
+        if reports:
+            horizon = self.fixes[-1]["t"] - self.buffer_s
+            if self.fixes[0]["t"] < horizon:
+                self.fixes = [f for f in self.fixes if f["t"] >= horizon]
+        if (
+            self.fixes
+            and self.fixes[-1]["t"] - self._batch_t >= self.batch_s
+            and self._samples > 10
+            and not self.worker.busy
+        ):
+            new = list(self._pending)
+            job = BatchInput(
+                np.concatenate([b[0] for b in new]) if new else np.zeros(0),
+                np.concatenate([b[1] for b in new]) if new else np.zeros((0, 3)),
+                np.concatenate([b[2] for b in new]) if new else np.zeros((0, 3)),
+                list(self.fixes),
+                float(np.median(self.offsets)) if self.offsets else 0.0,
+                self.cert,
+                self._cert_version,
+            )
+            if self.worker.submit(job):
+                self._pending.clear()
+                self._batch_t = self.fixes[-1]["t"]
+                self._last_batch_wall = now
+
     # -- status ----------------------------------------------------------------
 
     def faults(self) -> list[dict]:
         """Faults for the status ``faults`` list: named ones as (triad, sensor, cause),
         groups with ``|``-joined sensors and causes and their ``one_of``."""
+        res = self.published
         out: list[dict] = []
-        if self.f0_fault:
+        if res.f0_fault:
             out.append({"triad": "accel", "cause": "f0", "source": "moving_base"})
-        for (sensor, cause), _ in sorted(self.gyro_faults.items()):
+        for sensor, cause in res.gyro_faults:
             out.append({"triad": "gyro", "cause": cause, "source": "moving_base"})
             if sensor:
                 out[-1]["sensor"] = sensor
-        for f in self.tracker.raised:
+        for f in res.raised:
             if f["named"]:
                 out.append(
                     {
@@ -281,6 +448,8 @@ class LiveAiding:
 
     def status(self) -> dict:
         """The ``aiding`` object of the daemon's status."""
+        res = self.published
+        worker = self.worker
         now = self.clock()
         age = None if self.last_fix_wall is None else now - self.last_fix_wall
         reason = ""
@@ -292,9 +461,9 @@ class LiveAiding:
             reason = f"GNSS outage: no fix for {age:.1f} s; the static checks carry on at stops"
         elif self.last_mode < 3:
             reason = f"no 3D fix (mode {self.last_mode}): no vertical velocity"
-        elif self._t.size == 0:
+        elif self._samples == 0:
             reason = "no IMU samples"
-        elif self.f0_checked == 0:
+        elif res.f0_checked == 0:
             reason = f"collecting GNSS epochs (first check after {self.batch_s:g} s of fixes)"
         out: dict = {
             "source": self.url,
@@ -304,24 +473,38 @@ class LiveAiding:
             "fixes": self.client.counters.tpv,
             "last_fix_age_s": None if age is None else round(age, 3),
             "mode": self.last_mode,
-            "f0": {"checked": self.f0_checked, "failed": self.f0_failed, "fault": self.f0_fault},
-            "windows": self.windows,
-            "onset": self.last_onset,
-            "last_batch": self.last_batch,
-            "latency_s": round(self.latency_s, 4),
-            "latency": self.latency_note,
+            "f0": {"checked": res.f0_checked, "failed": res.f0_failed, "fault": res.f0_fault},
+            "windows": res.windows,
+            "onset": res.onset,
+            "last_batch": res.last_batch,
+            "latency_s": round(res.latency_s, 4),
+            "latency": res.latency_note,
             "clock_offset_s": round(float(np.median(self.offsets)), 4) if self.offsets else None,
-            "lever_arm_m": [round(float(x), 3) for x in self.lever_arm_m],
+            "lever_arm_m": [round(float(x), 3) for x in res.lever_arm_m],
             "lever_arm": dict(
-                self.lever_estimate.to_json() if self.lever_estimate else {},
+                res.lever_estimate.to_json() if res.lever_estimate else {},
                 configured=self.cfg.lever_arm_m is not None,
             ),
-            "gyro_turns": dict(self.turns, faults=[list(k) for k in sorted(self.gyro_faults)]),
+            "gyro_turns": dict(res.turns, faults=[list(k) for k in res.gyro_faults]),
+            "latency_lever": res.joint,
+            # the batches: how they run, how many ran, the last failure (kept, not fatal)
+            "batches": {
+                "mode": worker.mode,
+                "submitted": worker.submitted,
+                "published": res.batches,
+                "running": worker.busy,
+                "errors": worker.errors,
+                "last_error": worker.last_error,
+                "certificate_version": res.certificate_version,
+            },
         }
         return out
 
-    def close(self) -> None:
+    def close(self, timeout_s: float = JOIN_TIMEOUT_S) -> None:
+        """Stop the batch worker (waits at most ``timeout_s`` s for a running batch) and
+        disconnect from gpsd."""
+        self.worker.close(timeout_s)
         self.client.close()
 
 
-__all__ = ["LiveAiding"]
+__all__ = ["AidingBatches", "BatchInput", "BatchResult", "LiveAiding"]

@@ -42,6 +42,7 @@ from ..samples import SampleBlock
 from .align import LatencyEstimate, estimate_latency
 from .course_rate import turn_check
 from .isolation import IsolationTracker
+from .joint import choose, solve_latency_lever
 from .lever_arm import LeverArmEstimate, lever_arm_rows, row_noise_variance, solve_lever_arm
 from .onset import isolate_window
 from .specific_force import GateConfig, GnssEpochs, ImuEpochs, gnss_epochs, imu_epochs
@@ -173,6 +174,12 @@ def moving_base_diagnosis(
         sigma_sample_si=sig_si, latency_s=latency,
     )  # fmt: skip
     est = estimate_lever_arm(t, w_si, block.gyro, gyr, ep, plain, latency, rate)
+    if cfg.latency_s is None and cfg.lever_arm_m is None and lat.determined:
+        latency, est, joint = solve_jointly(
+            t, f_si, w_si, block.gyro, gyr, ep, sig_si, rate, latency, est, cfg.max_latency_s
+        )
+        report["gnss"]["latency"]["used_s"] = round(latency, 4)
+        report["gnss"]["latency_lever"] = joint
     lever = est.used() if cfg.lever_arm_m is None else np.asarray(cfg.lever_arm_m, float)
     report["gnss"]["lever_arm_m"] = [round(float(x), 3) for x in lever]
     report["gnss"]["lever_arm"] = dict(
@@ -219,9 +226,7 @@ def estimate_lever_arm(
     certificate's and the one measured from the data (vibration)."""
     use = ep.valid & plain.covered & np.isfinite(plain.mag)
     rows = lever_arm_rows(t, w_si, ep.t0, ep.t1, plain.mean_si, latency_s)
-    sig = gyro_noise_si(gyro_raw, gyro, rate_hz)
-    epoch_s = float(np.median(ep.t1 - ep.t0)) if len(ep) else 1.0
-    rv = row_noise_variance(float(np.max(sig)), rate_hz * epoch_s, epoch_s)
+    rv = lever_row_noise(gyro_raw, gyro, ep, rate_hz)
     with np.errstate(invalid="ignore", divide="ignore"):
         u = plain.mean_si / plain.mag[:, None]
     return solve_lever_arm(
@@ -231,6 +236,40 @@ def estimate_lever_arm(
         u[use],
         rv,
     )
+
+
+def lever_row_noise(
+    gyro_raw: np.ndarray, gyro: TriadModel, ep: GnssEpochs, rate_hz: float
+) -> float:
+    """Variance (rad/s^2)^2 per axis of the lever-arm rows' angular acceleration
+    (:func:`.lever_arm.row_noise_variance`) from the gyro noise (rad/s per sample: the
+    larger of the certificate's and the one measured from the data)."""
+    sig = gyro_noise_si(gyro_raw, gyro, rate_hz)
+    epoch_s = float(np.median(ep.t1 - ep.t0)) if len(ep) else 1.0
+    return row_noise_variance(float(np.max(sig)), rate_hz * epoch_s, epoch_s)
+
+
+def solve_jointly(
+    t: np.ndarray,
+    f_si: np.ndarray,
+    w_si: np.ndarray,
+    gyro_raw: np.ndarray,
+    gyro: TriadModel,
+    ep: GnssEpochs,
+    sig_si: np.ndarray,
+    rate_hz: float,
+    latency_s: float,
+    lever: LeverArmEstimate,
+    max_latency_s: float,
+) -> tuple[float, LeverArmEstimate, dict]:
+    """Latency and lever arm solved together from the separate ``latency_s`` (s) and
+    ``lever`` (:mod:`.joint`): (latency, lever estimate, report), the joint ones where
+    they are well determined, else the separate ones."""
+    joint = solve_latency_lever(
+        t, f_si, w_si, ep, latency_s, sigma_sample_si=sig_si,
+        row_noise_var=lever_row_noise(gyro_raw, gyro, ep, rate_hz), max_latency_s=max_latency_s,
+    )  # fmt: skip
+    return choose(joint, latency_s, lever)
 
 
 def _f0_in_motion(ep: GnssEpochs, im: ImuEpochs, use: np.ndarray, limit: float, k: float) -> dict:
@@ -419,5 +458,7 @@ __all__ = [
     "epoch_observations",
     "estimate_lever_arm",
     "gyro_noise_si",
+    "lever_row_noise",
+    "solve_jointly",
     "moving_base_diagnosis",
 ]

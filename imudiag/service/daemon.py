@@ -100,6 +100,9 @@ class DaemonSettings:
     #: GNSS aiding: gpsd://HOST:PORT, or None (docs/moving-base.md)
     aiding_url: str | None = None
     aiding_options: dict[str, Any] = field(default_factory=dict)
+    #: where the aiding batches run: "process" (a worker process), "thread", or "inline"
+    #: (in the sampling loop, which then stalls for each batch; for comparisons)
+    aiding_batches: str = "process"
 
 
 class _ReloadThread(threading.Thread):
@@ -193,6 +196,7 @@ class Daemon:
             MovingConfig(**self.settings.aiding_options),
             reconnect_min_s=self.settings.reconnect_min_s,
             reconnect_max_s=self.settings.reconnect_max_s,
+            mode=self.settings.aiding_batches,
         )
 
     def install_signal_handlers(self) -> None:
