@@ -76,7 +76,8 @@ def main(argv: list[str] | None = None) -> int:
                 withheld = sum(1 for o in onsets if "withheld" in o)
                 print(
                     f"{sc:8s} {grade:8s} {name:28s} raised: {describe(out)}; "
-                    f"latency {lat['latency_s']} s (true 0.12); "
+                    f"latency {lat['latency_s']} s (true 0.12, std {lat.get('std_s')} s, "
+                    f"determined {lat['determined']}, used {lat['used_s']} s); "
                     f"F0 failed {out['f0']['failed']}/{out['f0']['checked']}; "
                     f"onset in {len(onsets)} of {len(out['windows'])} windows "
                     f"({withheld} withheld); "

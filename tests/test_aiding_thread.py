@@ -149,7 +149,11 @@ def test_batches_off_the_loop_equal_the_inline_ones(drive, mode):
         assert st["batches"]["errors"] == 0 and st["batches"]["published"] == batches >= 20
         assert st["windows"] >= 2 and st["f0"]["checked"] > 100
         # the joint latency-lever solution ran and says whether it was used
-        assert st["latency"].startswith("estimated")
+        # the latency's std is reported; on this MEMS drive it is above the 30 ms tolerance
+        # and the note says so (the best estimate is used, its std widening the checks)
+        assert st["latency_std_s"] > 0
+        assert st["latency"].startswith("estimated" if st["latency_std_s"] <= 0.03 else "undet")
+        assert f"std {1e3 * st['latency_std_s']:.0f} ms" in st["latency"]
         assert set(st["latency_lever"]) >= {"latency_s", "latency_std_s", "used", "note"}
         assert any(f["source"] == "moving_base" and "az" in f["sensor"] for f in threaded.faults())
     finally:

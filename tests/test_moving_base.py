@@ -78,9 +78,12 @@ def test_clean_drive_raises_nothing(scenario):
     out = run(scenario, seed=11)
     assert out["verdict"] == "ok", out["faults"]
     assert out["faults"] == []
-    assert out["gnss"]["latency"]["determined"]
-    # simulated latency 0.12 s; stated tolerance 0.02 s
-    assert out["gnss"]["latency"]["latency_s"] == pytest.approx(0.12, abs=0.02)
+    lat = out["gnss"]["latency"]
+    # determined only within the 0.03 s tolerance (std 52 ms on the urban MEMS drive):
+    # the best estimate is used anyway, its std widening the checks
+    assert lat["determined"] == (lat["used_std_s"] <= 0.03)
+    # simulated latency 0.12 s
+    assert lat["latency_s"] == pytest.approx(0.12, abs=0.02)
     assert out["f0"]["failed"] == 0
     assert out["gyro"]["determined"] is False
 
@@ -189,8 +192,13 @@ def test_real_drive_moving_base():
         read_log(REAL / "imu.csv.gz"), cert, read_gpspipe_log(REAL / "gnss.tpv.json.gz")
     )
     assert out["gnss"]["used"] > 530
-    assert out["gnss"]["latency"]["determined"]
-    assert out["gnss"]["latency"]["latency_s"] == pytest.approx(0.13, abs=0.03)
+    lat = out["gnss"]["latency"]
+    assert lat["latency_s"] == pytest.approx(0.13, abs=0.03)
+    # the correlation's std (41 ms) is above the 0.03 s tolerance: undetermined, the
+    # estimate used with its std
+    assert not lat["determined"] and "tolerance" in lat["reason"]
+    assert lat["std_s"] == pytest.approx(0.041, abs=0.005)
+    assert lat["used_s"] == lat["latency_s"] and lat["used_std_s"] == lat["std_s"]
     assert out["verdict"] == "ok" and out["faults"] == []
     groups = {tuple(f["group"]): f for f in out["findings"]}
     assert list(groups) == [("az bias", "az scale_factor")]

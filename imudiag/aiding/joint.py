@@ -170,17 +170,42 @@ def solve_latency_lever(
     return JointEstimate(tau, float(std[0]), lever, corr, it, converged, why)
 
 
+def separate_latency_std(report: dict, latency_s: float, std_s: float) -> float:
+    """Std (s) of the separate (correlation) ``latency_s`` (s) with its own ``std_s`` (s)
+    when the joint solution (``report`` of :func:`choose`) is not used: where the joint
+    one converged, at least the distance between the two, since a lever arm left out of
+    the correlation pulls its peak (53-61 ms on the exact hilly drives,
+    docs/moving-base.md) and no spread of the correlation itself shows that."""
+    joint_s = report.get("latency_s")
+    if report.get("converged") and joint_s is not None and math.isfinite(joint_s):
+        return max(std_s, abs(float(joint_s) - latency_s))
+    return std_s
+
+
 def choose(
-    joint: JointEstimate, latency_s: float, lever: LeverArmEstimate
+    joint: JointEstimate,
+    latency_s: float,
+    lever: LeverArmEstimate,
+    latency_determined: bool = True,
 ) -> tuple[float, LeverArmEstimate, dict]:
-    """(latency s, lever estimate, report): the joint ones where :meth:`JointEstimate.usable`,
-    else the separate ``latency_s`` and ``lever``; the report is the joint estimate's JSON
-    with ``used`` and ``note``."""
+    """(latency s, lever estimate, report): the joint ones where :meth:`JointEstimate.usable`
+    and the separate latency was determined, else the separate ``latency_s`` and ``lever``;
+    the report is the joint estimate's JSON with ``used`` and ``note``. Started from an
+    undetermined latency (a highway drive with MEMS noise) the joint solution claimed
+    1-3 ms stds while 90-130 ms off (docs/moving-base.md), so it is reported, not used."""
     ok, note = joint.usable()
+    if ok and not latency_determined:
+        ok, note = False, "separate estimates kept: started from an undetermined latency"
     report = dict(joint.to_json(), used=ok, note=note)
     if ok:
         return joint.latency_s, joint.lever, report
     return latency_s, lever, report
 
 
-__all__ = ["MAX_LATENCY_STD_S", "JointEstimate", "choose", "solve_latency_lever"]
+__all__ = [
+    "MAX_LATENCY_STD_S",
+    "JointEstimate",
+    "choose",
+    "separate_latency_std",
+    "solve_latency_lever",
+]

@@ -38,10 +38,11 @@ import numpy as np
 
 from ..certificate import Certificate
 from ..samples import SampleBlock
-from .align import estimate_latency
+from .align import estimate_latency, latency_sigma, unknown_latency_std, used_latency
 from .course_rate import turn_check
 from .gpsd_client import GpsdClient
 from .isolation import IsolationTracker
+from .joint import separate_latency_std
 from .lever_arm import LeverArmEstimate
 from .moving import (
     MovingConfig,
@@ -83,6 +84,7 @@ class BatchResult:
     batches: int = 0  #: batches completed so far (a failed one is not counted)
     latency_s: float = 0.0
     latency_note: str = "not yet estimated"
+    latency_std_s: float = math.nan  #: std of latency_s, s (0 when configured)
     lever_estimate: LeverArmEstimate | None = None
     joint: dict = field(default_factory=dict)  #: the joint latency-lever solution's report
     lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -132,6 +134,8 @@ class AidingBatches:
         self.latency_s = cfg.latency_s if cfg.latency_s is not None else 0.0
         self.latency_determined = cfg.latency_s is not None
         self.latency_note = "configured" if cfg.latency_s is not None else "not yet estimated"
+        #: std of latency_s, s: 0 configured; before an estimate, :func:`.used_latency`'s
+        self.latency_std_s = 0.0 if cfg.latency_s is not None else math.nan
         self.windows = 0
         #: the last isolation window's onset test (:mod:`.onset`), None before the first
         self.last_onset: dict | None = None
@@ -161,6 +165,7 @@ class AidingBatches:
             batches=self.batches,
             latency_s=float(self.latency_s),
             latency_note=self.latency_note,
+            latency_std_s=float(self.latency_std_s),
             lever_estimate=self.lever_estimate,
             joint=dict(self.joint),
             lever_arm_m=(float(lever[0]), float(lever[1]), float(lever[2])),
@@ -210,12 +215,22 @@ class AidingBatches:
         w_si = self.cert.gyro.inverse_si(self._gyr)
         rate = 1.0 / float(np.median(np.diff(self._t)))
         if cfg.latency_s is None and ep.t1[-1] - self._window_t >= cfg.step_s:
-            est = estimate_latency(t_utc, f_si, ep, gyro_si=w_si, max_latency_s=cfg.max_latency_s)
+            est = estimate_latency(
+                t_utc, f_si, ep, gyro_si=w_si, max_latency_s=cfg.max_latency_s,
+                max_std_s=cfg.latency_tolerance_s,
+            )  # fmt: skip
             if est.determined:
-                self.latency_s, self.latency_determined = est.latency_s, True
-                self.latency_note = f"estimated (correlation {est.correlation:.2f})"
-            elif not self.latency_determined:
-                self.latency_note = est.reason
+                self.latency_s, self.latency_std_s = est.latency_s, est.std_s
+                self.latency_determined = True
+                self.latency_note = (
+                    f"estimated (correlation {est.correlation:.2f}, std {1e3 * est.std_s:.0f} ms)"
+                )
+            elif not self.latency_determined:  # the best estimate, its std widens the checks
+                self.latency_s, self.latency_std_s = used_latency(est, cfg.max_latency_s)
+                self.latency_note = (
+                    f"undetermined: {est.reason}; used {self.latency_s:.3f} s with std "
+                    f"{1e3 * self.latency_std_s:.0f} ms"
+                )
             sig = accel_noise(self._acc, acc.noise_sigma(rate)) / acc.scale_factor * acc.unit_to_si
             plain = imu_epochs(
                 t_utc, f_si, ep.t0, ep.t1, gyro_si=w_si, sigma_sample_si=sig,
@@ -224,17 +239,27 @@ class AidingBatches:
             self.lever_estimate = estimate_lever_arm(
                 t_utc, w_si, self._gyr, self.cert.gyro, ep, plain, self.latency_s, rate
             )
-            if cfg.lever_arm_m is None and est.determined:
+            if cfg.lever_arm_m is None and math.isfinite(est.std_s):
                 lat, self.lever_estimate, self.joint = solve_jointly(
                     t_utc, f_si, w_si, self._gyr, self.cert.gyro, ep, sig, rate,
-                    self.latency_s, self.lever_estimate, cfg.max_latency_s,
+                    self.latency_s, self.lever_estimate, cfg.max_latency_s, est.determined,
                 )  # fmt: skip
                 if self.joint["used"]:
-                    self.latency_s = lat
+                    self.latency_s, self.latency_std_s = lat, float(self.joint["latency_std_s"])
+                    self.latency_determined = True
                     self.latency_note = (
                         f"estimated (correlation {est.correlation:.2f}), solved with the "
                         f"lever arm (std {1e3 * self.joint['latency_std_s']:.3g} ms)"
                     )
+                elif est.determined:  # a lever arm left out may pull the peak (.joint)
+                    std = separate_latency_std(self.joint, self.latency_s, self.latency_std_s)
+                    if std > cfg.latency_tolerance_s:
+                        self.latency_std_s, self.latency_determined = std, False
+                        self.latency_note = (
+                            f"undetermined: the latency solved with the lever arm is "
+                            f"{1e3 * std:.0f} ms from the correlation's; used "
+                            f"{self.latency_s:.3f} s with std {1e3 * std:.0f} ms"
+                        )
             if cfg.lever_arm_m is None:
                 self.lever_arm_m = self.lever_estimate.used()
         sig_raw = accel_noise(self._acc, acc.noise_sigma(rate))
@@ -254,16 +279,21 @@ class AidingBatches:
         use = ep.valid & im.covered & np.isfinite(im.mag) & (ep.t0 >= self._done_t)
         if not np.any(use):
             return
+        lat_std = self.latency_std_s
+        if not math.isfinite(lat_std):  # no estimate yet: the latency is not known
+            lat_std = unknown_latency_std(cfg.max_latency_s)
+        sig_lat = latency_sigma(0.5 * (ep.t0 + ep.t1), im.mag, lat_std)
         g, i = ep.mag[use], im.mag[use]
         f0 = 0.5 * (i * i / (g * g) - 1.0)
-        sigma = np.sqrt(im.sigma_mag[use] ** 2 + ep.sigma_mag[use] ** 2) * i / (g * g)
+        mag_var = im.sigma_mag[use] ** 2 + ep.sigma_mag[use] ** 2 + sig_lat[use] ** 2
+        sigma = np.sqrt(mag_var) * i / (g * g)
         failed = np.abs(f0) > acc.limits.f0 + cfg.k_sigma_f0 * sigma
         self.f0_checked += int(f0.size)
         self.f0_failed += int(np.sum(failed))
         self._recent.extend(bool(x) for x in failed)
         self.f0_fault = sum(self._recent) >= F0_PERSIST_K
         self._done_t = float(ep.t1[use][-1])
-        means, var, mag_in = epoch_observations(ep, im, acc, sig_raw)
+        means, var, mag_in = epoch_observations(ep, im, acc, sig_raw, sig_lat)
         t_mid = 0.5 * (ep.t0 + ep.t1)
         self._hist_t = np.concatenate([self._hist_t, t_mid[use]])
         self._hist_means = np.concatenate([self._hist_means, means[use]])
@@ -351,6 +381,7 @@ class LiveAiding:
         self._initial = BatchResult(
             latency_s=self.cfg.latency_s if self.cfg.latency_s is not None else 0.0,
             latency_note="configured" if self.cfg.latency_s is not None else "not yet estimated",
+            latency_std_s=0.0 if self.cfg.latency_s is not None else math.nan,
             lever_arm_m=tuple(float(x) for x in (self.cfg.lever_arm_m or (0.0, 0.0, 0.0))),  # type: ignore[arg-type]
         )
 
@@ -479,6 +510,9 @@ class LiveAiding:
             "last_batch": res.last_batch,
             "latency_s": round(res.latency_s, 4),
             "latency": res.latency_note,
+            "latency_std_s": round(res.latency_std_s, 4)
+            if math.isfinite(res.latency_std_s)
+            else None,
             "clock_offset_s": round(float(np.median(self.offsets)), 4) if self.offsets else None,
             "lever_arm_m": [round(float(x), 3) for x in res.lever_arm_m],
             "lever_arm": dict(

@@ -7,11 +7,16 @@ track. Steps:
    gated on the GNSS side only); the IMU's certificate-corrected mean over the
    same epochs, rotated to mid-epoch with the gyros and moved to the antenna
    by the lever arm (:func:`.imu_epochs`), shifted by the GNSS latency
-   (estimated by :func:`.estimate_latency` unless configured).
+   (estimated by :func:`.estimate_latency` unless configured). The estimate's
+   std (s) is propagated: each epoch's |f| gains a std of latency std x |d|f|/dt|
+   (:func:`.latency_sigma`), so a poorly known latency widens the checks; an
+   estimate whose std exceeds ``latency_tolerance_s`` is reported undetermined
+   and used anyway with its std (:func:`.used_latency`).
 2. F0 in motion per epoch, ``F0 = 1/2 (|f_imu|^2 / |f_gnss|^2 - 1)``, failed
    when ``|F0| > limits.f0 + k_sigma * sigma_F0`` with ``sigma_F0`` propagated
-   from both sides (IMU white noise of the epoch mean, GNSS velocity noise):
-   the certificate's limit plus the noise of this epoch, not a fixed number.
+   from both sides (IMU white noise of the epoch mean, GNSS velocity noise,
+   the latency's uncertainty): the certificate's limit plus the noise of this
+   epoch, not a fixed number.
 3. Sliding windows of ``window_s`` (step ``step_s``): the exact scalar fit of
    the accelerometer triad (:func:`~imudiag.diagnosis.scalar_fit.exact_fit`)
    on the epoch means with the GNSS magnitude of each epoch; the variance of a
@@ -39,10 +44,16 @@ from ..certificate import Certificate, TriadModel
 from ..diagnosis.params import CAUSES, sensor_of
 from ..diagnosis.scalar_fit import exact_fit
 from ..samples import SampleBlock
-from .align import LatencyEstimate, estimate_latency
+from .align import (
+    LATENCY_TOLERANCE_S,
+    LatencyEstimate,
+    estimate_latency,
+    latency_sigma,
+    used_latency,
+)
 from .course_rate import turn_check
 from .isolation import IsolationTracker
-from .joint import choose, solve_latency_lever
+from .joint import choose, separate_latency_std, solve_latency_lever
 from .lever_arm import LeverArmEstimate, lever_arm_rows, row_noise_variance, solve_lever_arm
 from .onset import isolate_window
 from .specific_force import GateConfig, GnssEpochs, ImuEpochs, gnss_epochs, imu_epochs
@@ -56,6 +67,8 @@ class MovingConfig:
     interval_s: float = 1.0  #: GNSS epoch length used (whole GNSS periods)
     latency_s: float | None = None  #: None: estimate it
     max_latency_s: float = 0.5  #: search range of the estimate, s
+    #: the estimated latency is determined when its std is at most this, s
+    latency_tolerance_s: float = LATENCY_TOLERANCE_S
     #: IMU -> antenna, body, m; None: estimated from the turns (:mod:`.lever_arm`) and
     #: used on the axes it determines
     lever_arm_m: tuple[float, float, float] | None = None
@@ -94,17 +107,25 @@ def gyro_noise_si(gyro_raw: np.ndarray, gyro: TriadModel, rate_hz: float) -> np.
 
 
 def epoch_observations(
-    ep: GnssEpochs, im: ImuEpochs, acc: TriadModel, sig_raw: np.ndarray
+    ep: GnssEpochs,
+    im: ImuEpochs,
+    acc: TriadModel,
+    sig_raw: np.ndarray,
+    sigma_latency_mag: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(means (K, 3) output units, their variances (K, 3), magnitudes (K,) input units)
     of the epochs for the scalar fit: the rotation/lever terms go from SI to output
     units to first order (U = B + S N x); a mean's variance adds the GNSS magnitude's
-    variance (converted) to the IMU's white noise over the epoch."""
+    variance (converted) to the IMU's white noise over the epoch, and the latency's
+    ``sigma_latency_mag`` (K,) m/s^2 (:func:`.latency_sigma`) likewise."""
     s = acc.scale_factor
     unit = acc.unit_to_si
     means = im.mean_raw + im.comp_si / unit * s
     var_imu = sig_raw**2 / np.maximum(im.count, 1)[:, None]
-    var_gnss = (ep.sigma_mag / unit)[:, None] ** 2 * s**2
+    mag_var = ep.sigma_mag**2
+    if sigma_latency_mag is not None:
+        mag_var = mag_var + np.asarray(sigma_latency_mag, dtype=float) ** 2
+    var_gnss = (mag_var / unit**2)[:, None] * s**2
     return means, var_imu + var_gnss, ep.mag / unit
 
 
@@ -160,13 +181,18 @@ def moving_base_diagnosis(
         report["reason"] = "no valid GNSS epoch over the IMU record"
         return report
     if cfg.latency_s is None:
-        lat = estimate_latency(t, f_si, ep, gyro_si=w_si, max_latency_s=cfg.max_latency_s)
-        latency = lat.latency_s if lat.determined else 0.0
-        report["gnss"]["latency"] = dict(lat.to_json(), used_s=round(latency, 4))
+        lat = estimate_latency(
+            t, f_si, ep, gyro_si=w_si, max_latency_s=cfg.max_latency_s,
+            max_std_s=cfg.latency_tolerance_s,
+        )  # fmt: skip
+        latency, latency_std = used_latency(lat, cfg.max_latency_s)
+        report["gnss"]["latency"] = dict(
+            lat.to_json(), used_s=round(latency, 4), used_std_s=round(latency_std, 4)
+        )
     else:
-        latency = float(cfg.latency_s)
-        lat = LatencyEstimate(latency, math.nan, True, "configured", 0)
-        report["gnss"]["latency"] = dict(lat.to_json(), used_s=latency)
+        latency, latency_std = float(cfg.latency_s), 0.0
+        lat = LatencyEstimate(latency, math.nan, True, "configured", 0, std_s=0.0)
+        report["gnss"]["latency"] = dict(lat.to_json(), used_s=latency, used_std_s=0.0)
     sig_raw = accel_noise(block.accel, acc.noise_sigma(rate))
     sig_si = sig_raw / acc.scale_factor * acc.unit_to_si
     plain = imu_epochs(
@@ -174,11 +200,25 @@ def moving_base_diagnosis(
         sigma_sample_si=sig_si, latency_s=latency,
     )  # fmt: skip
     est = estimate_lever_arm(t, w_si, block.gyro, gyr, ep, plain, latency, rate)
-    if cfg.latency_s is None and cfg.lever_arm_m is None and lat.determined:
+    if cfg.latency_s is None and cfg.lever_arm_m is None and math.isfinite(lat.std_s):
         latency, est, joint = solve_jointly(
-            t, f_si, w_si, block.gyro, gyr, ep, sig_si, rate, latency, est, cfg.max_latency_s
-        )
+            t, f_si, w_si, block.gyro, gyr, ep, sig_si, rate, latency, est, cfg.max_latency_s,
+            lat.determined,
+        )  # fmt: skip
+        if joint["used"]:
+            latency_std = float(joint["latency_std_s"])
+        elif lat.determined:
+            latency_std = separate_latency_std(joint, latency, latency_std)
+            if latency_std > cfg.latency_tolerance_s:
+                report["gnss"]["latency"].update(
+                    determined=False,
+                    reason=f"the latency solved with the lever arm, {joint['latency_s']:.3f} s, "
+                    f"is {1e3 * latency_std:.0f} ms from it (above the "
+                    f"{1e3 * cfg.latency_tolerance_s:g} ms tolerance): a lever arm left out "
+                    "pulls the correlation's peak",
+                )
         report["gnss"]["latency"]["used_s"] = round(latency, 4)
+        report["gnss"]["latency"]["used_std_s"] = round(latency_std, 4)
         report["gnss"]["latency_lever"] = joint
     lever = est.used() if cfg.lever_arm_m is None else np.asarray(cfg.lever_arm_m, float)
     report["gnss"]["lever_arm_m"] = [round(float(x), 3) for x in lever]
@@ -200,14 +240,15 @@ def moving_base_diagnosis(
     )
     use = ep.valid & im.covered & np.isfinite(im.mag)
     report["gnss"]["used"] = int(np.sum(use))
-    report["f0"] = _f0_in_motion(ep, im, use, acc.limits.f0, cfg.k_sigma_f0)
+    sig_lat = latency_sigma(0.5 * (ep.t0 + ep.t1), im.mag, latency_std)
+    report["f0"] = _f0_in_motion(ep, im, use, acc.limits.f0, cfg.k_sigma_f0, sig_lat)
     report["accel_noise_per_sample"] = [float(x) for x in sig_raw]
     report["gyro_turns"] = turn_check(
         track, ep, im, gyr, gyro_noise_si(block.gyro, gyr, rate),
         k_sigma_f0=cfg.k_sigma_f0, k_sigma=cfg.k_sigma, prior_factor=cfg.prior_factor,
         determined_std_ratio=cfg.determined_std_ratio, gate=gate,
     )  # fmt: skip
-    report.update(_windows(ep, im, use, cert, cfg, rate, block.accel))
+    report.update(_windows(ep, im, use, cert, cfg, rate, block.accel, sig_lat))
     return report
 
 
@@ -261,6 +302,7 @@ def solve_jointly(
     latency_s: float,
     lever: LeverArmEstimate,
     max_latency_s: float,
+    latency_determined: bool = True,
 ) -> tuple[float, LeverArmEstimate, dict]:
     """Latency and lever arm solved together from the separate ``latency_s`` (s) and
     ``lever`` (:mod:`.joint`): (latency, lever estimate, report), the joint ones where
@@ -269,13 +311,16 @@ def solve_jointly(
         t, f_si, w_si, ep, latency_s, sigma_sample_si=sig_si,
         row_noise_var=lever_row_noise(gyro_raw, gyro, ep, rate_hz), max_latency_s=max_latency_s,
     )  # fmt: skip
-    return choose(joint, latency_s, lever)
+    return choose(joint, latency_s, lever, latency_determined)
 
 
-def _f0_in_motion(ep: GnssEpochs, im: ImuEpochs, use: np.ndarray, limit: float, k: float) -> dict:
+def _f0_in_motion(
+    ep: GnssEpochs, im: ImuEpochs, use: np.ndarray, limit: float, k: float, sig_lat: np.ndarray
+) -> dict:
     g, i = ep.mag[use], im.mag[use]
     f0 = 0.5 * (i * i / (g * g) - 1.0)
-    sigma = np.sqrt(im.sigma_mag[use] ** 2 + ep.sigma_mag[use] ** 2) * i / (g * g)
+    mag_var = im.sigma_mag[use] ** 2 + ep.sigma_mag[use] ** 2 + sig_lat[use] ** 2
+    sigma = np.sqrt(mag_var) * i / (g * g)
     thr = limit + k * sigma
     failed = np.abs(f0) > thr
     moving = ep.speed[use] > 0.5
@@ -298,10 +343,11 @@ def _windows(
     cfg: MovingConfig,
     rate: float,
     im_raw_accel: np.ndarray,
+    sig_lat: np.ndarray,
 ) -> dict:
     acc = cert.accel
     sig_raw = accel_noise(im_raw_accel, acc.noise_sigma(rate))
-    means, var, mag_in = epoch_observations(ep, im, acc, sig_raw)
+    means, var, mag_in = epoch_observations(ep, im, acc, sig_raw, sig_lat)
     tracker = IsolationTracker(persist=cfg.persist)
     t_mid = 0.5 * (ep.t0 + ep.t1)
     windows = []
