@@ -50,8 +50,8 @@ def test_confounded_mems_drive_keeps_the_separate_estimates():
     std (38 ms) is above 10 ms, so the diagnosis keeps the correlation's latency (used_s
     equals it) and says why in ``latency_lever``; the correlation with the lever is
     reported. The correlation's own std (14 ms) would call its 0.054 s (66 ms off)
-    determined: the joint solution 95 ms away shows the lever arm's pull, which widens
-    the std used and makes the latency undetermined."""
+    determined: the joint solution 95 ms away (std 38 ms) shows the lever arm's pull,
+    which widens the std used (to 102 ms) and makes the latency undetermined."""
     cert = load_default()
     gnss = GnssSimConfig(
         sigma_h_m_s=0.01, sigma_v_m_s=0.015, latency_s=LATENCY_S, lever_arm_m=LEVER
@@ -66,7 +66,8 @@ def test_confounded_mems_drive_keeps_the_separate_estimates():
     assert lat["used_s"] == lat["latency_s"]
     assert len(joint["latency_lever_correlation"]) == 3
     assert lat["std_s"] <= 0.03 < lat["used_std_s"]
-    pull = abs(joint["latency_s"] - lat["latency_s"])
+    # its error is the distance to the joint latency plus the joint one's error
+    pull = math.hypot(joint["latency_s"] - lat["latency_s"], joint["latency_std_s"])
     assert math.isclose(lat["used_std_s"], pull, abs_tol=2e-4)  # rounded to 0.1 ms
     assert not lat["determined"] and "lever arm left out" in lat["reason"]
     assert abs(lat["latency_s"] - LATENCY_S) <= 2 * lat["used_std_s"]
