@@ -81,7 +81,12 @@ def run_live_drive(
     with socket.create_server(("127.0.0.1", 0)) as srv:
         url = f"gpsd://127.0.0.1:{srv.getsockname()[1]}"
         opts = {} if batch_s is None else {"batch_s": batch_s}
-        aid = LiveAiding(url, cert, cfg or MovingConfig(), clock=lambda: now[0], **opts)
+        # the batches inline: each runs in update() on the samples so far, as the daemon's
+        # worker process runs the same batches (tests/test_aiding_thread.py), so a run does
+        # not depend on how busy the machine is
+        aid = LiveAiding(
+            url, cert, cfg or MovingConfig(), clock=lambda: now[0], mode="inline", **opts
+        )
         aid.update(None)  # connects and sends ?WATCH
         conn, _ = srv.accept()
         with conn:
@@ -101,13 +106,12 @@ def run_live_drive(
                     # lines back for seconds, and late arrivals move the clock tie
                     select.select([aid.client.sock], [], [], 10.0)
                 mon.update(block)
-                before = aid.last_batch
                 aid.update(block)
-                run.batches += aid.last_batch is not before  # a new dict each batch
                 raised = [dict(f, source="monitor") for f in mon.faults_in_force()]
                 for f in raised + aid.faults():
                     run.first.setdefault(fault_name(f), now[0])
             run.fixes_sent = k
+        run.batches = aid.worker.submitted
         run.status = aid.status()
         aid.close()
     return run

@@ -27,7 +27,10 @@ def test_clean_drive_through_the_daemon_path_raises_nothing():
     assert st["f0"]["checked"] > 200 and not st["f0"]["fault"]
     assert st["windows"] >= 2
     assert st["gyro_turns"]["faults"] == []
-    assert "estimated" in st["latency"]
+    # the latency is estimated, and called determined only within the 30 ms tolerance
+    # (docs/moving-base.md): otherwise used with its std, which widens the checks
+    assert st["latency_std_s"] > 0
+    assert st["latency"].startswith("estimated" if st["latency_std_s"] <= 0.03 else "undet")
 
 
 def test_benchmark_command_prints_a_line_per_drive():
