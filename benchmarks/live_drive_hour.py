@@ -60,10 +60,13 @@ def run_live_drive(
     gnss: GnssSimConfig | None = None,
     cfg: MovingConfig | None = None,
     batch_s: float | None = None,
+    hold_s: float = 0.0,
 ) -> LiveRun:
     """Drive ``duration_s`` s of ``scenario`` through the Monitor and LiveAiding as the
     daemon feeds them (blocks of ``block_s`` s, GNSS reports over a loopback gpsd socket
-    in sample time, a batch every ``batch_s`` s of fixes, None: LiveAiding's default); faults as
+    in sample time, a batch every ``batch_s`` s of fixes, None: LiveAiding's default; with
+    ``hold_s`` > 0 the lines are held back and sent in a burst every ``hold_s`` s of sample
+    time, as a receiver or a loaded machine delivers them late); faults as
     :class:`imudiag.sim.faults.Fault` (t in drive s)."""
     rate = float(cert.sample_rate)
     motion = scenario_motion(scenario, seed, {"length": str(duration_s)})
@@ -97,7 +100,8 @@ def run_live_drive(
                 t_end = float(block.t[-1])
                 now[0] = t_end - EPOCH_UNIX
                 sent = []
-                while k < len(lines) and lines[k][0] <= t_end:
+                due = hold_s <= 0 or int(t_end // hold_s) > int((t_end - block_s) // hold_s)
+                while due and k < len(lines) and lines[k][0] <= t_end:
                     sent.append(lines[k][1])
                     k += 1
                 if sent:
@@ -130,6 +134,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scenarios", default="urban,highway,hilly")
     ap.add_argument("--block", type=float, default=0.25, help="block length fed, s")
     ap.add_argument("--runs", default="clean,az,gz", help="of clean, az, gz")
+    ap.add_argument(
+        "--hold", type=float, default=0.0, help="send the gpsd lines in bursts every S s (late)"
+    )
     args = ap.parse_args(argv)
     cert = load_default()
     az = Fault("bias", "az", T_FAULT, 3.0 * float(cert.accel.limits.bias[2]))
@@ -140,7 +147,10 @@ def main(argv: list[str] | None = None) -> int:
             t0 = time.perf_counter()
             if "clean" in runs:
                 _print_clean(
-                    sc, seed, run_live_drive(sc, seed, args.duration, cert, (), args.block), t0
+                    sc,
+                    seed,
+                    run_live_drive(sc, seed, args.duration, cert, (), args.block, hold_s=args.hold),
+                    t0,
                 )
             if T_FAULT >= args.duration:
                 continue
@@ -148,7 +158,9 @@ def main(argv: list[str] | None = None) -> int:
                 if label[:2] not in runs:
                     continue
                 t0 = time.perf_counter()
-                run = run_live_drive(sc, seed, args.duration, cert, (fault,), args.block)
+                run = run_live_drive(
+                    sc, seed, args.duration, cert, (fault,), args.block, hold_s=args.hold
+                )
                 before = {n: round(t) for n, t in run.first.items() if t < T_FAULT}
                 print(
                     f"{sc:8s} {seed} {label} at {T_FAULT:.0f} s: {_after(run, T_FAULT)}; "
