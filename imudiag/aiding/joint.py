@@ -20,7 +20,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .lever_arm import LeverArmEstimate, lever_arm_rows, row_noise_correction, weighted_solve
+from .lever_arm import (
+    LeverArmEstimate,
+    lever_arm_rows,
+    row_noise_correction,
+    undetermined_reason,
+    weighted_solve,
+)
 from .specific_force import GnssEpochs, imu_epochs
 
 #: lag step of the |f| derivative, s
@@ -156,12 +162,7 @@ def solve_latency_lever(
     assert x is not None and cov is not None and std is not None
     lever_std = std[1:4]
     determined = lever_std <= determined_std_m
-    reason = ""
-    if not np.any(determined):
-        reason = (
-            f"the drive's turns do not determine it (std {', '.join(f'{s:.2g}' for s in lever_std)}"
-            f" m, above {determined_std_m:g} m)"
-        )
+    reason = undetermined_reason(lever_std, determined_std_m)
     lever = LeverArmEstimate(x[1:4], lever_std, determined, float(x[4]), n, chi2_dof, reason)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov[0, 1:4] / np.sqrt(cov[0, 0] * np.diag(cov)[1:4])

@@ -212,13 +212,19 @@ def solve_lever_arm(
     x, cov, std, chi2_dof = weighted_solve(h, y[ok], var[ok], correction)
     lever, lever_std = x[:3], std[:3]
     determined = lever_std <= determined_std_m
-    reason = ""
-    if not np.any(determined):
-        reason = (
-            f"the drive's turns do not determine it (std {', '.join(f'{s:.2g}' for s in lever_std)}"
-            f" m, above {determined_std_m:g} m)"
-        )
+    reason = undetermined_reason(lever_std, determined_std_m)
     return LeverArmEstimate(lever, lever_std, determined, float(x[3]), n, chi2_dof, reason)
+
+
+def undetermined_reason(lever_std: np.ndarray, determined_std_m: float) -> str:
+    """Why no axis of a lever arm with stds ``lever_std`` (3,) m is determined (an axis is
+    when its std is at most ``determined_std_m``, m); "" when one is."""
+    if np.any(lever_std <= determined_std_m):
+        return ""
+    return (
+        f"the drive's turns do not determine it (std {', '.join(f'{s:.2g}' for s in lever_std)}"
+        f" m, above {determined_std_m:g} m)"
+    )
 
 
 __all__ = [
@@ -226,5 +232,6 @@ __all__ = [
     "lever_arm_rows",
     "row_noise_correction",
     "solve_lever_arm",
+    "undetermined_reason",
     "weighted_solve",
 ]
