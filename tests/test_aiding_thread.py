@@ -267,3 +267,19 @@ def test_worker_process_errors_and_death_are_reported():
     finally:
         assert w.close()
     assert w._proc.exitcode == 0
+
+
+def test_a_worker_process_that_cannot_start_fails_the_batch_not_the_worker():
+    """A process that cannot be started (here: a factory that cannot be sent to a spawned
+    process; on a board, no fork under a task limit) fails that job only: it is counted
+    with its reason, the caller is never left waiting on a job that will not end, the next
+    job is tried again, and close() works."""
+    worker: BatchWorker[int, int] = BatchWorker(lambda: operator.neg, mode="process")
+    try:
+        for n in (1, 2):
+            assert worker.submit(n)
+            assert worker.wait(n, WAIT_S)
+            assert worker.errors == n and worker.result is None and not worker.busy
+            assert "process could not start" in worker.last_error
+    finally:
+        assert worker.close()

@@ -143,7 +143,7 @@ class BatchWorker(Generic[J, R]):
                     "%s worker still busy after %.1f s at close; left behind", self.name, timeout_s
                 )
                 ok = False
-        if self._proc is not None:
+        if self._proc is not None and self._conn is not None:
             try:
                 self._conn.send(None)
             except (OSError, ValueError):
@@ -209,12 +209,22 @@ class BatchWorker(Generic[J, R]):
     # -- process ----------------------------------------------------------------
 
     def _send(self, job: J) -> None:
+        """Hand ``job`` to the process (started first if it is not running); a process
+        that cannot start (no fork under a task limit, a factory that cannot be sent) or
+        a job that cannot be sent fails this job only: counted, kept in ``last_error``,
+        and the next job tries again."""
         if self._proc is None or not self._proc.is_alive():
-            self._start_process()
+            try:
+                self._start_process()
+            except Exception as exc:
+                self._proc = None
+                log.error("%s process could not start: %s", self.name, exc)
+                self._failed(f"{self.name} process could not start: {type(exc).__name__}: {exc}")
+                return
         try:
             self._conn.send(job)
-        except (OSError, ValueError) as exc:
-            self._failed(f"{self.name} process not reachable: {exc}")
+        except Exception as exc:  # OSError, ValueError (closed), pickling errors
+            self._failed(f"{self.name} process not reachable: {type(exc).__name__}: {exc}")
 
     def _start_process(self) -> None:
         ctx = multiprocessing.get_context("spawn")
@@ -225,8 +235,13 @@ class BatchWorker(Generic[J, R]):
             name=f"imudiag-{self.name}",
             daemon=True,
         )
-        self._proc.start()
-        child.close()
+        try:
+            self._proc.start()
+        except BaseException:
+            parent.close()
+            raise
+        finally:
+            child.close()
         self._conn = parent
         self._reader = threading.Thread(
             target=self._read,
