@@ -214,6 +214,9 @@ class AidingBatches:
         f_si = acc.inverse_si(self._acc)
         w_si = self.cert.gyro.inverse_si(self._gyr)
         rate = 1.0 / float(np.median(np.diff(self._t)))
+        # the accelerometers' white noise per sample over the buffer (raw units, and SI)
+        sig_raw = accel_noise(self._acc, acc.noise_sigma(rate))
+        sig_si = sig_raw / acc.scale_factor * acc.unit_to_si
         if cfg.latency_s is None and ep.t1[-1] - self._window_t >= cfg.step_s:
             est = estimate_latency(
                 t_utc, f_si, ep, gyro_si=w_si, max_latency_s=cfg.max_latency_s,
@@ -231,9 +234,8 @@ class AidingBatches:
                     f"undetermined: {est.reason}; used {self.latency_s:.3f} s with std "
                     f"{1e3 * self.latency_std_s:.0f} ms"
                 )
-            sig = accel_noise(self._acc, acc.noise_sigma(rate)) / acc.scale_factor * acc.unit_to_si
             plain = imu_epochs(
-                t_utc, f_si, ep.t0, ep.t1, gyro_si=w_si, sigma_sample_si=sig,
+                t_utc, f_si, ep.t0, ep.t1, gyro_si=w_si, sigma_sample_si=sig_si,
                 latency_s=self.latency_s,
             )  # fmt: skip
             self.lever_estimate = estimate_lever_arm(
@@ -241,7 +243,7 @@ class AidingBatches:
             )
             if cfg.lever_arm_m is None and math.isfinite(est.std_s):
                 lat, self.lever_estimate, self.joint = solve_jointly(
-                    t_utc, f_si, w_si, self._gyr, self.cert.gyro, ep, sig, rate,
+                    t_utc, f_si, w_si, self._gyr, self.cert.gyro, ep, sig_si, rate,
                     self.latency_s, self.lever_estimate, cfg.max_latency_s, est.determined,
                 )  # fmt: skip
                 if self.joint["used"]:
@@ -262,8 +264,6 @@ class AidingBatches:
                         )
             if cfg.lever_arm_m is None:
                 self.lever_arm_m = self.lever_estimate.used()
-        sig_raw = accel_noise(self._acc, acc.noise_sigma(rate))
-        sig_si = sig_raw / acc.scale_factor * acc.unit_to_si
         im = imu_epochs(
             t_utc,
             f_si,

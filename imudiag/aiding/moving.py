@@ -248,7 +248,7 @@ def moving_base_diagnosis(
         k_sigma_f0=cfg.k_sigma_f0, k_sigma=cfg.k_sigma, prior_factor=cfg.prior_factor,
         determined_std_ratio=cfg.determined_std_ratio, gate=gate,
     )  # fmt: skip
-    report.update(_windows(ep, im, use, cert, cfg, rate, block.accel, sig_lat))
+    report.update(_windows(ep, im, use, cert, cfg, sig_raw, sig_lat))
     return report
 
 
@@ -341,12 +341,13 @@ def _windows(
     use: np.ndarray,
     cert: Certificate,
     cfg: MovingConfig,
-    rate: float,
-    im_raw_accel: np.ndarray,
+    sig_raw: np.ndarray,
     sig_lat: np.ndarray,
 ) -> dict:
+    """The sliding windows' fits and isolation; ``sig_raw`` (3,) the accelerometers' white
+    noise per sample (raw units), ``sig_lat`` (K,) the epochs' |f| std from the latency's
+    (m/s^2)."""
     acc = cert.accel
-    sig_raw = accel_noise(im_raw_accel, acc.noise_sigma(rate))
     means, var, mag_in = epoch_observations(ep, im, acc, sig_raw, sig_lat)
     tracker = IsolationTracker(persist=cfg.persist)
     t_mid = 0.5 * (ep.t0 + ep.t1)
