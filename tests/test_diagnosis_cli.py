@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -77,6 +78,11 @@ def test_report_shape_and_verdict(faulty_log, imudiag_cli, tmp_path):
         for key in ("bias", "scale_factor", "misalignment"):
             assert len(w[triad][key]["estimate"]) == 3 and len(w[triad][key]["std"]) == 3
     assert "FAULT accel az scale_factor" in r.stdout
+    # every number of the fault says its unit, in the report and in the text
+    assert f["unit"] == "count/(m/s^2)"
+    (line,) = [ln for ln in r.stdout.splitlines() if "FAULT accel az scale_factor" in ln]
+    for word in ("estimate", "certificate", "limit"):
+        assert re.search(rf"{word} [-+0-9.e]+ count/\(m/s\^2\),", line), line
 
 
 def test_json_to_stdout(faulty_log, imudiag_cli):
@@ -111,6 +117,13 @@ def test_one_attitude_is_undetermined_never_ok(tmp_path, imudiag_cli):
     assert ("gyro", "gx", "bias") not in und
     assert und[("gyro", "gy", "scale_factor")] == "no rotation between static poses"
     assert "1 distinct attitude" in und[("accel", "ax", "scale_factor")]
+    # the std and the limit it is compared with, each with its unit
+    assert re.match(
+        r"std [0-9.e+-]+ count/\(m/s\^2\) above 0\.5 x limit [0-9.e+-]+ count/\(m/s\^2\);",
+        und[("accel", "ax", "scale_factor")],
+    )
+    assert re.match(r"std [0-9.e+-]+ count above", und[("accel", "ay", "bias")])
+    assert re.match(r"std [0-9.e+-]+ rad above", und[("accel", "ax/az", "misalignment")])
 
 
 def test_no_still_period_is_undetermined(tmp_path, imudiag_cli):

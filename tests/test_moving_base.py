@@ -206,6 +206,9 @@ def test_real_drive_moving_base():
     assert f["deviation"] == pytest.approx([0.0133, 0.0133], abs=0.001)
     assert f["windows"] == out["windows_run"] == 8
     assert not f["fault"]
+    # the text gives each deviation and std in its unit (the certificate's: g, g/g)
+    assert f["text"].startswith("az bias +0.01") and " g (std " in f["text"]
+    assert "az scale_factor +0.01" in f["text"] and " g/g (std " in f["text"]
     # F0 in motion sees it on the epochs where the noise margin is smallest
     assert 10 < out["f0"]["failed"] < 80
     assert out["f0"]["f0_median"] == pytest.approx(0.0131, abs=0.001)

@@ -61,7 +61,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..certificate import TriadModel
-from ..diagnosis.params import sensor_of
+from ..diagnosis.params import cause_unit, sensor_of
 from .earth import earth_rate_ned, transport_rate_ned
 from .specific_force import REASONS, GateConfig, GnssEpochs, ImuEpochs, velocity_sigma
 from .tpv import GnssTrack
@@ -498,6 +498,7 @@ def _fit(
             "limit": float(lim[i]),
             "estimate": float(cert[i] + est[i]),
             "certificate": float(cert[i]),
+            "unit": cause_unit(gyro, FIT_CAUSES[i]),
         }
         if determined[i]:
             det_list.append({"triad": "gyro", "sensor": name, "cause": FIT_CAUSES[i]})
@@ -513,6 +514,7 @@ def _fit(
                         "deviation": float(est[i]),
                         "std": float(std[i]),
                         "limit": float(lim[i]),
+                        "unit": cause_unit(gyro, FIT_CAUSES[i]),
                     }
                 )
             continue

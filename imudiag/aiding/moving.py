@@ -41,7 +41,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..certificate import Certificate, TriadModel
-from ..diagnosis.params import CAUSES, sensor_of
+from ..diagnosis.params import CAUSES, cause_unit, parameter_units, sensor_of
 from ..diagnosis.scalar_fit import exact_fit
 from ..samples import SampleBlock
 from .align import (
@@ -419,7 +419,13 @@ def _windows(
                 break
             w0 += cfg.step_s
     faults = tracker.raised
-    findings = _aggregate_findings(windows, cfg.persist)
+    for fault in faults:
+        if fault["named"]:
+            fault["unit"] = cause_unit(acc, fault["cause"])
+    units = parameter_units(acc)
+    findings = _aggregate_findings(
+        windows, cfg.persist, {f"{sensor_of('accel', j)} {CAUSES[j]}": units[j] for j in range(9)}
+    )
     undetermined = []
     excite = _excitation(im.mean_si[use], ("ax", "ay", "az")) if np.any(use) else {}
     for i in range(9):
@@ -434,8 +440,8 @@ def _windows(
                 why = f"the drive did not excite it ({why})"
             elif conf:
                 why = (
-                    f"alone it is observable (std {last_iso.alone_std[i]:.3g}), but its trace "
-                    f"in |f| is that of {', '.join(conf)} on this drive ({why})"
+                    f"alone it is observable (std {last_iso.alone_std[i]:.3g} {units[i]}), "
+                    f"but its trace in |f| is that of {', '.join(conf)} on this drive ({why})"
                 )
         undetermined.append(
             {
@@ -465,9 +471,10 @@ def _windows(
     }
 
 
-def _aggregate_findings(windows: list[dict], persist: int) -> list[dict]:
+def _aggregate_findings(windows: list[dict], persist: int, units: dict[str, str]) -> list[dict]:
     """Findings seen in at least ``persist`` windows, grouped by their parameter group,
-    with the median deviation of each member and whether they were faults."""
+    with the median deviation of each member and whether they were faults; ``units`` the
+    unit of each parameter name (``"az bias"``), for the text."""
     groups: dict[tuple[str, ...], list[dict]] = {}
     for w in windows:
         for f in w["findings"]:
@@ -480,7 +487,8 @@ def _aggregate_findings(windows: list[dict], persist: int) -> list[dict]:
         std = np.median(np.array([f["std"] for f in items]), axis=0)
         faults = sum(1 for f in items if f["fault"])
         alts = " or ".join(
-            f"{name} {d:+.4g} (std {s:.2g})" for name, d, s in zip(key, dev, std, strict=True)
+            f"{name} {d:+.4g} {units[name]} (std {s:.2g} {units[name]})"
+            for name, d, s in zip(key, dev, std, strict=True)
         )
         text = f"{alts}, in {len(items)} of {len(windows)} windows"
         if not faults:

@@ -224,6 +224,14 @@ def write_json(report: dict, out: str) -> None:
             raise BadInput(f"{out}: cannot write: {exc.strerror or exc}") from None
 
 
+#: what the number of each per-sample check measures, for text
+F0_MEASURES = {
+    "f0": "F0, dimensionless",
+    "rest_rate": "rest rate over its limit, dimensionless",
+    "known_rate": "plateau F0 against the known rate, dimensionless",
+}
+
+
 def summary_lines(report: dict) -> list[str]:
     """A short human-readable account of a diagnosis report."""
     v = report["verdict"]
@@ -241,14 +249,16 @@ def summary_lines(report: dict) -> list[str]:
             lines.append(
                 f"  FAULT {f['triad']} {f['sensor'] or '(triad)'} f0: {f['failed']} of "
                 f"{f['checked']} checks beyond the limit {f['limit']:.6g} (rms "
-                f"{f['check']} {f['estimate']:.3g}), persistent from t = "
+                f"{f['check']} {f['estimate']:.3g}; "
+                f"{F0_MEASURES.get(f['check'], 'dimensionless')}), persistent from t = "
                 f"{f['t_first']:.2f} s"
             )
             continue
+        unit = f" {f['unit']}" if f.get("unit") else ""
         lines.append(
             f"  FAULT {f['triad']} {f['sensor']} {f['cause']}: estimate "
-            f"{f['estimate']:.6g}, certificate {f['certificate']:.6g}, limit "
-            f"{f['limit']:.6g}, first at t = {f['t_first']:.2f} s"
+            f"{f['estimate']:.6g}{unit}, certificate {f['certificate']:.6g}{unit}, limit "
+            f"{f['limit']:.6g}{unit}, first at t = {f['t_first']:.2f} s"
         )
     for u in v["undetermined"]:
         lines.append(f"  undetermined {u['triad']} {u['sensor']} {u['cause']}: {u['reason']}")

@@ -105,13 +105,27 @@ def moving_base_section(
     return section
 
 
+def _with_unit(f: dict) -> str:
+    """``estimate E U, certificate C U, limit L U`` of a named fault (U its ``unit``)."""
+    u = f" {f['unit']}" if f.get("unit") else ""
+    return (
+        f"estimate {f['estimate']:.6g}{u}, certificate {f['certificate']:.6g}{u}, "
+        f"limit {f['limit']:.6g}{u}"
+    )
+
+
+def _counts(counts: dict[str, int]) -> str:
+    """``{"outlier": 3, "gap": 1}`` as ``3 outlier, 1 gap`` (``none`` when empty)."""
+    return ", ".join(f"{n} {why}" for why, n in counts.items()) or "none"
+
+
 def moving_base_lines(mb: dict) -> list[str]:
     """A short account of the moving-base section."""
     g = mb["gnss"]
     lat = g.get("latency", {})
     lines = [
         f"moving base: GNSS {g['fixes']} fixes every {g['period_s']} s, {g.get('used', 0)} of "
-        f"{g['epochs']} epochs of {g['epoch_s']} s used (rejected {g['rejected'] or 'none'}), "
+        f"{g['epochs']} epochs of {g['epoch_s']} s used (rejected: {_counts(g['rejected'])}), "
         f"latency {lat.get('used_s')} s"
         + ("" if lat.get("determined") else f" ({lat.get('reason')})")
     ]
@@ -132,10 +146,7 @@ def moving_base_lines(mb: dict) -> list[str]:
     lines.append(f"  accel in motion: {mb.get('verdict')} ({mb.get('windows_run', 0)} windows)")
     for f in mb.get("faults", []):
         if f["named"]:
-            lines.append(
-                f"  FAULT accel {f['sensor']} {f['cause']}: estimate {f['estimate']:.6g}, "
-                f"certificate {f['certificate']:.6g}, limit {f['limit']:.6g}"
-            )
+            lines.append(f"  FAULT accel {f['sensor']} {f['cause']}: {_with_unit(f)}")
         else:
             alts = ", ".join(f"{o['sensor']} {o['cause']} {o['estimate']:.6g}" for o in f["one_of"])
             lines.append(f"  FAULT accel, one of: {alts} ({f['reason']})")
@@ -161,10 +172,7 @@ def gyro_turn_lines(gt: dict) -> list[str]:
     ]
     for f in gt["faults"]:
         if f.get("named"):
-            lines.append(
-                f"  FAULT gyro {f['sensor']} {f['cause']}: estimate {f['estimate']:.6g}, "
-                f"certificate {f['certificate']:.6g}, limit {f['limit']:.6g}"
-            )
+            lines.append(f"  FAULT gyro {f['sensor']} {f['cause']}: {_with_unit(f)}")
         else:
             lines.append(f"  FAULT gyro {f['cause']} in turns ({f0['persist']} failed)")
     return lines

@@ -50,7 +50,15 @@ from .gyro_fit import (
 from .holdout import direction_errors, judge, rms, rotation_leave_one_out
 from .intervals import QuasiStaticInterval
 from .known_rate import classify_plateaus
-from .params import TriadFit, certificate_vector, limit_vector, sensor_of, undetermined_fit
+from .params import (
+    TriadFit,
+    certificate_vector,
+    limit_vector,
+    parameter_units,
+    sensor_of,
+    std_above_limit,
+    undetermined_fit,
+)
 from .robust import reject_outliers
 from .scalar_fit import (
     NormalEquations,
@@ -775,6 +783,7 @@ def _gyro_rest_rotation(
     bias, bias_std = rest_bias(gyr_like, gmeans, gmvar, counts, like.earth_rate)
     cert = certificate_vector(gyr_like)
     limit = limit_vector(gyr_like)
+    units = parameter_units(gyr_like)
     est = cert.copy()
     std = np.full(9, np.inf)
     est[:3], std[:3] = bias, bias_std
@@ -842,7 +851,7 @@ def _gyro_rest_rotation(
             reasons[i] = (
                 "no rotation between static poses"
                 if i >= 3 and not moving
-                else f"std {std[i]:.3g} above {ratio:g} x limit {limit[i]:.3g}"
+                else std_above_limit(std[i], ratio, limit[i], units[i])
             )
     fit = TriadFit(
         triad="gyro",

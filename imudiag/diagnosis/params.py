@@ -25,6 +25,30 @@ def sensor_of(triad: str, index: int) -> str:
     return MISALIGNMENT_PAIRS[triad][index - 6]
 
 
+def cause_unit(triad: TriadModel, cause: str) -> str:
+    """The unit of a parameter of ``cause`` (spec/reports.md): a bias in the output unit, a
+    scale-factor error in output per input unit, a misalignment difference in rad."""
+    if cause == "bias":
+        return triad.output_unit
+    if cause == "scale_factor":
+        per = triad.input_unit
+        return f"{triad.output_unit}/({per})" if "/" in per else f"{triad.output_unit}/{per}"
+    if cause == "misalignment":
+        return "rad"
+    raise ValueError(f"no unit for cause {cause!r}")
+
+
+def parameter_units(triad: TriadModel) -> tuple[str, ...]:
+    """The unit of each of the 9 parameters in their order (:data:`CAUSES`), for text."""
+    return tuple(cause_unit(triad, cause) for cause in CAUSES)
+
+
+def std_above_limit(std: float, ratio: float, limit: float, unit: str) -> str:
+    """The reason a parameter is undetermined: its std above ``ratio`` times its limit,
+    both in ``unit`` (the parameter's, :func:`parameter_units`)."""
+    return f"std {std:.3g} {unit} above {ratio:g} x limit {limit:.3g} {unit}"
+
+
 def certificate_vector(triad: TriadModel) -> np.ndarray:
     """The certificate's (B, E, d) as a (9,) vector in certificate units."""
     return np.concatenate(

@@ -28,7 +28,14 @@ import numpy as np
 
 from ..certificate import TriadModel
 from .gauge import p_matrix, shape_of_triad
-from .params import TriadFit, certificate_vector, internal_scale, limit_vector
+from .params import (
+    TriadFit,
+    certificate_vector,
+    internal_scale,
+    limit_vector,
+    parameter_units,
+    std_above_limit,
+)
 from .robust import point_diagnostics, reject_outliers
 
 #: Floor of the standard deviation of a normalised residual (model resolution).
@@ -89,6 +96,7 @@ def _finish(
     scale = internal_scale(triad, m0)
     cert = certificate_vector(triad)
     limit = limit_vector(triad)
+    units = parameter_units(triad)
     est = cert + theta_dev * scale
     std = np.sqrt(np.maximum(np.diag(cov), 0.0)) * scale
     std = np.where(null, np.inf, std)
@@ -100,7 +108,7 @@ def _finish(
         else (
             "not excited by the data (no information on it)"
             if not np.isfinite(std[i])
-            else f"std {std[i]:.3g} above {determined_std_ratio:g} x limit {limit[i]:.3g}"
+            else std_above_limit(std[i], determined_std_ratio, limit[i], units[i])
         )
         for i in range(9)
     ]

@@ -30,6 +30,7 @@ from .config import DiagnosisConfig
 from .inputs import MagnitudeTable, check_units, log_rate_hz
 from .intervals import IntervalCollector
 from .known_rate import PLATEAU_DETECTOR
+from .params import PARAM_KEYS, cause_unit
 from .scalar_fit import NormalEquations, sample_rows
 from .stream import StreamingDiagnoser
 from .window import WindowResult
@@ -235,6 +236,9 @@ def diagnose_recording(
     # (``explained_by``: the parameter faults the window diagnosis names on that triad)
     verdict = report["verdict"]
     named = list(verdict["faults"])
+    for fault in named:  # the unit of estimate, certificate and limit (spec/reports.md)
+        if fault["cause"] in PARAM_KEYS:
+            fault["unit"] = cause_unit(cert.triad(fault["triad"]), fault["cause"])
     for fault in monitor.f0_faults() + ([known_fault] if known_fault else []):
         fault["explained_by"] = [
             {"sensor": f["sensor"], "cause": f["cause"]}

@@ -31,7 +31,14 @@ from .gyro_fit import (
 )
 from .intervals import MotionSegment, QuasiStaticInterval
 from .known_rate import classify_plateaus
-from .params import TriadFit, certificate_vector, limit_vector, undetermined_fit
+from .params import (
+    TriadFit,
+    certificate_vector,
+    limit_vector,
+    parameter_units,
+    std_above_limit,
+    undetermined_fit,
+)
 from .predicates import held_back
 from .scalar_fit import linear_fit
 
@@ -331,6 +338,7 @@ def gyro_window_fit(
 
     cert_vec = certificate_vector(tri)
     limit = limit_vector(tri)
+    units = parameter_units(tri)
     bias, bias_std = rest_bias(tri, means, mvar, counts, cert.earth_rate)
     est = cert_vec.copy()
     std = np.full(9, np.inf)
@@ -377,15 +385,13 @@ def gyro_window_fit(
         if determined[i]:
             reasons.append("")
         elif i < 3:
-            reasons.append(
-                f"std {std[i]:.3g} above {config.determined_std_ratio:g} x limit {limit[i]:.3g}"
-            )
+            reasons.append(std_above_limit(std[i], config.determined_std_ratio, limit[i], units[i]))
         elif not rotations:
             reasons.append("no rotation between static poses")
         else:
             reasons.append(
-                f"std {std[i]:.3g} above {config.determined_std_ratio:g} x limit {limit[i]:.3g}; "
-                f"{rotations} rotation(s) between static poses in the window"
+                std_above_limit(std[i], config.determined_std_ratio, limit[i], units[i])
+                + f"; {rotations} rotation(s) between static poses in the window"
             )
     fit = TriadFit(
         triad="gyro",
