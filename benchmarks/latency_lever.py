@@ -32,7 +32,12 @@ import numpy as np
 from imudiag.aiding.align import LATENCY_TOLERANCE_S, estimate_latency, used_latency
 from imudiag.aiding.joint import choose, separate_latency_std, solve_latency_lever
 from imudiag.aiding.lever_arm import lever_arm_rows, solve_lever_arm
-from imudiag.aiding.moving import accel_noise, estimate_lever_arm, lever_row_noise
+from imudiag.aiding.moving import (
+    accel_noise,
+    estimate_lever_arm,
+    gyro_noise_si,
+    lever_row_noise,
+)
 from imudiag.aiding.specific_force import gnss_epochs, imu_epochs
 from imudiag.aiding.tpv import parse_tpv, track_from_reports
 from imudiag.certificate import load_default
@@ -82,7 +87,8 @@ def run_drive(
     ep = gnss_epochs(track, span=max(1, int(round(1.0 / track.period_s()))))
     ep = ep.select((ep.t1 >= t[0]) & (ep.t0 <= t[-1]))
     if gyro_raw is not None:
-        rv = lever_row_noise(gyro_raw, cert.gyro, ep, rate_hz)
+        gyro_sig_si = gyro_noise_si(gyro_raw, cert.gyro, rate_hz)
+        rv = lever_row_noise(gyro_sig_si, ep, rate_hz)
     lat = estimate_latency(t, f_si, ep, gyro_si=w_si, max_latency_s=0.5)
     tau, tau_std = used_latency(lat, 0.5)  # the best estimate, determined or not
     plain = imu_epochs(t, f_si, ep.t0, ep.t1, gyro_si=w_si, sigma_sample_si=sig_si, latency_s=tau)
@@ -93,7 +99,7 @@ def run_drive(
             rows[use], (ep.mag - plain.mag)[use], (ep.sigma_mag**2 + plain.sigma_mag**2)[use]
         )
     else:
-        sep = estimate_lever_arm(t, w_si, gyro_raw, cert.gyro, ep, plain, tau, rate_hz)
+        sep = estimate_lever_arm(t, w_si, gyro_sig_si, ep, plain, tau, rate_hz)
     joint = solve_latency_lever(
         t, f_si, w_si, ep, tau, sigma_sample_si=sig_si, row_noise_var=rv, max_latency_s=0.5
     )

@@ -214,6 +214,8 @@ class AidingBatches:
         f_si = acc.inverse_si(self._acc)
         w_si = self.cert.gyro.inverse_si(self._gyr)
         rate = 1.0 / float(np.median(np.diff(self._t)))
+        # the gyro noise over the buffer (rad/s per sample), once: lever rows, joint, turns
+        gyro_sig_si = gyro_noise_si(self._gyr, self.cert.gyro, rate)
         # the accelerometers' white noise per sample over the buffer (raw units, and SI)
         sig_raw = accel_noise(self._acc, acc.noise_sigma(rate))
         sig_si = sig_raw / acc.scale_factor * acc.unit_to_si
@@ -239,11 +241,11 @@ class AidingBatches:
                 latency_s=self.latency_s,
             )  # fmt: skip
             self.lever_estimate = estimate_lever_arm(
-                t_utc, w_si, self._gyr, self.cert.gyro, ep, plain, self.latency_s, rate
+                t_utc, w_si, gyro_sig_si, ep, plain, self.latency_s, rate
             )
             if cfg.lever_arm_m is None and math.isfinite(est.std_s):
                 lat, self.lever_estimate, self.joint = solve_jointly(
-                    t_utc, f_si, w_si, self._gyr, self.cert.gyro, ep, sig_si, rate,
+                    t_utc, f_si, w_si, gyro_sig_si, ep, sig_si, rate,
                     self.latency_s, self.lever_estimate, cfg.max_latency_s, est.determined,
                 )  # fmt: skip
                 if self.joint["used"]:
@@ -275,7 +277,7 @@ class AidingBatches:
             latency_s=self.latency_s,
             lever_arm_m=self.lever_arm_m,
         )
-        self._check_turns(track, ep, im, rate)
+        self._check_turns(track, ep, im, gyro_sig_si)
         use = ep.valid & im.covered & np.isfinite(im.mag) & (ep.t0 >= self._done_t)
         if not np.any(use):
             return
@@ -313,12 +315,14 @@ class AidingBatches:
             self.last_onset = dict(wi.to_json(), t_window=round(self._window_t, 3))
             self.windows += 1
 
-    def _check_turns(self, track: GnssTrack, ep: GnssEpochs, im: ImuEpochs, rate: float) -> None:
-        """The gyros in turns over the buffer (:mod:`.course_rate`, no-slip assumption);
-        its faults are latched."""
+    def _check_turns(
+        self, track: GnssTrack, ep: GnssEpochs, im: ImuEpochs, gyro_sigma_si: np.ndarray
+    ) -> None:
+        """The gyros in turns over the buffer (:mod:`.course_rate`, no-slip assumption;
+        ``gyro_sigma_si`` (3,) the gyro noise, rad/s per sample); its faults are latched."""
         cfg = self.cfg
         rep = turn_check(
-            track, ep, im, self.cert.gyro, gyro_noise_si(self._gyr, self.cert.gyro, rate),
+            track, ep, im, self.cert.gyro, gyro_sigma_si,
             k_sigma_f0=cfg.k_sigma_f0, k_sigma=cfg.k_sigma, prior_factor=cfg.prior_factor,
             determined_std_ratio=cfg.determined_std_ratio,
         )  # fmt: skip

@@ -199,10 +199,11 @@ def moving_base_diagnosis(
         t, f_si, ep.t0, ep.t1, gyro_si=w_si, accel_raw=block.accel,
         sigma_sample_si=sig_si, latency_s=latency,
     )  # fmt: skip
-    est = estimate_lever_arm(t, w_si, block.gyro, gyr, ep, plain, latency, rate)
+    gyro_sig_si = gyro_noise_si(block.gyro, gyr, rate)  # once: lever rows, joint, turns
+    est = estimate_lever_arm(t, w_si, gyro_sig_si, ep, plain, latency, rate)
     if cfg.latency_s is None and cfg.lever_arm_m is None and math.isfinite(lat.std_s):
         latency, est, joint = solve_jointly(
-            t, f_si, w_si, block.gyro, gyr, ep, sig_si, rate, latency, est, cfg.max_latency_s,
+            t, f_si, w_si, gyro_sig_si, ep, sig_si, rate, latency, est, cfg.max_latency_s,
             lat.determined,
         )  # fmt: skip
         if joint["used"]:
@@ -244,7 +245,7 @@ def moving_base_diagnosis(
     report["f0"] = _f0_in_motion(ep, im, use, acc.limits.f0, cfg.k_sigma_f0, sig_lat)
     report["accel_noise_per_sample"] = [float(x) for x in sig_raw]
     report["gyro_turns"] = turn_check(
-        track, ep, im, gyr, gyro_noise_si(block.gyro, gyr, rate),
+        track, ep, im, gyr, gyro_sig_si,
         k_sigma_f0=cfg.k_sigma_f0, k_sigma=cfg.k_sigma, prior_factor=cfg.prior_factor,
         determined_std_ratio=cfg.determined_std_ratio, gate=gate,
     )  # fmt: skip
@@ -255,19 +256,18 @@ def moving_base_diagnosis(
 def estimate_lever_arm(
     t: np.ndarray,
     w_si: np.ndarray,
-    gyro_raw: np.ndarray,
-    gyro: TriadModel,
+    gyro_sigma_si: np.ndarray,
     ep: GnssEpochs,
     plain: ImuEpochs,
     latency_s: float,
     rate_hz: float,
 ) -> LeverArmEstimate:
     """The lever arm from the epochs' |f| mismatch (:mod:`.lever_arm`): ``plain`` the IMU
-    epochs without a lever arm; the gyro noise (rad/s per sample) the larger of the
-    certificate's and the one measured from the data (vibration)."""
+    epochs without a lever arm; ``gyro_sigma_si`` (3,) the gyro noise, rad/s per sample
+    (:func:`gyro_noise_si`: the larger of the certificate's and the measured one)."""
     use = ep.valid & plain.covered & np.isfinite(plain.mag)
     rows = lever_arm_rows(t, w_si, ep.t0, ep.t1, plain.mean_si, latency_s)
-    rv = lever_row_noise(gyro_raw, gyro, ep, rate_hz)
+    rv = lever_row_noise(gyro_sigma_si, ep, rate_hz)
     with np.errstate(invalid="ignore", divide="ignore"):
         u = plain.mean_si / plain.mag[:, None]
     return solve_lever_arm(
@@ -279,13 +279,11 @@ def estimate_lever_arm(
     )
 
 
-def lever_row_noise(
-    gyro_raw: np.ndarray, gyro: TriadModel, ep: GnssEpochs, rate_hz: float
-) -> float:
+def lever_row_noise(gyro_sigma_si: np.ndarray, ep: GnssEpochs, rate_hz: float) -> float:
     """Variance (rad/s^2)^2 per axis of the lever-arm rows' angular acceleration
-    (:func:`.lever_arm.row_noise_variance`) from the gyro noise (rad/s per sample: the
-    larger of the certificate's and the one measured from the data)."""
-    sig = gyro_noise_si(gyro_raw, gyro, rate_hz)
+    (:func:`.lever_arm.row_noise_variance`) from the gyro noise ``gyro_sigma_si`` (3,),
+    rad/s per sample (:func:`gyro_noise_si`)."""
+    sig = gyro_sigma_si
     epoch_s = float(np.median(ep.t1 - ep.t0)) if len(ep) else 1.0
     return row_noise_variance(float(np.max(sig)), rate_hz * epoch_s, epoch_s)
 
@@ -294,8 +292,7 @@ def solve_jointly(
     t: np.ndarray,
     f_si: np.ndarray,
     w_si: np.ndarray,
-    gyro_raw: np.ndarray,
-    gyro: TriadModel,
+    gyro_sigma_si: np.ndarray,
     ep: GnssEpochs,
     sig_si: np.ndarray,
     rate_hz: float,
@@ -306,10 +303,11 @@ def solve_jointly(
 ) -> tuple[float, LeverArmEstimate, dict]:
     """Latency and lever arm solved together from the separate ``latency_s`` (s) and
     ``lever`` (:mod:`.joint`): (latency, lever estimate, report), the joint ones where
-    they are well determined, else the separate ones."""
+    they are well determined, else the separate ones; ``gyro_sigma_si`` (3,) the gyro
+    noise, rad/s per sample, ``sig_si`` (3,) the accelerometers', m/s^2 per sample."""
     joint = solve_latency_lever(
         t, f_si, w_si, ep, latency_s, sigma_sample_si=sig_si,
-        row_noise_var=lever_row_noise(gyro_raw, gyro, ep, rate_hz), max_latency_s=max_latency_s,
+        row_noise_var=lever_row_noise(gyro_sigma_si, ep, rate_hz), max_latency_s=max_latency_s,
     )  # fmt: skip
     return choose(joint, latency_s, lever, latency_determined)
 
