@@ -81,7 +81,11 @@ inside a block everything is vectorised with cumulative sums.
 
 from __future__ import annotations
 
+import copy
+import inspect
 import math
+import weakref
+from collections import deque
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -140,6 +144,42 @@ class TrailingSpread:
         self._max = np.zeros((0, c))
         self._min = np.zeros((0, c))
 
+    def _extremes(
+        self, d_idx: np.ndarray, d_val: np.ndarray, d_start: np.ndarray, old: int
+    ) -> np.ndarray:
+        """The maxima (new, 2C) over each kept value's history of the kept values and their
+        negatives ``d_val`` (total, 2C), for the values kept from position ``old`` on; a
+        history holds the value's k last kept values from its first row ``d_start`` on
+        (-inf where it holds none). Few new values (a daemon's read): one reduction each;
+        many: a sparse table of maxima (max is exact, so both give the same figures)."""
+        k = self.k
+        total = d_idx.shape[0]
+        new = total - old
+        firsts = np.searchsorted(d_idx, d_start[old:])
+        if new < 8:
+            ext = np.empty((new, d_val.shape[1]))
+            for i, lo in enumerate(firsts.tolist()):
+                j = old + i
+                lo = max(j - k + 1, lo)  # among its k last kept values, those from its start
+                ext[i] = d_val[lo : j + 1].max(axis=0) if lo <= j else -np.inf
+            return ext
+        j = np.arange(old, total)
+        lo = np.maximum(j - k + 1, firsts)
+        # a sparse table: level q holds the maxima of 2^q consecutive kept values, so a
+        # history of L values is the maximum of two overlapping runs of 2^floor(log2 L)
+        none = lo > j  # no kept value in the history (-inf)
+        lo[none] = j[none]
+        length = j - lo + 1
+        q = np.frexp(length.astype(float))[1] - 1  # floor(log2 L), exactly
+        table = np.full((int(q.max()) + 1, total, d_val.shape[1]), -np.inf)
+        table[0] = d_val
+        for level in range(1, table.shape[0]):
+            h = 1 << (level - 1)
+            np.maximum(table[level - 1, :-h], table[level - 1, h:], out=table[level, :-h])
+        ext = np.maximum(table[q, lo], table[q, j + 1 - (1 << q)])
+        ext[none] = -np.inf
+        return ext
+
     def update(self, first: int, values: np.ndarray, start: np.ndarray) -> np.ndarray:
         """Spreads (M, C) for the M consecutive stream rows from row ``first``, with
         ``values`` (M, C) and the first row of each row's history ``start`` (M,)."""
@@ -155,12 +195,7 @@ class TrailingSpread:
             total = d_idx.shape[0]
             # the extremes of each new kept value's history: the maxima of the values and of
             # their negatives (minus the minima) in one reduction
-            ext = np.empty((total - old, 2 * c))
-            firsts = np.searchsorted(d_idx, d_start[old:]).tolist()
-            for i, lo in enumerate(firsts):
-                j = old + i
-                lo = max(j - k + 1, lo)  # among its k last kept values, those from its start
-                ext[i] = d_val[lo : j + 1].max(axis=0) if lo <= j else -np.inf
+            ext = self._extremes(d_idx, d_val, d_start, old)
             d_max = np.concatenate([self._max, ext[:, :c]])
             d_min = np.concatenate([self._min, -ext[:, c:]])
             # each row's last kept value (at or before it)
@@ -453,19 +488,22 @@ class QuasiStaticDetector:
         xc = np.subtract(x_new, self._ref, out=rows[:, :6])
         np.multiply(xc, xc, out=rows[:, 6:12])
         rows[:, 12] = 0.0 if bad_new is None else bad_new
-        now, back, idx = self._prefix.update(rows, self._offsets)
+        # P at each row and one window, rate_window rows and two windows back
+        now, backs, idx = self._prefix.update_views(rows, self._offsets)
         first = int(idx[0])
         skip = max(0, w - 1 - first)  # the first w - 1 samples of a stream have no whole window
         out = np.zeros(n, dtype=bool)
         if skip >= n:
             return out
         if skip:
-            now, back, idx = now[skip:], back[skip:], idx[skip:]
+            now, idx = now[skip:], idx[skip:]
+            backs = tuple(b[skip:] for b in backs)
             first += skip
         m = n - skip
-        both = now[:, None, :] - back[:, :2, :]
-        sums = both[:, 0]  # the window's
-        long_sums = both[:, 1]  # over rate_window rows: the gyro means
+        back_w, back_long, back_2w = backs
+        sums = now - back_w  # the window's
+        # over rate_window rows: the gyro sums (the longer gyro means)
+        long_gyro = now[:, 0:3] - back_long[:, 0:3]
         s1 = sums[:, :6]
         mean_c = s1 / w
         var = np.maximum((sums[:, 6:12] - s1 * mean_c) / (w - 1), 0.0)
@@ -486,13 +524,14 @@ class QuasiStaticDetector:
             ok &= still[:, c]
         if not self.drift_enabled or lim.band is None:
             if lim.band is not None:
-                ok &= self._rate_band(mean, long_sums, first)[0]
+                ok &= self._rate_band(mean, long_gyro, first)[0]
             out[skip:] = ok
             return out
-        vertical_ok, turning, rotating, vertical_long = self._rate_band(mean, long_sums, first)
+        vertical_ok, turning, rotating, vertical_long = self._rate_band(mean, long_gyro, first)
         ok &= vertical_ok
         # the histories' restarts (module doc)
-        bad = long_sums[:, 12] >= 0.5  # in either window (the long one holds the short one)
+        # a bad sample in either window (the long one holds the short one)
+        bad = (now[:, 12] - back_long[:, 12]) >= 0.5
         long_mark = turning | bad
         short_mark = long_mark
         if rotating.any():  # and far beyond the variance test
@@ -502,7 +541,7 @@ class QuasiStaticDetector:
         if 1 in lim.checked:
             # a re-orientation by a large angle inside one window (by hand)
             settle = np.sum(var[:, 3:6] * self._to_si2, axis=1) > self._settle_var_si
-            jump = self._jump(first, sums, back, still[:, 1], lim.var_ref[3:6])
+            jump = self._jump(first, sums, back_w, back_2w, still[:, 1], lim.var_ref[3:6])
         if (short_mark | jump | settle).any():
             start_short = self._starts(
                 0, idx, [(short_mark, w), (jump, 0), (settle, self._settle)], self._short_span
@@ -531,14 +570,14 @@ class QuasiStaticDetector:
         return ok
 
     def _rate_band(
-        self, mean: np.ndarray, long_sums: np.ndarray, first: int
+        self, mean: np.ndarray, long_gyro: np.ndarray, first: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """For window means (M, 6) of the rows from stream row ``first``: whose gyro rate
         about the vertical is within the band (M,); whose rate magnitude is beyond it (M,):
         the unit is turning; whose rate magnitude is beyond the rest level
         (``restart_margin`` bias limits instead of ``bias_margin``) (M,); and the rate about
         the vertical (M,), gyro input units, of the longer gyro means (over ``rate_window``
-        rows, from the prefix-sum differences ``long_sums`` (M, 13))."""
+        rows, from their sums ``long_gyro`` (M, 3), centred on the stream's first sample)."""
         cert = self.certificate
         lim = self._limits()
         assert lim.band is not None and lim.rot_band is not None
@@ -549,7 +588,7 @@ class QuasiStaticDetector:
             count = np.minimum(np.arange(first + 1, first + 1 + m), self.rate_window)[:, None]
         ref = self._ref
         assert ref is not None  # set by the first block
-        gyro_long = long_sums[:, 0:3] / count + ref[0:3]
+        gyro_long = long_gyro / count + ref[0:3]
         # the window means and the longer means in one pass (gyro input units)
         rates = cert.gyro.inverse(
             np.concatenate([mean[:, 0:3], gyro_long]), n_inv_t=self._n_inv_t["gyro"]
@@ -569,27 +608,45 @@ class QuasiStaticDetector:
         )
 
     def _jump(
-        self, first: int, sums: np.ndarray, back: np.ndarray, still: np.ndarray, sigma2: np.ndarray
+        self,
+        first: int,
+        sums: np.ndarray,
+        back_w: np.ndarray,
+        back_2w: np.ndarray,
+        still: np.ndarray,
+        sigma2: np.ndarray,
     ) -> np.ndarray:
         """Accelerometer windows (M,) whose mean stepped from the window before it, both
         still: a change no smooth motion makes (a ramp across two windows that pass the
         variance test moves the mean by at most sqrt(12 (L - 3)) sigma from one window to
         the next, L the variance ratio limit; the threshold, sqrt(12 L) sigma, keeps a
         margin of 2 in the squares), so a sensor step or a knock, not an acceleration.
-        ``back`` (M, 3, 13): the prefix sums one window, rate_window rows and two windows
-        back; ``sigma2``: the accelerometers' noise variance (output units^2)."""
+        ``back_w``, ``back_2w`` (M, 13): the prefix sums one and two windows back;
+        ``sigma2``: the accelerometers' noise variance (output units^2)."""
         w = self.window
         limit = self.variance_ratio_limit
-        p1 = back[:, 0, 3:6] - back[:, 2, 3:6]  # the window before the window
+        p1 = back_w[:, 3:6] - back_2w[:, 3:6]  # the window before the window
         step = (sums[:, 3:6] - p1) / w
         jump = still & (np.sum(step * step / sigma2, axis=1) > 12.0 * limit)
         if first + 1 < 2 * w:
             jump &= np.arange(first + 1, first + 1 + sums.shape[0]) >= 2 * w
         if jump.any():  # and the window before was still too
             p_mean = p1 / w
-            p_var = np.maximum((back[:, 0, 9:12] - back[:, 2, 9:12] - p1 * p_mean) / (w - 1), 0.0)
+            p_var = np.maximum((back_w[:, 9:12] - back_2w[:, 9:12] - p1 * p_mean) / (w - 1), 0.0)
             jump &= np.sum(p_var / sigma2, axis=1) <= limit
         return jump
+
+    def copy(self) -> QuasiStaticDetector:
+        """An independent copy of the detector in its present state (the certificate shared):
+        fed the same blocks, it gives what this one would."""
+        new = copy.copy(self)
+        new._prefix = self._prefix.copy()
+        # a TrailingSpread replaces its arrays, never writes into them: a shallow copy is one
+        new._drift = (copy.copy(self._drift[0]), copy.copy(self._drift[1]))
+        new._restart = list(self._restart)
+        new._noise_var = dict(self._noise_var)
+        new._noise_fixed = dict(self._noise_fixed)
+        return new
 
     def reset(self) -> None:
         """Forget the carried samples (after a gap in the stream); the noise estimate stays."""
@@ -619,4 +676,136 @@ def static_mask(
     return det.update(block)
 
 
-__all__ = ["QuasiStaticDetector", "static_mask", "BAD_FLAGS"]
+class _Entry(NamedTuple):
+    """A block the shared detector has run, kept until every reader has passed it."""
+
+    start: int  #: stream index of its first sample
+    n: int  #: samples
+    t: tuple[float, float]  #: its first and last sample times, s (the same stream?)
+    flags: np.ndarray  #: (n,) bool: static flags
+    noise: dict[str, np.ndarray | None]  #: the detector's noise variances after it
+    before: QuasiStaticDetector  #: a copy of the detector before it
+
+
+class _Shared:
+    """One detector run over one stream for readers that feed it the same blocks."""
+
+    def __init__(self, detector: QuasiStaticDetector) -> None:
+        self.detector = detector
+        self.fed = 0  #: samples through the detector
+        self.entries: deque[_Entry] = deque()
+        self.readers: weakref.WeakSet[SharedDetectorReader] = weakref.WeakSet()
+
+    def attached(self, but: SharedDetectorReader) -> list[SharedDetectorReader]:
+        """The readers other than ``but`` that still read the shared flags."""
+        return [r for r in self.readers if r is not but and r.own is None]
+
+    def prune(self) -> None:
+        """Drop the blocks every attached reader has passed."""
+        readers = [r for r in self.readers if r.own is None]
+        lowest = min((r.pos for r in readers), default=self.fed)
+        while self.entries and self.entries[0].start + self.entries[0].n <= lowest:
+            self.entries.popleft()
+
+
+class SharedDetectorReader:
+    """One consumer's view of a detector shared through a :class:`DetectorPool`: the
+    :meth:`update` and :meth:`noise_sigma` of :class:`QuasiStaticDetector`, each as that
+    consumer's own detector would give them at its own place in the stream.
+
+    The first reader to reach a block runs the detector on it; the flags (and the noise
+    figures after it) wait for the others. A reader that feeds a block cut differently
+    (say two blocks joined: the prefix sums' roundings depend on the cut) goes on alone
+    from a copy of the detector as it was before that block, so the flags are always
+    those of a detector of its own.
+    """
+
+    def __init__(self, shared: _Shared) -> None:
+        self.shared = shared  #: the run it reads (shared with the readers of an identical detector)
+        self.pos = 0  #: samples this reader has fed
+        self.own: QuasiStaticDetector | None = None  #: its own detector, once it went alone
+        self._noise = dict(shared.detector._noise_var)
+        shared.readers.add(self)
+
+    def noise_sigma(self, triad: str) -> np.ndarray | None:
+        """As :meth:`QuasiStaticDetector.noise_sigma` after this reader's last block."""
+        if self.own is not None:
+            return self.own.noise_sigma(triad)
+        v = self._noise[triad]
+        return None if v is None else np.sqrt(v)
+
+    def update(self, block: SampleBlock) -> np.ndarray:
+        """As :meth:`QuasiStaticDetector.update`: static flags (N,) bool of ``block``, the
+        next samples of the stream every reader feeds."""
+        if self.own is not None:
+            return self.own.update(block)
+        n = len(block)
+        if n == 0:
+            return np.zeros(0, dtype=bool)
+        sh = self.shared
+        t = (float(block.t[0]), float(block.t[-1]))
+        if self.pos == sh.fed:  # the first here: run the detector
+            det = sh.detector
+            others = sh.attached(self)
+            before = det.copy() if others else None
+            flags = det.update(block)
+            sh.fed += n
+            if before is not None:
+                noise = dict(det._noise_var)
+                sh.entries.append(_Entry(self.pos, n, t, flags.copy(), noise, before))
+            self.pos += n
+            self._noise = dict(det._noise_var)
+            return flags
+        entry = next((e for e in sh.entries if e.start == self.pos), None)
+        if entry is None:  # cannot happen: every block is kept while a reader is behind it
+            raise RuntimeError("shared still detector: a reader lost its place in the stream")
+        if entry.n == n and entry.t == t:
+            self.pos += n
+            self._noise = entry.noise
+            sh.prune()
+            return entry.flags.copy()
+        # cut differently: on alone from the detector as it was before that block
+        self.own = entry.before.copy()
+        sh.prune()
+        return self.own.update(block)
+
+
+class DetectorPool:
+    """Hands out still detectors; consumers of the same stream that ask for identical
+    detectors (the same certificate object, rate, window and options, the same noise
+    fixed by the certificate) share one, run once per block (``imudiag diagnose``: the
+    monitor's and the interval collector's when they are alike). Every consumer must
+    ask before any of them feeds a block and feed the same stream; a consumer that asks
+    later gets a detector of its own."""
+
+    _SIGNATURE = inspect.signature(QuasiStaticDetector)
+
+    def __init__(self) -> None:
+        self._shared: dict[tuple[Any, ...], _Shared] = {}
+
+    def detector(
+        self, certificate: Certificate, rate_hz: float | None = None, **options: Any
+    ) -> SharedDetectorReader:
+        """A reader of the detector ``QuasiStaticDetector(certificate, rate_hz, **options)``
+        would be, shared with the earlier readers of an identical one."""
+        det = QuasiStaticDetector(certificate, rate_hz, **options)
+        bound = self._SIGNATURE.bind(certificate, rate_hz, **options)
+        bound.apply_defaults()
+        args = dict(bound.arguments)
+        args["certificate"] = id(certificate)  # the detector keeps it alive
+        args["rate_hz"] = det.rate_hz
+        args["certificate_noise"] = (det._noise_fixed["gyro"], det._noise_fixed["accel"])
+        key = tuple((name, repr(value)) for name, value in sorted(args.items()))
+        shared = self._shared.get(key)
+        if shared is None or shared.fed:
+            shared = self._shared[key] = _Shared(det)
+        return SharedDetectorReader(shared)
+
+
+__all__ = [
+    "BAD_FLAGS",
+    "DetectorPool",
+    "QuasiStaticDetector",
+    "SharedDetectorReader",
+    "static_mask",
+]
