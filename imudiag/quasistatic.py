@@ -488,22 +488,26 @@ class QuasiStaticDetector:
         xc = np.subtract(x_new, self._ref, out=rows[:, :6])
         np.multiply(xc, xc, out=rows[:, 6:12])
         rows[:, 12] = 0.0 if bad_new is None else bad_new
-        # P at each row and one window, rate_window rows and two windows back
-        now, backs, idx = self._prefix.update_views(rows, self._offsets)
+        # P at each row and one window, rate_window rows and two windows back: the sums of
+        # the window (``sums``) and of the rate_window rows (``long_sums``: the gyro means)
+        if self._prefix.whole(n):  # diagnose-sized: slices of one array, no gathers
+            now, (back_w, back_long, back_2w), idx = self._prefix.update_views(rows, self._offsets)
+            sums, long_sums = now - back_w, now - back_long
+        else:
+            now, back, idx = self._prefix.update(rows, self._offsets)
+            both = now[:, None, :] - back[:, :2, :]
+            sums, long_sums = both[:, 0], both[:, 1]
+            back_w, back_2w = back[:, 0], back[:, 2]
         first = int(idx[0])
         skip = max(0, w - 1 - first)  # the first w - 1 samples of a stream have no whole window
         out = np.zeros(n, dtype=bool)
         if skip >= n:
             return out
         if skip:
-            now, idx = now[skip:], idx[skip:]
-            backs = tuple(b[skip:] for b in backs)
+            sums, long_sums, idx = sums[skip:], long_sums[skip:], idx[skip:]
+            back_w, back_2w = back_w[skip:], back_2w[skip:]
             first += skip
         m = n - skip
-        back_w, back_long, back_2w = backs
-        sums = now - back_w  # the window's
-        # over rate_window rows: the gyro sums (the longer gyro means)
-        long_gyro = now[:, 0:3] - back_long[:, 0:3]
         s1 = sums[:, :6]
         mean_c = s1 / w
         var = np.maximum((sums[:, 6:12] - s1 * mean_c) / (w - 1), 0.0)
@@ -524,14 +528,13 @@ class QuasiStaticDetector:
             ok &= still[:, c]
         if not self.drift_enabled or lim.band is None:
             if lim.band is not None:
-                ok &= self._rate_band(mean, long_gyro, first)[0]
+                ok &= self._rate_band(mean, long_sums, first)[0]
             out[skip:] = ok
             return out
-        vertical_ok, turning, rotating, vertical_long = self._rate_band(mean, long_gyro, first)
+        vertical_ok, turning, rotating, vertical_long = self._rate_band(mean, long_sums, first)
         ok &= vertical_ok
         # the histories' restarts (module doc)
-        # a bad sample in either window (the long one holds the short one)
-        bad = (now[:, 12] - back_long[:, 12]) >= 0.5
+        bad = long_sums[:, 12] >= 0.5  # in either window (the long one holds the short one)
         long_mark = turning | bad
         short_mark = long_mark
         if rotating.any():  # and far beyond the variance test
@@ -570,14 +573,14 @@ class QuasiStaticDetector:
         return ok
 
     def _rate_band(
-        self, mean: np.ndarray, long_gyro: np.ndarray, first: int
+        self, mean: np.ndarray, long_sums: np.ndarray, first: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """For window means (M, 6) of the rows from stream row ``first``: whose gyro rate
         about the vertical is within the band (M,); whose rate magnitude is beyond it (M,):
         the unit is turning; whose rate magnitude is beyond the rest level
         (``restart_margin`` bias limits instead of ``bias_margin``) (M,); and the rate about
         the vertical (M,), gyro input units, of the longer gyro means (over ``rate_window``
-        rows, from their sums ``long_gyro`` (M, 3), centred on the stream's first sample)."""
+        rows, from the prefix-sum differences ``long_sums`` (M, 13))."""
         cert = self.certificate
         lim = self._limits()
         assert lim.band is not None and lim.rot_band is not None
@@ -588,7 +591,7 @@ class QuasiStaticDetector:
             count = np.minimum(np.arange(first + 1, first + 1 + m), self.rate_window)[:, None]
         ref = self._ref
         assert ref is not None  # set by the first block
-        gyro_long = long_gyro / count + ref[0:3]
+        gyro_long = long_sums[:, 0:3] / count + ref[0:3]
         # the window means and the longer means in one pass (gyro input units)
         rates = cert.gyro.inverse(
             np.concatenate([mean[:, 0:3], gyro_long]), n_inv_t=self._n_inv_t["gyro"]

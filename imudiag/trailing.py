@@ -118,16 +118,6 @@ class PrefixSums:
         new._last = self._last.copy()
         return new
 
-    def update(
-        self, rows: np.ndarray, offsets: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(P at the new rows (N, k), P ``offsets`` rows back (N, len(offsets), k), stream
-        index of each new row (N,)); ``rows`` (N, k), each offset in 1..reach."""
-        if self._whole(rows.shape[0]):
-            now, backs, idx = self.update_views(rows, offsets)
-            return now, np.stack(backs, axis=1), idx
-        return self._update_chunked(rows, offsets)
-
     def update_views(
         self, rows: np.ndarray, offsets: np.ndarray
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...], np.ndarray]:
@@ -136,8 +126,8 @@ class PrefixSums:
         array of the block's prefix sums (no gathers, no copies), with the values
         :meth:`update` gives bit for bit."""
         n = rows.shape[0]
-        if not self._whole(n):
-            now, back, idx = self._update_chunked(rows, offsets)
+        if not self.whole(n):
+            now, back, idx = self.update(rows, offsets)
             return now, tuple(back[:, j] for j in range(back.shape[1])), idx
         first = self._rows
         reach, depth, mask = self.reach, self.depth, self.depth - 1
@@ -170,22 +160,25 @@ class PrefixSums:
         backs = tuple(ext[reach - off : reach - off + n] for off in offsets.tolist())
         return ext[reach:], backs, np.arange(first, first + n)
 
-    def _whole(self, n: int) -> bool:
+    def whole(self, n: int) -> bool:
         """Whether a block of ``n`` rows goes through :meth:`update_views`' one pass: longer
         than the buffer's free span (shorter ones are one chunk already) and not reaching
         the next shift back to zero (whose chunk-by-chunk roundings only the chunked
         update repeats)."""
         return n > self.depth - self.reach - 1 and self._rows + n < self._next_rebase
 
-    def _update_chunked(
+    def update(
         self, rows: np.ndarray, offsets: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`update` through the circular buffer, in chunks that leave every slot a
-        window reaches unwritten until it is read."""
+        """(P at the new rows (N, k), P ``offsets`` rows back (N, len(offsets), k), stream
+        index of each new row (N,)); ``rows`` (N, k), each offset in 1..reach."""
         n = rows.shape[0]
         chunk = self.depth - self.reach - 1
-        if n > chunk:
-            parts = [self._update_chunked(rows[i : i + chunk], offsets) for i in range(0, n, chunk)]
+        if n > chunk:  # keep every slot a window reaches unwritten until it is read
+            if self.whole(n):
+                now, backs, idx = self.update_views(rows, offsets)
+                return now, np.stack(backs, axis=1), idx
+            parts = [self.update(rows[i : i + chunk], offsets) for i in range(0, n, chunk)]
             return (
                 np.concatenate([p[0] for p in parts]),
                 np.concatenate([p[1] for p in parts]),

@@ -59,13 +59,15 @@ def _drive(seconds: float = 300.0) -> SampleBlock:
 
 STREAMS = {
     "still": lambda: simulate(CERT, still(60.0, rate_hz=200), seed=1).samples,
-    "multiposition, faults": lambda: simulate(
-        CERT,
-        multi_position(n_attitudes=16, dwell_s=3.0, turn_s=1.5, rate_hz=200, seed=4),
-        seed=11,
-        effects=Effects(quantize=True, adc_error_rate=0.001),
-        faults=[Fault("bias", "az", 20.0, 10.0 * float(CERT.accel.limits.bias[2]))],
-    ).samples,
+    "multiposition, faults": lambda: (
+        simulate(
+            CERT,
+            multi_position(n_attitudes=16, dwell_s=3.0, turn_s=1.5, rate_hz=200, seed=4),
+            seed=11,
+            effects=Effects(quantize=True, adc_error_rate=0.001),
+            faults=[Fault("bias", "az", 20.0, 10.0 * float(CERT.accel.limits.bias[2]))],
+        ).samples
+    ),
     "urban drive": _drive,
 }
 
@@ -78,9 +80,11 @@ def _cuts(n: int, rng: np.random.Generator, big: bool) -> list[int]:
     return sizes
 
 
+Readers = tuple[SharedDetectorReader, SharedDetectorReader]
+
+
 def _check_readers(block: SampleBlock, cert: Certificate, seed: int, rate: float | None = None,
-                   join_from: int | None = None,
-                   **options: object) -> tuple[SharedDetectorReader, SharedDetectorReader]:  # fmt: skip
+                   join_from: int | None = None, **options: object) -> Readers:  # fmt: skip
     """Two readers of one pool against two detectors of their own, same blocks. Reader A
     runs ahead by 0..3 blocks at times, B at others; from block ``join_from`` on B feeds two
     of A's blocks joined (the later of the two to get there must go on alone). Returns the
