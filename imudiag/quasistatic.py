@@ -86,7 +86,7 @@ import inspect
 import math
 import weakref
 from collections import deque
-from typing import Any, NamedTuple
+from typing import Any, Generic, NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
@@ -217,6 +217,143 @@ class TrailingSpread:
         return np.where(have[:, None] & np.isfinite(spread), spread, 0.0)
 
 
+class _WindowStats:
+    """What a block's trailing windows hold, whatever the noise figures: the part of the
+    still detector two detectors of one stream with different noise share (module doc).
+
+    Rows are the block's samples from ``skip`` on (the first ``W - 1`` of a stream have no
+    whole window), stream rows from ``first``; prefix-sum differences and back values
+    (M, 13): outputs centred on the stream's first sample ``ref`` (0-5), their squares
+    (6-11), bad flags (12).
+    """
+
+    __slots__ = ("skip", "idx", "first", "sums", "long_sums", "back_w", "back_2w", "var",
+                 "mean", "_stage", "_rates")  # fmt: skip
+
+    def __init__(
+        self,
+        stage: WindowStage,
+        n: int,
+        idx: np.ndarray,
+        sums: np.ndarray,
+        long_sums: np.ndarray,
+        back_w: np.ndarray,
+        back_2w: np.ndarray,
+    ) -> None:
+        w = stage.window
+        self.skip = max(0, w - 1 - int(idx[0]))  #: leading rows without a whole window
+        if self.skip >= n:
+            return
+        sl = slice(self.skip, None)
+        self.idx = idx[sl]  #: (M,) stream row of each window's last sample
+        self.first = int(self.idx[0])
+        self.sums = sums[sl]  #: (M, 13) the window's sums
+        self.long_sums = long_sums[sl]  #: (M, 13) the sums over rate_window rows
+        self.back_w, self.back_2w = back_w[sl], back_2w[sl]  #: P one and two windows back
+        s1 = self.sums[:, :6]
+        mean_c = s1 / w
+        #: (M, 6) window variances, output units^2
+        self.var = np.maximum((self.sums[:, 6:12] - s1 * mean_c) / (w - 1), 0.0)
+        assert stage.ref is not None
+        self.mean = mean_c + stage.ref  #: (M, 6) window means, output units
+        self._stage = stage
+        self._rates: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def rates(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The gyro rate about the vertical (the certificate-corrected accelerometer window
+        mean) of the window means and of the longer means over ``rate_window`` rows, and
+        the window means' rate magnitude (M,) each, gyro input units; worked out once."""
+        if self._rates is None:
+            stage = self._stage
+            cert, mean = stage.certificate, self.mean
+            m = mean.shape[0]
+            first, rate_window = self.first, stage.rate_window
+            if first + 1 >= rate_window:
+                count: np.ndarray | int = rate_window
+            else:
+                count = np.minimum(np.arange(first + 1, first + 1 + m), rate_window)[:, None]
+            assert stage.ref is not None
+            gyro_long = self.long_sums[:, 0:3] / count + stage.ref[0:3]
+            # the window means and the longer means in one pass (gyro input units)
+            rates = cert.gyro.inverse(
+                np.concatenate([mean[:, 0:3], gyro_long]), n_inv_t=stage.n_inv_t["gyro"]
+            )
+            rate = rates[:m]
+            down = cert.accel.inverse(mean[:, 3:6], n_inv_t=stage.n_inv_t["accel"])
+            norm = np.sqrt(np.einsum("ij,ij->i", down, down))
+            norm = np.where(norm > 0, norm, 1.0)
+            # about the vertical: the window means' rates and the longer means' (2, M)
+            vertical, vertical_long = np.einsum("kij,ij->ki", rates.reshape(2, m, 3), down) / norm
+            magnitude = np.sqrt(np.einsum("ij,ij->i", rate, rate))
+            self._rates = (vertical, vertical_long, magnitude)
+        return self._rates
+
+
+class WindowStage:
+    """The still detector's window sums over a stream: prefix sums of the outputs, their
+    squares and the bad flags, carried across blocks (see :class:`QuasiStaticDetector`).
+    ``window`` and ``rate_window`` in samples; ``cols``: the output columns (gyro 0-2,
+    accel 3-5) whose non-finite values make a sample bad."""
+
+    def __init__(
+        self,
+        certificate: Certificate,
+        window: int,
+        rate_window: int,
+        cols: np.ndarray,
+        n_inv_t: dict[str, np.ndarray],
+    ) -> None:
+        self.certificate = certificate
+        self.window, self.rate_window = window, rate_window
+        self.cols, self.n_inv_t = cols, n_inv_t
+        self.prefix = PrefixSums(13, max(rate_window, 2 * window))
+        self.offsets = np.array([window, rate_window, 2 * window])
+        self.ref: np.ndarray | None = None  #: the stream's first sample, the sums' origin
+
+    def key(self) -> tuple[Any, ...]:
+        """What makes two stages give the same statistics on the same blocks."""
+        return (id(self.certificate), self.window, self.rate_window, tuple(self.cols.tolist()))
+
+    def copy(self) -> WindowStage:
+        """An independent copy in the present state."""
+        new = copy.copy(self)
+        new.prefix = self.prefix.copy()
+        return new
+
+    def run(self, block: SampleBlock) -> _WindowStats:
+        """The window statistics of a block (N >= 1 samples), the stream's next."""
+        n = len(block)
+        x_new = np.concatenate([block.gyro, block.accel], axis=1)
+        bad_new = None
+        if block.flags is not None:
+            bad_new = (np.asarray(block.flags).astype(np.int64) & BAD_FLAGS) != 0
+        finite = np.isfinite(x_new)
+        if not finite.all():
+            unusable = ~np.all(finite[:, self.cols], axis=1)
+            bad_new = unusable if bad_new is None else bad_new | unusable
+            x_new = np.where(finite, x_new, 0.0)
+        # running sums of the window: prefix sums of the outputs (centred on the stream's
+        # first sample, so squares of ADC counts stay small), their squares and the bad
+        # flags; each window's sums are two rows of them, whatever the window's length
+        if self.ref is None:
+            self.ref = np.array(x_new[0], dtype=float)
+        rows = np.empty((n, 13))
+        xc = np.subtract(x_new, self.ref, out=rows[:, :6])
+        np.multiply(xc, xc, out=rows[:, 6:12])
+        rows[:, 12] = 0.0 if bad_new is None else bad_new
+        # P at each row and one window, rate_window rows and two windows back: the sums of
+        # the window (``sums``) and of the rate_window rows (``long_sums``: the gyro means)
+        if self.prefix.whole(n):  # diagnose-sized: slices of one array, no gathers
+            now, (back_w, back_long, back_2w), idx = self.prefix.update_views(rows, self.offsets)
+            sums, long_sums = now - back_w, now - back_long
+        else:
+            now, back, idx = self.prefix.update(rows, self.offsets)
+            both = now[:, None, :] - back[:, :2, :]
+            sums, long_sums = both[:, 0], both[:, 1]
+            back_w, back_2w = back[:, 0], back[:, 2]
+        return _WindowStats(self, n, idx, sums, long_sums, back_w, back_2w)
+
+
 class _Limits(NamedTuple):
     """The detector's thresholds that depend on its noise figures (worked out once each)."""
 
@@ -263,8 +400,6 @@ class QuasiStaticDetector:
     the quietest windows seen so far: a data sheet's figure is often wrong by a
     factor 1.5-3, and a figure too low leaves no window still.
     """
-
-    _ref: np.ndarray | None  #: the first sample of the stream, the running sums' origin
 
     def __init__(
         self,
@@ -364,10 +499,10 @@ class QuasiStaticDetector:
         #: accelerometer output units to m/s^2, per axis
         self._to_si = a.unit_to_si / np.asarray(a.scale_factor, dtype=float)
         self._to_si2 = self._to_si**2
-        self.reset()
         # the certificate's inverse matrices, once (inverting them per block cost more than
         # the detection itself on a daemon's small blocks)
         self._n_inv_t = {name: certificate.triad(name).n_inverse_t() for name in ("gyro", "accel")}
+        self.reset()
 
     # -- noise ---------------------------------------------------------------
 
@@ -469,49 +604,13 @@ class QuasiStaticDetector:
         n = len(block)
         if n == 0:
             return np.zeros(0, dtype=bool)
-        x_new = np.concatenate([block.gyro, block.accel], axis=1)
-        bad_new = None
-        if block.flags is not None:
-            bad_new = (np.asarray(block.flags).astype(np.int64) & BAD_FLAGS) != 0
-        finite = np.isfinite(x_new)
-        if not finite.all():
-            unusable = ~np.all(finite[:, self._cols], axis=1)
-            bad_new = unusable if bad_new is None else bad_new | unusable
-            x_new = np.where(finite, x_new, 0.0)
-        w = self.window
-        # running sums of the window: prefix sums of the outputs (centred on the stream's
-        # first sample, so squares of ADC counts stay small), their squares and the bad
-        # flags; each window's sums are two rows of them, whatever the window's length
-        if self._ref is None:
-            self._ref = np.array(x_new[0], dtype=float)
-        rows = np.empty((n, 13))
-        xc = np.subtract(x_new, self._ref, out=rows[:, :6])
-        np.multiply(xc, xc, out=rows[:, 6:12])
-        rows[:, 12] = 0.0 if bad_new is None else bad_new
-        # P at each row and one window, rate_window rows and two windows back: the sums of
-        # the window (``sums``) and of the rate_window rows (``long_sums``: the gyro means)
-        if self._prefix.whole(n):  # diagnose-sized: slices of one array, no gathers
-            now, (back_w, back_long, back_2w), idx = self._prefix.update_views(rows, self._offsets)
-            sums, long_sums = now - back_w, now - back_long
-        else:
-            now, back, idx = self._prefix.update(rows, self._offsets)
-            both = now[:, None, :] - back[:, :2, :]
-            sums, long_sums = both[:, 0], both[:, 1]
-            back_w, back_2w = back[:, 0], back[:, 2]
-        first = int(idx[0])
-        skip = max(0, w - 1 - first)  # the first w - 1 samples of a stream have no whole window
+        st = self._stage.run(block)
         out = np.zeros(n, dtype=bool)
-        if skip >= n:
+        if st.skip >= n:
             return out
-        if skip:
-            sums, long_sums, idx = sums[skip:], long_sums[skip:], idx[skip:]
-            back_w, back_2w = back_w[skip:], back_2w[skip:]
-            first += skip
-        m = n - skip
-        s1 = sums[:, :6]
-        mean_c = s1 / w
-        var = np.maximum((sums[:, 6:12] - s1 * mean_c) / (w - 1), 0.0)
-        mean = mean_c + self._ref
+        w = self.window
+        skip, first, idx, m = st.skip, st.first, st.idx, n - st.skip
+        sums, var, mean = st.sums, st.var, st.mean
         ok = sums[:, 12] < 0.5  # no bad sample in the window
         if not (self._noise_fixed["gyro"] and self._noise_fixed["accel"]):
             for c, name in enumerate(("gyro", "accel")):
@@ -528,13 +627,13 @@ class QuasiStaticDetector:
             ok &= still[:, c]
         if not self.drift_enabled or lim.band is None:
             if lim.band is not None:
-                ok &= self._rate_band(mean, long_sums, first)[0]
+                ok &= self._rate_band(st)[0]
             out[skip:] = ok
             return out
-        vertical_ok, turning, rotating, vertical_long = self._rate_band(mean, long_sums, first)
+        vertical_ok, turning, rotating, vertical_long = self._rate_band(st)
         ok &= vertical_ok
         # the histories' restarts (module doc)
-        bad = long_sums[:, 12] >= 0.5  # in either window (the long one holds the short one)
+        bad = st.long_sums[:, 12] >= 0.5  # in either window (the long one holds the short one)
         long_mark = turning | bad
         short_mark = long_mark
         if rotating.any():  # and far beyond the variance test
@@ -544,7 +643,7 @@ class QuasiStaticDetector:
         if 1 in lim.checked:
             # a re-orientation by a large angle inside one window (by hand)
             settle = np.sum(var[:, 3:6] * self._to_si2, axis=1) > self._settle_var_si
-            jump = self._jump(first, sums, back_w, back_2w, still[:, 1], lim.var_ref[3:6])
+            jump = self._jump(first, sums, st.back_w, st.back_2w, still[:, 1], lim.var_ref[3:6])
         if (short_mark | jump | settle).any():
             start_short = self._starts(
                 0, idx, [(short_mark, w), (jump, 0), (settle, self._settle)], self._short_span
@@ -572,37 +671,15 @@ class QuasiStaticDetector:
             return out
         return ok
 
-    def _rate_band(
-        self, mean: np.ndarray, long_sums: np.ndarray, first: int
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """For window means (M, 6) of the rows from stream row ``first``: whose gyro rate
-        about the vertical is within the band (M,); whose rate magnitude is beyond it (M,):
-        the unit is turning; whose rate magnitude is beyond the rest level
-        (``restart_margin`` bias limits instead of ``bias_margin``) (M,); and the rate about
-        the vertical (M,), gyro input units, of the longer gyro means (over ``rate_window``
-        rows, from the prefix-sum differences ``long_sums`` (M, 13))."""
-        cert = self.certificate
+    def _rate_band(self, st: _WindowStats) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """For the windows of ``st``: whose gyro rate about the vertical is within the band
+        (M,); whose rate magnitude is beyond it (M,): the unit is turning; whose rate
+        magnitude is beyond the rest level (``restart_margin`` bias limits instead of
+        ``bias_margin``) (M,); and the rate about the vertical (M,), gyro input units, of
+        the longer gyro means (over ``rate_window`` rows)."""
         lim = self._limits()
         assert lim.band is not None and lim.rot_band is not None
-        m = mean.shape[0]
-        if first + 1 >= self.rate_window:
-            count: np.ndarray | int = self.rate_window
-        else:
-            count = np.minimum(np.arange(first + 1, first + 1 + m), self.rate_window)[:, None]
-        ref = self._ref
-        assert ref is not None  # set by the first block
-        gyro_long = long_sums[:, 0:3] / count + ref[0:3]
-        # the window means and the longer means in one pass (gyro input units)
-        rates = cert.gyro.inverse(
-            np.concatenate([mean[:, 0:3], gyro_long]), n_inv_t=self._n_inv_t["gyro"]
-        )
-        rate = rates[:m]
-        down = cert.accel.inverse(mean[:, 3:6], n_inv_t=self._n_inv_t["accel"])
-        norm = np.sqrt(np.einsum("ij,ij->i", down, down))
-        norm = np.where(norm > 0, norm, 1.0)
-        # about the vertical: the window means' rates and the longer means' (2, M)
-        vertical, vertical_long = np.einsum("kij,ij->ki", rates.reshape(2, m, 3), down) / norm
-        magnitude = np.sqrt(np.einsum("ij,ij->i", rate, rate))
+        vertical, vertical_long, magnitude = st.rates()
         return (
             np.abs(vertical) <= lim.band,
             magnitude > lim.band,
@@ -643,7 +720,7 @@ class QuasiStaticDetector:
         """An independent copy of the detector in its present state (the certificate shared):
         fed the same blocks, it gives what this one would."""
         new = copy.copy(self)
-        new._prefix = self._prefix.copy()
+        new._stage = self._stage.copy()
         # a TrailingSpread replaces its arrays, never writes into them: a shallow copy is one
         new._drift = (copy.copy(self._drift[0]), copy.copy(self._drift[1]))
         new._restart = list(self._restart)
@@ -653,9 +730,9 @@ class QuasiStaticDetector:
 
     def reset(self) -> None:
         """Forget the carried samples (after a gap in the stream); the noise estimate stays."""
-        self._prefix = PrefixSums(13, max(self.rate_window, 2 * self.window))
-        self._offsets = np.array([self.window, self.rate_window, 2 * self.window])
-        self._ref = None
+        self._stage: WindowStage | RunReader[_WindowStats] = WindowStage(
+            self.certificate, self.window, self.rate_window, self._cols, self._n_inv_t
+        )
         self._drift = (
             TrailingSpread(3, self._short_step, self._short_span),
             TrailingSpread(4, self._long_step, self._long_span),
@@ -679,118 +756,175 @@ def static_mask(
     return det.update(block)
 
 
-class _Entry(NamedTuple):
-    """A block the shared detector has run, kept until every reader has passed it."""
+R = TypeVar("R")
+
+
+class _Runner(Protocol[R]):
+    """A stateful computation over a stream's blocks."""
+
+    def run(self, block: SampleBlock) -> R: ...
+
+    def copy(self) -> _Runner[R]: ...
+
+
+class _Entry(NamedTuple, Generic[R]):
+    """A block a shared run has been through, kept until every reader has passed it."""
 
     start: int  #: stream index of its first sample
     n: int  #: samples
     t: tuple[float, float]  #: its first and last sample times, s (the same stream?)
-    flags: np.ndarray  #: (n,) bool: static flags
-    noise: dict[str, np.ndarray | None]  #: the detector's noise variances after it
-    before: QuasiStaticDetector  #: a copy of the detector before it
+    result: R
+    before: _Runner[R]  #: a copy of the runner before it
 
 
-class _Shared:
-    """One detector run over one stream for readers that feed it the same blocks."""
+class _SharedRun(Generic[R]):
+    """One runner over one stream for readers that feed it the same blocks."""
 
-    def __init__(self, detector: QuasiStaticDetector) -> None:
-        self.detector = detector
-        self.fed = 0  #: samples through the detector
-        self.entries: deque[_Entry] = deque()
-        self.readers: weakref.WeakSet[SharedDetectorReader] = weakref.WeakSet()
-
-    def attached(self, but: SharedDetectorReader) -> list[SharedDetectorReader]:
-        """The readers other than ``but`` that still read the shared flags."""
-        return [r for r in self.readers if r is not but and r.own is None]
+    def __init__(self, runner: _Runner[R]) -> None:
+        self.runner = runner
+        self.fed = 0  #: samples through the runner
+        self.entries: deque[_Entry[R]] = deque()
+        self.readers: weakref.WeakSet[RunReader[R]] = weakref.WeakSet()
 
     def prune(self) -> None:
         """Drop the blocks every attached reader has passed."""
-        readers = [r for r in self.readers if r.own is None]
-        lowest = min((r.pos for r in readers), default=self.fed)
+        lowest = min((r.pos for r in self.readers if r.own is None), default=self.fed)
         while self.entries and self.entries[0].start + self.entries[0].n <= lowest:
             self.entries.popleft()
+
+
+class RunReader(Generic[R]):
+    """One consumer's place in a run shared through a :class:`DetectorPool`: :meth:`run`
+    gives what the consumer's own runner would give on the same blocks.
+
+    The first reader to reach a block runs the runner on it; the result waits for the
+    others. A reader that feeds a block cut differently (say two blocks joined: the
+    prefix sums' roundings depend on the cut) goes on alone from a copy of the runner as
+    it was before that block, so its results are always those of a runner of its own.
+    """
+
+    def __init__(self, shared: _SharedRun[R], pos: int = 0) -> None:
+        self.shared = shared  #: the run it reads
+        self.pos = pos  #: samples this reader has fed
+        self.own: _Runner[R] | None = None  #: its own runner, once it went alone
+        shared.readers.add(self)
+
+    def copy(self) -> RunReader[R]:
+        """A reader at the same place (one that went alone: with a copy of its runner)."""
+        new = RunReader(self.shared, self.pos)
+        if self.own is not None:
+            new.own = self.own.copy()
+        return new
+
+    def run(self, block: SampleBlock) -> R:
+        """The result of the stream's next block (N >= 1 samples)."""
+        if self.own is not None:
+            return self.own.run(block)
+        n = len(block)
+        sh = self.shared
+        t = (float(block.t[0]), float(block.t[-1]))
+        if self.pos == sh.fed:  # the first here: run it
+            others = any(r is not self and r.own is None for r in sh.readers)
+            before = sh.runner.copy() if others else None
+            result = sh.runner.run(block)
+            sh.fed += n
+            if before is not None:
+                sh.entries.append(_Entry(self.pos, n, t, result, before))
+            self.pos += n
+            return result
+        entry = next((e for e in sh.entries if e.start == self.pos), None)
+        if entry is None:  # cannot happen: every block is kept while a reader is behind it
+            raise RuntimeError("shared still detector: a reader lost its place in the stream")
+        if entry.n == n and entry.t == t:
+            self.pos += n
+            sh.prune()
+            return entry.result
+        # cut differently: on alone from the runner as it was before that block
+        self.own = entry.before.copy()
+        sh.prune()
+        return self.own.run(block)
+
+
+class _Flags:
+    """A detector as a runner: its flags and noise variances after each block."""
+
+    def __init__(self, detector: QuasiStaticDetector) -> None:
+        self.detector = detector
+
+    def run(self, block: SampleBlock) -> tuple[np.ndarray, dict[str, np.ndarray | None]]:
+        flags = self.detector.update(block)
+        return flags, dict(self.detector._noise_var)
+
+    def copy(self) -> _Flags:
+        return _Flags(self.detector.copy())
 
 
 class SharedDetectorReader:
     """One consumer's view of a detector shared through a :class:`DetectorPool`: the
     :meth:`update` and :meth:`noise_sigma` of :class:`QuasiStaticDetector`, each as that
-    consumer's own detector would give them at its own place in the stream.
+    consumer's own detector would give them at its own place in the stream (see
+    :class:`RunReader`)."""
 
-    The first reader to reach a block runs the detector on it; the flags (and the noise
-    figures after it) wait for the others. A reader that feeds a block cut differently
-    (say two blocks joined: the prefix sums' roundings depend on the cut) goes on alone
-    from a copy of the detector as it was before that block, so the flags are always
-    those of a detector of its own.
-    """
+    def __init__(self, shared: _SharedRun[tuple[np.ndarray, dict[str, np.ndarray | None]]]):
+        self.reader = RunReader(shared)  #: its place in the shared run
+        runner = shared.runner
+        assert isinstance(runner, _Flags)
+        self._noise = dict(runner.detector._noise_var)
 
-    def __init__(self, shared: _Shared) -> None:
-        self.shared = shared  #: the run it reads (shared with the readers of an identical detector)
-        self.pos = 0  #: samples this reader has fed
-        self.own: QuasiStaticDetector | None = None  #: its own detector, once it went alone
-        self._noise = dict(shared.detector._noise_var)
-        shared.readers.add(self)
+    @property
+    def shared(self) -> _SharedRun[tuple[np.ndarray, dict[str, np.ndarray | None]]]:
+        """The run it reads (shared with the readers of an identical detector)."""
+        return self.reader.shared
+
+    @property
+    def window_run(self) -> _SharedRun[Any] | None:
+        """The run of window sums its detector shares with one that differs only in its
+        noise figures (None: its own)."""
+        runner = self.reader.shared.runner
+        assert isinstance(runner, _Flags)
+        stage = runner.detector._stage
+        return stage.shared if isinstance(stage, RunReader) else None
+
+    @property
+    def alone(self) -> bool:
+        """Whether it went on with a detector of its own (it cut the stream differently)."""
+        return self.reader.own is not None
 
     def noise_sigma(self, triad: str) -> np.ndarray | None:
         """As :meth:`QuasiStaticDetector.noise_sigma` after this reader's last block."""
-        if self.own is not None:
-            return self.own.noise_sigma(triad)
         v = self._noise[triad]
         return None if v is None else np.sqrt(v)
 
     def update(self, block: SampleBlock) -> np.ndarray:
         """As :meth:`QuasiStaticDetector.update`: static flags (N,) bool of ``block``, the
         next samples of the stream every reader feeds."""
-        if self.own is not None:
-            return self.own.update(block)
-        n = len(block)
-        if n == 0:
+        if len(block) == 0:
             return np.zeros(0, dtype=bool)
-        sh = self.shared
-        t = (float(block.t[0]), float(block.t[-1]))
-        if self.pos == sh.fed:  # the first here: run the detector
-            det = sh.detector
-            others = sh.attached(self)
-            before = det.copy() if others else None
-            flags = det.update(block)
-            sh.fed += n
-            if before is not None:
-                noise = dict(det._noise_var)
-                sh.entries.append(_Entry(self.pos, n, t, flags.copy(), noise, before))
-            self.pos += n
-            self._noise = dict(det._noise_var)
-            return flags
-        entry = next((e for e in sh.entries if e.start == self.pos), None)
-        if entry is None:  # cannot happen: every block is kept while a reader is behind it
-            raise RuntimeError("shared still detector: a reader lost its place in the stream")
-        if entry.n == n and entry.t == t:
-            self.pos += n
-            self._noise = entry.noise
-            sh.prune()
-            return entry.flags.copy()
-        # cut differently: on alone from the detector as it was before that block
-        self.own = entry.before.copy()
-        sh.prune()
-        return self.own.update(block)
+        flags, self._noise = self.reader.run(block)
+        return flags.copy()  # a consumer may write into its flags
 
 
 class DetectorPool:
-    """Hands out still detectors; consumers of the same stream that ask for identical
-    detectors (the same certificate object, rate, window and options, the same noise
-    fixed by the certificate) share one, run once per block (``imudiag diagnose``: the
-    monitor's and the interval collector's when they are alike). Every consumer must
-    ask before any of them feeds a block and feed the same stream; a consumer that asks
+    """Hands out still detectors for consumers of one stream (``imudiag diagnose``: the
+    monitor's and the interval collector's). Identical detectors (the same certificate
+    object, rate, window and options, the same noise fixed by the certificate) share one,
+    run once per block; detectors that differ only in their noise figures (the monitor's
+    trusts the certificate's, the collector's measures the data's) share the window sums,
+    means, variances and rates of every block, and each decides on its own. Every consumer
+    must ask before any of them feeds a block, and feed the same stream; one that asks
     later gets a detector of its own."""
 
     _SIGNATURE = inspect.signature(QuasiStaticDetector)
 
     def __init__(self) -> None:
-        self._shared: dict[tuple[Any, ...], _Shared] = {}
+        self._detectors: dict[tuple[Any, ...], _SharedRun[Any]] = {}
+        self._stages: dict[tuple[Any, ...], QuasiStaticDetector | _SharedRun[Any]] = {}
 
     def detector(
         self, certificate: Certificate, rate_hz: float | None = None, **options: Any
     ) -> SharedDetectorReader:
         """A reader of the detector ``QuasiStaticDetector(certificate, rate_hz, **options)``
-        would be, shared with the earlier readers of an identical one."""
+        would be, sharing what it can with the earlier ones."""
         det = QuasiStaticDetector(certificate, rate_hz, **options)
         bound = self._SIGNATURE.bind(certificate, rate_hz, **options)
         bound.apply_defaults()
@@ -799,9 +933,24 @@ class DetectorPool:
         args["rate_hz"] = det.rate_hz
         args["certificate_noise"] = (det._noise_fixed["gyro"], det._noise_fixed["accel"])
         key = tuple((name, repr(value)) for name, value in sorted(args.items()))
-        shared = self._shared.get(key)
-        if shared is None or shared.fed:
-            shared = self._shared[key] = _Shared(det)
+        shared = self._detectors.get(key)
+        if shared is not None and not shared.fed:
+            return SharedDetectorReader(shared)
+        # a new detector: its window sums from those of an earlier one when alike
+        stage = det._stage
+        assert isinstance(stage, WindowStage)
+        skey = stage.key()
+        earlier = self._stages.get(skey)
+        if isinstance(earlier, QuasiStaticDetector):  # its first partner: share its stage
+            if isinstance(earlier._stage, WindowStage) and not earlier._stage.prefix._rows:
+                run: _SharedRun[_WindowStats] = _SharedRun(earlier._stage)
+                earlier._stage = RunReader(run)
+                earlier = self._stages[skey] = run
+        if isinstance(earlier, _SharedRun) and not earlier.fed:
+            det._stage = RunReader(earlier)
+        else:
+            self._stages[skey] = det
+        shared = self._detectors[key] = _SharedRun(_Flags(det))
         return SharedDetectorReader(shared)
 
 
@@ -809,6 +958,8 @@ __all__ = [
     "BAD_FLAGS",
     "DetectorPool",
     "QuasiStaticDetector",
+    "RunReader",
     "SharedDetectorReader",
+    "WindowStage",
     "static_mask",
 ]

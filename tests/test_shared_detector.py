@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 import imudiag.diagnosis.session as session
-from imudiag.certificate import Certificate, load_default
+from imudiag.certificate import Certificate, Noise, load_default
 from imudiag.diagnosis.config import DiagnosisConfig
 from imudiag.diagnosis.stream import StreamingDiagnoser
 from imudiag.monitor import Monitor
@@ -84,17 +84,24 @@ Readers = tuple[SharedDetectorReader, SharedDetectorReader]
 
 
 def _check_readers(block: SampleBlock, cert: Certificate, seed: int, rate: float | None = None,
-                   join_from: int | None = None, **options: object) -> Readers:  # fmt: skip
+                   join_from: int | None = None, options_b: dict | None = None,
+                   **options: object) -> Readers:  # fmt: skip
     """Two readers of one pool against two detectors of their own, same blocks. Reader A
     runs ahead by 0..3 blocks at times, B at others; from block ``join_from`` on B feeds two
-    of A's blocks joined (the later of the two to get there must go on alone). Returns the
+    of A's blocks joined (the later of the two to get there must go on alone). B's detector
+    has ``options_b`` when given (then only the window sums are shared). Returns the
     readers (A, B)."""
+    opts_b = options if options_b is None else options_b
     pool = DetectorPool()
     a = pool.detector(cert, rate, **options)
-    b = pool.detector(cert, rate, **options)
-    assert a.shared is b.shared  # alike: one detector
+    b = pool.detector(cert, rate, **opts_b)
+    if options_b is None:
+        assert a.shared is b.shared  # alike: one detector
+    else:  # the noise differs: one run of window sums
+        assert a.shared is not b.shared
+        assert a.window_run is not None and a.window_run is b.window_run
     own_a = QuasiStaticDetector(cert, rate, **options)  # type: ignore[arg-type]
-    own_b = QuasiStaticDetector(cert, rate, **options)  # type: ignore[arg-type]
+    own_b = QuasiStaticDetector(cert, rate, **opts_b)  # type: ignore[arg-type]
     rng = np.random.default_rng(seed)
     n = len(block)
     edges = np.cumsum([0] + _cuts(n, rng, big=seed % 2 == 0))
@@ -140,11 +147,15 @@ def test_two_readers_equal_two_detectors(name):
     block = STREAMS[name]()
     seed = sorted(STREAMS).index(name)
     a, b = _check_readers(block, CERT, 2 * seed)  # diagnose-sized blocks
-    assert a.own is None and b.own is None  # one run all along
+    assert not a.alone and not b.alone  # one run all along
     _check_readers(block, CERT, 2 * seed + 1)  # daemon-sized reads
     # the noise estimated from the data: it changes, each reader sees it at its own place
     _check_readers(block, _bare(CERT), 2 * seed + 10)
     _check_readers(block, CERT, 2 * seed + 20, certificate_noise=False)
+    # the monitor's (the certificate's noise) and the collector's (the data's) in diagnose
+    for s in (2 * seed + 30, 2 * seed + 31):
+        a, b = _check_readers(block, CERT, s, options_b={"certificate_noise": False})
+        assert not a.alone and not b.alone
 
 
 def test_reader_cutting_differently_goes_on_alone():
@@ -153,16 +164,28 @@ def test_reader_cutting_differently_goes_on_alone():
     block = STREAMS["multiposition, faults"]()
     for cert, seed, join_from in ((CERT, 31, 3), (_bare(CERT), 33, 2)):  # small reads
         a, b = _check_readers(block, cert, seed, join_from=join_from)
-        assert (a.own is None) != (b.own is None)  # one went alone
+        assert a.alone != b.alone  # one went alone
+    # sharing the window sums only: one of the two stages went alone
+    a, b = _check_readers(block, CERT, 35, join_from=3, options_b={"certificate_noise": False})
+    run = a.window_run
+    assert run is not None and sum(r.own is not None for r in run.readers) == 1
 
 
 def test_real_recording():
     block, cert = _real("xsens-mti-multiposition/session.csv.gz")
     a, b = _check_readers(block, cert, 40, cert.sample_rate)
-    assert a.own is None and b.own is None
+    assert not a.alone and not b.alone
     _check_readers(block, cert, 41, cert.sample_rate, certificate_noise=False)
+    # with noise figures (the recording's own), the certificate's against the data's
+    noisy = cert.copy()
+    rate = float(cert.sample_rate)
+    for triad in ("gyro", "accel"):
+        x = block.gyro if triad == "gyro" else block.accel
+        sigma = np.std(np.diff(x[: int(10 * rate)], axis=0), axis=0) / math.sqrt(2)
+        noisy.triad(triad).noise = Noise(density=np.maximum(sigma, 1e-9) / math.sqrt(rate / 2))
+    _check_readers(block, noisy, 42, rate, options_b={"certificate_noise": False})
     a, b = _check_readers(block, cert, 43, cert.sample_rate, join_from=4)
-    assert (a.own is None) != (b.own is None)
+    assert a.alone != b.alone
 
 
 def test_pool_shares_only_alike_detectors():
@@ -200,9 +223,9 @@ def _report(path, monkeypatch, share: bool, **kw: object) -> str:
 def test_diagnose_report_unchanged_by_sharing(tmp_path, monkeypatch):
     """``diagnose_recording`` with the certificate's noise (the two detectors alike, so one
     runs) writes the report it writes with two detectors, byte for byte; also in blocks
-    smaller than the monitor's batch (the monitor may join them: its reader goes alone).
-    The default path (the data's noise: not alike, nothing shared) is the frozen reports'
-    (tests/test_diagnose_frozen_reports.py)."""
+    smaller than the monitor's batch (the monitor may join them: its reader goes alone);
+    and on the default path (the monitor's detector trusts the certificate's noise, the
+    collector's measures the data's: the window sums shared)."""
     from imudiag.logs import open_writer
 
     traj = multi_position(n_attitudes=14, dwell_s=3.0, turn_s=1.5, rate_hz=200, seed=9)
@@ -211,7 +234,12 @@ def test_diagnose_report_unchanged_by_sharing(tmp_path, monkeypatch):
     path = tmp_path / "session.npz"
     with open_writer(path, {"sample_rate": 200.0, "units": "gyro=count accel=count"}) as w:
         w.write(sim.samples)
-    for kw in ({"certificate_noise": True}, {"certificate_noise": True, "block_size": 20}):
+    for kw in (
+        {"certificate_noise": True},
+        {"certificate_noise": True, "block_size": 20},
+        {"certificate_noise": False},  # the default: the window sums shared
+        {"certificate_noise": False, "block_size": 20},
+    ):
         shared = _report(path, monkeypatch, True, **kw)
         alone = _report(path, monkeypatch, False, **kw)
         assert shared == alone, kw
@@ -230,5 +258,18 @@ def test_streaming_diagnoser_and_monitor_share(monkeypatch):
     for i in range(0, len(block), 1000):
         mon.update(block.slice(i, i + 1000))
         diag.update(block.slice(i, i + 1000))
-    assert mon.detector.own is None and not mon.detector.shared.entries
+    assert not mon.detector.alone and not mon.detector.shared.entries
+    # as diagnose builds them: the collector measures the noise, so only the sums are shared
+    pool = DetectorPool()
+    mon = Monitor(CERT, rate_hz=200.0, detectors=pool)
+    diag = StreamingDiagnoser(
+        CERT, DiagnosisConfig(), rate_hz=200.0, certificate_noise=False, detectors=pool
+    )
+    assert isinstance(mon.detector, SharedDetectorReader)
+    assert mon.detector.window_run is not None
+    assert mon.detector.window_run is diag.collector.detector.window_run  # type: ignore[union-attr]
+    for i in range(0, len(block), 1000):
+        mon.update(block.slice(i, i + 1000))
+        diag.update(block.slice(i, i + 1000))
+    assert not mon.detector.window_run.entries  # nothing kept once both passed
     assert math.isclose(diag.collector.static_samples, mon.f0_checked["accel"], rel_tol=0.01)
