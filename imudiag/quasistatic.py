@@ -77,6 +77,13 @@ of a stream are never static, a static stretch starts ``W - 1`` samples after
 the unit stops, and motion is flagged as soon as it shows in the window.
 State (the last ``W - 1`` samples, the noise estimate) carries across blocks;
 inside a block everything is vectorised with cumulative sums.
+
+**Two consumers of one stream** (``imudiag diagnose``: the monitor and the interval
+collector) take their detectors from a :class:`DetectorPool`: identical detectors are run
+once; detectors that differ only in their noise figures (the certificate's against the
+data's) share the :class:`WindowStage` (the window sums, means, variances and rates, about
+half the work) and decide each on its own. Results are those of separate detectors, bit
+for bit, whatever the pace of each consumer.
 """
 
 from __future__ import annotations
@@ -158,25 +165,25 @@ class TrailingSpread:
         firsts = np.searchsorted(d_idx, d_start[old:])
         if new < 8:
             ext = np.empty((new, d_val.shape[1]))
-            for i, lo in enumerate(firsts.tolist()):
-                j = old + i
-                lo = max(j - k + 1, lo)  # among its k last kept values, those from its start
-                ext[i] = d_val[lo : j + 1].max(axis=0) if lo <= j else -np.inf
+            for i, first in enumerate(firsts.tolist()):
+                at = old + i
+                lo = max(at - k + 1, first)  # among its k last kept values, those from its start
+                ext[i] = d_val[lo : at + 1].max(axis=0) if lo <= at else -np.inf
             return ext
         j = np.arange(old, total)
-        lo = np.maximum(j - k + 1, firsts)
+        los = np.maximum(j - k + 1, firsts)
         # a sparse table: level q holds the maxima of 2^q consecutive kept values, so a
         # history of L values is the maximum of two overlapping runs of 2^floor(log2 L)
-        none = lo > j  # no kept value in the history (-inf)
-        lo[none] = j[none]
-        length = j - lo + 1
+        none = los > j  # no kept value in the history (-inf)
+        los[none] = j[none]
+        length = j - los + 1
         q = np.frexp(length.astype(float))[1] - 1  # floor(log2 L), exactly
         table = np.full((int(q.max()) + 1, total, d_val.shape[1]), -np.inf)
         table[0] = d_val
         for level in range(1, table.shape[0]):
             h = 1 << (level - 1)
             np.maximum(table[level - 1, :-h], table[level - 1, h:], out=table[level, :-h])
-        ext = np.maximum(table[q, lo], table[q, j + 1 - (1 << q)])
+        ext = np.maximum(table[q, los], table[q, j + 1 - (1 << q)])
         ext[none] = -np.inf
         return ext
 
