@@ -123,6 +123,11 @@ def _chi2_quantile_ratio(dof: float, z: float) -> float:
     return max((1.0 - a + z * math.sqrt(a)) ** 3, 1e-3)
 
 
+#: block rows from which :class:`TrailingSpread` repeats each kept value's extremes over its
+#: rows instead of gathering them (the same values; a gather costs more on long blocks)
+_REPEAT_ROWS = 4096
+
+
 class TrailingSpread:
     """Per-column spread (max - min) of a stream's values over a trailing history: the
     drift test of :class:`QuasiStaticDetector`.
@@ -206,11 +211,25 @@ class TrailingSpread:
             d_max = np.concatenate([self._max, ext[:, :c]])
             d_min = np.concatenate([self._min, -ext[:, c:]])
             # each row's last kept value (at or before it)
-            p = old + (np.arange(m) - k0) // step
-            pc = np.maximum(p, 0)
-            have = (p >= 0) & (d_idx[pc] >= start)
-            hi = np.maximum(d_max[pc], values)
-            lo_ = np.minimum(d_min[pc], values)
+            if m < _REPEAT_ROWS:
+                p = old + (np.arange(m) - k0) // step
+                pc = np.maximum(p, 0)
+                have = (p >= 0) & (d_idx[pc] >= start)
+                last_max, last_min = d_max[pc], d_min[pc]
+            else:  # a big block: runs of ``step`` rows, repeated rather than gathered
+                new = total - old
+                counts = np.full(new + 1, step)
+                counts[0] = k0  # the rows before the first new kept value: the last one kept
+                counts[-1] = m - k0 - step * (new - 1)
+                at = max(old - 1, 0)  # (none before: any row, ``have`` is False there)
+                have = np.repeat(np.concatenate([d_idx[at : at + 1], d_idx[old:]]), counts)
+                have = have >= start
+                if not old:
+                    have[:k0] = False
+                last_max = np.repeat(np.concatenate([d_max[at : at + 1], d_max[old:]]), counts, 0)
+                last_min = np.repeat(np.concatenate([d_min[at : at + 1], d_min[old:]]), counts, 0)
+            hi = np.maximum(last_max, values)
+            lo_ = np.minimum(last_min, values)
             keep = slice(max(0, total - k), None)
             self._idx, self._val, self._start = d_idx[keep], d_val[keep], d_start[keep]
             self._max, self._min = d_max[keep], d_min[keep]
@@ -221,7 +240,10 @@ class TrailingSpread:
         else:
             return np.zeros(values.shape)
         spread = hi - lo_
-        return np.where(have[:, None] & np.isfinite(spread), spread, 0.0)
+        finite = np.isfinite(spread)
+        if m >= _REPEAT_ROWS and have.all() and finite.all():
+            return spread
+        return np.where(have[:, None] & finite, spread, 0.0)
 
 
 class _WindowStats:
