@@ -39,7 +39,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from .certificate import SENSOR_NAMES, TRIADS, Certificate, TriadModel
 from .noise_estimate import medians
 from .persistence import Persistence
-from .quasistatic import QuasiStaticDetector
+from .quasistatic import DetectorPool, QuasiStaticDetector, SharedDetectorReader
 from .ringbuffer import SampleRing
 from .samples import (
     FLAG_ACCEL_SATURATED,
@@ -190,9 +190,14 @@ class Monitor:
         certificate: Certificate,
         config: MonitorConfig | None = None,
         rate_hz: float | None = None,
+        detectors: DetectorPool | None = None,
     ) -> None:
-        """``rate_hz``: the stream's sample rate (default: the certificate's nominal rate)."""
+        """``rate_hz``: the stream's sample rate (default: the certificate's nominal rate).
+        ``detectors``: where the still detector comes from, to share it with other consumers
+        of the same stream (``imudiag diagnose``); None: a detector of its own (the daemon)."""
         self.config = config or MonitorConfig()
+        self._detectors = detectors
+        self.detector: QuasiStaticDetector | SharedDetectorReader
         self._rate_override = rate_hz
         self.certificate = certificate
         self.ring = SampleRing(self.config.ring_capacity)
@@ -242,7 +247,12 @@ class Monitor:
         rate = self._rate_override or certificate.sample_rate
         self.rate_hz = rate
         self._batch = max(0, int(round(cfg.batch_s * rate)))
-        self.detector = QuasiStaticDetector(certificate, rate, window_s=cfg.static_window_s)
+        if self._detectors is None:
+            self.detector = QuasiStaticDetector(certificate, rate, window_s=cfg.static_window_s)
+        else:
+            self.detector = self._detectors.detector(
+                certificate, rate, window_s=cfg.static_window_s
+            )
         self._faults = None
         self._state = {}
         for name in TRIADS:

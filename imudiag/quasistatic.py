@@ -77,12 +77,23 @@ of a stream are never static, a static stretch starts ``W - 1`` samples after
 the unit stops, and motion is flagged as soon as it shows in the window.
 State (the last ``W - 1`` samples, the noise estimate) carries across blocks;
 inside a block everything is vectorised with cumulative sums.
+
+**Two consumers of one stream** (``imudiag diagnose``: the monitor and the interval
+collector) take their detectors from a :class:`DetectorPool`: identical detectors are run
+once; detectors that differ only in their noise figures (the certificate's against the
+data's) share the :class:`WindowStage` (the window sums, means, variances and rates, about
+half the work) and decide each on its own. Results are those of separate detectors, bit
+for bit, whatever the pace of each consumer.
 """
 
 from __future__ import annotations
 
+import copy
+import inspect
 import math
-from typing import Any, NamedTuple
+import weakref
+from collections import deque
+from typing import Any, Generic, NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
@@ -110,6 +121,11 @@ def _chi2_quantile_ratio(dof: float, z: float) -> float:
     """chi2_p(dof) / dof by the Wilson-Hilferty approximation (z: normal quantile of p)."""
     a = 2.0 / (9.0 * dof)
     return max((1.0 - a + z * math.sqrt(a)) ** 3, 1e-3)
+
+
+#: block rows from which :class:`TrailingSpread` repeats each kept value's extremes over its
+#: rows instead of gathering them (the same values; a gather costs more on long blocks)
+_REPEAT_ROWS = 4096
 
 
 class TrailingSpread:
@@ -140,6 +156,42 @@ class TrailingSpread:
         self._max = np.zeros((0, c))
         self._min = np.zeros((0, c))
 
+    def _extremes(
+        self, d_idx: np.ndarray, d_val: np.ndarray, d_start: np.ndarray, old: int
+    ) -> np.ndarray:
+        """The maxima (new, 2C) over each kept value's history of the kept values and their
+        negatives ``d_val`` (total, 2C), for the values kept from position ``old`` on; a
+        history holds the value's k last kept values from its first row ``d_start`` on
+        (-inf where it holds none). Few new values (a daemon's read): one reduction each;
+        many: a sparse table of maxima (max is exact, so both give the same figures)."""
+        k = self.k
+        total = d_idx.shape[0]
+        new = total - old
+        firsts = np.searchsorted(d_idx, d_start[old:])
+        if new < 8:
+            ext = np.empty((new, d_val.shape[1]))
+            for i, first in enumerate(firsts.tolist()):
+                at = old + i
+                lo = max(at - k + 1, first)  # among its k last kept values, those from its start
+                ext[i] = d_val[lo : at + 1].max(axis=0) if lo <= at else -np.inf
+            return ext
+        j = np.arange(old, total)
+        los = np.maximum(j - k + 1, firsts)
+        # a sparse table: level q holds the maxima of 2^q consecutive kept values, so a
+        # history of L values is the maximum of two overlapping runs of 2^floor(log2 L)
+        none = los > j  # no kept value in the history (-inf)
+        los[none] = j[none]
+        length = j - los + 1
+        q = np.frexp(length.astype(float))[1] - 1  # floor(log2 L), exactly
+        table = np.full((int(q.max()) + 1, total, d_val.shape[1]), -np.inf)
+        table[0] = d_val
+        for level in range(1, table.shape[0]):
+            h = 1 << (level - 1)
+            np.maximum(table[level - 1, :-h], table[level - 1, h:], out=table[level, :-h])
+        ext = np.maximum(table[q, los], table[q, j + 1 - (1 << q)])
+        ext[none] = -np.inf
+        return ext
+
     def update(self, first: int, values: np.ndarray, start: np.ndarray) -> np.ndarray:
         """Spreads (M, C) for the M consecutive stream rows from row ``first``, with
         ``values`` (M, C) and the first row of each row's history ``start`` (M,)."""
@@ -155,20 +207,29 @@ class TrailingSpread:
             total = d_idx.shape[0]
             # the extremes of each new kept value's history: the maxima of the values and of
             # their negatives (minus the minima) in one reduction
-            ext = np.empty((total - old, 2 * c))
-            firsts = np.searchsorted(d_idx, d_start[old:]).tolist()
-            for i, lo in enumerate(firsts):
-                j = old + i
-                lo = max(j - k + 1, lo)  # among its k last kept values, those from its start
-                ext[i] = d_val[lo : j + 1].max(axis=0) if lo <= j else -np.inf
+            ext = self._extremes(d_idx, d_val, d_start, old)
             d_max = np.concatenate([self._max, ext[:, :c]])
             d_min = np.concatenate([self._min, -ext[:, c:]])
             # each row's last kept value (at or before it)
-            p = old + (np.arange(m) - k0) // step
-            pc = np.maximum(p, 0)
-            have = (p >= 0) & (d_idx[pc] >= start)
-            hi = np.maximum(d_max[pc], values)
-            lo_ = np.minimum(d_min[pc], values)
+            if m < _REPEAT_ROWS:
+                p = old + (np.arange(m) - k0) // step
+                pc = np.maximum(p, 0)
+                have = (p >= 0) & (d_idx[pc] >= start)
+                last_max, last_min = d_max[pc], d_min[pc]
+            else:  # a big block: runs of ``step`` rows, repeated rather than gathered
+                new = total - old
+                counts = np.full(new + 1, step)
+                counts[0] = k0  # the rows before the first new kept value: the last one kept
+                counts[-1] = m - k0 - step * (new - 1)
+                at = max(old - 1, 0)  # (none before: any row, ``have`` is False there)
+                have = np.repeat(np.concatenate([d_idx[at : at + 1], d_idx[old:]]), counts)
+                have = have >= start
+                if not old:
+                    have[:k0] = False
+                last_max = np.repeat(np.concatenate([d_max[at : at + 1], d_max[old:]]), counts, 0)
+                last_min = np.repeat(np.concatenate([d_min[at : at + 1], d_min[old:]]), counts, 0)
+            hi = np.maximum(last_max, values)
+            lo_ = np.minimum(last_min, values)
             keep = slice(max(0, total - k), None)
             self._idx, self._val, self._start = d_idx[keep], d_val[keep], d_start[keep]
             self._max, self._min = d_max[keep], d_min[keep]
@@ -179,7 +240,147 @@ class TrailingSpread:
         else:
             return np.zeros(values.shape)
         spread = hi - lo_
-        return np.where(have[:, None] & np.isfinite(spread), spread, 0.0)
+        finite = np.isfinite(spread)
+        if m >= _REPEAT_ROWS and have.all() and finite.all():
+            return spread
+        return np.where(have[:, None] & finite, spread, 0.0)
+
+
+class _WindowStats:
+    """What a block's trailing windows hold, whatever the noise figures: the part of the
+    still detector two detectors of one stream with different noise share (module doc).
+
+    Rows are the block's samples from ``skip`` on (the first ``W - 1`` of a stream have no
+    whole window), stream rows from ``first``; prefix-sum differences and back values
+    (M, 13): outputs centred on the stream's first sample ``ref`` (0-5), their squares
+    (6-11), bad flags (12).
+    """
+
+    __slots__ = ("skip", "idx", "first", "sums", "long_sums", "back_w", "back_2w", "var",
+                 "mean", "_stage", "_rates")  # fmt: skip
+
+    def __init__(
+        self,
+        stage: WindowStage,
+        n: int,
+        idx: np.ndarray,
+        sums: np.ndarray,
+        long_sums: np.ndarray,
+        back_w: np.ndarray,
+        back_2w: np.ndarray,
+    ) -> None:
+        w = stage.window
+        self.skip = max(0, w - 1 - int(idx[0]))  #: leading rows without a whole window
+        if self.skip >= n:
+            return
+        sl = slice(self.skip, None)
+        self.idx = idx[sl]  #: (M,) stream row of each window's last sample
+        self.first = int(self.idx[0])
+        self.sums = sums[sl]  #: (M, 13) the window's sums
+        self.long_sums = long_sums[sl]  #: (M, 13) the sums over rate_window rows
+        self.back_w, self.back_2w = back_w[sl], back_2w[sl]  #: P one and two windows back
+        s1 = self.sums[:, :6]
+        mean_c = s1 / w
+        #: (M, 6) window variances, output units^2
+        self.var = np.maximum((self.sums[:, 6:12] - s1 * mean_c) / (w - 1), 0.0)
+        assert stage.ref is not None
+        self.mean = mean_c + stage.ref  #: (M, 6) window means, output units
+        self._stage = stage
+        self._rates: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def rates(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The gyro rate about the vertical (the certificate-corrected accelerometer window
+        mean) of the window means and of the longer means over ``rate_window`` rows, and
+        the window means' rate magnitude (M,) each, gyro input units; worked out once."""
+        if self._rates is None:
+            stage = self._stage
+            cert, mean = stage.certificate, self.mean
+            m = mean.shape[0]
+            first, rate_window = self.first, stage.rate_window
+            if first + 1 >= rate_window:
+                count: np.ndarray | int = rate_window
+            else:
+                count = np.minimum(np.arange(first + 1, first + 1 + m), rate_window)[:, None]
+            assert stage.ref is not None
+            gyro_long = self.long_sums[:, 0:3] / count + stage.ref[0:3]
+            # the window means and the longer means in one pass (gyro input units)
+            rates = cert.gyro.inverse(
+                np.concatenate([mean[:, 0:3], gyro_long]), n_inv_t=stage.n_inv_t["gyro"]
+            )
+            rate = rates[:m]
+            down = cert.accel.inverse(mean[:, 3:6], n_inv_t=stage.n_inv_t["accel"])
+            norm = np.sqrt(np.einsum("ij,ij->i", down, down))
+            norm = np.where(norm > 0, norm, 1.0)
+            # about the vertical: the window means' rates and the longer means' (2, M)
+            vertical, vertical_long = np.einsum("kij,ij->ki", rates.reshape(2, m, 3), down) / norm
+            magnitude = np.sqrt(np.einsum("ij,ij->i", rate, rate))
+            self._rates = (vertical, vertical_long, magnitude)
+        return self._rates
+
+
+class WindowStage:
+    """The still detector's window sums over a stream: prefix sums of the outputs, their
+    squares and the bad flags, carried across blocks (see :class:`QuasiStaticDetector`).
+    ``window`` and ``rate_window`` in samples; ``cols``: the output columns (gyro 0-2,
+    accel 3-5) whose non-finite values make a sample bad."""
+
+    def __init__(
+        self,
+        certificate: Certificate,
+        window: int,
+        rate_window: int,
+        cols: np.ndarray,
+        n_inv_t: dict[str, np.ndarray],
+    ) -> None:
+        self.certificate = certificate
+        self.window, self.rate_window = window, rate_window
+        self.cols, self.n_inv_t = cols, n_inv_t
+        self.prefix = PrefixSums(13, max(rate_window, 2 * window))
+        self.offsets = np.array([window, rate_window, 2 * window])
+        self.ref: np.ndarray | None = None  #: the stream's first sample, the sums' origin
+
+    def key(self) -> tuple[Any, ...]:
+        """What makes two stages give the same statistics on the same blocks."""
+        return (id(self.certificate), self.window, self.rate_window, tuple(self.cols.tolist()))
+
+    def copy(self) -> WindowStage:
+        """An independent copy in the present state."""
+        new = copy.copy(self)
+        new.prefix = self.prefix.copy()
+        return new
+
+    def run(self, block: SampleBlock) -> _WindowStats:
+        """The window statistics of a block (N >= 1 samples), the stream's next."""
+        n = len(block)
+        x_new = np.concatenate([block.gyro, block.accel], axis=1)
+        bad_new = None
+        if block.flags is not None:
+            bad_new = (np.asarray(block.flags).astype(np.int64) & BAD_FLAGS) != 0
+        finite = np.isfinite(x_new)
+        if not finite.all():
+            unusable = ~np.all(finite[:, self.cols], axis=1)
+            bad_new = unusable if bad_new is None else bad_new | unusable
+            x_new = np.where(finite, x_new, 0.0)
+        # running sums of the window: prefix sums of the outputs (centred on the stream's
+        # first sample, so squares of ADC counts stay small), their squares and the bad
+        # flags; each window's sums are two rows of them, whatever the window's length
+        if self.ref is None:
+            self.ref = np.array(x_new[0], dtype=float)
+        rows = np.empty((n, 13))
+        xc = np.subtract(x_new, self.ref, out=rows[:, :6])
+        np.multiply(xc, xc, out=rows[:, 6:12])
+        rows[:, 12] = 0.0 if bad_new is None else bad_new
+        # P at each row and one window, rate_window rows and two windows back: the sums of
+        # the window (``sums``) and of the rate_window rows (``long_sums``: the gyro means)
+        if self.prefix.whole(n):  # diagnose-sized: slices of one array, no gathers
+            now, (back_w, back_long, back_2w), idx = self.prefix.update_views(rows, self.offsets)
+            sums, long_sums = now - back_w, now - back_long
+        else:
+            now, back, idx = self.prefix.update(rows, self.offsets)
+            both = now[:, None, :] - back[:, :2, :]
+            sums, long_sums = both[:, 0], both[:, 1]
+            back_w, back_2w = back[:, 0], back[:, 2]
+        return _WindowStats(self, n, idx, sums, long_sums, back_w, back_2w)
 
 
 class _Limits(NamedTuple):
@@ -228,8 +429,6 @@ class QuasiStaticDetector:
     the quietest windows seen so far: a data sheet's figure is often wrong by a
     factor 1.5-3, and a figure too low leaves no window still.
     """
-
-    _ref: np.ndarray | None  #: the first sample of the stream, the running sums' origin
 
     def __init__(
         self,
@@ -329,10 +528,10 @@ class QuasiStaticDetector:
         #: accelerometer output units to m/s^2, per axis
         self._to_si = a.unit_to_si / np.asarray(a.scale_factor, dtype=float)
         self._to_si2 = self._to_si**2
-        self.reset()
         # the certificate's inverse matrices, once (inverting them per block cost more than
         # the detection itself on a daemon's small blocks)
         self._n_inv_t = {name: certificate.triad(name).n_inverse_t() for name in ("gyro", "accel")}
+        self.reset()
 
     # -- noise ---------------------------------------------------------------
 
@@ -434,42 +633,13 @@ class QuasiStaticDetector:
         n = len(block)
         if n == 0:
             return np.zeros(0, dtype=bool)
-        x_new = np.concatenate([block.gyro, block.accel], axis=1)
-        bad_new = None
-        if block.flags is not None:
-            bad_new = (np.asarray(block.flags).astype(np.int64) & BAD_FLAGS) != 0
-        finite = np.isfinite(x_new)
-        if not finite.all():
-            unusable = ~np.all(finite[:, self._cols], axis=1)
-            bad_new = unusable if bad_new is None else bad_new | unusable
-            x_new = np.where(finite, x_new, 0.0)
-        w = self.window
-        # running sums of the window: prefix sums of the outputs (centred on the stream's
-        # first sample, so squares of ADC counts stay small), their squares and the bad
-        # flags; each window's sums are two rows of them, whatever the window's length
-        if self._ref is None:
-            self._ref = np.array(x_new[0], dtype=float)
-        rows = np.empty((n, 13))
-        xc = np.subtract(x_new, self._ref, out=rows[:, :6])
-        np.multiply(xc, xc, out=rows[:, 6:12])
-        rows[:, 12] = 0.0 if bad_new is None else bad_new
-        now, back, idx = self._prefix.update(rows, self._offsets)
-        first = int(idx[0])
-        skip = max(0, w - 1 - first)  # the first w - 1 samples of a stream have no whole window
+        st = self._stage.run(block)
         out = np.zeros(n, dtype=bool)
-        if skip >= n:
+        if st.skip >= n:
             return out
-        if skip:
-            now, back, idx = now[skip:], back[skip:], idx[skip:]
-            first += skip
-        m = n - skip
-        both = now[:, None, :] - back[:, :2, :]
-        sums = both[:, 0]  # the window's
-        long_sums = both[:, 1]  # over rate_window rows: the gyro means
-        s1 = sums[:, :6]
-        mean_c = s1 / w
-        var = np.maximum((sums[:, 6:12] - s1 * mean_c) / (w - 1), 0.0)
-        mean = mean_c + self._ref
+        w = self.window
+        skip, first, idx, m = st.skip, st.first, st.idx, n - st.skip
+        sums, var, mean = st.sums, st.var, st.mean
         ok = sums[:, 12] < 0.5  # no bad sample in the window
         if not (self._noise_fixed["gyro"] and self._noise_fixed["accel"]):
             for c, name in enumerate(("gyro", "accel")):
@@ -486,13 +656,13 @@ class QuasiStaticDetector:
             ok &= still[:, c]
         if not self.drift_enabled or lim.band is None:
             if lim.band is not None:
-                ok &= self._rate_band(mean, long_sums, first)[0]
+                ok &= self._rate_band(st)[0]
             out[skip:] = ok
             return out
-        vertical_ok, turning, rotating, vertical_long = self._rate_band(mean, long_sums, first)
+        vertical_ok, turning, rotating, vertical_long = self._rate_band(st)
         ok &= vertical_ok
         # the histories' restarts (module doc)
-        bad = long_sums[:, 12] >= 0.5  # in either window (the long one holds the short one)
+        bad = st.long_sums[:, 12] >= 0.5  # in either window (the long one holds the short one)
         long_mark = turning | bad
         short_mark = long_mark
         if rotating.any():  # and far beyond the variance test
@@ -502,7 +672,7 @@ class QuasiStaticDetector:
         if 1 in lim.checked:
             # a re-orientation by a large angle inside one window (by hand)
             settle = np.sum(var[:, 3:6] * self._to_si2, axis=1) > self._settle_var_si
-            jump = self._jump(first, sums, back, still[:, 1], lim.var_ref[3:6])
+            jump = self._jump(first, sums, st.back_w, st.back_2w, still[:, 1], lim.var_ref[3:6])
         if (short_mark | jump | settle).any():
             start_short = self._starts(
                 0, idx, [(short_mark, w), (jump, 0), (settle, self._settle)], self._short_span
@@ -530,37 +700,15 @@ class QuasiStaticDetector:
             return out
         return ok
 
-    def _rate_band(
-        self, mean: np.ndarray, long_sums: np.ndarray, first: int
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """For window means (M, 6) of the rows from stream row ``first``: whose gyro rate
-        about the vertical is within the band (M,); whose rate magnitude is beyond it (M,):
-        the unit is turning; whose rate magnitude is beyond the rest level
-        (``restart_margin`` bias limits instead of ``bias_margin``) (M,); and the rate about
-        the vertical (M,), gyro input units, of the longer gyro means (over ``rate_window``
-        rows, from the prefix-sum differences ``long_sums`` (M, 13))."""
-        cert = self.certificate
+    def _rate_band(self, st: _WindowStats) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """For the windows of ``st``: whose gyro rate about the vertical is within the band
+        (M,); whose rate magnitude is beyond it (M,): the unit is turning; whose rate
+        magnitude is beyond the rest level (``restart_margin`` bias limits instead of
+        ``bias_margin``) (M,); and the rate about the vertical (M,), gyro input units, of
+        the longer gyro means (over ``rate_window`` rows)."""
         lim = self._limits()
         assert lim.band is not None and lim.rot_band is not None
-        m = mean.shape[0]
-        if first + 1 >= self.rate_window:
-            count: np.ndarray | int = self.rate_window
-        else:
-            count = np.minimum(np.arange(first + 1, first + 1 + m), self.rate_window)[:, None]
-        ref = self._ref
-        assert ref is not None  # set by the first block
-        gyro_long = long_sums[:, 0:3] / count + ref[0:3]
-        # the window means and the longer means in one pass (gyro input units)
-        rates = cert.gyro.inverse(
-            np.concatenate([mean[:, 0:3], gyro_long]), n_inv_t=self._n_inv_t["gyro"]
-        )
-        rate = rates[:m]
-        down = cert.accel.inverse(mean[:, 3:6], n_inv_t=self._n_inv_t["accel"])
-        norm = np.sqrt(np.einsum("ij,ij->i", down, down))
-        norm = np.where(norm > 0, norm, 1.0)
-        # about the vertical: the window means' rates and the longer means' (2, M)
-        vertical, vertical_long = np.einsum("kij,ij->ki", rates.reshape(2, m, 3), down) / norm
-        magnitude = np.sqrt(np.einsum("ij,ij->i", rate, rate))
+        vertical, vertical_long, magnitude = st.rates()
         return (
             np.abs(vertical) <= lim.band,
             magnitude > lim.band,
@@ -569,33 +717,51 @@ class QuasiStaticDetector:
         )
 
     def _jump(
-        self, first: int, sums: np.ndarray, back: np.ndarray, still: np.ndarray, sigma2: np.ndarray
+        self,
+        first: int,
+        sums: np.ndarray,
+        back_w: np.ndarray,
+        back_2w: np.ndarray,
+        still: np.ndarray,
+        sigma2: np.ndarray,
     ) -> np.ndarray:
         """Accelerometer windows (M,) whose mean stepped from the window before it, both
         still: a change no smooth motion makes (a ramp across two windows that pass the
         variance test moves the mean by at most sqrt(12 (L - 3)) sigma from one window to
         the next, L the variance ratio limit; the threshold, sqrt(12 L) sigma, keeps a
         margin of 2 in the squares), so a sensor step or a knock, not an acceleration.
-        ``back`` (M, 3, 13): the prefix sums one window, rate_window rows and two windows
-        back; ``sigma2``: the accelerometers' noise variance (output units^2)."""
+        ``back_w``, ``back_2w`` (M, 13): the prefix sums one and two windows back;
+        ``sigma2``: the accelerometers' noise variance (output units^2)."""
         w = self.window
         limit = self.variance_ratio_limit
-        p1 = back[:, 0, 3:6] - back[:, 2, 3:6]  # the window before the window
+        p1 = back_w[:, 3:6] - back_2w[:, 3:6]  # the window before the window
         step = (sums[:, 3:6] - p1) / w
         jump = still & (np.sum(step * step / sigma2, axis=1) > 12.0 * limit)
         if first + 1 < 2 * w:
             jump &= np.arange(first + 1, first + 1 + sums.shape[0]) >= 2 * w
         if jump.any():  # and the window before was still too
             p_mean = p1 / w
-            p_var = np.maximum((back[:, 0, 9:12] - back[:, 2, 9:12] - p1 * p_mean) / (w - 1), 0.0)
+            p_var = np.maximum((back_w[:, 9:12] - back_2w[:, 9:12] - p1 * p_mean) / (w - 1), 0.0)
             jump &= np.sum(p_var / sigma2, axis=1) <= limit
         return jump
 
+    def copy(self) -> QuasiStaticDetector:
+        """An independent copy of the detector in its present state (the certificate shared):
+        fed the same blocks, it gives what this one would."""
+        new = copy.copy(self)
+        new._stage = self._stage.copy()
+        # a TrailingSpread replaces its arrays, never writes into them: a shallow copy is one
+        new._drift = (copy.copy(self._drift[0]), copy.copy(self._drift[1]))
+        new._restart = list(self._restart)
+        new._noise_var = dict(self._noise_var)
+        new._noise_fixed = dict(self._noise_fixed)
+        return new
+
     def reset(self) -> None:
         """Forget the carried samples (after a gap in the stream); the noise estimate stays."""
-        self._prefix = PrefixSums(13, max(self.rate_window, 2 * self.window))
-        self._offsets = np.array([self.window, self.rate_window, 2 * self.window])
-        self._ref = None
+        self._stage: WindowStage | RunReader[_WindowStats] = WindowStage(
+            self.certificate, self.window, self.rate_window, self._cols, self._n_inv_t
+        )
         self._drift = (
             TrailingSpread(3, self._short_step, self._short_span),
             TrailingSpread(4, self._long_step, self._long_span),
@@ -619,4 +785,210 @@ def static_mask(
     return det.update(block)
 
 
-__all__ = ["QuasiStaticDetector", "static_mask", "BAD_FLAGS"]
+R = TypeVar("R")
+
+
+class _Runner(Protocol[R]):
+    """A stateful computation over a stream's blocks."""
+
+    def run(self, block: SampleBlock) -> R: ...
+
+    def copy(self) -> _Runner[R]: ...
+
+
+class _Entry(NamedTuple, Generic[R]):
+    """A block a shared run has been through, kept until every reader has passed it."""
+
+    start: int  #: stream index of its first sample
+    n: int  #: samples
+    t: tuple[float, float]  #: its first and last sample times, s (the same stream?)
+    result: R
+    before: _Runner[R]  #: a copy of the runner before it
+
+
+class _SharedRun(Generic[R]):
+    """One runner over one stream for readers that feed it the same blocks."""
+
+    def __init__(self, runner: _Runner[R]) -> None:
+        self.runner = runner
+        self.fed = 0  #: samples through the runner
+        self.entries: deque[_Entry[R]] = deque()
+        self.readers: weakref.WeakSet[RunReader[R]] = weakref.WeakSet()
+
+    def prune(self) -> None:
+        """Drop the blocks every attached reader has passed."""
+        lowest = min((r.pos for r in self.readers if r.own is None), default=self.fed)
+        while self.entries and self.entries[0].start + self.entries[0].n <= lowest:
+            self.entries.popleft()
+
+
+class RunReader(Generic[R]):
+    """One consumer's place in a run shared through a :class:`DetectorPool`: :meth:`run`
+    gives what the consumer's own runner would give on the same blocks.
+
+    The first reader to reach a block runs the runner on it; the result waits for the
+    others. A reader that feeds a block cut differently (say two blocks joined: the
+    prefix sums' roundings depend on the cut) goes on alone from a copy of the runner as
+    it was before that block, so its results are always those of a runner of its own.
+    """
+
+    def __init__(self, shared: _SharedRun[R], pos: int = 0) -> None:
+        self.shared = shared  #: the run it reads
+        self.pos = pos  #: samples this reader has fed
+        self.own: _Runner[R] | None = None  #: its own runner, once it went alone
+        shared.readers.add(self)
+
+    def copy(self) -> RunReader[R]:
+        """A reader at the same place (one that went alone: with a copy of its runner)."""
+        new = RunReader(self.shared, self.pos)
+        if self.own is not None:
+            new.own = self.own.copy()
+        return new
+
+    def run(self, block: SampleBlock) -> R:
+        """The result of the stream's next block (N >= 1 samples)."""
+        if self.own is not None:
+            return self.own.run(block)
+        n = len(block)
+        sh = self.shared
+        t = (float(block.t[0]), float(block.t[-1]))
+        if self.pos == sh.fed:  # the first here: run it
+            others = any(r is not self and r.own is None for r in sh.readers)
+            before = sh.runner.copy() if others else None
+            result = sh.runner.run(block)
+            sh.fed += n
+            if before is not None:
+                sh.entries.append(_Entry(self.pos, n, t, result, before))
+            self.pos += n
+            return result
+        entry = next((e for e in sh.entries if e.start == self.pos), None)
+        if entry is None:  # cannot happen: every block is kept while a reader is behind it
+            raise RuntimeError("shared still detector: a reader lost its place in the stream")
+        if entry.n == n and entry.t == t:
+            self.pos += n
+            sh.prune()
+            return entry.result
+        # cut differently: on alone from the runner as it was before that block
+        self.own = entry.before.copy()
+        sh.prune()
+        return self.own.run(block)
+
+
+class _Flags:
+    """A detector as a runner: its flags and noise variances after each block."""
+
+    def __init__(self, detector: QuasiStaticDetector) -> None:
+        self.detector = detector
+
+    def run(self, block: SampleBlock) -> tuple[np.ndarray, dict[str, np.ndarray | None]]:
+        flags = self.detector.update(block)
+        return flags, dict(self.detector._noise_var)
+
+    def copy(self) -> _Flags:
+        return _Flags(self.detector.copy())
+
+
+class SharedDetectorReader:
+    """One consumer's view of a detector shared through a :class:`DetectorPool`: the
+    :meth:`update` and :meth:`noise_sigma` of :class:`QuasiStaticDetector`, each as that
+    consumer's own detector would give them at its own place in the stream (see
+    :class:`RunReader`)."""
+
+    def __init__(self, shared: _SharedRun[tuple[np.ndarray, dict[str, np.ndarray | None]]]):
+        self.reader = RunReader(shared)  #: its place in the shared run
+        runner = shared.runner
+        assert isinstance(runner, _Flags)
+        self._noise = dict(runner.detector._noise_var)
+
+    @property
+    def shared(self) -> _SharedRun[tuple[np.ndarray, dict[str, np.ndarray | None]]]:
+        """The run it reads (shared with the readers of an identical detector)."""
+        return self.reader.shared
+
+    @property
+    def window_run(self) -> _SharedRun[Any] | None:
+        """The run of window sums its detector shares with one that differs only in its
+        noise figures (None: its own)."""
+        runner = self.reader.shared.runner
+        assert isinstance(runner, _Flags)
+        stage = runner.detector._stage
+        return stage.shared if isinstance(stage, RunReader) else None
+
+    @property
+    def alone(self) -> bool:
+        """Whether it went on with a detector of its own (it cut the stream differently)."""
+        return self.reader.own is not None
+
+    def noise_sigma(self, triad: str) -> np.ndarray | None:
+        """As :meth:`QuasiStaticDetector.noise_sigma` after this reader's last block."""
+        v = self._noise[triad]
+        return None if v is None else np.sqrt(v)
+
+    def update(self, block: SampleBlock) -> np.ndarray:
+        """As :meth:`QuasiStaticDetector.update`: static flags (N,) bool of ``block``, the
+        next samples of the stream every reader feeds."""
+        if len(block) == 0:
+            return np.zeros(0, dtype=bool)
+        flags, self._noise = self.reader.run(block)
+        return flags.copy()  # a consumer may write into its flags
+
+
+class DetectorPool:
+    """Hands out still detectors for consumers of one stream (``imudiag diagnose``: the
+    monitor's and the interval collector's). Identical detectors (the same certificate
+    object, rate, window and options, the same noise fixed by the certificate) share one,
+    run once per block; detectors that differ only in their noise figures (the monitor's
+    trusts the certificate's, the collector's measures the data's) share the window sums,
+    means, variances and rates of every block, and each decides on its own. Every consumer
+    must ask before any of them feeds a block, and feed the same stream; one that asks
+    later gets a detector of its own."""
+
+    _SIGNATURE = inspect.signature(QuasiStaticDetector)
+
+    def __init__(self) -> None:
+        self._detectors: dict[tuple[Any, ...], _SharedRun[Any]] = {}
+        self._stages: dict[tuple[Any, ...], QuasiStaticDetector | _SharedRun[Any]] = {}
+
+    def detector(
+        self, certificate: Certificate, rate_hz: float | None = None, **options: Any
+    ) -> SharedDetectorReader:
+        """A reader of the detector ``QuasiStaticDetector(certificate, rate_hz, **options)``
+        would be, sharing what it can with the earlier ones."""
+        det = QuasiStaticDetector(certificate, rate_hz, **options)
+        bound = self._SIGNATURE.bind(certificate, rate_hz, **options)
+        bound.apply_defaults()
+        args = dict(bound.arguments)
+        args["certificate"] = id(certificate)  # the detector keeps it alive
+        args["rate_hz"] = det.rate_hz
+        args["certificate_noise"] = (det._noise_fixed["gyro"], det._noise_fixed["accel"])
+        key = tuple((name, repr(value)) for name, value in sorted(args.items()))
+        shared = self._detectors.get(key)
+        if shared is not None and not shared.fed:
+            return SharedDetectorReader(shared)
+        # a new detector: its window sums from those of an earlier one when alike
+        stage = det._stage
+        assert isinstance(stage, WindowStage)
+        skey = stage.key()
+        earlier = self._stages.get(skey)
+        if isinstance(earlier, QuasiStaticDetector):  # its first partner: share its stage
+            if isinstance(earlier._stage, WindowStage) and not earlier._stage.prefix._rows:
+                run: _SharedRun[_WindowStats] = _SharedRun(earlier._stage)
+                earlier._stage = RunReader(run)
+                earlier = self._stages[skey] = run
+        if isinstance(earlier, _SharedRun) and not earlier.fed:
+            det._stage = RunReader(earlier)
+        else:
+            self._stages[skey] = det
+        shared = self._detectors[key] = _SharedRun(_Flags(det))
+        return SharedDetectorReader(shared)
+
+
+__all__ = [
+    "BAD_FLAGS",
+    "DetectorPool",
+    "QuasiStaticDetector",
+    "RunReader",
+    "SharedDetectorReader",
+    "WindowStage",
+    "static_mask",
+]

@@ -3,6 +3,8 @@ where a window's median is certainly above or below a threshold (counts, no sort
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 #: rows between exact re-summations of the window (bounds the running sum's rounding drift)
@@ -109,6 +111,62 @@ class PrefixSums:
         self._rows = 0  #: rows seen
         self._next_rebase = 1 << 20
 
+    def copy(self) -> PrefixSums:
+        """An independent copy in the present state."""
+        new = copy.copy(self)
+        new._p = self._p.copy()
+        new._last = self._last.copy()
+        return new
+
+    def update_views(
+        self, rows: np.ndarray, offsets: np.ndarray
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...], np.ndarray]:
+        """As :meth:`update`, with P ``offsets[j]`` rows back as the j-th of a tuple of
+        (N, k) arrays: on a block longer than the buffer's free span these are views of one
+        array of the block's prefix sums (no gathers, no copies), with the values
+        :meth:`update` gives bit for bit."""
+        n = rows.shape[0]
+        if not self.whole(n):
+            now, back, idx = self.update(rows, offsets)
+            return now, tuple(back[:, j] for j in range(back.shape[1])), idx
+        first = self._rows
+        reach, depth, mask = self.reach, self.depth, self.depth - 1
+        # ext[reach + i]: P at new row i; ext[reach - off + i]: P ``off`` rows before it
+        ext = np.empty((reach + n, self.width))
+        h0 = first - reach  # stream row of ext[0]
+        z = min(reach, max(0, -h0))  # rows before the stream's start: P = 0
+        ext[:z] = 0.0
+        s = (h0 + z) & mask
+        e = min(depth, s + reach - z)
+        ext[z : z + e - s] = self._p[s:e]
+        ext[z + e - s : reach] = self._p[: reach - z - (e - s)]
+        # the cumulative sums in the chunks the buffer allows, so every value is rounded as
+        # the chunked update rounds it (the sum of a chunk, then the last P added)
+        chunk = depth - reach - 1
+        last = self._last
+        for a in range(0, n, chunk):
+            seg = ext[reach + a : reach + min(n, a + chunk)]
+            np.cumsum(rows[a : a + chunk], axis=0, out=seg)
+            seg += last
+            last = seg[-1]
+        # the buffer keeps the last ``depth`` rows' P in their slots
+        keep = min(n, depth)
+        s = (first + n - keep) & mask
+        e = min(depth, s + keep)
+        self._p[s:e] = ext[reach + n - keep : reach + n - keep + e - s]
+        self._p[: keep - (e - s)] = ext[reach + n - keep + e - s :]
+        self._last = ext[-1].copy()
+        self._rows = first + n
+        backs = tuple(ext[reach - off : reach - off + n] for off in offsets.tolist())
+        return ext[reach:], backs, np.arange(first, first + n)
+
+    def whole(self, n: int) -> bool:
+        """Whether a block of ``n`` rows goes through :meth:`update_views`' one pass: longer
+        than the buffer's free span (shorter ones are one chunk already) and not reaching
+        the next shift back to zero (whose chunk-by-chunk roundings only the chunked
+        update repeats)."""
+        return n > self.depth - self.reach - 1 and self._rows + n < self._next_rebase
+
     def update(
         self, rows: np.ndarray, offsets: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -117,6 +175,9 @@ class PrefixSums:
         n = rows.shape[0]
         chunk = self.depth - self.reach - 1
         if n > chunk:  # keep every slot a window reaches unwritten until it is read
+            if self.whole(n):
+                now, backs, idx = self.update_views(rows, offsets)
+                return now, np.stack(backs, axis=1), idx
             parts = [self.update(rows[i : i + chunk], offsets) for i in range(0, n, chunk)]
             return (
                 np.concatenate([p[0] for p in parts]),

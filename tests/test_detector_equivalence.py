@@ -248,3 +248,114 @@ def test_real_recordings(name):
         sigma = np.std(np.diff(x[: int(10 * rate)], axis=0), axis=0) / math.sqrt(2)
         noisy.triad(triad).noise = Noise(density=np.maximum(sigma, 1e-9) / math.sqrt(rate / 2))
     _compare(block, noisy, seed + 100, rate)
+
+
+# -- big blocks (issue 14: ``imudiag diagnose`` feeds the detector 65536 samples at a time)
+
+
+def test_prefix_sums_big_blocks_bit_for_bit():
+    """The one-pass prefix sums of a block longer than the ring (``update_views``, and
+    ``update`` built on it) equal the frozen chunked ones bit for bit, through the shift
+    back to zero every 2^20 rows (the block that reaches it takes the chunked path)."""
+    from imudiag.trailing import PrefixSums
+    from tests.reference.drift_quasistatic import PrefixSums as FrozenPrefixSums
+
+    rng = np.random.default_rng(61)
+    n = (1 << 20) + 70_000
+    x = rng.normal(3.0, 50.0, size=(n, 2))  # not whole numbers: roundings differ by order
+    offsets = np.array([100, 2000, 200])
+    new, views, old = PrefixSums(2, 2000), PrefixSums(2, 2000), FrozenPrefixSums(2, 2000)
+    start, k = 0, 0
+    while start < n:
+        size = int(rng.choice([rng.integers(1, 300), rng.integers(10_000, 100_001)]))
+        rows = x[start : start + size]
+        a_now, a_back, a_idx = new.update(rows, offsets)
+        v_now, v_backs, v_idx = views.update_views(rows, offsets)
+        o_now, o_back, o_idx = old.update(rows, offsets)
+        for got in (a_now, v_now):
+            assert np.array_equal(got, o_now), f"block {k}: P differs"
+        assert np.array_equal(a_idx, o_idx) and np.array_equal(v_idx, o_idx)
+        assert np.array_equal(a_back, o_back), f"block {k}: P back differs"
+        for j in range(len(offsets)):
+            assert np.array_equal(v_backs[j], o_back[:, j]), f"block {k}: view {j} differs"
+        start += len(rows)
+        k += 1
+    assert new._next_rebase > 1 << 20  # the shift happened
+
+
+def _compare_big(block: SampleBlock, cert: Certificate, seed: int, rate: float | None = None,
+                 **options: object) -> np.ndarray:  # fmt: skip
+    """As :func:`_compare`, in blocks of 10^4..10^5 samples (a few daemon-sized reads
+    between them, so the big blocks start anywhere in the rings; some streams start with a
+    big block)."""
+    new = QuasiStaticDetector(cert, rate, **options)  # type: ignore[arg-type]
+    old = FrozenDetector(cert, rate, **options)  # type: ignore[arg-type]
+    rng = np.random.default_rng(seed)
+    n = len(block)
+    out, start, calls = [], 0, 0
+    while start < n:
+        size = int(rng.integers(10_000, 100_001) if (calls + seed) % 3 else rng.integers(1, 300))
+        part = block.slice(start, min(n, start + size))
+        a, b = new.update(part), old.update(part)
+        if not np.array_equal(a, b):
+            bad = np.flatnonzero(a != b)
+            raise AssertionError(
+                f"block {calls} (samples {start}..{start + len(part)}): flags differ at "
+                f"{(start + bad[:10]).tolist()}"
+            )
+        out.append(a)
+        start += len(part)
+        calls += 1
+    for name in ("gyro", "accel"):
+        s_new, s_old = new.noise_sigma(name), old.noise_sigma(name)
+        assert (s_new is None) == (s_old is None)
+        if s_new is not None:
+            assert np.array_equal(s_new, s_old)
+    return np.concatenate(out)
+
+
+@pytest.fixture(scope="module")
+def drive_block() -> SampleBlock:
+    """The clean urban drive of test_simulated_drives (seed 1, 600 s at the certificate's
+    rate): stops, cruises, turns and re-starts."""
+    rate = float(CERT.sample_rate)
+    motion = scenario_motion("urban", 1, {"length": str(DRIVE_S)})
+    total = motion.n_samples(rate)
+    sim = Simulator(CERT, None, [], 1)
+    chunk = int(10 * rate)
+    return SampleBlock.concat([
+        sim.step(motion.sample(rate, start, min(chunk, total - start)))
+        for start in range(0, total, chunk)
+    ])  # fmt: skip
+
+
+def _long_multiposition() -> SampleBlock:
+    traj = multi_position(n_attitudes=24, dwell_s=4.0, turn_s=1.5, rate_hz=1000, seed=8)
+    return simulate(_khz(), traj, seed=16, effects=Effects(quantize=True)).samples
+
+
+def test_big_blocks_simulated(drive_block):
+    """Blocks of 10^4..10^5 samples: still, multi-position (with flags and non-finite
+    samples), the urban drive; the certificate's noise and the estimate from the data."""
+    still_1k = simulate(
+        _khz(), still(150.0, rate_hz=1000, attitude_rpy_deg=(10, -20, 30)), seed=2
+    ).samples
+    mask = _compare_big(still_1k, _khz(), 71)
+    assert 0.9 * len(still_1k) < mask.sum() < len(still_1k)
+    multi = _long_multiposition()
+    mask = _compare_big(multi, _khz(), 72)
+    assert 0.3 * len(multi) < mask.sum() < 0.9 * len(multi)
+    _compare_big(_with_flags_and_gaps(multi, 3), _khz(), 73)
+    _compare_big(multi, _khz(), 74, certificate_noise=False)
+    mask = _compare_big(drive_block, CERT, 75, float(CERT.sample_rate))
+    assert len(_intervals(mask)) > 5
+    _compare_big(drive_block, CERT, 76, float(CERT.sample_rate), certificate_noise=False)
+
+
+def test_big_blocks_real_recording():
+    """The real Xsens MTi multi-position session (tests/data/real/xsens-mti-multiposition)
+    in big blocks, with its certificate's noise and with the estimate from the data."""
+    block, cert = _real("xsens-mti-multiposition/session.csv.gz")
+    mask = _compare_big(block, cert, 81, cert.sample_rate)
+    assert mask.any() and not mask.all()
+    _compare_big(block, cert, 82, cert.sample_rate, certificate_noise=False)

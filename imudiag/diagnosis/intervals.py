@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..certificate import Certificate
-from ..quasistatic import BAD_FLAGS, QuasiStaticDetector
+from ..quasistatic import BAD_FLAGS, DetectorPool, QuasiStaticDetector, SharedDetectorReader
 from ..samples import SampleBlock
 from .config import DiagnosisConfig
 
@@ -134,6 +134,8 @@ class IntervalCollector:
 
     ``certificate`` gives the detector thresholds and the attitude of each
     interval; ``rate_hz`` the sample rate (Hz, defaults to the certificate's).
+    ``detectors``: where the still detector comes from, to share it with other consumers of
+    the same stream (``imudiag diagnose``: the monitor's, when alike); None: its own.
     """
 
     def __init__(
@@ -148,10 +150,12 @@ class IntervalCollector:
         max_motion_s: float = _DEFAULTS.max_motion_s,
         max_time_step_s: float | None = None,
         detector_options: dict | None = None,
+        detectors: DetectorPool | None = None,
     ) -> None:
         self.certificate = certificate
         self.rate_hz = float(rate_hz or certificate.sample_rate)
-        self.detector = QuasiStaticDetector(
+        make = QuasiStaticDetector if detectors is None else detectors.detector
+        self.detector: QuasiStaticDetector | SharedDetectorReader = make(
             certificate, self.rate_hz, window_s=detector_window_s, **(detector_options or {})
         )
         self.min_n = max(3, int(round(min_interval_s * self.rate_hz)))

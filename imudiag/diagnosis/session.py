@@ -23,7 +23,7 @@ from ..errors import BadInput
 from ..logs import open_log
 from ..logs.options import LogOptions
 from ..noise_estimate import NOISE_MISMATCH_FACTOR, NoiseMeter, compare
-from ..quasistatic import BAD_FLAGS
+from ..quasistatic import BAD_FLAGS, DetectorPool
 from ..samples import FLAG_SELF_TEST, SampleBlock
 from .calibrate import CalibrationResult, calibrate, calibrate_known_rate
 from .config import DiagnosisConfig
@@ -203,9 +203,12 @@ def diagnose_recording(
             if diag is None:
                 check_units(name, meta, cert)
                 rate = rate_hz or log_rate_hz(meta, block, cert)
-                monitor = Monitor(cert, rate_hz=rate)
+                # one still detector for both when theirs are alike (the same settings and
+                # noise figures: with the certificate's noise, or a certificate without any)
+                pool = DetectorPool()
+                monitor = Monitor(cert, rate_hz=rate, detectors=pool)
                 diag = StreamingDiagnoser(
-                    cert, config, rate_hz=rate, certificate_noise=certificate_noise
+                    cert, config, rate_hz=rate, certificate_noise=certificate_noise, detectors=pool
                 )
                 if trace is not None:
                     trace.f0 = monitor.keep_f0_trace()

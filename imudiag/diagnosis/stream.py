@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..certificate import Certificate
+from ..quasistatic import DetectorPool
 from ..reports import DIAGNOSIS_FORMAT, header
 from ..samples import SampleBlock
 from .config import DiagnosisConfig
@@ -50,7 +51,9 @@ class StreamingDiagnoser:
     :class:`DiagnosisConfig` or a mapping of its fields. ``rate_hz``: sample
     rate (Hz), defaults to the certificate's. ``certificate_noise``: False makes
     the quasi-static detector estimate the noise from the data instead of
-    trusting the certificate's figure.
+    trusting the certificate's figure. ``detectors``: where the interval collector's still
+    detector comes from (a :class:`~imudiag.quasistatic.DetectorPool` shares it with the
+    monitor's of ``imudiag diagnose`` when they are alike); None: its own.
     """
 
     def __init__(
@@ -59,6 +62,7 @@ class StreamingDiagnoser:
         config: DiagnosisConfig | dict[str, Any] | None = None,
         rate_hz: float | None = None,
         certificate_noise: bool = True,
+        detectors: DetectorPool | None = None,
     ) -> None:
         if not isinstance(config, DiagnosisConfig):
             config = DiagnosisConfig.from_dict(config)
@@ -67,6 +71,7 @@ class StreamingDiagnoser:
         self.certificate = certificate
         #: whether the quasi-static detector trusts the certificate's noise density
         self.certificate_noise = certificate_noise
+        self._detectors = detectors
         self._reset()
 
     def _reset(self) -> None:
@@ -84,6 +89,7 @@ class StreamingDiagnoser:
                 "certificate_noise": self.certificate_noise,
                 **(PLATEAU_DETECTOR if cfg.known_rate_rad_s is not None else {}),
             },
+            detectors=self._detectors,
         )
         self.tracker = PredicateTracker(cfg.k_sigma, cfg.persist)
         self._window: deque[QuasiStaticInterval] = deque()
