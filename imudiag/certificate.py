@@ -30,6 +30,7 @@ import yaml
 
 from . import yamlio
 from .errors import CertificateError as _CertificateErrorBase
+from .rowwise import rows_op
 
 FORMAT = "imudiag-certificate/1"
 
@@ -319,19 +320,22 @@ class TriadModel:
         # (the same operations in the same order, without a fresh (N, 3) temporary each:
         # on blocks of 10^5 samples those temporaries' page faults cost more than the
         # arithmetic)
-        r = np.subtract(u, self._bias_at(temp_c))
+        # (rows_op: a (3,) row over (N, 3) rows, the same numbers as numpy's broadcast)
+        r = rows_op(np.subtract, u, self._bias_at(temp_c))
         if self.g_sensitivity is not None and accel_input is not None:
             g = np.asarray(accel_input, dtype=float) @ self.g_sensitivity.T
             r = np.subtract(r, g, out=_into(r, g))
         scale = self._scale_at(temp_c)
         if self.nonlinearity is None:
-            nx = np.divide(r, scale, out=_into(r, scale))
+            nx = rows_op(np.divide, r, scale, out=_into(r, scale))
         else:
             with np.errstate(invalid="ignore"):
-                root = (4.0 * self.nonlinearity) * r
-                root = np.add(np.square(scale), root, out=_into(root, scale))
+                # 4 q r as r (4 q), scale^2 + root as root + scale^2: products and sums of
+                # two numbers do not depend on their order
+                root = rows_op(np.multiply, r, 4.0 * self.nonlinearity)
+                root = rows_op(np.add, root, np.square(scale), out=_into(root, scale))
                 np.sqrt(root, out=root)
-            root = np.add(scale, root, out=_into(root, scale))
+            root = rows_op(np.add, root, scale, out=_into(root, scale))
             nx = np.multiply(2.0, r, out=r)
             nx = np.divide(nx, root, out=_into(nx, root))
         return nx @ (self.n_inverse_t() if n_inv_t is None else n_inv_t)

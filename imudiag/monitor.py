@@ -41,6 +41,7 @@ from .noise_estimate import medians
 from .persistence import Persistence
 from .quasistatic import QuasiStaticDetector
 from .ringbuffer import SampleRing
+from .rowwise import rows_op
 from .samples import (
     FLAG_ACCEL_SATURATED,
     FLAG_ADC_ERROR,
@@ -736,7 +737,7 @@ class Monitor:
         excess = np.subtract(back[:, 0, :3], back[:, 1, :3])
         excess /= w
         np.abs(excess, out=excess)
-        excess /= self._rest_thr
+        rows_op(np.divide, excess, self._rest_thr, out=excess)
         still = now[:, 3] - back[:, 1, 3]
         # the averaging window and the lag after it were all still
         usable = ok & (idx + 1 >= span) & (still == span)

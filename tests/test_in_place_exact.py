@@ -1,8 +1,8 @@
-"""The certificate's inverse and the noise meter's chunk figures work in place on arrays of
-their own (issue 14: on blocks of 10^5 samples the page faults of fresh temporaries cost
-more than the arithmetic). They must give the numbers of the plain expressions they
-replace bit for bit, for every model block and broadcast shape, and never write into
-their inputs."""
+"""The certificate's inverse, the noise meter's chunk figures and ``rows_op`` work in place
+on arrays of their own or with a longer inner loop (issue 14: on blocks of 10^5 samples
+fresh temporaries and numpy's loops of 3 cost more than the arithmetic). They must give
+the numbers of the plain expressions they replace bit for bit, for every model block and
+broadcast shape, and never write into their inputs."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ import pytest
 from imudiag import noise_estimate
 from imudiag.certificate import Certificate, TriadModel, load_default
 from imudiag.noise_estimate import second_difference_sigmas
+from imudiag.rowwise import rows_op
 from tests.test_certificate import extended
 
 
@@ -111,3 +112,33 @@ def test_chunk_noise_figures_are_the_plain_expression_bit_for_bit(length: int) -
     got = second_difference_sigmas(chunks)
     np.testing.assert_array_equal(_bits(got), _bits(_plain_second_difference_sigmas(chunks)))
     np.testing.assert_array_equal(chunks, before)
+
+
+@pytest.mark.parametrize("op", [np.add, np.subtract, np.multiply, np.divide])
+def test_rows_op_is_numpys_broadcast_bit_for_bit(op: np.ufunc) -> None:
+    rng = np.random.default_rng(23)
+    row = rng.normal(0.0, 100.0, 3)
+    wide = rng.normal(0.0, 1e4, (1000, 6))
+    wide[17, 4] = np.nan
+    wide[18, 5] = np.inf
+    for n in (0, 1, 5, 127, 128, 129, 1000):  # below, at and past the tiling, remainders
+        x = wide[:n, :3].copy()
+        cases = {
+            "contiguous": (x, None),
+            "strided": (wide[:n, 3:], None),  # a view on every other triple
+            "in place": (x.copy(), "x"),
+            "into a strided out": (x, np.empty((n, 6))[:, :3]),
+        }
+        for name, (a, out) in cases.items():
+            want = op(a, row)
+            target = a if isinstance(out, str) else out
+            with np.errstate(all="ignore"):
+                got = rows_op(op, a, row, out=target)
+            assert got.shape == want.shape, name
+            np.testing.assert_array_equal(_bits(got), _bits(want), err_msg=f"{name}, {n} rows")
+            if target is not None:
+                assert got is target
+    # other shapes and dtypes are numpy's own broadcast
+    f32 = wide[:300, :3].astype(np.float32)
+    assert rows_op(op, f32, row).dtype == op(f32, row).dtype
+    np.testing.assert_array_equal(rows_op(op, wide[:300], row[0]), op(wide[:300], row[0]))
