@@ -30,7 +30,7 @@ import yaml
 
 from . import yamlio
 from .errors import CertificateError as _CertificateErrorBase
-from .rowwise import rows_op
+from .rowwise import BIG_ROWS, rows_op
 
 FORMAT = "imudiag-certificate/1"
 
@@ -215,7 +215,10 @@ class Temperature:
 def _into(a: np.ndarray, b: np.ndarray | float) -> np.ndarray | None:
     """``a`` as the output of an elementwise operation on ``a`` and ``b``, when the result
     has ``a``'s shape (``b`` broadcasts into it); else None (a new array)."""
-    return a if np.broadcast_shapes(a.shape, np.shape(b)) == a.shape else None
+    sb = np.shape(b)
+    if sb == () or sb == a.shape or sb == a.shape[-1:]:  # the common cases, checked cheaply
+        return a
+    return a if np.broadcast_shapes(a.shape, sb) == a.shape else None
 
 
 @dataclass
@@ -316,29 +319,44 @@ class TriadModel:
         many blocks with the same certificate (the monitor, the still detector).
         """
         u = np.asarray(u, dtype=float)
-        # r is a new array of its own from here on: the steps below work on it in place
-        # (the same operations in the same order, without a fresh (N, 3) temporary each:
-        # on blocks of 10^5 samples those temporaries' page faults cost more than the
-        # arithmetic)
-        # (rows_op: a (3,) row over (N, 3) rows, the same numbers as numpy's broadcast)
+        n_inv_t = self.n_inverse_t() if n_inv_t is None else n_inv_t
+        if u.ndim == 2 and u.shape[0] >= BIG_ROWS:
+            return self._corrected_in_place(u, temp_c, accel_input) @ n_inv_t
+        r = u - self._bias_at(temp_c)
+        if self.g_sensitivity is not None and accel_input is not None:
+            r = r - np.asarray(accel_input, dtype=float) @ self.g_sensitivity.T
+        scale = self._scale_at(temp_c)
+        if self.nonlinearity is None:
+            nx = r / scale
+        else:
+            with np.errstate(invalid="ignore"):
+                root = np.sqrt(scale**2 + 4.0 * self.nonlinearity * r)
+            nx = 2.0 * r / (scale + root)
+        return nx @ n_inv_t
+
+    def _corrected_in_place(
+        self, u: np.ndarray, temp_c: np.ndarray | float | None, accel_input: np.ndarray | None
+    ) -> np.ndarray:
+        """N x (N, 3) of :meth:`inverse` for many rows ``u`` (N, 3): the same operations in
+        the same order, bit for bit, on one new array of its own instead of a new one per
+        step (on blocks of 10^5 samples their page faults cost more than the arithmetic),
+        a (3,) row against the rows by :func:`~imudiag.rowwise.rows_op`."""
         r = rows_op(np.subtract, u, self._bias_at(temp_c))
         if self.g_sensitivity is not None and accel_input is not None:
             g = np.asarray(accel_input, dtype=float) @ self.g_sensitivity.T
             r = np.subtract(r, g, out=_into(r, g))
         scale = self._scale_at(temp_c)
         if self.nonlinearity is None:
-            nx = rows_op(np.divide, r, scale, out=_into(r, scale))
-        else:
-            with np.errstate(invalid="ignore"):
-                # 4 q r as r (4 q), scale^2 + root as root + scale^2: products and sums of
-                # two numbers do not depend on their order
-                root = rows_op(np.multiply, r, 4.0 * self.nonlinearity)
-                root = rows_op(np.add, root, np.square(scale), out=_into(root, scale))
-                np.sqrt(root, out=root)
-            root = rows_op(np.add, root, scale, out=_into(root, scale))
-            nx = np.multiply(2.0, r, out=r)
-            nx = np.divide(nx, root, out=_into(nx, root))
-        return nx @ (self.n_inverse_t() if n_inv_t is None else n_inv_t)
+            return rows_op(np.divide, r, scale, out=_into(r, scale))
+        with np.errstate(invalid="ignore"):
+            # 4 q r as r (4 q), scale^2 + root as root + scale^2: products and sums of two
+            # numbers do not depend on their order
+            root = rows_op(np.multiply, r, 4.0 * self.nonlinearity)
+            root = rows_op(np.add, root, np.square(scale), out=_into(root, scale))
+            np.sqrt(root, out=root)
+        root = rows_op(np.add, root, scale, out=_into(root, scale))
+        nx = np.multiply(2.0, r, out=r)
+        return np.divide(nx, root, out=_into(nx, root))
 
     def n_inverse_t(self) -> np.ndarray:
         """The transpose of N^-1 (dimensionless, 3x3): ``x = (N^-1 y^T)^T = y @ n_inverse_t()``."""

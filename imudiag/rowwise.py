@@ -13,6 +13,9 @@ import numpy as np
 
 #: rows per tiled row (the inner loop's length is k times this)
 TILE_ROWS = 64
+#: rows from which tiling (and work in place instead of new arrays) pays: fewer rows, as
+#: in a daemon's read of a few samples, cost more in Python calls than they save
+BIG_ROWS = 2 * TILE_ROWS
 
 
 def rows_op(
@@ -21,11 +24,11 @@ def rows_op(
     """``op(x, row)`` for ``x`` (N, k) and ``row`` (k,) (same units as ``op`` needs), into
     ``out`` (N, k) if given (it may be ``x``); any other shapes or dtypes: numpy's own
     broadcast."""
+    if x.ndim != 2 or x.shape[0] < BIG_ROWS:
+        return op(x, row, out=out)
     row = np.asarray(row)
     fast = (
-        x.ndim == 2
-        and row.shape == x.shape[1:]
-        and x.shape[0] >= 2 * TILE_ROWS
+        row.shape == x.shape[1:]
         and x.dtype == np.float64
         and row.dtype == np.float64
         and (out is None or (out.shape == x.shape and out.dtype == np.float64))

@@ -68,6 +68,9 @@ def test_inverse_is_the_plain_expression_bit_for_bit(cert_name: str, triad: str)
         (u, {"accel_input": accel[0]}),  # one accelerometer row for every sample
         (u[0], {"temp_c": temp}),  # one output row at many temperatures: (N, 3)
         (u[0], {}),
+        (u[:127], {"temp_c": temp[:127], "accel_input": accel[:127]}),  # a daemon's reads
+        (u[:128], {"temp_c": temp[:128], "accel_input": accel[:128]}),  # and from here on
+        (u[:5], {}),
         (u[:, 1:2].repeat(3, axis=1)[::2], {}),  # a strided input
         (u.astype(np.float32), {}),
         (np.round(np.where(np.isfinite(u), u, 0.0)).astype(np.int64), {}),  # counts
