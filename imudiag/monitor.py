@@ -41,6 +41,7 @@ from .noise_estimate import medians
 from .persistence import Persistence
 from .quasistatic import DetectorPool, QuasiStaticDetector, SharedDetectorReader
 from .ringbuffer import SampleRing
+from .rowwise import rows_op
 from .samples import (
     FLAG_ACCEL_SATURATED,
     FLAG_ADC_ERROR,
@@ -182,6 +183,19 @@ def _beyond(x: np.ndarray, scale: float, limit: float) -> int:
     return int(np.count_nonzero(np.abs(q) > limit * (1.0 - 1e-9)))
 
 
+def _rows(x: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """``x[keep]``, or ``x`` itself when ``keep`` (N,) holds every row (no copy)."""
+    return x if keep.all() else x[keep]
+
+
+def _rows_over(x: np.ndarray, keep: np.ndarray, divisor: float) -> np.ndarray:
+    """``x[keep] / divisor``, divided in place (``x`` itself when ``keep`` (N,) holds every
+    row: the caller's array of its own is changed)."""
+    out = _rows(x, keep)
+    out /= divisor
+    return out
+
+
 class Monitor:
     """Runs the per-sample checks over consecutive blocks of one stream."""
 
@@ -292,6 +306,17 @@ class Monitor:
         self._stuck_run = np.zeros(6, dtype=np.int64)
         self._stuck_last = np.full(6, np.nan)
         self._gyro_window = max(1, int(round(cfg.gyro_window_s * rate)))
+        # the MEMS rest-rate check's threshold per axis (rad/s): Earth rate, the bias limit
+        # and k_sigma standard deviations of the window's mean
+        gyro = certificate.gyro
+        bias_lim_si = gyro.limits.bias / gyro.scale_factor * gyro.unit_to_si
+        sigma_g = self._sigma["gyro"]
+        sigma_mean_si = (
+            np.zeros(3)
+            if sigma_g is None
+            else sigma_g / gyro.scale_factor * gyro.unit_to_si / math.sqrt(self._gyro_window)
+        )
+        self._rest_thr = certificate.earth_rate + bias_lim_si + cfg.k_sigma * sigma_mean_si
         # the detector's window is trailing: the first samples of a turn still look
         # static. The rest-rate mean is therefore taken over a window that ends
         # ``lag`` samples (one detector window) back, and used only if the samples
@@ -589,7 +614,6 @@ class Monitor:
         self._static = bool(static[-1])
         temp = block.temp
         accel_in = cert.accel.inverse(block.accel, temp_c=temp, n_inv_t=self._n_inv_t["accel"])
-        accel_si = accel_in * cert.accel.unit_to_si
         gyro_si = cert.gyro.inverse_si(
             block.gyro,
             temp_c=temp,
@@ -597,12 +621,16 @@ class Monitor:
             n_inv_t=self._n_inv_t["gyro"],
         )
 
-        # accelerometer F0 on quasi-static samples
-        ok_a = static & ~adc_error & ((flags & FLAG_ACCEL_SATURATED) == 0)
-        self._record("accel", f0(accel_si[ok_a] / cert.gravity), block.t[ok_a])
+        # accelerometer F0 on quasi-static samples (accel_in, an array of our own, taken
+        # to m/s^2 and then to fractions of g in place: the same products, no copies)
+        ok = ~adc_error
+        ok &= static
+        ok_a = ok & ((flags & FLAG_ACCEL_SATURATED) == 0)
+        accel_si = np.multiply(accel_in, cert.accel.unit_to_si, out=accel_in)
+        self._record("accel", f0(_rows_over(accel_si, ok_a, cert.gravity)), _rows(block.t, ok_a))
         if self.gyro_mode == "earth_rate":
-            ok_g = static & ~adc_error & ((flags & FLAG_GYRO_SATURATED) == 0)
-            self._record("gyro", f0(gyro_si[ok_g] / cert.earth_rate), block.t[ok_g])
+            ok &= (flags & FLAG_GYRO_SATURATED) == 0
+            self._record("gyro", f0(gyro_si[ok] / cert.earth_rate), _rows(block.t, ok))
         self._staged.append((block, static, gyro_si))
         self._staged_n += n
 
@@ -649,18 +677,35 @@ class Monitor:
             ok_g = static & ~adc_error & ~sat["gyro"]
             self._gyro_rest_rate(now, back, idx, ok_g, block.t)
 
-        self._stuck(block)
         # angular acceleration from the last 0.1 s mean rate minus the 0.1 s before it:
-        # (2 (P[s] - P[s-m]) - (P[s] - P[s-2m])) / m per 0.1 s
+        # (2 (P[s] - P[s-m]) - (P[s] - P[s-2m])) / m per 0.1 s (in place: the same
+        # operations in the same order as now - 2 back2 + back3, fewer (N, 3) arrays)
         m = self._accel_m
-        d = now[:, :3] - 2.0 * back[:, 2, :3] + back[:, 3, :3]
-        alpha = np.sqrt(np.einsum("ij,ij->i", d, d)) * (self.rate_hz / m) / m
+        d = np.multiply(2.0, back[:, 2, :3])
+        np.subtract(now[:, :3], d, out=d)
+        d += back[:, 3, :3]
+        alpha = np.einsum("ij,ij->i", d, d)
+        np.sqrt(alpha, out=alpha)
+        alpha *= self.rate_hz / m
+        alpha /= m
         if not finite:
             alpha[now[:, 4] - back[:, 3, 4] > 0] = np.nan
         turning = ~(alpha <= self.config.noise_motion_gate)  # NaN (ADC error): turning
         turns = turning[:, None].astype(float)
         tnow, tback, _ = self._turn_prefix.update(turns, self._turn_offsets)
-        self._noise(block, tnow[:, 0] == tback[:, 0, 0])
+        pos = self._noise_checks(n, tnow[:, 0] == tback[:, 0, 0])
+        # both triads' raw outputs channel by channel (6, h + n), gyro then accel (the
+        # ring's column order), after the h samples before the block that the noise
+        # check's windows reach back to (from the ring, pushed after this)
+        h = min(self._noise_w + 1, self._noise_seen(n), len(self.ring)) if pos.size else 0
+        chan = np.empty((6, h + n))
+        if h:
+            chan[:, :h] = self.ring.latest(h)[:, 1:7].T
+        chan[:3, h:] = block.gyro.T
+        chan[3:, h:] = block.accel.T
+        self._stuck(chan[:, h:])
+        if pos.size:
+            self._noise(block.t, chan, pos)
         self.ring.push(block)
 
     def _record(self, name: str, values: np.ndarray, t: np.ndarray) -> None:
@@ -696,63 +741,75 @@ class Monitor:
 
         ``now`` (N, 5), ``back`` (N, 4, 5), ``idx`` (N,): the prefix sums (see ``_offsets``).
         """
-        cert = self.certificate
-        gyro = cert.gyro
         w, span = self._gyro_window, self._span
-        mean = (back[:, 0, :3] - back[:, 1, :3]) / w  # the w samples that end lag samples back
+        # per axis, the mean of the w samples that end lag samples back as a ratio to its
+        # threshold (> 1 fails): for every sample, in place, then kept where usable
+        excess = np.subtract(back[:, 0, :3], back[:, 1, :3])
+        excess /= w
+        np.abs(excess, out=excess)
+        rows_op(np.divide, excess, self._rest_thr, out=excess)
         still = now[:, 3] - back[:, 1, 3]
         # the averaging window and the lag after it were all still
         usable = ok & (idx + 1 >= span) & (still == span)
-
-        bias_lim_si = gyro.limits.bias / gyro.scale_factor * gyro.unit_to_si
-        sigma = self._sigma["gyro"]
-        sigma_mean_si = (
-            np.zeros(3)
-            if sigma is None
-            else sigma / gyro.scale_factor * gyro.unit_to_si / math.sqrt(w)
-        )
-        thr = cert.earth_rate + bias_lim_si + self.config.k_sigma * sigma_mean_si
-        m = mean[usable]
-        excess = np.abs(m) / thr  # > 1 fails
-        worst = excess.max(axis=1) if m.shape[0] else np.zeros(0)
-        failed = worst > 1.0
-        values = worst  # ratio of the worst axis' mean rate to its threshold
+        # the ratio of the worst axis (elementwise maxima: a reduction along rows of 3
+        # costs 20 times more; NaN stays NaN either way)
+        worst = np.maximum(excess[:, 0], excess[:, 1])
+        np.maximum(worst, excess[:, 2], out=worst)
+        values = _rows(worst, usable)  # ratio of the worst axis' mean rate to its threshold
+        failed = values > 1.0
         st = self._state["gyro"]
+        t_used = _rows(t, usable)
         if self.f0_trace is not None:
-            self.f0_trace["gyro"].add(t[usable], values, failed)
-        st.checked += int(m.shape[0])
+            self.f0_trace["gyro"].add(t_used, values, failed)
+        st.checked += int(values.size)
         st.failed += int(np.count_nonzero(failed))
         st.sum_f0_sq += float(np.sum(values * values))
-        if m.shape[0]:
+        if values.size:
             st.last_f0 = float(values[-1])
         if np.any(failed):
-            st.worst_axis = int(np.argmax(excess[failed][-1]))
+            last = np.flatnonzero(usable)[np.flatnonzero(failed)[-1]]
+            st.worst_axis = int(np.argmax(excess[last]))
         assert st.persistence is not None
-        st.persistence.update(failed, t[usable])
+        st.persistence.update(failed, t_used)
 
-    def _stuck(self, block: SampleBlock) -> None:
-        """Run length of identical raw outputs per channel, carried across blocks."""
-        raw = np.concatenate([block.gyro, block.accel], axis=1)  # (N, 6)
-        n = raw.shape[0]
+    def _stuck(self, raw: np.ndarray) -> None:
+        """Run length of identical raw outputs per channel, carried across blocks; ``raw``
+        (6, N): the block's raw outputs (output units), gyro then accel, channel by channel."""
+        n = raw.shape[1]
         same_prev = np.empty(raw.shape, dtype=bool)
-        np.equal(raw[:1], self._stuck_last, out=same_prev[:1])
-        np.equal(raw[1:], raw[:-1], out=same_prev[1:])
+        np.equal(raw[:, 0], self._stuck_last, out=same_prev[:, 0])
+        np.equal(raw[:, 1:], raw[:, :-1], out=same_prev[:, 1:])
         if same_prev.all():  # no change in the block: every run grows by n
             run = self._stuck_run + n
         else:
             # index of the last change in this block per channel (-1: none)
             changed = ~same_prev
-            last_change = n - 1 - np.argmax(changed[::-1], axis=0)
-            last_change[~changed.any(axis=0)] = -1
+            last_change = n - 1 - np.argmax(changed[:, ::-1], axis=1)
+            last_change[~changed.any(axis=1)] = -1
             run = np.where(last_change < 0, self._stuck_run + n, n - 1 - last_change)
         # samples in the current run of equal values, excluding its first
         self._stuck_run = run.astype(np.int64)
-        self._stuck_last = raw[-1].astype(float)
+        self._stuck_last = raw[:, -1].astype(float)
         active = self._stuck_enabled & (self._stuck_run >= self.config.stuck_samples - 1)
         self._state["gyro"].stuck_active = active[:3]
         self._state["accel"].stuck_active = active[3:]
 
-    def _noise(self, block: SampleBlock, calm: np.ndarray) -> None:
+    def _noise_seen(self, n: int) -> int:
+        """Samples before the block of ``n`` just counted, since the certificate was set
+        (the noise history restarts with it)."""
+        return self._checked_samples - n - self._noise_from
+
+    def _noise_checks(self, n: int, calm: np.ndarray) -> np.ndarray:
+        """Indexes into the block of ``n`` samples just counted where the noise check runs:
+        every ``noise_check_s`` of the stream, once a window's ``w`` second differences
+        (``w + 2`` samples since the certificate was set) are there, where ``calm`` (N,)."""
+        w, step = self._noise_w, self._noise_step
+        # check positions: samples whose index in the stream is a multiple of the step
+        first = self._checked_samples - n
+        pos = np.arange((-first) % step, n, step)
+        return pos[(self._noise_seen(n) + pos + 1 >= w + 2) & calm[pos]]
+
+    def _noise(self, t: np.ndarray, chan: np.ndarray, pos: np.ndarray) -> None:
         """Excess white noise per channel from second differences, carried across blocks.
 
         Every ``noise_check_s`` of samples, per channel, sigma from the median of
@@ -762,28 +819,19 @@ class Monitor:
         a step) leaves the median alone, where a mean would call it noise. The median
         is taken only where counting the values beyond each threshold cannot settle
         the comparison (:func:`.trailing.median_side`; the same decisions).
-        ``calm`` (N,): the window ending at each sample saw no turn (angular
-        acceleration below ``noise_motion_gate``); only those windows are judged.
-        Excess noise (beyond ``noise_ratio``) must persist 3 s; gross noise
-        (beyond ``noise_gross_ratio``) is raised after 3 of 5 checks.
+        ``t`` (N,): the block's sample times (s); ``chan`` (6, h + N): raw outputs
+        (output units) channel by channel, the ``h`` samples before the block first;
+        ``pos``: the checks (:meth:`_noise_checks`: only windows that saw no turn, angular
+        acceleration below ``noise_motion_gate``, are judged). Excess noise (beyond
+        ``noise_ratio``) must persist 3 s; gross noise (beyond ``noise_gross_ratio``) is
+        raised after 3 of 5 checks.
         """
-        w, step = self._noise_w, self._noise_step
-        n = len(block)
-        # check positions: samples whose index in the stream is a multiple of the step
-        first = self._checked_samples - n
-        pos = np.arange((-first) % step, n, step)
-        # a check needs w second differences, i.e. w + 2 samples since the certificate was set
-        seen = first - self._noise_from  # samples before this block, since then
-        pos = pos[(seen + pos + 1 >= w + 2) & calm[pos]]
-        if pos.size == 0:
-            return  # the common case: nothing to judge in this block
-        # the w + 1 samples before the block come back from the ring (pushed after this)
-        back = min(w + 1, seen, len(self.ring))
-        hist = self.ring.latest(back)
-        raw_all = np.concatenate([hist[:, 1:7], np.concatenate([block.gyro, block.accel], axis=1)])
+        w = self._noise_w
+        back = chan.shape[1] - t.shape[0]
         # channel by channel, each channel's values contiguous: column c, row r ends at
-        # raw_all row r + 2
-        d2sq = np.diff(raw_all.T, n=2, axis=1) ** 2
+        # chan column r + 2
+        d2sq = np.diff(chan, n=2, axis=1)
+        np.square(d2sq, out=d2sq)
         ends = pos + back - 2 + 1  # d2sq rows end (exclusive) at each check sample
         # a check fails when sqrt(median / (0.4549 * 6)) / sigma exceeds a ratio: where the
         # counts of values beyond that median settle it (nearly everywhere), no median is
@@ -808,7 +856,7 @@ class Monitor:
         for g in range(0, rows.size, group):
             # the gathered windows are a copy of our own: partitioned in place
             ratio6[g : g + group] = medians(windows[:, ends[rows[g : g + group]] - w]).T
-        t = block.t[pos]
+        t = t[pos]
         for k, name in enumerate(TRIADS_RING):
             sigma = self._noise_sigma[name]
             if sigma is None:

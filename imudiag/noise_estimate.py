@@ -107,15 +107,21 @@ def medians(x: np.ndarray) -> np.ndarray:
 def second_difference_sigmas(chunks: np.ndarray) -> np.ndarray:
     """:func:`second_difference_sigma` of each of ``chunks`` (K, N, C), all finite, N >= 5,
     in a few numpy calls over all of them: (K, C), same units."""
-    d = chunks[:, 2:] - 2.0 * chunks[:, 1:-1] + chunks[:, :-2]
-    d = d - np.median(d, axis=1, keepdims=True)
+    # the operations of second_difference_sigma in its order, in place on arrays of our
+    # own; the medians along the samples from copies with that axis last (partitioned in
+    # place); the sums along the samples as before (the same order of additions)
+    d = np.multiply(2.0, chunks[:, 1:-1])
+    np.subtract(chunks[:, 2:], d, out=d)
+    d += chunks[:, :-2]
+    d -= medians(d.transpose(0, 2, 1).copy())[:, None, :]
     ad = np.abs(d)
-    mad = np.median(ad, axis=1)
-    d2 = d * d
+    mad = medians(ad.transpose(0, 2, 1).copy())
+    d2 = np.multiply(d, d, out=d)
     rms = np.sqrt(np.mean(d2, axis=1))
     s0 = np.where(mad > 0, _MAD_TO_SIGMA * mad, rms)
     kept = (ad <= 5.0 * s0[:, None, :]) | (s0 <= 0)[:, None, :]
-    mean_kept = np.sum(np.where(kept, d2, 0.0), axis=1) / np.sum(kept, axis=1)
+    np.copyto(d2, 0.0, where=~kept)
+    mean_kept = np.sum(d2, axis=1) / np.sum(kept, axis=1)
     return np.sqrt(mean_kept / 6.0)
 
 
@@ -176,7 +182,7 @@ class NoiseMeter:
         """Add samples (N, 3) of each triad, output units; ``good`` (N,) marks usable rows."""
         x = np.concatenate([np.asarray(gyro, float), np.asarray(accel, float)], axis=1)
         if good is not None:
-            x = np.where(np.asarray(good, bool)[:, None], x, np.nan)
+            x[~np.asarray(good, bool)] = np.nan  # (x: a new array of our own)
         buf = np.concatenate([self._buf, x]) if self._buf.size else x
         n = buf.shape[0] // self.chunk
         if n:

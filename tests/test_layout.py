@@ -34,8 +34,8 @@ FLOORS: list[tuple[str, ...]] = [
         "imudiag.progress",
         "imudiag.argtypes",
     ),
-    # 1 data: samples with units, the certificate model, rotations
-    ("imudiag.samples", "imudiag.certificate", "imudiag.rotations"),
+    # 1 data: samples with units, the certificate model, rotations, arithmetic on rows
+    ("imudiag.samples", "imudiag.certificate", "imudiag.rotations", "imudiag.rowwise"),
     # 2 wire: bytes <-> frames <-> samples
     ("imudiag.drivers.wire", "imudiag.drivers.crc"),
     # 3 transports: byte sources by URL

@@ -196,3 +196,86 @@ def test_gathered_reads_give_the_verdicts_of_checking_every_read(case):
         assert stages["f0"] < 0.5 * reads, f"{case}: F0 checks on {stages['f0']} of {reads} reads"
     if "bias" in case:
         assert any(f["cause"] == "f0" for f in new.active_faults), f"{case}: the fault is raised"
+
+
+#: ``imudiag diagnose`` feeds the monitor whole blocks of a log (62500 samples); the same
+#: streams cut into blocks of 10^4 to 6 10^4 samples (and one block of everything)
+BIG_BLOCKS = {
+    "ten thousand": [10_000],
+    "odd": [33_333, 12_345],
+    "diagnose's": [62_500],
+    "one block": [10**9],
+}
+
+
+def _long_session(seed: int, non_finite: bool) -> SampleBlock:
+    """288 s with 24 turns, ADC errors, quantised outputs, excess noise on ax, a bias on az
+    and gy stuck; ``non_finite``: and three outputs not finite."""
+    traj = multi_position(n_attitudes=24, dwell_s=10.0, turn_s=2.0, rate_hz=RATE, seed=seed)
+    faults = [
+        Fault("bias", "az", 40.0, 600.0),
+        Fault("stuck", "gy", 150.0, None),
+        Fault("noise", "ax", 200.0, 4.0),
+    ]
+    effects = Effects(quantize=True, adc_error_rate=0.001)
+    block = simulate(CERT, traj, seed=seed, faults=faults, effects=effects).samples
+    if non_finite:
+        rng = np.random.default_rng(seed)
+        rows = rng.integers(len(block) // 3, len(block), size=3)
+        block.gyro[rows[:2], rng.integers(0, 3, size=2)] = np.nan
+        block.accel[rows[2], 1] = np.inf
+    return block
+
+
+def _feed(block: SampleBlock, sizes: list[int], *monitors: Monitor | OldMonitor):
+    """Feed ``block`` cut into ``sizes`` (repeated) to every monitor; yields after each
+    part (its index and first sample)."""
+    start = k = 0
+    while start < len(block):
+        part = block.slice(start, start + sizes[k % len(sizes)])
+        for m in monitors:
+            m.update(part)
+        yield k, start
+        start += len(part)
+        k += 1
+
+
+def _long_faults(m: Monitor) -> None:
+    causes = {(f["triad"], f.get("sensor"), f["cause"]) for f in m.active_faults}
+    assert ("gyro", "gy", "stuck") in causes
+    assert m.state["accel"].persistence.raised >= 1  # the az bias
+    assert any(p.raised for p in m.state["accel"].noise)  # the ax noise
+    assert m.adc_errors > 0
+
+
+@pytest.mark.parametrize("sizes", sorted(BIG_BLOCKS))
+def test_big_blocks_match_the_reference(sizes):
+    """After every big block of a long faulty session the fault lists, counters and raises
+    are the reference's (the reference's noise ratios differ on windows holding a
+    non-finite output: those are the next test's)."""
+    block = _long_session(21 + sorted(BIG_BLOCKS).index(sizes), non_finite=False)
+    new, old = Monitor(CERT), OldMonitor(CERT)
+    for k, start in _feed(block, BIG_BLOCKS[sizes], new, old):
+        a, b = _snapshot(new), _snapshot(old)
+        assert a[0] == b[0], f"{sizes}: block {k} (samples {start}..) differs"
+        np.testing.assert_allclose(a[1], b[1], rtol=1e-9, atol=1e-12, equal_nan=True)
+    _long_faults(new)
+
+
+def test_big_blocks_give_what_daemon_reads_give():
+    """The same session with outputs not finite too: fed in big blocks of every size above,
+    or in the daemon's reads of 4-5 samples, the monitor ends with the same faults,
+    counters and raises."""
+    block = _long_session(31, non_finite=True)
+    reads = Monitor(CERT)
+    for _ in _feed(block, [4, 5], reads):
+        pass
+    want = _snapshot(reads)
+    for sizes in sorted(BIG_BLOCKS):
+        big = Monitor(CERT)
+        for _ in _feed(block, BIG_BLOCKS[sizes], big):
+            pass
+        got = _snapshot(big)
+        assert got[0] == want[0], sizes
+        np.testing.assert_allclose(got[1], want[1], rtol=1e-9, atol=1e-12, equal_nan=True)
+        _long_faults(big)
