@@ -8,6 +8,8 @@ ordered product of a sequence by pairwise reduction (no loop over samples).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 
@@ -58,14 +60,17 @@ def quat_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) of unit quaternions (..., 4)."""
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=-2,
-    )
+    out = np.empty(q.shape[:-1] + (3, 3))
+    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    out[..., 0, 1] = 2 * (x * y - w * z)
+    out[..., 0, 2] = 2 * (x * z + w * y)
+    out[..., 1, 0] = 2 * (x * y + w * z)
+    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    out[..., 1, 2] = 2 * (y * z - w * x)
+    out[..., 2, 0] = 2 * (x * z - w * y)
+    out[..., 2, 1] = 2 * (y * z + w * x)
+    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
 
 
 def matrix_quat(r: np.ndarray) -> np.ndarray:
@@ -120,19 +125,28 @@ _HAMILTON = (
 )
 
 
+def _hamilton_terms() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:data:`_HAMILTON` as arrays (4 terms, 4 components): the component of a and of b
+    in each term, and its sign (+-1.0)."""
+    arr = np.array(_HAMILTON)  # (component, term, (sign, i, j))
+    return arr[:, :, 1].T.copy(), arr[:, :, 2].T.copy(), arr[:, :, 0].T.astype(float)
+
+
+_TERM_A, _TERM_B, _TERM_SIGN = _hamilton_terms()
+
+
 def _qmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton products of quaternions stored component-major, (4, ...) by (4, ...):
-    the arithmetic of :func:`qmul` term for term (the same roundings), on whole rows and
-    into two buffers (no temporary array per term)."""
-    out = np.empty(a.shape)
-    term = np.empty(a.shape[1:])
-    for c, terms in enumerate(_HAMILTON):
-        acc = out[c]
-        (_, i0, j0), *rest = terms
-        np.multiply(a[i0], b[j0], out=acc)
-        for sign, i, j in rest:
-            np.multiply(a[i], b[j], out=term)
-            (np.add if sign > 0 else np.subtract)(acc, term, out=acc)
+    the arithmetic of :func:`qmul` term for term (the same roundings: the 16 signed
+    terms ``(+-a_i) b_j`` are its products exactly, a subtracted term is its negation
+    added, and each component adds its four terms in :func:`qmul`'s order), in a handful
+    of whole-array operations instead of one per term."""
+    terms = a[_TERM_A]  # (4 terms, 4 components, ...)
+    terms *= _TERM_SIGN.reshape(_TERM_SIGN.shape + (1,) * (a.ndim - 1))
+    terms *= b[_TERM_B]
+    out = np.add(terms[0], terms[1])
+    out += terms[2]
+    out += terms[3]
     return out
 
 
@@ -147,9 +161,18 @@ def segment_product_plan(lengths: np.ndarray) -> tuple[list[ProductLevel], np.nd
 
     Each level pairs consecutive elements inside each segment, (0, 1), (2, 3), ..., and
     passes an odd segment's last element up unpaired: the tree of :func:`ordered_product`
-    over each segment padded to a power of two, without the padding.
+    over each segment padded to a power of two, without the padding. Plans are kept by
+    their lengths (the rotation fit asks for the same ones window after window) and are
+    read-only.
     """
     n = np.asarray(lengths, dtype=np.intp)
+    return _plan_of(n.tobytes())
+
+
+@functools.lru_cache(maxsize=256)
+def _plan_of(key: bytes) -> tuple[list[ProductLevel], np.ndarray]:
+    """:func:`segment_product_plan` of the lengths (intp) whose bytes are ``key``."""
+    n = np.frombuffer(key, dtype=np.intp)
     levels: list[ProductLevel] = []
     while n.size and n.max() > 1:
         start = np.cumsum(n) - n
@@ -169,8 +192,12 @@ def segment_product_plan(lengths: np.ndarray) -> tuple[list[ProductLevel], np.nd
             )
         )
         n = new_n
-    where = np.cumsum(n) - n
-    return levels, np.where(n > 0, where, -1)
+    where = np.where(n > 0, np.cumsum(n) - n, -1)
+    for level in levels:
+        for arr in level[:4]:
+            arr.setflags(write=False)
+    where.setflags(write=False)
+    return levels, where
 
 
 def segmented_product_of_rotvecs(

@@ -311,6 +311,11 @@ def predict_with_jacobian(
     return pred, np.cross(pred[:, :, None], omega, axis=1)
 
 
+#: (6, 3, 3): dP per shape parameter (:func:`.gauge.p_matrix` is affine in the shape)
+_D_P = p_matrix(np.eye(6)) - np.eye(3)[None]
+_D_P.setflags(write=False)
+
+
 def ninv_derivatives(
     shape_c: np.ndarray, q_c: np.ndarray, x: np.ndarray, fit_frame: bool
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -322,7 +327,7 @@ def ninv_derivatives(
     """
     npar = x.shape[0]
     p = p_matrix(shape_c + x[:6])
-    d_p = p_matrix(np.eye(6)) - np.eye(3)[None]  # (6, 3, 3): dP per shape parameter
+    d_p = _D_P
     if fit_frame:
         phi = x[6:9]
         rf = quat_matrix(rotvec_quat(phi))
@@ -472,7 +477,7 @@ def rotation_fit(
         )
     if dof > 0.5 and scale_by_residual:
         cov = cov * max(1.0, chi2 / dof)
-    ang = [math.degrees(math.acos(float(np.clip(np.dot(p.up0, p.up1), -1.0, 1.0)))) for p in pairs]
+    ang = [math.degrees(math.acos(min(max(float(np.dot(p.up0, p.up1)), -1.0), 1.0))) for p in pairs]
     return RotationFitResult(
         deviation=x[:6],
         cov=cov[:6, :6],
