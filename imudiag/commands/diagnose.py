@@ -35,7 +35,6 @@ from ..logs import DEFAULT_BLOCK_SIZE, open_log
 from ..logs.options import add_log_options, log_options
 from ..progress import for_command
 from .gnss import add_gnss_arguments, check_gnss_options, moving_base_lines, moving_base_section
-from .heap import keep_freed_memory
 from .noise import add_noise_argument, noise_lines
 
 
@@ -260,7 +259,6 @@ def run(args: argparse.Namespace) -> int:
     """Run the diagnosis over the log and write the report."""
     from ..plots.diagnosis import FILES  # the names only: matplotlib is imported to draw
 
-    keep_freed_memory()  # a batch run: the same pages are not faulted in again and again
     check_plots(args, FILES)
     cert = load_certificate(args.certificate)
     if cert.device.get("warning"):
