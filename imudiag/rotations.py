@@ -58,7 +58,8 @@ def _rotvec_rows(theta: np.ndarray) -> np.ndarray:
 
 def quat_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) of unit quaternions (..., 4)."""
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    # np.linalg.norm's arithmetic for a real vector, without its argument handling
+    q = q / np.sqrt(np.add.reduce(q * q, axis=-1, keepdims=True))
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     out = np.empty(q.shape[:-1] + (3, 3))
     out[..., 0, 0] = 1 - 2 * (y * y + z * z)
@@ -212,13 +213,13 @@ def segmented_product_of_rotvecs(
     q = _rotvec_rows(theta)  # (4, P, K)
     for left, to, last, last_to, size in levels:
         nxt = np.empty(q.shape[:2] + (size,))
-        nxt[:, :, to] = _qmul_rows(np.take(q, left, axis=2), np.take(q, left + 1, axis=2))
-        nxt[:, :, last_to] = np.take(q, last, axis=2)
+        nxt[:, :, to] = _qmul_rows(q.take(left, axis=2), q.take(left + 1, axis=2))
+        nxt[:, :, last_to] = q.take(last, axis=2)
         q = nxt
     out = np.zeros((q.shape[1], where.size, 4))
     out[:, :, 0] = 1.0
     full = where >= 0
-    out[:, full] = np.moveaxis(np.take(q, where[full], axis=2), 0, 2)
+    out[:, full] = np.moveaxis(q.take(where[full], axis=2), 0, 2)
     return out
 
 
@@ -279,8 +280,8 @@ def segmented_product_sensitivity(
     ups = [q]
     for left, to, last, last_to, size in levels:
         nxt = np.empty((4, size))
-        nxt[:, to] = _qmul_rows(np.take(q, left, axis=1), np.take(q, left + 1, axis=1))
-        nxt[:, last_to] = np.take(q, last, axis=1)
+        nxt[:, to] = _qmul_rows(q.take(left, axis=1), q.take(left + 1, axis=1))
+        nxt[:, last_to] = q.take(last, axis=1)
         q = nxt
         ups.append(q)
     # products of what follows each element inside its segment, top down
@@ -288,16 +289,16 @@ def segmented_product_sensitivity(
     suffix[0] = 1.0
     for (left, to, last, last_to, _), below in zip(levels[::-1], ups[-2::-1], strict=True):
         down: np.ndarray = np.empty(below.shape)
-        parent = np.take(suffix, to, axis=1)
+        parent = suffix.take(to, axis=1)
         down[:, left + 1] = parent
-        down[:, left] = _qmul_rows(np.take(below, left + 1, axis=1), parent)
-        down[:, last] = np.take(suffix, last_to, axis=1)
+        down[:, left] = _qmul_rows(below.take(left + 1, axis=1), parent)
+        down[:, last] = suffix.take(last_to, axis=1)
         suffix = down
     s = where.size
     out = np.zeros((s, 4))
     out[:, 0] = 1.0
     full = where >= 0
-    out[full] = np.take(q, where[full], axis=1).T
+    out[full] = q.take(where[full], axis=1).T
     # per block S_k^T J_r(theta_k) (9 rows of K); per segment the sum of its outer products
     # with the block's inc
     rm = _matrix_rows(suffix)
