@@ -162,18 +162,33 @@ def segment_product_plan(lengths: np.ndarray) -> tuple[list[ProductLevel], np.nd
 
     Each level pairs consecutive elements inside each segment, (0, 1), (2, 3), ..., and
     passes an odd segment's last element up unpaired: the tree of :func:`ordered_product`
-    over each segment padded to a power of two, without the padding. Plans are kept by
-    their lengths (the rotation fit asks for the same ones window after window) and are
-    read-only.
+    over each segment padded to a power of two, without the padding. The plans of one
+    segment are kept by its length (the rotation fit asks for each new motion's alone,
+    window after window; at most :data:`KEPT_PLANS`, some kB each), read-only.
     """
-    n = np.asarray(lengths, dtype=np.intp)
-    return _plan_of(n.tobytes())
+    n = np.asarray(lengths, dtype=np.intp).reshape(-1)
+    if n.size == 1:
+        return _single_segment_plan(int(n[0]))
+    return _plan(n)
 
 
-@functools.lru_cache(maxsize=256)
-def _plan_of(key: bytes) -> tuple[list[ProductLevel], np.ndarray]:
-    """:func:`segment_product_plan` of the lengths (intp) whose bytes are ``key``."""
-    n = np.frombuffer(key, dtype=np.intp)
+#: most single-segment plans kept (one per motion length in blocks)
+KEPT_PLANS = 256
+
+
+@functools.lru_cache(maxsize=KEPT_PLANS)
+def _single_segment_plan(length: int) -> tuple[list[ProductLevel], np.ndarray]:
+    """:func:`segment_product_plan` of one segment of ``length`` elements, read-only."""
+    levels, where = _plan(np.array([length], dtype=np.intp))
+    for level in levels:
+        for arr in level[:4]:
+            arr.setflags(write=False)
+    where.setflags(write=False)
+    return levels, where
+
+
+def _plan(n: np.ndarray) -> tuple[list[ProductLevel], np.ndarray]:
+    """:func:`segment_product_plan` of the lengths ``n`` (intp)."""
     levels: list[ProductLevel] = []
     while n.size and n.max() > 1:
         start = np.cumsum(n) - n
@@ -193,12 +208,7 @@ def _plan_of(key: bytes) -> tuple[list[ProductLevel], np.ndarray]:
             )
         )
         n = new_n
-    where = np.where(n > 0, np.cumsum(n) - n, -1)
-    for level in levels:
-        for arr in level[:4]:
-            arr.setflags(write=False)
-    where.setflags(write=False)
-    return levels, where
+    return levels, np.where(n > 0, np.cumsum(n) - n, -1)
 
 
 def segmented_product_of_rotvecs(

@@ -66,15 +66,21 @@ def test_rotation_matrices_equal_the_stacked_formula():
 
 
 def test_plans_are_kept_read_only_and_equal_fresh_ones():
-    lengths = np.array([5, 0, 1, 8, 3])
-    plan = segment_product_plan(lengths)
-    assert segment_product_plan(lengths.astype(np.int32)) is plan  # kept by the lengths
-    assert segment_product_plan(list(lengths)) is plan
-    levels, where = plan
-    assert where.tolist() == [0, -1, 1, 2, 3] and not where.flags.writeable
+    """One segment's plan is kept by its length (each new motion's, window after window),
+    read-only; a plan of several segments is made afresh."""
+    single = segment_product_plan(np.array([37]))
+    assert segment_product_plan([37]) is single
+    assert segment_product_plan(np.array([37], dtype=np.int32)) is single
+    levels, where = single
+    assert where.tolist() == [0] and not where.flags.writeable
     with pytest.raises(ValueError):
         levels[0][0][0] = 1
-    # a kept plan gives the products of a plan that was never kept: the padded product
+    lengths = np.array([5, 0, 1, 8, 3])
+    plan = segment_product_plan(lengths)
+    assert segment_product_plan(lengths) is not plan
+    levels, where = plan
+    assert where.tolist() == [0, -1, 1, 2, 3]
+    # the products of the padded tree, segment by segment, kept plan or not
     rng = np.random.default_rng(16)
     theta = _rotation_vectors(rng, (2, int(lengths.sum())))
     padded = np.zeros((2, lengths.size, 8, 3))
@@ -89,6 +95,9 @@ def test_plans_are_kept_read_only_and_equal_fresh_ones():
                 q = qmul(q[:, 0::2], q[:, 1::2])
             want[:, s] = q[:, 0]
     assert np.array_equal(segmented_product_of_rotvecs(theta, plan), want)
+    for s, (a, n) in enumerate(zip(start, lengths, strict=True)):
+        alone = segmented_product_of_rotvecs(theta[:, a : a + n], segment_product_plan([n]))
+        assert np.array_equal(alone[:, 0], want[:, s])
 
 
 def _fields(fit) -> dict:
