@@ -58,10 +58,13 @@ def _rotvec_rows(theta: np.ndarray) -> np.ndarray:
 
 def quat_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) of unit quaternions (..., 4)."""
+    q = np.asarray(q)
+    if q.dtype.kind not in "fc":
+        q = q.astype(float)  # as np.linalg.norm takes integers
     # np.linalg.norm's arithmetic for a real vector, without its argument handling
     q = q / np.sqrt(np.add.reduce(q * q, axis=-1, keepdims=True))
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    out = np.empty(q.shape[:-1] + (3, 3))
+    out = np.empty(q.shape[:-1] + (3, 3), dtype=q.dtype)
     out[..., 0, 0] = 1 - 2 * (y * y + z * z)
     out[..., 0, 1] = 2 * (x * y - w * z)
     out[..., 0, 2] = 2 * (x * z + w * y)

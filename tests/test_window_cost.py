@@ -63,6 +63,9 @@ def test_rotation_matrices_equal_the_stacked_formula():
     for shape in [(4,), (7, 4), (3, 5, 4)]:
         q = rng.normal(size=shape) * 10.0 ** rng.uniform(-3, 3, size=shape[:-1] + (1,))
         assert np.array_equal(quat_matrix(q), _quat_matrix_stacked(q))
+    for q in (np.array([1, 2, 3, 4]), np.array([0.1, 0.2, 0.3, 0.9], dtype=np.float32)):
+        got, want = quat_matrix(q), _quat_matrix_stacked(q)  # integers, single precision
+        assert got.dtype == want.dtype and np.array_equal(got, want)
 
 
 def test_plans_are_kept_read_only_and_equal_fresh_ones():
