@@ -191,27 +191,41 @@ def _single_segment_plan(length: int) -> tuple[list[ProductLevel], np.ndarray]:
 
 
 def _plan(n: np.ndarray) -> tuple[list[ProductLevel], np.ndarray]:
-    """:func:`segment_product_plan` of the lengths ``n`` (intp)."""
-    levels: list[ProductLevel] = []
-    while n.size and n.max() > 1:
-        start = np.cumsum(n) - n
-        pairs = n // 2
-        odd = (n % 2).astype(bool)
-        new_n = pairs + odd
-        new_start = np.cumsum(new_n) - new_n
-        seg = np.repeat(np.arange(n.size), pairs)
-        rank = np.arange(seg.size) - np.repeat(np.cumsum(pairs) - pairs, pairs)
-        levels.append(
-            (
-                start[seg] + 2 * rank,
-                new_start[seg] + rank,
-                start[odd] + n[odd] - 1,
-                new_start[odd] + pairs[odd],
-                int(new_n.sum()),
-            )
+    """:func:`segment_product_plan` of the lengths ``n`` (intp), every level at once: a
+    segment of n elements has ceil(n / 2^L) at level L (pairs and an odd one passed up)."""
+    m = int(n.max()) if n.size else 0
+    depth = (m - 1).bit_length() if m > 1 else 0  # levels until every segment is one
+    if depth == 0:
+        return [], np.where(n > 0, np.cumsum(n) - n, -1)
+    div = np.left_shift(1, np.arange(depth + 1, dtype=np.intp))[:, None]
+    sizes = -(-n[None, :] // div)  # (depth + 1, S): each segment's elements per level
+    starts = np.cumsum(sizes, axis=1) - sizes
+    pairs = sizes[:-1] // 2
+    odd = (sizes[:-1] % 2).astype(bool)
+    per_level = pairs.sum(axis=1)
+    flat = pairs.ravel()
+    level = np.repeat(np.arange(depth), per_level)  # of each pair, level by level
+    seg = np.repeat(np.tile(np.arange(n.size), depth), flat)  # and segment by segment
+    rank = np.arange(flat.sum()) - np.repeat(np.cumsum(flat) - flat, flat)
+    left = starts[level, seg] + 2 * rank
+    to = starts[level + 1, seg] + rank
+    odd_level, odd_seg = np.nonzero(odd)
+    last = starts[odd_level, odd_seg] + sizes[odd_level, odd_seg] - 1
+    last_to = starts[odd_level + 1, odd_seg] + pairs[odd_level, odd_seg]
+    cut = np.cumsum(per_level)[:-1]
+    odd_cut = np.cumsum(odd.sum(axis=1))[:-1]
+    levels: list[ProductLevel] = list(
+        zip(
+            np.split(left, cut),
+            np.split(to, cut),
+            np.split(last, odd_cut),
+            np.split(last_to, odd_cut),
+            sizes[1:].sum(axis=1).tolist(),
+            strict=True,
         )
-        n = new_n
-    return levels, np.where(n > 0, np.cumsum(n) - n, -1)
+    )
+    top = sizes[-1]
+    return levels, np.where(top > 0, np.cumsum(top) - top, -1)
 
 
 def segmented_product_of_rotvecs(

@@ -103,6 +103,50 @@ def test_plans_are_kept_read_only_and_equal_fresh_ones():
         assert np.array_equal(alone[:, 0], want[:, s])
 
 
+def _plan_level_by_level(lengths: np.ndarray) -> tuple[list, np.ndarray]:
+    """segment_product_plan as it was made, one level after the other (the reference)."""
+    n = np.asarray(lengths, dtype=np.intp)
+    levels = []
+    while n.size and n.max() > 1:
+        start = np.cumsum(n) - n
+        pairs = n // 2
+        odd = (n % 2).astype(bool)
+        new_n = pairs + odd
+        new_start = np.cumsum(new_n) - new_n
+        seg = np.repeat(np.arange(n.size), pairs)
+        rank = np.arange(seg.size) - np.repeat(np.cumsum(pairs) - pairs, pairs)
+        levels.append(
+            (
+                start[seg] + 2 * rank,
+                new_start[seg] + rank,
+                start[odd] + n[odd] - 1,
+                new_start[odd] + pairs[odd],
+                int(new_n.sum()),
+            )
+        )
+        n = new_n
+    return levels, np.where(n > 0, np.cumsum(n) - n, -1)
+
+
+def test_plans_equal_the_level_by_level_construction():
+    """Every level made at once gives the plan made level after level: every index array
+    (values and type) and every size, on 600 random sets of lengths (empty segments, ones,
+    up to 300 blocks) and the edge cases."""
+    rng = np.random.default_rng(17)
+    cases = [[], [0], [1], [2], [0, 0], [1, 1], [3, 0, 2], [5, 0, 1, 8, 3], [256], [257]]
+    cases += [rng.integers(0, 300, size=rng.integers(1, 30)).tolist() for _ in range(500)]
+    cases += [rng.integers(0, 3, size=rng.integers(1, 10)).tolist() for _ in range(100)]
+    for lengths in cases:
+        levels, where = segment_product_plan(np.array(lengths, dtype=np.intp))
+        ref_levels, ref_where = _plan_level_by_level(np.array(lengths, dtype=np.intp))
+        assert where.dtype == ref_where.dtype and np.array_equal(where, ref_where), lengths
+        assert len(levels) == len(ref_levels), lengths
+        for got, want in zip(levels, ref_levels, strict=True):
+            for a, b in zip(got[:4], want[:4], strict=True):
+                assert a.dtype == b.dtype and np.array_equal(a, b), lengths
+            assert got[4] == want[4] and isinstance(got[4], int), lengths
+
+
 def _fields(fit) -> dict:
     return {k: v for k, v in vars(fit).items() if v is not None}
 
