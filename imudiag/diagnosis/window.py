@@ -207,18 +207,25 @@ def clipped(raw: np.ndarray, rest: np.ndarray, sigma: np.ndarray, min_repeat: in
     return False
 
 
+def _usable_key(gyro: TriadModel, max_step: float, min_path: float) -> tuple:
+    """The memo key of a motion's screening (:func:`_motion_usable`) for a gyro model and
+    its limits (rad per sample, rad)."""
+    return ("usable", max_step, min_path, *scale_key(gyro))
+
+
 def _motion_usable(
     gyro: TriadModel,
     prev: QuasiStaticInterval,
     seg: MotionSegment,
     max_step: float,
     min_path: float,
+    key: tuple | None = None,
 ) -> bool:
     """Whether a motion after interval ``prev`` turned slowly enough (``max_step`` rad per
     sample at most), far enough (``min_path`` rad) and never clipped; kept in the motion's
     memo per gyro scale (the same motion is screened again in every window of its
-    interval)."""
-    key = ("usable", max_step, min_path, *scale_key(gyro))
+    interval). ``key``: :func:`_usable_key` made once by a caller that screens many."""
+    key = key or _usable_key(gyro, max_step, min_path)
     if key in seg.memo:
         return bool(seg.memo[key])
     rate = (seg.gyro - prev.gyro_mean) / gyro.scale_factor * gyro.unit_to_si
@@ -247,6 +254,7 @@ def rotation_pairs(
     gyro = cert.gyro
     max_step = math.radians(MAX_STEP_DEG)
     min_path = math.radians(MIN_ROTATION_DEG)
+    screened = _usable_key(gyro, max_step, min_path)
     # every interval's unit specific force in this window's accelerometer model, and
     # whether it has one (a zero vector has no direction)
     ups: np.ndarray | None = None
@@ -255,7 +263,7 @@ def rotation_pairs(
         seg = cur.before
         if seg is None or not seg.usable or cur.index != prev.index + 1 or seg.t.shape[0] < 2:
             continue
-        if not _motion_usable(gyro, prev, seg, max_step, min_path):
+        if not _motion_usable(gyro, prev, seg, max_step, min_path, screened):
             continue
         if ups is None:
             f_all = accel.inverse(np.array([iv.accel_mean for iv in intervals]))
