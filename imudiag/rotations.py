@@ -8,6 +8,8 @@ ordered product of a sequence by pairwise reduction (no loop over samples).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 
@@ -56,16 +58,23 @@ def _rotvec_rows(theta: np.ndarray) -> np.ndarray:
 
 def quat_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) of unit quaternions (..., 4)."""
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    q = np.asarray(q)
+    if q.dtype.kind not in "fc":
+        q = q.astype(float)  # as np.linalg.norm takes integers
+    # np.linalg.norm's arithmetic for a real vector, without its argument handling
+    q = q / np.sqrt(np.add.reduce(q * q, axis=-1, keepdims=True))
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=-2,
-    )
+    out = np.empty(q.shape[:-1] + (3, 3), dtype=q.dtype)
+    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    out[..., 0, 1] = 2 * (x * y - w * z)
+    out[..., 0, 2] = 2 * (x * z + w * y)
+    out[..., 1, 0] = 2 * (x * y + w * z)
+    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    out[..., 1, 2] = 2 * (y * z - w * x)
+    out[..., 2, 0] = 2 * (x * z - w * y)
+    out[..., 2, 1] = 2 * (y * z + w * x)
+    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
 
 
 def matrix_quat(r: np.ndarray) -> np.ndarray:
@@ -120,19 +129,28 @@ _HAMILTON = (
 )
 
 
+def _hamilton_terms() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:data:`_HAMILTON` as arrays (4 terms, 4 components): the component of a and of b
+    in each term, and its sign (+-1.0)."""
+    arr = np.array(_HAMILTON)  # (component, term, (sign, i, j))
+    return arr[:, :, 1].T.copy(), arr[:, :, 2].T.copy(), arr[:, :, 0].T.astype(float)
+
+
+_TERM_A, _TERM_B, _TERM_SIGN = _hamilton_terms()
+
+
 def _qmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton products of quaternions stored component-major, (4, ...) by (4, ...):
-    the arithmetic of :func:`qmul` term for term (the same roundings), on whole rows and
-    into two buffers (no temporary array per term)."""
-    out = np.empty(a.shape)
-    term = np.empty(a.shape[1:])
-    for c, terms in enumerate(_HAMILTON):
-        acc = out[c]
-        (_, i0, j0), *rest = terms
-        np.multiply(a[i0], b[j0], out=acc)
-        for sign, i, j in rest:
-            np.multiply(a[i], b[j], out=term)
-            (np.add if sign > 0 else np.subtract)(acc, term, out=acc)
+    the arithmetic of :func:`qmul` term for term (the same roundings: the 16 signed
+    terms ``(+-a_i) b_j`` are its products exactly, a subtracted term is its negation
+    added, and each component adds its four terms in :func:`qmul`'s order), in a handful
+    of whole-array operations instead of one per term."""
+    terms = a[_TERM_A]  # (4 terms, 4 components, ...)
+    terms *= _TERM_SIGN.reshape(_TERM_SIGN.shape + (1,) * (a.ndim - 1))
+    terms *= b[_TERM_B]
+    out = np.add(terms[0], terms[1])
+    out += terms[2]
+    out += terms[3]
     return out
 
 
@@ -147,30 +165,67 @@ def segment_product_plan(lengths: np.ndarray) -> tuple[list[ProductLevel], np.nd
 
     Each level pairs consecutive elements inside each segment, (0, 1), (2, 3), ..., and
     passes an odd segment's last element up unpaired: the tree of :func:`ordered_product`
-    over each segment padded to a power of two, without the padding.
+    over each segment padded to a power of two, without the padding. The plans of one
+    segment are kept by its length (the rotation fit asks for each new motion's alone,
+    window after window; at most :data:`KEPT_PLANS`, some kB each), read-only.
     """
-    n = np.asarray(lengths, dtype=np.intp)
-    levels: list[ProductLevel] = []
-    while n.size and n.max() > 1:
-        start = np.cumsum(n) - n
-        pairs = n // 2
-        odd = (n % 2).astype(bool)
-        new_n = pairs + odd
-        new_start = np.cumsum(new_n) - new_n
-        seg = np.repeat(np.arange(n.size), pairs)
-        rank = np.arange(seg.size) - np.repeat(np.cumsum(pairs) - pairs, pairs)
-        levels.append(
-            (
-                start[seg] + 2 * rank,
-                new_start[seg] + rank,
-                start[odd] + n[odd] - 1,
-                new_start[odd] + pairs[odd],
-                int(new_n.sum()),
-            )
+    n = np.asarray(lengths, dtype=np.intp).reshape(-1)
+    if n.size == 1:
+        return _single_segment_plan(int(n[0]))
+    return _plan(n)
+
+
+#: most single-segment plans kept (one per motion length in blocks)
+KEPT_PLANS = 256
+
+
+@functools.lru_cache(maxsize=KEPT_PLANS)
+def _single_segment_plan(length: int) -> tuple[list[ProductLevel], np.ndarray]:
+    """:func:`segment_product_plan` of one segment of ``length`` elements, read-only."""
+    levels, where = _plan(np.array([length], dtype=np.intp))
+    for level in levels:
+        for arr in level[:4]:
+            arr.setflags(write=False)
+    where.setflags(write=False)
+    return levels, where
+
+
+def _plan(n: np.ndarray) -> tuple[list[ProductLevel], np.ndarray]:
+    """:func:`segment_product_plan` of the lengths ``n`` (intp), every level at once: a
+    segment of n elements has ceil(n / 2^L) at level L (pairs and an odd one passed up)."""
+    m = int(n.max()) if n.size else 0
+    depth = (m - 1).bit_length() if m > 1 else 0  # levels until every segment is one
+    if depth == 0:
+        return [], np.where(n > 0, np.cumsum(n) - n, -1)
+    div = np.left_shift(1, np.arange(depth + 1, dtype=np.intp))[:, None]
+    sizes = -(-n[None, :] // div)  # (depth + 1, S): each segment's elements per level
+    starts = np.cumsum(sizes, axis=1) - sizes
+    pairs = sizes[:-1] // 2
+    odd = (sizes[:-1] % 2).astype(bool)
+    per_level = pairs.sum(axis=1)
+    flat = pairs.ravel()
+    level = np.repeat(np.arange(depth), per_level)  # of each pair, level by level
+    seg = np.repeat(np.tile(np.arange(n.size), depth), flat)  # and segment by segment
+    rank = np.arange(flat.sum()) - np.repeat(np.cumsum(flat) - flat, flat)
+    left = starts[level, seg] + 2 * rank
+    to = starts[level + 1, seg] + rank
+    odd_level, odd_seg = np.nonzero(odd)
+    last = starts[odd_level, odd_seg] + sizes[odd_level, odd_seg] - 1
+    last_to = starts[odd_level + 1, odd_seg] + pairs[odd_level, odd_seg]
+    cut = np.cumsum(per_level)[:-1]
+    odd_cut = np.cumsum(odd.sum(axis=1))[:-1]
+    levels: list[ProductLevel] = list(
+        zip(
+            np.split(left, cut),
+            np.split(to, cut),
+            np.split(last, odd_cut),
+            np.split(last_to, odd_cut),
+            sizes[1:].sum(axis=1).tolist(),
+            strict=True,
         )
-        n = new_n
-    where = np.cumsum(n) - n
-    return levels, np.where(n > 0, where, -1)
+    )
+    top = sizes[-1]
+    return levels, np.where(top > 0, np.cumsum(top) - top, -1)
 
 
 def segmented_product_of_rotvecs(
@@ -185,13 +240,13 @@ def segmented_product_of_rotvecs(
     q = _rotvec_rows(theta)  # (4, P, K)
     for left, to, last, last_to, size in levels:
         nxt = np.empty(q.shape[:2] + (size,))
-        nxt[:, :, to] = _qmul_rows(np.take(q, left, axis=2), np.take(q, left + 1, axis=2))
-        nxt[:, :, last_to] = np.take(q, last, axis=2)
+        nxt[:, :, to] = _qmul_rows(q.take(left, axis=2), q.take(left + 1, axis=2))
+        nxt[:, :, last_to] = q.take(last, axis=2)
         q = nxt
     out = np.zeros((q.shape[1], where.size, 4))
     out[:, :, 0] = 1.0
     full = where >= 0
-    out[:, full] = np.moveaxis(np.take(q, where[full], axis=2), 0, 2)
+    out[:, full] = np.moveaxis(q.take(where[full], axis=2), 0, 2)
     return out
 
 
@@ -252,8 +307,8 @@ def segmented_product_sensitivity(
     ups = [q]
     for left, to, last, last_to, size in levels:
         nxt = np.empty((4, size))
-        nxt[:, to] = _qmul_rows(np.take(q, left, axis=1), np.take(q, left + 1, axis=1))
-        nxt[:, last_to] = np.take(q, last, axis=1)
+        nxt[:, to] = _qmul_rows(q.take(left, axis=1), q.take(left + 1, axis=1))
+        nxt[:, last_to] = q.take(last, axis=1)
         q = nxt
         ups.append(q)
     # products of what follows each element inside its segment, top down
@@ -261,16 +316,16 @@ def segmented_product_sensitivity(
     suffix[0] = 1.0
     for (left, to, last, last_to, _), below in zip(levels[::-1], ups[-2::-1], strict=True):
         down: np.ndarray = np.empty(below.shape)
-        parent = np.take(suffix, to, axis=1)
+        parent = suffix.take(to, axis=1)
         down[:, left + 1] = parent
-        down[:, left] = _qmul_rows(np.take(below, left + 1, axis=1), parent)
-        down[:, last] = np.take(suffix, last_to, axis=1)
+        down[:, left] = _qmul_rows(below.take(left + 1, axis=1), parent)
+        down[:, last] = suffix.take(last_to, axis=1)
         suffix = down
     s = where.size
     out = np.zeros((s, 4))
     out[:, 0] = 1.0
     full = where >= 0
-    out[full] = np.take(q, where[full], axis=1).T
+    out[full] = q.take(where[full], axis=1).T
     # per block S_k^T J_r(theta_k) (9 rows of K); per segment the sum of its outer products
     # with the block's inc
     rm = _matrix_rows(suffix)

@@ -20,6 +20,7 @@ from the certificate's noise whether the stationary scalar fit with
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -311,6 +312,11 @@ def predict_with_jacobian(
     return pred, np.cross(pred[:, :, None], omega, axis=1)
 
 
+#: (6, 3, 3): dP per shape parameter (:func:`.gauge.p_matrix` is affine in the shape)
+_D_P = p_matrix(np.eye(6)) - np.eye(3)[None]
+_D_P.setflags(write=False)
+
+
 def ninv_derivatives(
     shape_c: np.ndarray, q_c: np.ndarray, x: np.ndarray, fit_frame: bool
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -322,7 +328,7 @@ def ninv_derivatives(
     """
     npar = x.shape[0]
     p = p_matrix(shape_c + x[:6])
-    d_p = p_matrix(np.eye(6)) - np.eye(3)[None]  # (6, 3, 3): dP per shape parameter
+    d_p = _D_P
     if fit_frame:
         phi = x[6:9]
         rf = quat_matrix(rotvec_quat(phi))
@@ -337,6 +343,23 @@ def ninv_derivatives(
     return ninv, -ninv[None] @ d_n @ ninv[None]
 
 
+@functools.lru_cache(maxsize=32)
+def _ninv_at_certificate(shape_c: bytes, q_c: bytes, npar: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`ninv_derivatives` at x = 0 (the certificate) of the shape and rotation whose
+    bytes are given, kept (read-only): every window's fit starts there."""
+    # copies: a bytes object's buffer need not be aligned, and an unaligned operand takes
+    # another matmul loop than the one the fit's other evaluations go through
+    out = ninv_derivatives(
+        np.frombuffer(shape_c).copy(),
+        np.frombuffer(q_c).reshape(3, 3).copy(),
+        np.zeros(npar),
+        npar == 9,
+    )
+    for arr in out:
+        arr.setflags(write=False)
+    return out
+
+
 def direction_var(
     gyro: TriadModel,
     pairs: list[RotationPair],
@@ -348,12 +371,9 @@ def direction_var(
 
     ``path`` (n,) the motions' rotation path lengths (rad); the rest as :func:`rotation_fit`.
     """
-    durations = np.array([p.t[-1] - p.t[0] for p in pairs])
+    figures = np.array([_motion_figures(gyro, p) for p in pairs]).reshape(-1, 3)
+    durations, mean_dt, bias_rad2 = figures.T
     s_rad2 = float(np.mean(gyro_sample_var / gyro.scale_factor**2)) * gyro.unit_to_si**2
-    mean_dt = np.array([np.mean(np.diff(p.t)) if p.t.shape[0] > 1 else 0.0 for p in pairs])
-    bias_rad2 = np.array(
-        [float(np.mean(p.bias_var / gyro.scale_factor**2)) * gyro.unit_to_si**2 for p in pairs]
-    )
     return (
         (ROTATION_REL_FLOOR * path) ** 2
         + np.array([p.dir_var for p in pairs]) * 2.0
@@ -362,6 +382,22 @@ def direction_var(
         + (earth_rate_si * durations) ** 2
         + DIRECTION_FLOOR**2
     )
+
+
+def _motion_figures(gyro: TriadModel, p: RotationPair) -> tuple[float, float, float]:
+    """A motion's duration (s), mean sampling interval (s) and bias variance (rad/s)^2 (the
+    mean over the axes), kept in its memo per gyro scale (the same in every window)."""
+    key = ("figures", *scale_key(gyro))
+    if p.memo is not None and key in p.memo:
+        return p.memo[key]
+    out = (
+        float(p.t[-1] - p.t[0]),
+        float(np.mean(np.diff(p.t))) if p.t.shape[0] > 1 else 0.0,
+        float(np.mean(p.bias_var / gyro.scale_factor**2)) * gyro.unit_to_si**2,
+    )
+    if p.memo is not None:
+        p.memo[key] = out
+    return out
 
 
 def rotation_fit(
@@ -402,12 +438,17 @@ def rotation_fit(
 
     def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Residuals (3 n,), Jacobian of the prediction (3 n, npar, analytic), cost at x."""
+        at_certificate = not x.any()  # every fit's start: what depends on x alone is kept
         pred, d_pred = predict_with_jacobian(
             stack,
-            *ninv_derivatives(shape_c, q_c, x, fit_frame),
+            *(
+                _ninv_at_certificate(shape_c.tobytes(), q_c.tobytes(), npar)
+                if at_certificate
+                else ninv_derivatives(shape_c, q_c, x, fit_frame)
+            ),
             up0,
-            # at the certificate (every fit's start) each motion's rotation is kept
-            memos=None if x.any() else memos,
+            # and so is each motion's rotation
+            memos=memos if at_certificate else None,
         )
         r = (up1 - pred).ravel()
         j = d_pred.reshape(-1, npar)
@@ -472,7 +513,7 @@ def rotation_fit(
         )
     if dof > 0.5 and scale_by_residual:
         cov = cov * max(1.0, chi2 / dof)
-    ang = [math.degrees(math.acos(float(np.clip(np.dot(p.up0, p.up1), -1.0, 1.0)))) for p in pairs]
+    ang = [math.degrees(math.acos(min(max(float(np.dot(p.up0, p.up1)), -1.0), 1.0))) for p in pairs]
     return RotationFitResult(
         deviation=x[:6],
         cov=cov[:6, :6],

@@ -81,13 +81,15 @@ class WindowResult:
 def distinct_attitudes(up: np.ndarray, separation_deg: float) -> int:
     """Number of directions (K, 3) at least ``separation_deg`` apart (greedy clustering)."""
     cos_sep = math.cos(math.radians(separation_deg))
-    centres: list[np.ndarray] = []
-    for u in np.asarray(up, dtype=float).reshape(-1, 3):
-        if not np.all(np.isfinite(u)) or not np.any(u):
-            continue
-        if not centres or np.max(np.array(centres) @ u) < cos_sep:
-            centres.append(u)
-    return len(centres)
+    up = np.asarray(up, dtype=float).reshape(-1, 3)
+    valid = np.all(np.isfinite(up), axis=1) & np.any(up, axis=1)
+    centres = np.empty_like(up)  # the first k rows: the centres so far
+    k = 0
+    for u, ok in zip(up, valid.tolist(), strict=True):
+        if ok and (not k or np.max(centres[:k] @ u) < cos_sep):
+            centres[k] = u
+            k += 1
+    return k
 
 
 def model_with(triad: TriadModel, estimate: np.ndarray) -> TriadModel:
@@ -212,18 +214,25 @@ def clipped(raw: np.ndarray, rest: np.ndarray, sigma: np.ndarray, min_repeat: in
     return False
 
 
+def _usable_key(gyro: TriadModel, max_step: float, min_path: float) -> tuple:
+    """The memo key of a motion's screening (:func:`_motion_usable`) for a gyro model and
+    its limits (rad per sample, rad)."""
+    return ("usable", max_step, min_path, *scale_key(gyro))
+
+
 def _motion_usable(
     gyro: TriadModel,
     prev: QuasiStaticInterval,
     seg: MotionSegment,
     max_step: float,
     min_path: float,
+    key: tuple | None = None,
 ) -> bool:
     """Whether a motion after interval ``prev`` turned slowly enough (``max_step`` rad per
     sample at most), far enough (``min_path`` rad) and never clipped; kept in the motion's
     memo per gyro scale (the same motion is screened again in every window of its
-    interval)."""
-    key = ("usable", max_step, min_path, *scale_key(gyro))
+    interval). ``key``: :func:`_usable_key` made once by a caller that screens many."""
+    key = key or _usable_key(gyro, max_step, min_path)
     if key in seg.memo:
         return bool(seg.memo[key])
     rate = (seg.gyro - prev.gyro_mean) / gyro.scale_factor * gyro.unit_to_si
@@ -252,18 +261,23 @@ def rotation_pairs(
     gyro = cert.gyro
     max_step = math.radians(MAX_STEP_DEG)
     min_path = math.radians(MIN_ROTATION_DEG)
-    ups = None  # every interval's specific force in this window's accelerometer model
+    screened = _usable_key(gyro, max_step, min_path)
+    # every interval's unit specific force in this window's accelerometer model, and
+    # whether it has one (a zero vector has no direction)
+    ups: np.ndarray | None = None
+    positive: list[bool] = []
     for i, (prev, cur) in enumerate(zip(intervals[:-1], intervals[1:], strict=True)):
         seg = cur.before
         if seg is None or not seg.usable or cur.index != prev.index + 1 or seg.t.shape[0] < 2:
             continue
-        if not _motion_usable(gyro, prev, seg, max_step, min_path):
+        if not _motion_usable(gyro, prev, seg, max_step, min_path, screened):
             continue
         if ups is None:
             f_all = accel.inverse(np.array([iv.accel_mean for iv in intervals]))
-            ups = (f_all, np.linalg.norm(f_all, axis=1))
-        f, nf = ups[0][i : i + 2], ups[1][i : i + 2]
-        if not np.all(nf > 0):
+            nf = np.linalg.norm(f_all, axis=1)
+            positive = (nf > 0).tolist()
+            ups = np.divide(f_all, nf[:, None], out=np.zeros_like(f_all), where=nf[:, None] > 0)
+        if not (positive[i] and positive[i + 1]):
             continue
         if "pair" not in seg.memo:  # the two intervals' figures, the same in every window
             seg.memo["pair"] = (
@@ -272,15 +286,17 @@ def rotation_pairs(
                 (prev.mean_var("accel") + cur.mean_var("accel")) / 2.0,
             )
         bias, bias_var, accel_var = seg.memo["pair"]
-        dir_var = float(np.mean(accel_var / accel.scale_factor**2)) / g_in**2
+        key = ("dir_var", float(g_in), np.asarray(accel.scale_factor, dtype=float).tobytes())
+        if key not in seg.memo:  # the same accelerometer scale in every window
+            seg.memo[key] = float(np.mean(accel_var / accel.scale_factor**2)) / g_in**2
         pairs.append(
             RotationPair(
                 t=seg.t,
                 raw=seg.gyro,
                 bias=bias,
-                up0=f[0] / nf[0],
-                up1=f[1] / nf[1],
-                dir_var=dir_var,
+                up0=ups[i],
+                up1=ups[i + 1],
+                dir_var=seg.memo[key],
                 bias_var=bias_var,
                 memo=seg.memo,
             )
