@@ -44,3 +44,23 @@ def test_empty_rows_as_numpy():
     with np.errstate(invalid="ignore"), pytest.warns(RuntimeWarning):
         got = medians(x.copy())
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("n", [2, 4, 198, 200])
+def test_even_rows_of_ties_and_signed_zeros_as_numpy(n):
+    """An even row's lower middle value is the largest below the upper one (one partition):
+    rows of few distinct values, of zeros of either sign, and of a run of equal middles."""
+    rng = np.random.default_rng(100 + n)
+    x = np.stack(
+        [
+            rng.integers(-2, 3, n).astype(float),
+            np.where(rng.random(n) < 0.5, -0.0, 0.0),
+            np.sort(rng.integers(0, 2, n).astype(float)),
+            np.full(n, 7.0),
+            rng.normal(size=n),
+        ]
+    )
+    want = np.median(x.copy(), axis=-1)
+    got = medians(x.copy())
+    np.testing.assert_array_equal(got, want)
+    assert got[1] == 0.0  # zeros: the sign may differ from numpy's, the value does not
