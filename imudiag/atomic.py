@@ -14,7 +14,6 @@ import atexit
 import contextlib
 import errno
 import os
-import secrets
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
@@ -39,7 +38,7 @@ def temp_path(path: str | os.PathLike[str]) -> str:
     # SIGTERM at any point (in any thread's delivery) can never leave an unknown file behind
     for _ in range(100):
         tmp = os.path.join(
-            directory, f".{os.path.basename(dest)}.{secrets.token_hex(4)}{TEMP_SUFFIX}"
+            directory, f".{os.path.basename(dest)}.{os.urandom(4).hex()}{TEMP_SUFFIX}"
         )
         _live.add(tmp)
         try:

@@ -21,7 +21,6 @@ import copy
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -652,6 +651,8 @@ DEFAULT_CERTIFICATE_NAME = "default-certificate.yaml"
 
 def default_certificate_path() -> Path:
     """Path of the bundled certificate of the simulated board."""
+    from importlib import resources  # only for the bundled one (issue 14: start-up)
+
     return Path(str(resources.files("imudiag.config").joinpath(DEFAULT_CERTIFICATE_NAME)))
 
 

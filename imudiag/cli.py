@@ -76,10 +76,11 @@ def keep_heap() -> bool:
     (docs/benchmarks.md). Not for the daemon, which must give memory back. True when set;
     False where the C library has no ``mallopt`` (musl, macOS): nothing changes there."""
     import ctypes
-    import ctypes.util
 
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or None)
+        # the process's own symbols, libc's among them: ctypes.util.find_library("c") would
+        # import subprocess and run ldconfig -p for the same handle (issue 14: start-up)
+        libc = ctypes.CDLL(None)
         mallopt = libc.mallopt
     except (OSError, AttributeError):
         return False

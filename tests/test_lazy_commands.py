@@ -31,7 +31,16 @@ NOT_FOR_DIAGNOSE = (
     "imudiag.aiding",
     "imudiag.bench",
     "imudiag.interop",
+    "imudiag.diagnosis.calibrate",  # calibrate_recording imports it
+    "imudiag.diagnosis.holdout",
 )
+#: standard modules `imudiag diagnose` (no --gnss, no --plots) has no use for: secrets (the
+#: temporary name of an atomic write is os.urandom's), ctypes.util and the subprocess it
+#: imports and runs (keep_heap finds mallopt among the process's own symbols)
+STDLIB_NOT_FOR_DIAGNOSE = frozenset({"secrets", "hmac", "ctypes.util", "subprocess"})
+#: what importing the diagnose command alone leaves out (importlib.resources: only for the
+#: bundled certificate; a run still imports it through importlib.metadata, for log plug-ins)
+NOT_ON_IMPORT = (*NOT_FOR_DIAGNOSE, "importlib.resources", *STDLIB_NOT_FOR_DIAGNOSE)
 
 
 _LIST_AT_EXIT = """
@@ -89,6 +98,26 @@ def test_diagnose_imports_no_other_command(still_log, tmp_path):
     assert not (names & others), sorted(names & others)
     heavy = sorted(n for n in names if n.startswith(NOT_FOR_DIAGNOSE))
     assert not heavy, heavy
+    assert not (names & STDLIB_NOT_FOR_DIAGNOSE), sorted(names & STDLIB_NOT_FOR_DIAGNOSE)
+
+
+def test_importing_diagnose_leaves_out_what_it_does_not_use():
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import sys, imudiag.commands.diagnose; print(' '.join(sorted(sys.modules)))",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+        check=True,
+    )
+    names = set(proc.stdout.split())
+    assert "imudiag.diagnosis.session" in names and "yaml" in names
+    unused = sorted(n for n in names if n.startswith(NOT_ON_IMPORT))
+    assert not unused, unused
 
 
 @pytest.mark.parametrize("module", COMMANDS)

@@ -25,7 +25,6 @@ from ..logs.options import LogOptions
 from ..noise_estimate import NOISE_MISMATCH_FACTOR, NoiseMeter, compare
 from ..quasistatic import BAD_FLAGS, DetectorPool
 from ..samples import FLAG_SELF_TEST, SampleBlock
-from .calibrate import CalibrationResult, calibrate, calibrate_known_rate
 from .config import DiagnosisConfig
 from .inputs import MagnitudeTable, check_units, log_rate_hz
 from .intervals import IntervalCollector
@@ -37,6 +36,7 @@ from .window import WindowResult
 
 if TYPE_CHECKING:
     from ..monitor import F0Trace
+    from .calibrate import CalibrationResult
 
 #: Longest stretch of a recording read to measure its white noise (s of sample time).
 NOISE_SECONDS = 600.0
@@ -283,6 +283,8 @@ def calibrate_recording(
     :class:`~imudiag.errors.BadInput` when the recording cannot calibrate (no still
     interval, too few attitudes).
     """
+    from .calibrate import calibrate, calibrate_known_rate  # not on diagnose's path
+
     table = _magnitudes(magnitude)
     if config.method == "moving-base" and table is None:
         raise BadInput(
