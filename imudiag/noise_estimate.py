@@ -111,7 +111,9 @@ def second_difference_sigmas(chunks: np.ndarray) -> np.ndarray:
     in a few numpy calls over all of them: (K, C), same units."""
     # the operations of second_difference_sigma in its order, in place on arrays of our
     # own; the medians along the samples from copies with that axis last (partitioned in
-    # place); the sums along the samples as before (the same order of additions)
+    # place); the sums along the samples as before (the same order of additions). The
+    # RMS fallback is computed only where a MAD is 0, the clipping only where a value is
+    # beyond the clip (still data: neither; issue 14)
     d = np.multiply(2.0, chunks[:, 1:-1])
     np.subtract(chunks[:, 2:], d, out=d)
     d += chunks[:, :-2]
@@ -119,9 +121,14 @@ def second_difference_sigmas(chunks: np.ndarray) -> np.ndarray:
     ad = np.abs(d)
     mad = medians(ad.transpose(0, 2, 1).copy())
     d2 = np.multiply(d, d, out=d)
-    rms = np.sqrt(np.mean(d2, axis=1))
-    s0 = np.where(mad > 0, _MAD_TO_SIGMA * mad, rms)
-    kept = (ad <= 5.0 * s0[:, None, :]) | (s0 <= 0)[:, None, :]
+    if (mad > 0).all():
+        kept = ad <= 5.0 * (_MAD_TO_SIGMA * mad)[:, None, :]
+    else:
+        rms = np.sqrt(np.mean(d2, axis=1))
+        s0 = np.where(mad > 0, _MAD_TO_SIGMA * mad, rms)
+        kept = (ad <= 5.0 * s0[:, None, :]) | (s0 <= 0)[:, None, :]
+    if kept.all():
+        return np.sqrt(np.sum(d2, axis=1) / d2.shape[1] / 6.0)
     np.copyto(d2, 0.0, where=~kept)
     mean_kept = np.sum(d2, axis=1) / np.sum(kept, axis=1)
     return np.sqrt(mean_kept / 6.0)

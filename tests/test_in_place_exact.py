@@ -117,6 +117,19 @@ def test_chunk_noise_figures_are_the_plain_expression_bit_for_bit(length: int) -
     np.testing.assert_array_equal(chunks, before)
 
 
+@pytest.mark.parametrize("outlier", [False, True])
+def test_chunk_noise_figures_of_still_data_are_the_plain_expression_bit_for_bit(
+    outlier: bool,
+) -> None:
+    """Every MAD above 0 (no RMS fallback), and nothing clipped or one value clipped."""
+    rng = np.random.default_rng(31)
+    chunks = rng.uniform(-1.0, 1.0, (50, 200, 6)) * rng.uniform(0.1, 30.0, 6)
+    if outlier:
+        chunks[7, 100, 3] += 1e4
+    got = second_difference_sigmas(chunks)
+    np.testing.assert_array_equal(_bits(got), _bits(_plain_second_difference_sigmas(chunks)))
+
+
 @pytest.mark.parametrize("op", [np.add, np.subtract, np.multiply, np.divide])
 def test_rows_op_is_numpys_broadcast_bit_for_bit(op: np.ufunc) -> None:
     rng = np.random.default_rng(23)
