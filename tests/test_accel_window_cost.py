@@ -1,0 +1,125 @@
+"""The accelerometer window fit's cost work (issue 14) leaves every number as it was, bit
+for bit: the windows' mean variances stacked in whole-array operations equal the
+per-interval ones on the real Xsens intervals (and with a noise floor unknown, and with an
+empty interval), and the robust excess variance with noise_estimate.medians equals the
+one with np.median it replaced (written out below as it was).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+from test_rotation_jacobian import LIKE_XSENS, XSENS
+
+from imudiag.certificate import load
+from imudiag.diagnosis.inputs import log_rate_hz
+from imudiag.diagnosis.intervals import IntervalCollector, stacked_mean_var
+from imudiag.diagnosis.robust import point_diagnostics
+from imudiag.diagnosis.session import blocks
+
+_CHI2_1_MEDIAN = 0.454936423119572
+
+
+@pytest.fixture(scope="module")
+def xsens_intervals():
+    """The still intervals of the real Xsens recording, as the diagnosis collects them."""
+    cert = load(LIKE_XSENS)
+    intervals = []
+    with blocks(XSENS) as (meta, stream):
+        collector = None
+        for block in stream:
+            if collector is None:
+                collector = IntervalCollector(
+                    cert,
+                    log_rate_hz(meta, block, cert),
+                    detector_options={"certificate_noise": False},
+                )
+            intervals.extend(collector.update(block))
+        assert collector is not None
+        intervals.extend(collector.flush())
+    assert len(intervals) >= 24
+    return intervals
+
+
+def _per_interval(intervals, triad):
+    return np.array([iv.mean_var(triad) for iv in intervals])
+
+
+def _stacked(intervals, triad):
+    covs = np.array([iv.cov(triad) for iv in intervals])
+    return stacked_mean_var(intervals, triad, covs)
+
+
+@pytest.mark.parametrize("triad", ["accel", "gyro"])
+def test_stacked_mean_var_equals_per_interval_on_real_windows(xsens_intervals, triad):
+    """Windows of 24 consecutive intervals, every 8th start: the same bytes."""
+    assert all(iv.noise_floor(triad) is not None for iv in xsens_intervals)
+    for start in range(0, len(xsens_intervals) - 23, 8):
+        window = xsens_intervals[start : start + 24]
+        want = _per_interval(window, triad)
+        got = _stacked(window, triad)
+        assert got.shape == want.shape == (24, 3)
+        assert got.tobytes() == want.tobytes()
+
+
+def test_stacked_mean_var_with_unknown_floor_and_empty_interval(xsens_intervals):
+    """A floor not known yet (None) and an interval of no samples (n = 0): as per interval."""
+    window = [copy.deepcopy(iv) for iv in xsens_intervals[:6]]
+    window[2].n = 0
+    got = _stacked(window, "accel")
+    assert got.tobytes() == _per_interval(window, "accel").tobytes()
+    assert np.all(np.isfinite(got[2]))
+    window[4].accel_noise_var = None
+    got = _stacked(window, "accel")
+    assert got.tobytes() == _per_interval(window, "accel").tobytes()
+    assert _stacked([], "accel").shape == (0,)
+
+
+def _robust_excess_with_numpy_median(u, nv, m):
+    """robust._robust_excess as it was (np.median of the 15 trial rows)."""
+    ok = np.isfinite(u)
+    if ok.sum() < 3:
+        return 0.0
+    u, nv, m = u[ok], nv[ok], m[ok]
+    a = u / m
+    if float(np.median(a)) <= _CHI2_1_MEDIAN:
+        return 0.0
+    lo, hi = 0.0, float(np.max(a * nv)) + 1e-300
+    steps = np.arange(1, 16) / 16.0
+    inv_nv = 1.0 / nv
+    for _ in range(40):
+        trial = lo + (hi - lo) * steps
+        below = np.median(a / (1.0 + trial[:, None] * inv_nv), axis=1) <= _CHI2_1_MEDIAN
+        k = int(np.argmax(below)) if below.any() else trial.size
+        if k > 0:
+            lo = float(trial[k - 1])
+        if k < trial.size:
+            hi = float(trial[k])
+        if hi - lo <= 1e-10 * hi:
+            break
+    return hi
+
+
+@pytest.mark.parametrize("n", [17, 24, 25])
+def test_robust_excess_equals_numpy_median_version(n):
+    """Point diagnostics of a linear fit whose scatter exceeds its noise (fixed seed; odd
+    and even point counts): the excess variance and the standardised figures, bit for bit."""
+    rng = np.random.default_rng(14 + n)
+    jac = rng.normal(size=(n, 9))
+    noise_var = rng.uniform(0.5, 2.0, size=n) * 1e-8
+    r = rng.normal(size=n) * np.sqrt(noise_var) * 3.0
+    r[n // 3] += 40.0 * np.sqrt(noise_var[n // 3])  # one gross outlier
+    w = 1.0 / noise_var
+    cov = np.linalg.pinv(jac.T @ (jac * w[:, None]) + np.eye(9) * 1e-2)
+    diag = point_diagnostics(jac, r, noise_var, cov)
+    assert diag.excess_var > 0.0
+    sw = np.sqrt(w)
+    a_all, s_all = jac * sw[:, None], sw * r
+    h = np.einsum("ij,jk,ik->i", a_all, cov, a_all)
+    ok = h <= 0.99
+    u = np.where(ok, s_all * np.where(ok, s_all / np.where(ok, 1.0 - h, 1.0), np.nan), np.nan)
+    u = u / (noise_var * w)
+    want = _robust_excess_with_numpy_median(u, np.where(ok, noise_var, 1.0), np.ones(n))
+    assert diag.excess_var == want
