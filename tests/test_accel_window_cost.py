@@ -1,7 +1,8 @@
 """The accelerometer window fit's cost work (issue 14) leaves every number as it was, bit
 for bit: the windows' mean variances stacked in whole-array operations equal the
 per-interval ones on the real Xsens intervals (and with a noise floor unknown, and with an
-empty interval), and the robust excess variance with noise_estimate.medians equals the
+empty interval), P of one shape built from Python floats equals the stacked form's, and
+the robust excess variance with noise_estimate.medians equals the
 one with np.median it replaced (written out below as it was).
 """
 
@@ -14,6 +15,7 @@ import pytest
 from test_rotation_jacobian import LIKE_XSENS, XSENS
 
 from imudiag.certificate import load
+from imudiag.diagnosis.gauge import p_matrix
 from imudiag.diagnosis.inputs import log_rate_hz
 from imudiag.diagnosis.intervals import IntervalCollector, stacked_mean_var
 from imudiag.diagnosis.robust import point_diagnostics
@@ -123,3 +125,17 @@ def test_robust_excess_equals_numpy_median_version(n):
     u = u / (noise_var * w)
     want = _robust_excess_with_numpy_median(u, np.where(ok, noise_var, 1.0), np.ones(n))
     assert diag.excess_var == want
+
+
+def test_p_matrix_of_one_shape_equals_the_stacked_form():
+    """P of each shape alone (the fits' path) against P of all of them at once: the same
+    bytes, signed zeros and a subnormal included (fixed seed)."""
+    rng = np.random.default_rng(14)
+    shapes = rng.normal(size=(500, 6)) * 0.3
+    shapes[0] = [-0.0, 0.0, -0.0, -0.0, 0.0, -1e-320]
+    shapes[1] = [0.5, -0.5, 1e-17, 1e300, -1e-300, np.nan]
+    stacked = p_matrix(shapes)
+    for i, s in enumerate(shapes):
+        one = p_matrix(s)
+        assert one.shape == (3, 3) and one.dtype == np.float64
+        assert one.tobytes() == stacked[i].tobytes(), i

@@ -37,6 +37,12 @@ SHAPE_NAMES = ("e_x", "e_y", "e_z", "d1", "d2", "d3")
 def p_matrix(shape: np.ndarray) -> np.ndarray:
     """Symmetric P (..., 3, 3) from shape parameters (..., 6) ``e_x e_y e_z d1 d2 d3``."""
     s = np.asarray(shape, dtype=float)
+    if s.shape == (6,):
+        # one shape (every fit iteration): the same sums and halvings on Python floats,
+        # one array built, without the strided writes of the stacked form
+        ex, ey, ez, d1, d2, d3 = s.tolist()
+        a, b, c = 0.5 * d1, 0.5 * d2, 0.5 * d3
+        return np.array([[1.0 + ex, a, b], [a, 1.0 + ey, c], [b, c, 1.0 + ez]])
     p = np.empty(s.shape[:-1] + (3, 3))
     p[..., 0, 0] = 1.0 + s[..., 0]
     p[..., 1, 1] = 1.0 + s[..., 1]

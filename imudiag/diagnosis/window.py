@@ -86,7 +86,7 @@ def distinct_attitudes(up: np.ndarray, separation_deg: float) -> int:
     centres = np.empty_like(up)  # the first k rows: the centres so far
     k = 0
     for u, ok in zip(up, valid.tolist(), strict=True):
-        if ok and (not k or np.max(centres[:k] @ u) < cos_sep):
+        if ok and (not k or (centres[:k] @ u).max() < cos_sep):
             centres[k] = u
             k += 1
     return k
