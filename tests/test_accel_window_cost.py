@@ -1,25 +1,29 @@
 """The accelerometer window fit's cost work (issue 14) leaves every number as it was, bit
 for bit: the windows' mean variances stacked in whole-array operations equal the
 per-interval ones on the real Xsens intervals (and with a noise floor unknown, and with an
-empty interval), P of one shape built from Python floats equals the stacked form's, and
-the robust excess variance with noise_estimate.medians equals the
-one with np.median it replaced (written out below as it was).
+empty interval); P of one shape built from Python floats equals the stacked form's; the
+fit to every interval the rejection makes first equals a fit made afresh; and the robust
+excess variance with noise_estimate.medians equals the one with np.median it replaced
+(written out below as it was).
 """
 
 from __future__ import annotations
 
 import copy
+import math
 
 import numpy as np
 import pytest
 from test_rotation_jacobian import LIKE_XSENS, XSENS
 
-from imudiag.certificate import load
+from imudiag.certificate import load, load_default
 from imudiag.diagnosis.gauge import p_matrix
 from imudiag.diagnosis.inputs import log_rate_hz
 from imudiag.diagnosis.intervals import IntervalCollector, stacked_mean_var
 from imudiag.diagnosis.robust import point_diagnostics
+from imudiag.diagnosis.scalar_fit import exact_fit, robust_exact_fit_and_plain
 from imudiag.diagnosis.session import blocks
+from imudiag.sim.trajectories import spread_up_directions
 
 _CHI2_1_MEDIAN = 0.454936423119572
 
@@ -139,3 +143,47 @@ def test_p_matrix_of_one_shape_equals_the_stacked_form():
         one = p_matrix(s)
         assert one.shape == (3, 3) and one.dtype == np.float64
         assert one.tobytes() == stacked[i].tobytes(), i
+
+
+def _same(a, b) -> bool:
+    """Two values equal bit for bit (arrays by their bytes, containers element-wise)."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a), np.asarray(b)
+        return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return type(a) is type(b) and a == b
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize("kind", ["clean", "outlier", "step"])
+def test_plain_fit_kept_from_the_rejection_equals_a_fresh_one(seed, kind):
+    """Seeded windows of 24 accelerometer holds, clean, with one bumped hold (rejected) and
+    with a bias step half way (rejection withheld): the plain fit handed back equals
+    exact_fit over every mean, every field bit for bit."""
+    cert = load_default()
+    tri = cert.accel
+    rng = np.random.default_rng(seed)
+    up = spread_up_directions(24, seed)
+    sigma = tri.noise_sigma(200.0)
+    means = tri.forward_si(up * 9.80665) + rng.normal(size=up.shape) * sigma / 20.0
+    var = np.tile(sigma**2 / 400.0, (24, 1))
+    if kind == "outlier":
+        means[9] += 40.0 * np.sqrt(var[9]) * up[9]
+    elif kind == "step":
+        means[12:] += 30.0 * np.sqrt(var[0])
+    g_in = 9.80665 / tri.unit_to_si
+    labels = [f"interval {i}" for i in range(24)]
+    fit, plain = robust_exact_fit_and_plain(
+        tri, means, var, g_in, labels=labels, min_dof=3.0, prior_factor=10.0
+    )
+    fresh = exact_fit(tri, means, var, g_in, prior_factor=10.0)
+    if kind == "outlier":
+        assert plain is not fit and fit.extra.get("rejected")
+    for name, value in vars(fresh).items():
+        if name not in ("kept", "point_labels") or plain is not fit:
+            assert _same(getattr(plain, name), value), name

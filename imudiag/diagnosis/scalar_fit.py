@@ -337,6 +337,23 @@ def robust_exact_fit(
     were too many to reject, says so (``outliers``); ``kept`` is the mask of the
     means it used.
     """
+    return robust_exact_fit_and_plain(
+        triad, means, mean_var, magnitude, labels=labels, min_dof=min_dof, **kwargs
+    )[0]
+
+
+def robust_exact_fit_and_plain(
+    triad: TriadModel,
+    means: np.ndarray,
+    mean_var: np.ndarray,
+    magnitude: float | np.ndarray,
+    labels: list[str] | None = None,
+    min_dof: float = 3.0,
+    **kwargs: Any,
+) -> tuple[TriadFit, TriadFit]:
+    """:func:`robust_exact_fit` and the plain :func:`exact_fit` to every mean it started
+    from (the same object when nothing was rejected; else untouched by the rejection), so
+    a caller that falls back to keeping every point need not fit them again."""
     means = np.asarray(means, dtype=float).reshape(-1, 3)
     var = np.asarray(mean_var, dtype=float).reshape(-1, 3)
     k = means.shape[0]
@@ -349,8 +366,11 @@ def robust_exact_fit(
         pr = None if probe is None else (means[probe], var[probe], mag[probe : probe + 1])
         f = exact_fit(triad, means[keep], var[keep], mag[keep], predict=pr, **kwargs)
         zp = f.extra.pop("predicted_z", [float("nan")])[0]
+        if probe is None:
+            plain.append(f)  # reject_outliers fits every point first, and only then
         return f, f.point_z, f.dof, zp
 
+    plain: list[TriadFit] = []
     fit, keep, rejected, note = reject_outliers(once, k, names, min_dof)
     fit.kept = keep
     fit.point_labels = [x for x, kept in zip(names, keep, strict=True) if kept]
@@ -358,7 +378,7 @@ def robust_exact_fit(
         fit.extra["rejected"] = rejected
     if note:
         fit.extra["outliers"] = note
-    return fit
+    return fit, plain[0]
 
 
 def _excess_variance(r: np.ndarray, sig2: np.ndarray, dof: float) -> float:
@@ -617,6 +637,7 @@ def linear_fit(
 __all__ = [
     "exact_fit",
     "robust_exact_fit",
+    "robust_exact_fit_and_plain",
     "linear_fit",
     "NormalEquations",
     "samples_normal_equations",
