@@ -2,6 +2,7 @@
 for bit: the windows' mean variances stacked in whole-array operations equal the
 per-interval ones on the real Xsens intervals (and with a noise floor unknown, and with an
 empty interval); P of one shape built from Python floats equals the stacked form's; the
+certificate's shape and rotation kept from an earlier polar decomposition equal a fresh one; the
 fit to every interval the rejection makes first equals a fit made afresh; and the robust
 excess variance with noise_estimate.medians equals the one with np.median it replaced
 (written out below as it was).
@@ -17,7 +18,7 @@ import pytest
 from test_rotation_jacobian import LIKE_XSENS, XSENS
 
 from imudiag.certificate import load, load_default
-from imudiag.diagnosis.gauge import p_matrix
+from imudiag.diagnosis.gauge import p_matrix, polar, shape_of_p, shape_of_triad
 from imudiag.diagnosis.inputs import log_rate_hz
 from imudiag.diagnosis.intervals import IntervalCollector, stacked_mean_var
 from imudiag.diagnosis.robust import point_diagnostics
@@ -187,3 +188,22 @@ def test_plain_fit_kept_from_the_rejection_equals_a_fresh_one(seed, kind):
     for name, value in vars(fresh).items():
         if name not in ("kept", "point_labels") or plain is not fit:
             assert _same(getattr(plain, name), value), name
+
+
+def test_shape_of_triad_kept_equals_a_fresh_polar_decomposition():
+    """Asked again for the same N (every window), the kept shape and rotation equal a polar
+    decomposition made afresh, bit for bit, and are copies (changing one changes nothing)."""
+    cert = load_default()
+    for tri in (cert.accel, cert.gyro, load(LIKE_XSENS).accel):
+        p, q = polar(tri.n_matrix())
+        for _ in range(3):
+            shape, rot = shape_of_triad(tri)
+            assert shape.tobytes() == shape_of_p(p).tobytes()
+            assert rot.tobytes() == q.tobytes() and rot.strides == q.strides
+            shape += 1.0
+            rot[:] = 0.0
+        other = copy.deepcopy(tri)
+        other.misalignment = dict(other.misalignment, xz=other.misalignment["xz"] + 1e-3)
+        p2, q2 = polar(other.n_matrix())
+        assert shape_of_triad(other)[0].tobytes() == shape_of_p(p2).tobytes()
+        assert shape_of_triad(other)[1].tobytes() == q2.tobytes()
