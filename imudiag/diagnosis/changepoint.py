@@ -29,7 +29,7 @@ import numpy as np
 
 from ..certificate import TriadModel
 from .params import TriadFit
-from .scalar_fit import exact_fit, robust_exact_fit
+from .scalar_fit import exact_fit, robust_exact_fit_and_plain
 
 #: Median prediction error (sigma) of the intervals beyond a rejected one, predicted from
 #: those before it, above which the window holds a step change (a fault onset), not outliers.
@@ -103,11 +103,13 @@ def window_exact_fit(
     means = np.asarray(means, dtype=float).reshape(-1, 3)
     var = np.asarray(mean_var, dtype=float).reshape(-1, 3)
     mag = np.broadcast_to(np.asarray(magnitude, dtype=float), (means.shape[0],))
-    fit = robust_exact_fit(triad, means, var, mag, labels=labels, min_dof=min_dof, **kwargs)
+    fit, plain = robust_exact_fit_and_plain(
+        triad, means, var, mag, labels=labels, min_dof=min_dof, **kwargs
+    )
     if fit.kept is None or bool(np.all(fit.kept)):
         fit.point_labels = list(labels)
         return fit
-    plain = exact_fit(triad, means, var, mag, **kwargs)
+    # the fit to every interval, made first by the rejection and left untouched by it
     plain.point_labels = list(labels)
     why = step_change(triad, means, var, mag, np.flatnonzero(~fit.kept), kwargs)
     if not why and _essential(fit) > _essential(plain):

@@ -37,6 +37,12 @@ SHAPE_NAMES = ("e_x", "e_y", "e_z", "d1", "d2", "d3")
 def p_matrix(shape: np.ndarray) -> np.ndarray:
     """Symmetric P (..., 3, 3) from shape parameters (..., 6) ``e_x e_y e_z d1 d2 d3``."""
     s = np.asarray(shape, dtype=float)
+    if s.shape == (6,):
+        # one shape (every fit iteration): the same sums and halvings on Python floats,
+        # one array built, without the strided writes of the stacked form
+        ex, ey, ez, d1, d2, d3 = s.tolist()
+        a, b, c = 0.5 * d1, 0.5 * d2, 0.5 * d3
+        return np.array([[1.0 + ex, a, b], [a, 1.0 + ey, c], [b, c, 1.0 + ez]])
     p = np.empty(s.shape[:-1] + (3, 3))
     p[..., 0, 0] = 1.0 + s[..., 0]
     p[..., 1, 1] = 1.0 + s[..., 1]
@@ -62,10 +68,25 @@ def polar(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return p, q
 
 
+#: Polar decompositions already made, by the bytes of N (every window's fits ask again for
+#: the certificate's); at most _POLAR_CACHE_SIZE, emptied when full.
+_POLAR_CACHE: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+_POLAR_CACHE_SIZE = 64
+
+
 def shape_of_triad(triad: TriadModel) -> tuple[np.ndarray, np.ndarray]:
-    """The certificate's observable shape (6,) and the rotation Q of its N = P Q."""
-    p, q = polar(triad.n_matrix())
-    return shape_of_p(p), q
+    """The certificate's observable shape (6,) and the rotation Q of its N = P Q (copies of
+    the ones made for the same N before: the same numbers, bit for bit)."""
+    n = triad.n_matrix()
+    key = n.tobytes()
+    known = _POLAR_CACHE.get(key)
+    if known is None:
+        p, q = polar(n)
+        known = (shape_of_p(p), q)
+        if len(_POLAR_CACHE) >= _POLAR_CACHE_SIZE:
+            _POLAR_CACHE.clear()
+        _POLAR_CACHE[key] = known
+    return known[0].copy(), known[1].copy()
 
 
 def n_symmetric(triad: TriadModel, shape: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:

@@ -102,10 +102,15 @@ class QuasiStaticInterval:
         the unit's white noise over n (a short interval's sample variance can be low by
         chance, and would weigh it far above its worth)."""
         var = np.diag(self.cov(triad))
-        floor = self.gyro_noise_var if triad == "gyro" else self.accel_noise_var
+        floor = self.noise_floor(triad)
         if floor is not None:
             var = np.maximum(var, floor)
         return var / max(self.n, 1)
+
+    def noise_floor(self, triad: str) -> np.ndarray | None:
+        """Per-sample white-noise variance (3,) of ``gyro`` or ``accel``, output units^2;
+        None when not known."""
+        return self.gyro_noise_var if triad == "gyro" else self.accel_noise_var
 
     @property
     def roll_pitch_deg(self) -> tuple[float, float]:
@@ -114,6 +119,20 @@ class QuasiStaticInterval:
         roll = math.degrees(math.atan2(-f[1], -f[2]))
         pitch = math.degrees(math.atan2(f[0], math.hypot(f[1], f[2])))
         return roll, pitch
+
+
+def stacked_mean_var(
+    intervals: list[QuasiStaticInterval], triad: str, covs: np.ndarray
+) -> np.ndarray:
+    """:meth:`QuasiStaticInterval.mean_var` of every interval (K, 3), output units^2, bit
+    for bit, in a few whole-array operations; ``covs`` (K, 3, 3) their sample covariances
+    (output units^2) in the same order."""
+    floors = [iv.noise_floor(triad) for iv in intervals]
+    if not intervals or any(f is None for f in floors):
+        return np.array([iv.mean_var(triad) for iv in intervals])
+    var = np.maximum(covs.diagonal(axis1=1, axis2=2), np.array(floors, dtype=float))
+    counts = np.array([max(iv.n, 1) for iv in intervals], dtype=float)
+    return var / counts[:, None]
 
 
 def _rows(block: SampleBlock) -> np.ndarray:
@@ -316,4 +335,4 @@ class IntervalCollector:
         return out
 
 
-__all__ = ["IntervalCollector", "QuasiStaticInterval", "MotionSegment"]
+__all__ = ["IntervalCollector", "QuasiStaticInterval", "MotionSegment", "stacked_mean_var"]

@@ -111,15 +111,20 @@ class PredicateTracker:
 
     def update(self, fit: TriadFit, t: float) -> list[dict]:
         """Judge one window's fit at time ``t`` (s); returns this window's candidates."""
-        signs = candidates(fit, self.k_sigma)
+        sign_arr = candidates(fit, self.k_sigma)
+        # informative: judged, a finite std, and determined or a candidate (all 9 at once)
+        informative_all = (
+            np.asarray(fit.judged, dtype=bool)
+            & np.isfinite(fit.std)
+            & (np.asarray(fit.determined, dtype=bool) | (sign_arr != 0))
+        ).tolist()
+        signs = sign_arr.tolist()
         out = []
         for i in range(9):
             st = self._state.setdefault((fit.triad, i), _State())
-            informative = bool(
-                fit.judged[i] and np.isfinite(fit.std[i]) and (fit.determined[i] or signs[i] != 0)
-            )
-            entry = self._entry(fit, i, t)
+            informative = informative_all[i]
             if signs[i] != 0:
+                entry = self._entry(fit, i, t)
                 out.append(entry)
                 if st.streak and st.sign == signs[i]:
                     st.streak += 1

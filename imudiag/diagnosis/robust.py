@@ -36,6 +36,8 @@ from typing import TypeVar
 
 import numpy as np
 
+from ..noise_estimate import medians
+
 T = TypeVar("T")
 
 #: A point whose prediction error from the fit to the others exceeds this (sigma) is rejected.
@@ -167,7 +169,7 @@ def _robust_excess(u: np.ndarray, nv: np.ndarray, m: np.ndarray) -> float:
     inv_nv = 1.0 / nv
     for _ in range(40):
         trial = lo + (hi - lo) * steps
-        below = np.median(a / (1.0 + trial[:, None] * inv_nv), axis=1) <= _CHI2_1_MEDIAN
+        below = medians(a / (1.0 + trial[:, None] * inv_nv)) <= _CHI2_1_MEDIAN
         k = int(np.argmax(below)) if below.any() else trial.size
         if k > 0:
             lo = float(trial[k - 1])

@@ -140,6 +140,11 @@ def _scaled_condition(info: np.ndarray, lim: np.ndarray) -> float:
 # exact model
 
 
+#: Component pairs (i, j) of the three off-diagonal shape parameters d1 d2 d3.
+_PAIR_I = np.array([0, 0, 1])
+_PAIR_J = np.array([1, 2, 2])
+
+
 def residuals_and_jacobian(
     theta: np.ndarray, v: np.ndarray, mu: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -148,15 +153,14 @@ def residuals_and_jacobian(
     p = p_matrix(theta[3:])
     pinv = np.linalg.inv(p)
     x = (v - beta) @ pinv.T
-    nx = np.linalg.norm(x, axis=1)
+    nx = np.sqrt((x * x).sum(axis=1))  # np.linalg.norm's own sum, without its wrapper
     xh = x / nx[:, None]
     w = xh @ pinv.T  # P^-1 symmetric
     jac = np.empty((v.shape[0], 9))
     jac[:, 0:3] = -w
     jac[:, 3:6] = -w * x
-    jac[:, 6] = -0.5 * (w[:, 0] * x[:, 1] + w[:, 1] * x[:, 0])
-    jac[:, 7] = -0.5 * (w[:, 0] * x[:, 2] + w[:, 2] * x[:, 0])
-    jac[:, 8] = -0.5 * (w[:, 1] * x[:, 2] + w[:, 2] * x[:, 1])
+    # columns 6-8: -0.5 (w_i x_j + w_j x_i) for (i, j) = (0, 1), (0, 2), (1, 2), in one pass
+    jac[:, 6:9] = -0.5 * (w[:, _PAIR_I] * x[:, _PAIR_J] + w[:, _PAIR_J] * x[:, _PAIR_I])
     return nx - mu, jac, w
 
 
@@ -200,6 +204,8 @@ def exact_fit(
     lim = internal_limits(triad, m0)
     pf = np.broadcast_to(np.asarray(prior_factor, dtype=float), (9,))
     prior_prec = np.where(np.isfinite(pf), 1.0 / (pf * lim) ** 2, 0.0)
+    prior_diag = np.diag(prior_prec)
+    shape_c = theta_c[3:]
 
     if isinstance(start, str):
         if start not in ("linear", "certificate"):
@@ -215,7 +221,7 @@ def exact_fit(
     def cost(th: np.ndarray, extra: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         r, jac, w = residuals_and_jacobian(th, v, mu)
         sig2 = np.einsum("kj,kj->k", w * w, var_v) + RESIDUAL_FLOOR**2 + extra
-        c = float(np.sum(r * r / sig2) + np.sum(prior_prec * (th - theta_c) ** 2))
+        c = float((r * r / sig2).sum() + (prior_prec * (th - theta_c) ** 2).sum())
         return c, r, jac, sig2
 
     def gauss_newton(
@@ -225,15 +231,15 @@ def exact_fit(
         lam = 1e-6
         for _ in range(max_iter):
             wgt = 1.0 / sig2
-            hess = jac.T @ (jac * wgt[:, None]) + np.diag(prior_prec)
+            hess = jac.T @ (jac * wgt[:, None]) + prior_diag
+            damp = np.diag(np.maximum(hess.diagonal(), 1e-30))
             grad = jac.T @ (r * wgt) + prior_prec * (theta - theta_c)
             c_before = c0
             accepted = False
             for _try in range(16):
-                a = hess + lam * np.diag(np.maximum(np.diag(hess), 1e-30))
-                step = -np.linalg.lstsq(a, grad, rcond=None)[0]
+                step = -np.linalg.lstsq(hess + lam * damp, grad, rcond=None)[0]
                 cand = theta + step
-                if np.max(np.abs(cand[3:] - theta_c[3:])) > MAX_SHAPE:
+                if abs(cand[3:] - shape_c).max() > MAX_SHAPE:
                     lam *= 10.0
                     continue
                 c1, r1, j1, s1 = cost(cand, extra)
@@ -256,12 +262,12 @@ def exact_fit(
         theta_fit, r, jac, sig2 = gauss_newton(theta.copy(), extra)
         wgt = 1.0 / sig2
         info = jac.T @ (jac * wgt[:, None])
-        hess = info + np.diag(prior_prec)
+        hess = info + prior_diag
         cov = np.linalg.pinv(hess)
         cov_unscaled = cov
         extra_used = extra
-        chi2 = float(np.sum(r * r * wgt))
-        dof = k - float(np.trace(cov @ info))
+        chi2 = float((r * r * wgt).sum())
+        dof = k - float((cov @ info).trace())
         if not scale_by_residual or dof < 1.0 or chi2 <= 1.5 * dof:
             break
         extra = _excess_variance(r, sig2 - extra, dof)
@@ -302,7 +308,7 @@ def exact_fit(
         noise = sig2 - extra_used
         e_rob = diag.excess_var if k and max_iter > 0 else extra_used
         w_rob = 1.0 / (noise + e_rob)
-        cov_rob = np.linalg.pinv(jac.T @ (jac * w_rob[:, None]) + np.diag(prior_prec))
+        cov_rob = np.linalg.pinv(jac.T @ (jac * w_rob[:, None]) + prior_diag)
         pm, pv, pmag = (np.asarray(x, dtype=float) for x in predict)
         rp, jp, wp = residuals_and_jacobian(
             theta, pm.reshape(-1, 3) / (s * m0), np.atleast_1d(pmag) / m0
@@ -331,6 +337,23 @@ def robust_exact_fit(
     were too many to reject, says so (``outliers``); ``kept`` is the mask of the
     means it used.
     """
+    return robust_exact_fit_and_plain(
+        triad, means, mean_var, magnitude, labels=labels, min_dof=min_dof, **kwargs
+    )[0]
+
+
+def robust_exact_fit_and_plain(
+    triad: TriadModel,
+    means: np.ndarray,
+    mean_var: np.ndarray,
+    magnitude: float | np.ndarray,
+    labels: list[str] | None = None,
+    min_dof: float = 3.0,
+    **kwargs: Any,
+) -> tuple[TriadFit, TriadFit]:
+    """:func:`robust_exact_fit` and the plain :func:`exact_fit` to every mean it started
+    from (the same object when nothing was rejected; else untouched by the rejection), so
+    a caller that falls back to keeping every point need not fit them again."""
     means = np.asarray(means, dtype=float).reshape(-1, 3)
     var = np.asarray(mean_var, dtype=float).reshape(-1, 3)
     k = means.shape[0]
@@ -343,8 +366,11 @@ def robust_exact_fit(
         pr = None if probe is None else (means[probe], var[probe], mag[probe : probe + 1])
         f = exact_fit(triad, means[keep], var[keep], mag[keep], predict=pr, **kwargs)
         zp = f.extra.pop("predicted_z", [float("nan")])[0]
+        if probe is None:
+            plain.append(f)  # reject_outliers fits every point first, and only then
         return f, f.point_z, f.dof, zp
 
+    plain: list[TriadFit] = []
     fit, keep, rejected, note = reject_outliers(once, k, names, min_dof)
     fit.kept = keep
     fit.point_labels = [x for x, kept in zip(names, keep, strict=True) if kept]
@@ -352,7 +378,7 @@ def robust_exact_fit(
         fit.extra["rejected"] = rejected
     if note:
         fit.extra["outliers"] = note
-    return fit
+    return fit, plain[0]
 
 
 def _excess_variance(r: np.ndarray, sig2: np.ndarray, dof: float) -> float:
@@ -611,6 +637,7 @@ def linear_fit(
 __all__ = [
     "exact_fit",
     "robust_exact_fit",
+    "robust_exact_fit_and_plain",
     "linear_fit",
     "NormalEquations",
     "samples_normal_equations",

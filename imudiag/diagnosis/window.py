@@ -29,7 +29,7 @@ from .gyro_fit import (
     rotation_fit,
     scale_key,
 )
-from .intervals import MotionSegment, QuasiStaticInterval
+from .intervals import MotionSegment, QuasiStaticInterval, stacked_mean_var
 from .known_rate import classify_plateaus
 from .params import (
     TriadFit,
@@ -86,7 +86,7 @@ def distinct_attitudes(up: np.ndarray, separation_deg: float) -> int:
     centres = np.empty_like(up)  # the first k rows: the centres so far
     k = 0
     for u, ok in zip(up, valid.tolist(), strict=True):
-        if ok and (not k or np.max(centres[:k] @ u) < cos_sep):
+        if ok and (not k or (centres[:k] @ u).max() < cos_sep):
             centres[k] = u
             k += 1
     return k
@@ -130,8 +130,8 @@ def motion_labels(pairs: list[RotationPair]) -> list[str]:
 
 def _stack(intervals: list[QuasiStaticInterval], triad: str) -> tuple[np.ndarray, ...]:
     means = np.array([iv.mean(triad) for iv in intervals])
-    mvar = np.array([iv.mean_var(triad) for iv in intervals])
     covs = np.array([iv.cov(triad) for iv in intervals])
+    mvar = stacked_mean_var(intervals, triad, covs)
     counts = np.array([iv.n for iv in intervals], dtype=float)
     return means, mvar, covs, counts
 
