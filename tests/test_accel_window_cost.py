@@ -15,15 +15,13 @@ import math
 
 import numpy as np
 import pytest
-from test_rotation_jacobian import LIKE_XSENS, XSENS
+from test_rotation_jacobian import LIKE_XSENS, collect_xsens_intervals
 
 from imudiag.certificate import load, load_default
 from imudiag.diagnosis.gauge import p_matrix, polar, shape_of_p, shape_of_triad
-from imudiag.diagnosis.inputs import log_rate_hz
-from imudiag.diagnosis.intervals import IntervalCollector, stacked_mean_var
+from imudiag.diagnosis.intervals import stacked_mean_var
 from imudiag.diagnosis.robust import point_diagnostics
 from imudiag.diagnosis.scalar_fit import exact_fit, robust_exact_fit_and_plain
-from imudiag.diagnosis.session import blocks
 from imudiag.sim.trajectories import spread_up_directions
 
 _CHI2_1_MEDIAN = 0.454936423119572
@@ -32,20 +30,7 @@ _CHI2_1_MEDIAN = 0.454936423119572
 @pytest.fixture(scope="module")
 def xsens_intervals():
     """The still intervals of the real Xsens recording, as the diagnosis collects them."""
-    cert = load(LIKE_XSENS)
-    intervals = []
-    with blocks(XSENS) as (meta, stream):
-        collector = None
-        for block in stream:
-            if collector is None:
-                collector = IntervalCollector(
-                    cert,
-                    log_rate_hz(meta, block, cert),
-                    detector_options={"certificate_noise": False},
-                )
-            intervals.extend(collector.update(block))
-        assert collector is not None
-        intervals.extend(collector.flush())
+    intervals = collect_xsens_intervals(load(LIKE_XSENS))
     assert len(intervals) >= 24
     return intervals
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -47,20 +48,24 @@ def _intervals(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
-def _compare(
-    block: SampleBlock, cert: Certificate, seed: int, rate: float | None = None, **options: object
+def _feed_both(
+    block: SampleBlock,
+    cert: Certificate,
+    seed: int,
+    rate: float | None,
+    size: Callable[[np.random.Generator, int], int],
+    options: dict[str, object],
 ) -> np.ndarray:
-    """Feed ``block`` to both detectors in the same random blocks (1..500 samples); the
-    flags of every block must be equal. Returns the whole mask."""
+    """Feed ``block`` to the new and the frozen detector in the same blocks, of the sizes
+    ``size(rng, calls)`` draws; the flags of every block and the noise figures at the end
+    must be equal. Returns the whole mask."""
     new = QuasiStaticDetector(cert, rate, **options)  # type: ignore[arg-type]
     old = FrozenDetector(cert, rate, **options)  # type: ignore[arg-type]
     rng = np.random.default_rng(seed)
     n = len(block)
     out, start, calls = [], 0, 0
     while start < n:
-        # mostly daemon-sized reads and the monitor's batches, and any size up to 500
-        size = int(rng.choice([rng.integers(1, 501), rng.integers(1, 21), 250]))
-        part = block.slice(start, min(n, start + size))
+        part = block.slice(start, min(n, start + size(rng, calls)))
         a, b = new.update(part), old.update(part)
         assert a.dtype == b.dtype == bool and a.shape == b.shape == (len(part),)
         if not np.array_equal(a, b):
@@ -78,6 +83,19 @@ def _compare(
         if s_new is not None:
             assert np.array_equal(s_new, s_old)
     return np.concatenate(out)
+
+
+def _compare(
+    block: SampleBlock, cert: Certificate, seed: int, rate: float | None = None, **options: object
+) -> np.ndarray:
+    """Feed ``block`` to both detectors in the same random blocks (1..500 samples); the
+    flags of every block must be equal. Returns the whole mask."""
+
+    def size(rng: np.random.Generator, calls: int) -> int:
+        # mostly daemon-sized reads and the monitor's batches, and any size up to 500
+        return int(rng.choice([rng.integers(1, 501), rng.integers(1, 21), 250]))
+
+    return _feed_both(block, cert, seed, rate, size, options)
 
 
 CERT = load_default()
@@ -182,19 +200,25 @@ def test_noise_from_the_data_turntable_and_options():
     _compare(spun, CERT, 27)
 
 
+def drive(scenario: str, seconds: float = DRIVE_S) -> SampleBlock:
+    """A clean car drive of test_rest_without_aiding (seed 1, the bundled certificate's
+    rate, ``seconds`` long), simulated in 10 s steps."""
+    rate = float(CERT.sample_rate)
+    motion = scenario_motion(scenario, 1, {"length": str(seconds)})
+    total = motion.n_samples(rate)
+    sim = Simulator(CERT, None, [], 1)
+    chunk = int(10 * rate)
+    return SampleBlock.concat([
+        sim.step(motion.sample(rate, start, min(chunk, total - start)))
+        for start in range(0, total, chunk)
+    ])  # fmt: skip
+
+
 @pytest.mark.parametrize("scenario", ["urban", "highway", "hilly"])
 def test_simulated_drives(scenario):
     """The clean car drives of test_rest_without_aiding (seed 1, the certificate's rate)."""
     rate = float(CERT.sample_rate)
-    motion = scenario_motion(scenario, 1, {"length": str(DRIVE_S)})
-    total = motion.n_samples(rate)
-    sim = Simulator(CERT, None, [], 1)
-    chunk = int(10 * rate)
-    blocks = [
-        sim.step(motion.sample(rate, start, min(chunk, total - start)))
-        for start in range(0, total, chunk)
-    ]
-    mask = _compare(SampleBlock.concat(blocks), CERT, 31 + len(scenario), rate)
+    mask = _compare(drive(scenario), CERT, 31 + len(scenario), rate)
     assert len(_intervals(mask)) > 5  # stops and cruises, turns and accelerations between
 
 
@@ -288,45 +312,18 @@ def _compare_big(block: SampleBlock, cert: Certificate, seed: int, rate: float |
     """As :func:`_compare`, in blocks of 10^4..10^5 samples (a few daemon-sized reads
     between them, so the big blocks start anywhere in the rings; some streams start with a
     big block)."""
-    new = QuasiStaticDetector(cert, rate, **options)  # type: ignore[arg-type]
-    old = FrozenDetector(cert, rate, **options)  # type: ignore[arg-type]
-    rng = np.random.default_rng(seed)
-    n = len(block)
-    out, start, calls = [], 0, 0
-    while start < n:
-        size = int(rng.integers(10_000, 100_001) if (calls + seed) % 3 else rng.integers(1, 300))
-        part = block.slice(start, min(n, start + size))
-        a, b = new.update(part), old.update(part)
-        if not np.array_equal(a, b):
-            bad = np.flatnonzero(a != b)
-            raise AssertionError(
-                f"block {calls} (samples {start}..{start + len(part)}): flags differ at "
-                f"{(start + bad[:10]).tolist()}"
-            )
-        out.append(a)
-        start += len(part)
-        calls += 1
-    for name in ("gyro", "accel"):
-        s_new, s_old = new.noise_sigma(name), old.noise_sigma(name)
-        assert (s_new is None) == (s_old is None)
-        if s_new is not None:
-            assert np.array_equal(s_new, s_old)
-    return np.concatenate(out)
+
+    def size(rng: np.random.Generator, calls: int) -> int:
+        return int(rng.integers(10_000, 100_001) if (calls + seed) % 3 else rng.integers(1, 300))
+
+    return _feed_both(block, cert, seed, rate, size, options)
 
 
 @pytest.fixture(scope="module")
 def drive_block() -> SampleBlock:
     """The clean urban drive of test_simulated_drives (seed 1, 600 s at the certificate's
     rate): stops, cruises, turns and re-starts."""
-    rate = float(CERT.sample_rate)
-    motion = scenario_motion("urban", 1, {"length": str(DRIVE_S)})
-    total = motion.n_samples(rate)
-    sim = Simulator(CERT, None, [], 1)
-    chunk = int(10 * rate)
-    return SampleBlock.concat([
-        sim.step(motion.sample(rate, start, min(chunk, total - start)))
-        for start in range(0, total, chunk)
-    ])  # fmt: skip
+    return drive("urban")
 
 
 def _long_multiposition() -> SampleBlock:

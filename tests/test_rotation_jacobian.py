@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imudiag.certificate import load
+from imudiag.certificate import Certificate, load
 from imudiag.diagnosis.gauge import shape_of_triad
 from imudiag.diagnosis.gyro_fit import (
     ninv_derivatives,
@@ -22,7 +22,7 @@ from imudiag.diagnosis.gyro_fit import (
     stack_pairs,
 )
 from imudiag.diagnosis.inputs import log_rate_hz
-from imudiag.diagnosis.intervals import IntervalCollector
+from imudiag.diagnosis.intervals import IntervalCollector, QuasiStaticInterval
 from imudiag.diagnosis.session import blocks
 from imudiag.diagnosis.window import rotation_pairs
 from imudiag.rotations import (
@@ -58,11 +58,9 @@ def _central_jacobian(stack, shape_c, q_c, x, up0):
     return out
 
 
-@pytest.fixture(scope="module")
-def xsens_windows():
-    """Rotation pairs of windows of 24 consecutive intervals of the real Xsens recording
-    (the diagnosis's default window), every 8th window start."""
-    cert = load(LIKE_XSENS)
+def collect_xsens_intervals(cert: Certificate) -> list[QuasiStaticInterval]:
+    """The still intervals of the real Xsens recording, as the diagnosis collects them
+    (the detector measuring the data's noise)."""
     intervals = []
     with blocks(XSENS) as (meta, stream):
         collector = None
@@ -76,6 +74,15 @@ def xsens_windows():
             intervals.extend(collector.update(block))
         assert collector is not None
         intervals.extend(collector.flush())
+    return intervals
+
+
+@pytest.fixture(scope="module")
+def xsens_windows():
+    """Rotation pairs of windows of 24 consecutive intervals of the real Xsens recording
+    (the diagnosis's default window), every 8th window start."""
+    cert = load(LIKE_XSENS)
+    intervals = collect_xsens_intervals(cert)
     windows = []
     for start in range(0, max(1, len(intervals) - 23), 8):
         pairs = rotation_pairs(cert, cert.accel, intervals[start : start + 24])

@@ -30,9 +30,7 @@ from imudiag.monitor import Monitor
 from imudiag.quasistatic import DetectorPool, QuasiStaticDetector, SharedDetectorReader
 from imudiag.samples import SampleBlock
 from imudiag.sim import Effects, Fault, multi_position, simulate, still
-from imudiag.sim.scenarios import scenario_motion
-from imudiag.sim.simulator import Simulator
-from tests.test_detector_equivalence import _real
+from tests.test_detector_equivalence import _real, drive
 
 CERT = load_default()
 
@@ -43,18 +41,6 @@ def _bare(cert: Certificate) -> Certificate:
     out.gyro.noise = None
     out.accel.noise = None
     return out
-
-
-def _drive(seconds: float = 300.0) -> SampleBlock:
-    rate = float(CERT.sample_rate)
-    motion = scenario_motion("urban", 1, {"length": str(seconds)})
-    total = motion.n_samples(rate)
-    sim = Simulator(CERT, None, [], 1)
-    chunk = int(10 * rate)
-    return SampleBlock.concat([
-        sim.step(motion.sample(rate, start, min(chunk, total - start)))
-        for start in range(0, total, chunk)
-    ])  # fmt: skip
 
 
 STREAMS = {
@@ -68,7 +54,7 @@ STREAMS = {
             faults=[Fault("bias", "az", 20.0, 10.0 * float(CERT.accel.limits.bias[2]))],
         ).samples
     ),
-    "urban drive": _drive,
+    "urban drive": lambda: drive("urban", 300.0),
 }
 
 
