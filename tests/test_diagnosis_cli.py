@@ -174,3 +174,25 @@ def test_moving_base_without_magnitude_warns(faulty_log, imudiag_cli):
     r = imudiag_cli("diagnose", str(faulty_log[0]), "--method", "moving-base")
     assert r.returncode == 0
     assert "cannot see faults" in r.stderr
+
+
+def test_parameter_units_read_unambiguously():
+    """A scale-factor error's unit is output per input unit, each side in parentheses when
+    it is a quotient itself (``m/s^2/(m/s^2)`` would read as something else)."""
+    from imudiag.certificate import load
+    from imudiag.diagnosis.params import cause_unit, parameter_units
+
+    data = Path(__file__).parent / "data"
+    units = {
+        "default": parameter_units(load_default().accel),
+        "si in, si out": parameter_units(load(data / "diagnosis" / "like-imucal.yaml").accel),
+        "g in, g out": parameter_units(
+            load(data / "real" / "gnss-imu-drive" / "nominal-certificate.yaml").accel
+        ),
+    }
+    assert units["default"] == ("count",) * 3 + ("count/(m/s^2)",) * 3 + ("rad",) * 3
+    assert units["si in, si out"][3:6] == ("(m/s^2)/(m/s^2)",) * 3
+    assert units["g in, g out"][:6] == ("g",) * 3 + ("g/g",) * 3
+    assert cause_unit(load_default().gyro, "scale_factor") == "count/(deg/s)"
+    with pytest.raises(ValueError, match="f0"):
+        cause_unit(load_default().gyro, "f0")

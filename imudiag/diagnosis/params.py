@@ -25,14 +25,19 @@ def sensor_of(triad: str, index: int) -> str:
     return MISALIGNMENT_PAIRS[triad][index - 6]
 
 
+def _grouped(unit: str) -> str:
+    """``unit`` in parentheses when it is a quotient (``m/s^2``), as a side of another."""
+    return f"({unit})" if "/" in unit else unit
+
+
 def cause_unit(triad: TriadModel, cause: str) -> str:
     """The unit of a parameter of ``cause`` (spec/reports.md): a bias in the output unit, a
     scale-factor error in output per input unit, a misalignment difference in rad."""
     if cause == "bias":
         return triad.output_unit
-    if cause == "scale_factor":
-        per = triad.input_unit
-        return f"{triad.output_unit}/({per})" if "/" in per else f"{triad.output_unit}/{per}"
+    if cause == "scale_factor":  # count/(deg/s), (m/s^2)/(m/s^2), g/g
+        out, per = triad.output_unit, triad.input_unit
+        return f"{_grouped(out)}/{_grouped(per)}"
     if cause == "misalignment":
         return "rad"
     raise ValueError(f"no unit for cause {cause!r}")
