@@ -13,7 +13,6 @@ comparison with the default exact fit.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
@@ -34,6 +33,7 @@ from ..errors import BadInput
 from ..logs import DEFAULT_BLOCK_SIZE, open_log
 from ..logs.options import add_log_options, log_options
 from ..progress import for_command
+from ..reports import json_text
 from .gnss import add_gnss_arguments, check_gnss_options, moving_base_lines, moving_base_section
 from .noise import add_noise_argument, noise_lines
 
@@ -212,8 +212,9 @@ def load_certificate(path: str | None) -> Certificate:
 
 
 def write_json(report: dict, out: str) -> None:
-    """Write ``report`` to ``out`` ('-' for standard output)."""
-    text = json.dumps(report, indent=1, allow_nan=False)
+    """Write ``report`` to ``out`` ('-' for standard output); a value not determined (NaN)
+    is ``null``."""
+    text = json_text(report)
     if out == "-":
         sys.stdout.write(text + "\n")
         sys.stdout.flush()
