@@ -34,7 +34,13 @@ from ..logs import DEFAULT_BLOCK_SIZE, open_log
 from ..logs.options import add_log_options, log_options
 from ..progress import for_command
 from ..reports import json_text
-from .gnss import add_gnss_arguments, check_gnss_options, moving_base_lines, moving_base_section
+from .gnss import (
+    add_gnss_arguments,
+    check_gnss_options,
+    check_gnss_options_without_log_gnss,
+    moving_base_lines,
+    moving_base_section,
+)
 from .noise import add_noise_argument, noise_lines
 
 
@@ -304,10 +310,17 @@ def run(args: argparse.Namespace) -> int:
         )
     report["log"] = str(args.log)
     noise_report = report["noise"]
-    if args.gnss:
+    if args.gnss not in (None, "none"):
         with open_log(args.log, block_size=args.block_size, options=log_options(args)) as reader:
-            kept = list(reader)
-        report["moving_base"] = moving_base_section(args, kept, cert, report["sample_rate"])
+            fixes = reader.gnss()
+            # a log without GNSS of its own reads once (--gnss auto on a CSV: no section)
+            kept = list(reader) if fixes is not None or args.gnss not in ("auto",) else []
+        if kept:
+            section = moving_base_section(args, kept, cert, report["sample_rate"], fixes)
+            if section is not None:
+                report["moving_base"] = section
+        elif args.gnss == "auto":
+            check_gnss_options_without_log_gnss(args)
     if trace is not None:
         from ..plots.diagnosis import write_diagnosis_plots
 
