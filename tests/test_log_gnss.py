@@ -148,3 +148,17 @@ def test_ulog_gps_against_pyulog_and_its_clock_fit():
     # the real board's clock against its receiver's UTC: 499 ppm, 3.7 ms rms residual
     assert abs(clock.rate - 1.000499) < 2e-6
     assert clock.residual_rms_s < 0.005
+
+
+def test_the_library_takes_gnss_too(log2014, session):
+    import imudiag
+
+    rep = imudiag.diagnose(log2014, str(SI_CERT), gnss="log", windows=False)
+    assert abs(rep["moving_base"]["gnss"]["clock"]["rate"] - SLOW) < 2e-5
+    assert "moving_base" not in imudiag.diagnose(log2014, str(SI_CERT), gnss="none")
+    # samples in memory with the log's fixes: tied the same way
+    with open_log(log2014) as r:
+        fixes = r.gnss()
+    block = read_log(log2014)
+    rep = imudiag.diagnose(block, str(SI_CERT), gnss=fixes, windows=False)
+    assert rep["moving_base"]["gnss"]["clock"]["fixes"] == len(fixes)

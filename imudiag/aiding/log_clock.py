@@ -216,6 +216,44 @@ def moving_base_for_recording(
     return section
 
 
+def gnss_section_of(
+    data: object,
+    cert: object,
+    gnss: object = "auto",
+    cfg: object = None,
+    rate_hz: float | None = None,
+    options: object = None,
+    block_size: int | None = None,
+) -> dict | None:
+    """The ``moving_base`` section of a recording, or None (no GNSS): ``data`` a log's
+    path (read again, with its own GNSS fixes) or a :class:`~imudiag.samples.SampleBlock`;
+    ``gnss`` as :func:`moving_base_for_recording`, or a
+    :class:`~imudiag.logs.gnss_fixes.GnssFixes` (fixes of the samples' clock, tied as a
+    log's own)."""
+    from ..logs import DEFAULT_BLOCK_SIZE, open_log
+
+    if gnss is None or gnss == "none":
+        return None
+    fixes: GnssFixes | None = None
+    if isinstance(gnss, GnssFixes):
+        fixes, gnss = gnss, "log"
+    if isinstance(data, SampleBlock):
+        block, where = data, "(samples)"
+    else:
+        where = str(data)
+        with open_log(data, block_size=block_size or DEFAULT_BLOCK_SIZE, options=options) as r:  # type: ignore[arg-type]
+            fixes = fixes or r.gnss()
+            if gnss == "auto" and fixes is None:
+                return None  # a log without GNSS of its own: read once only
+            blocks = list(r)
+        block = SampleBlock(
+            t=np.concatenate([b.t for b in blocks]),
+            gyro=np.concatenate([b.gyro for b in blocks]),
+            accel=np.concatenate([b.accel for b in blocks]),
+        )
+    return moving_base_for_recording(block, cert, gnss, fixes, cfg, rate_hz, where=where)
+
+
 __all__ = [
     "GNSS_CHOICES",
     "MAX_RESIDUAL_S",
@@ -223,6 +261,7 @@ __all__ = [
     "ClockMap",
     "block_in_gnss_time",
     "fit_clock",
+    "gnss_section_of",
     "moving_base_for_recording",
     "track_of_fixes",
 ]

@@ -30,14 +30,13 @@ from ..diagnosis.config import GYRO_MODES, METHODS, DiagnosisConfig
 from ..diagnosis.known_rate import parse_known_rate
 from ..diagnosis.session import DiagnosisTrace, diagnose_recording
 from ..errors import BadInput
-from ..logs import DEFAULT_BLOCK_SIZE, open_log
+from ..logs import DEFAULT_BLOCK_SIZE
 from ..logs.options import add_log_options, log_options
 from ..progress import for_command
 from ..reports import json_text
 from .gnss import (
     add_gnss_arguments,
     check_gnss_options,
-    check_gnss_options_without_log_gnss,
     moving_base_lines,
     moving_base_section,
 )
@@ -310,17 +309,9 @@ def run(args: argparse.Namespace) -> int:
         )
     report["log"] = str(args.log)
     noise_report = report["noise"]
-    if args.gnss not in (None, "none"):
-        with open_log(args.log, block_size=args.block_size, options=log_options(args)) as reader:
-            fixes = reader.gnss()
-            # a log without GNSS of its own reads once (--gnss auto on a CSV: no section)
-            kept = list(reader) if fixes is not None or args.gnss not in ("auto",) else []
-        if kept:
-            section = moving_base_section(args, kept, cert, report["sample_rate"], fixes)
-            if section is not None:
-                report["moving_base"] = section
-        elif args.gnss == "auto":
-            check_gnss_options_without_log_gnss(args)
+    section = moving_base_section(args, cert, report["sample_rate"])
+    if section is not None:
+        report["moving_base"] = section
     if trace is not None:
         from ..plots.diagnosis import write_diagnosis_plots
 

@@ -5,13 +5,9 @@ from __future__ import annotations
 import argparse
 import math
 
-import numpy as np
-
 from ..argtypes import finite_float, positive_float
 from ..certificate import Certificate
 from ..errors import BadInput
-from ..logs.gnss_fixes import GnssFixes
-from ..samples import SampleBlock
 
 
 def add_gnss_arguments(p: argparse.ArgumentParser) -> None:
@@ -117,27 +113,21 @@ def moving_config(args: argparse.Namespace) -> object:
     )
 
 
-def moving_base_section(
-    args: argparse.Namespace,
-    blocks: list[SampleBlock],
-    cert: Certificate,
-    rate_hz: float,
-    fixes: GnssFixes | None = None,
-) -> dict | None:
-    """Run the moving-base diagnosis over the collected blocks (None: no GNSS to run it
-    with). ``fixes``: the log's own GNSS (``reader.gnss()``), for ``--gnss auto|log``."""
-    from ..aiding.log_clock import moving_base_for_recording
+def moving_base_section(args: argparse.Namespace, cert: Certificate, rate_hz: float) -> dict | None:
+    """The moving-base section of ``diagnose``'s report (None: no GNSS to run it with):
+    the log read again, with its own GNSS fixes for ``--gnss auto|log``."""
+    from ..aiding.log_clock import gnss_section_of
+    from ..logs.options import log_options
 
-    block = SampleBlock(
-        t=np.concatenate([b.t for b in blocks]),
-        gyro=np.concatenate([b.gyro for b in blocks]),
-        accel=np.concatenate([b.accel for b in blocks]),
-    )
-    if args.gnss == "auto" and (fixes is None or len(fixes) == 0):
+    if args.gnss == "auto" and not log_may_hold_gnss(args.log):
+        return None
+    section = gnss_section_of(
+        args.log, cert, args.gnss, moving_config(args), rate_hz, log_options(args),
+        args.block_size,
+    )  # fmt: skip
+    if section is None:
         check_gnss_options_without_log_gnss(args)
-    return moving_base_for_recording(
-        block, cert, args.gnss, fixes, moving_config(args), rate_hz, where=str(args.log)
-    )
+    return section
 
 
 def _with_unit(f: dict) -> str:

@@ -27,6 +27,15 @@ ACCEL_UNITS = ("m/s^2", "g", "count")
 COLUMN_NAMES = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
 GYRO_COLUMNS = ("gx", "gy", "gz")
 
+#: The ROS 2 distribution whose message definitions read a bag that stores none and
+#: does not say its own (``--ros-distro``): the current LTS, Lyrical Luth (May 2026).
+#: sensor_msgs/Imu, NavSatFix and the geometry_msgs velocities are the same since Foxy.
+DEFAULT_ROS_DISTRO = "lyrical"
+#: ROS 2 distributions rosbags has message definitions of (``--ros-distro``).
+ROS2_DISTROS = (
+    "dashing", "eloquent", "foxy", "galactic", "humble", "iron", "jazzy", "kilted", "lyrical",
+)  # fmt: skip
+
 
 @dataclass
 class LogOptions:
@@ -196,8 +205,6 @@ def log_options(args: argparse.Namespace) -> LogOptions:
 
 def parse_ros_distro(text: str, where: str = "--ros-distro") -> str:
     """A ROS 2 distribution's name, lower case (foxy, humble, ...); raises BadInput."""
-    from .rosbag import ROS2_DISTROS
-
     name = str(text).strip().lower()
     if name not in ROS2_DISTROS:
         raise BadInput(f"{where}: unknown ROS 2 distribution {text!r}; expected one of "

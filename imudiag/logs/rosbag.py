@@ -26,7 +26,7 @@ from ..samples import SampleBlock
 from .base import DEFAULT_BLOCK_SIZE, LogError, LogReader, first_violation, make_block
 from .extras import MissingExtra, require
 from .gnss_fixes import GnssFixes
-from .options import LogOptions
+from .options import DEFAULT_ROS_DISTRO, ROS2_DISTROS, LogOptions
 
 #: The message type read (rosbags' name, ROS 1 and ROS 2 alike).
 IMU_TYPE = "sensor_msgs/msg/Imu"
@@ -36,14 +36,6 @@ ROSBAG1_MAGIC = b"#ROSBAG V2.0"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 #: First bytes of a SQLite 3 database (a ROS 2 ``.db3``).
 SQLITE_MAGIC = b"SQLite format 3\x00"
-#: The ROS 2 distribution whose message definitions read a bag that stores none and
-#: does not say its own (``--ros-distro``): the current LTS, Lyrical Luth (May 2026).
-#: sensor_msgs/Imu, NavSatFix and the geometry_msgs velocities are the same since Foxy.
-DEFAULT_ROS_DISTRO = "lyrical"
-#: ROS 2 distributions rosbags has message definitions of (``--ros-distro``).
-ROS2_DISTROS = (
-    "dashing", "eloquent", "foxy", "galactic", "humble", "iron", "jazzy", "kilted", "lyrical",
-)  # fmt: skip
 #: The GNSS messages read from a bag: fixes, and velocities (ENU, REP 103) matched to them.
 NAVSATFIX_TYPE = "sensor_msgs/msg/NavSatFix"
 VELOCITY_TYPES = (
