@@ -116,11 +116,11 @@ def moving_config(args: argparse.Namespace) -> object:
 def moving_base_section(args: argparse.Namespace, cert: Certificate, rate_hz: float) -> dict | None:
     """The moving-base section of ``diagnose``'s report (None: no GNSS to run it with):
     the log read again, with its own GNSS fixes for ``--gnss auto|log``."""
+    if args.gnss == "auto" and not log_may_hold_gnss(args.log):
+        return None  # a CSV: the aiding code is not even imported
     from ..aiding.log_clock import gnss_section_of
     from ..logs.options import log_options
 
-    if args.gnss == "auto" and not log_may_hold_gnss(args.log):
-        return None
     section = gnss_section_of(
         args.log, cert, args.gnss, moving_config(args), rate_hz, log_options(args),
         args.block_size,
