@@ -222,7 +222,8 @@ def _pair(g: np.ndarray, a: np.ndarray) -> dict[str, np.ndarray] | None:
     j = np.clip(np.searchsorted(a[:, 0], g[:, 0]), 1, a.shape[0] - 1)
     near = np.minimum(np.abs(a[j, 0] - g[:, 0]), np.abs(a[j - 1, 0] - g[:, 0]))
     bridge = a[j, 0] - a[j - 1, 0]
-    keep = (near <= 1.5 * step) & (bridge <= 1.5 * step) & (g[:, 0] >= a[0, 0])
+    on_sample = near <= 1e-9  # a gyro sample at an accelerometer sample's time
+    keep = (on_sample | ((near <= 1.5 * step) & (bridge <= 1.5 * step))) & (g[:, 0] >= a[0, 0])
     keep &= g[:, 0] <= a[-1, 0]
     if keep.sum() < 2:
         return None
