@@ -45,8 +45,32 @@ VELOCITY_TYPES = (
 )
 
 
+class _PlainReader:
+    """rosbags' ROS 2 reader with a typestore for a bag that stores no definitions: the
+    reader interface the IMU and GNSS reads use (connections, messages, deserialize)."""
+
+    def __init__(self, reader: Any, store: Any) -> None:
+        self.reader, self.store = reader, store
+        self.connections = reader.connections
+
+    def messages(self, connections: Any = ()) -> Any:
+        return self.reader.messages(connections=connections)
+
+    def deserialize(self, raw: bytes, msgtype: str) -> Any:
+        try:
+            return self.store.deserialize_cdr(raw, msgtype)
+        except KeyError:
+            raise LogError(
+                str(self.reader.path), f"no definition of {msgtype} in the typestore"
+            ) from None
+
+    def close(self) -> None:
+        self.reader.close()
+
+
 def typestore_for(distro: str | None, where: str) -> Any:
-    """rosbags' typestore of a ROS 2 distribution (None: :data:`DEFAULT_ROS_DISTRO`)."""
+    """rosbags' typestore of a ROS 2 distribution (None: :data:`DEFAULT_ROS_DISTRO`), built
+    once per distribution."""
     typesys = require("rosbags.typesys", "ros", "ROS bags")
     name = (distro or DEFAULT_ROS_DISTRO).lower()
     store = getattr(typesys.Stores, f"ROS2_{name.upper()}", None)
@@ -57,7 +81,12 @@ def typestore_for(distro: str | None, where: str) -> Any:
             f"(known: {', '.join(ROS2_DISTROS)}; an older rosbags may lack the newest: "
             "pip install -U rosbags)",
         )
-    return typesys.get_typestore(store)
+    if name not in _STORES:
+        _STORES[name] = typesys.get_typestore(store)
+    return _STORES[name]
+
+
+_STORES: dict[str, Any] = {}
 
 
 def sqlite_distro(db3: Path) -> str | None:
@@ -168,7 +197,17 @@ class RosbagReader(LogReader):
         return typestore_for(distro, self.path)
 
     def _open_bag(self) -> Any:
+        """An open reader of the bag: rosbags' own ROS 2 reader with the distribution's
+        typestore for a bag that stores no definitions (the typestore built once), else
+        rosbags' AnyReader with the bag's own definitions."""
         try:
+            if self._store is not None:
+                rosbag2 = require("rosbags.rosbag2", "ros", "ROS bags")
+                plain = rosbag2.Reader(self._bag)
+                plain.open()
+                if all(not c.msgdef.data for c in plain.connections):
+                    return _PlainReader(plain, self._store)
+                plain.close()
             reader = self._anyreader([self._bag], default_typestore=self._store)
             reader.open()
         except MissingExtra:
