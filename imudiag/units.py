@@ -15,6 +15,7 @@ physical input, so counts against physical units is refused, never guessed.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
@@ -129,6 +130,24 @@ class Conversion:
 
 NO_CONVERSION = Conversion({})
 
+_UNIT_ITEM = re.compile(r"(gyro|accel)\s*=\s*(\S+)")
+
+
+def stated_units(value: Any) -> dict[str, str]:
+    """``{"gyro": unit, "accel": unit}`` from a log's ``units`` metadata: a mapping or text
+    such as ``gyro=deg/s accel=g`` (either may be absent)."""
+    if isinstance(value, Mapping):
+        return {str(k): str(v) for k, v in value.items() if k in TRIADS}
+    return {m.group(1): m.group(2).strip(",;") for m in _UNIT_ITEM.finditer(str(value))}
+
+
+def conform_meta(meta: Mapping[str, Any], cert: Certificate, where: str) -> Conversion:
+    """:func:`conform` for a log or source whose metadata may state ``units``
+    (nothing stated: the certificate's units are assumed, as before)."""
+    if meta.get("units") is None:
+        return NO_CONVERSION
+    return conform(stated_units(meta["units"]), cert, where)
+
 
 def conform(stated: Mapping[str, str], cert: Certificate, where: str) -> Conversion:
     """The conversion from the ``stated`` units (triad -> unit; a triad not stated is
@@ -182,7 +201,9 @@ __all__ = [
     "Conversion",
     "canonical",
     "conform",
+    "conform_meta",
     "factor",
     "is_physical",
+    "stated_units",
     "units_of",
 ]

@@ -116,3 +116,24 @@ def test_headerless_table_in_ms_g_degs_diagnoses_as_the_si_log(tmp_path: Path) -
     ]
     assert g["f0"] == si["f0"]
     assert len(g["windows"]) == len(si["windows"])
+
+
+def test_model_check_converts_and_refuses_like_diagnose() -> None:
+    """The model check reads logs through the same conversion (it had no unit check)."""
+    from imudiag.modelcheck import model_check
+
+    cert = load_certificate(LIKE_IMUCAL)  # deg/s and m/s^2
+    n = 200
+    block = SampleBlock(
+        t=np.arange(n) / 100.0,
+        gyro=np.zeros((n, 3)),
+        accel=np.tile([0.0, 0.0, 1.0], (n, 1)),
+        meta={"units": "gyro=deg/s accel=g"},
+    )
+    report = model_check(block, cert).report
+    assert report["unit_conversion"] == [
+        {"triad": "accel", "from": "g", "to": "m/s^2", "factor": 9.80665}
+    ]
+    block.meta["units"] = "gyro=count accel=g"
+    with pytest.raises(BadInput, match="output_unit is 'deg/s'"):
+        model_check(block, cert)

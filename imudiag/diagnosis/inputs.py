@@ -12,7 +12,6 @@
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import Any
 
@@ -21,26 +20,14 @@ import numpy as np
 from ..certificate import Certificate
 from ..errors import BadInput
 from ..samples import SampleBlock
-from ..units import NO_CONVERSION, Conversion, conform
-
-_UNIT_ITEM = re.compile(r"(gyro|accel)\s*=\s*(\S+)")
-
-
-def parse_units(text: Any) -> dict[str, str]:
-    """``{"gyro": unit, "accel": unit}`` from a ``units`` metadata value (either may be absent)."""
-    if isinstance(text, dict):
-        return {k: str(v) for k, v in text.items() if k in ("gyro", "accel")}
-    return {m.group(1): m.group(2).strip(",;") for m in _UNIT_ITEM.finditer(str(text))}
+from ..units import Conversion, conform_meta
 
 
 def check_units(log_path: str, meta: dict[str, Any], cert: Certificate) -> Conversion:
     """The exact conversion from the log's stated output units (its ``units`` metadata) to
-    the certificate's (:func:`imudiag.units.conform`): identity when they agree or the log
-    states none; raises BadInput naming both when they cannot be converted (counts against
-    physical units)."""
-    if "units" not in meta:
-        return NO_CONVERSION
-    return conform(parse_units(meta["units"]), cert, log_path)
+    the certificate's (:func:`imudiag.units.conform_meta`): identity when they agree or the
+    log states none; raises BadInput naming both when they cannot be converted."""
+    return conform_meta(meta, cert, log_path)
 
 
 def log_rate_hz(meta: dict[str, Any], first: SampleBlock | None, cert: Certificate) -> float:
@@ -117,4 +104,4 @@ def write_magnitudes(path: str | Path, t: np.ndarray, accel: np.ndarray, gyro: n
     np.savetxt(path, data, delimiter=",", header="t,accel,gyro", comments="", fmt="%.9g")
 
 
-__all__ = ["check_units", "parse_units", "log_rate_hz", "MagnitudeTable", "write_magnitudes"]
+__all__ = ["check_units", "log_rate_hz", "MagnitudeTable", "write_magnitudes"]
