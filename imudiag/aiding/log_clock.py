@@ -21,6 +21,7 @@ import numpy as np
 from ..errors import BadInput
 from ..logs.gnss_fixes import GnssFixes
 from ..samples import SampleBlock
+from ..units import conform_meta
 from .tpv import GnssTrack
 
 #: Fewest fixes with both times for a fit (offset and rate, and a residual to judge).
@@ -245,7 +246,8 @@ def gnss_section_of(
             fixes = fixes or r.gnss()
             if gnss == "auto" and fixes is None:
                 return None  # a log without GNSS of its own: read once only
-            blocks = list(r)
+            to_cert = conform_meta(r.meta, cert, where)  # type: ignore[arg-type]
+            blocks = [to_cert.apply(b) for b in r]  # in the certificate's units
         block = SampleBlock(
             t=np.concatenate([b.t for b in blocks]),
             gyro=np.concatenate([b.gyro for b in blocks]),
