@@ -81,6 +81,7 @@ class DataFlashReader(ColumnsReader):
         batches: dict[int, dict[str, Any]] = {}
         gps: list[tuple[float, ...]] = []
         gpa: dict[float, float] = {}
+        self.gps_unread = 0  #: GPS messages of a layout without boot time, speed or course
         try:
             log = dfreader.DFReader_binary(self.path, zero_time_base=True)
             while True:
@@ -106,7 +107,12 @@ class DataFlashReader(ColumnsReader):
                     if int(m.N) in batches:
                         batches[int(m.N)]["data"].append((int(m.seqno), m.x, m.y, m.z))
                 elif name == "GPS" and int(getattr(m, "I", 0)) == 0:
-                    gps.append(self._gps_row(m))
+                    try:  # a GPS layout without these fields gives no fixes, not an error
+                        gps.append(self._gps_row(m))
+                    except (AttributeError, TypeError, ValueError):
+                        self.meta["gps_messages_unread"] = (
+                            self.meta.get("gps_messages_unread", 0) + 1
+                        )
                 elif name == "GPA" and int(getattr(m, "I", 0)) == 0:
                     gpa[boot_s(m)] = float(getattr(m, "SAcc", np.nan))
         except LogError:
