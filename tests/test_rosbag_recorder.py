@@ -180,16 +180,18 @@ def write_recorder_bag(folder: Path, session, distro: str) -> Path:
     return folder
 
 
-@pytest.fixture(scope="module", params=["foxy", "humble"])
-def bag(request, tmp_path_factory, session):
-    return write_recorder_bag(
-        tmp_path_factory.mktemp(request.param) / "rosbag2_2021_03_01", session, request.param
-    )
-
-
 @pytest.fixture(scope="module")
-def foxy_bag(tmp_path_factory, session):
-    return write_recorder_bag(tmp_path_factory.mktemp("cmd") / "rosbag2_foxy", session, "foxy")
+def bags(tmp_path_factory, session):
+    """The same session as a Foxy and as a Humble recorder writes it."""
+    return {
+        d: write_recorder_bag(tmp_path_factory.mktemp(d) / "rosbag2_2021_03_01", session, d)
+        for d in ("foxy", "humble")
+    }
+
+
+@pytest.fixture(params=["foxy", "humble"])
+def bag(request, bags):
+    return bags[request.param]
 
 
 def _same(got, s):
@@ -199,9 +201,20 @@ def _same(got, s):
     np.testing.assert_allclose(got.accel, s.accel, rtol=1e-12)
 
 
-@pytest.mark.parametrize("which", ["folder", "db3"])
-@pytest.mark.parametrize("topic", [None, "/imu/data"])
-def test_a_recorder_bag_without_definitions_reads_from_folder_or_db3(bag, session, which, topic):
+@pytest.mark.parametrize(
+    ("distro", "which", "topic"),
+    [
+        ("foxy", "folder", None),
+        ("foxy", "folder", "/imu/data"),
+        ("foxy", "db3", None),
+        ("foxy", "db3", "/imu/data"),
+        ("humble", "db3", None),
+    ],
+)
+def test_a_recorder_bag_without_definitions_reads_from_folder_or_db3(
+    bags, session, distro, which, topic
+):
+    bag = bags[distro]
     path = bag if which == "folder" else next(bag.glob("*.db3"))
     with open_log(path, options=LogOptions(topic=topic)) as r:
         got = read_log_of(r)
@@ -226,17 +239,16 @@ def test_the_distribution_comes_from_the_bag_else_the_option(bag, tmp_path):
             assert r.meta["ros_distro"] == "foxy (--ros-distro)"
 
 
-def test_a_lone_db3_without_its_metadata_reads(bag, session, tmp_path):
+def test_a_lone_db3_without_its_metadata_reads(bags, session, tmp_path):
+    bag = bags["humble"]
     db = tmp_path / "copy.db3"
     shutil.copy(next(bag.glob("*.db3")), db)
     with open_log(db) as r:
         _same(read_log_of(r), session)
 
 
-def test_every_command_reads_the_bag_and_no_library_hint_reaches_the_user(
-    foxy_bag, tmp_path, capsys
-):
-    bag = foxy_bag
+def test_every_command_reads_the_bag_and_no_library_hint_reaches_the_user(bags, tmp_path, capsys):
+    bag = bags["foxy"]
     db = next(bag.glob("*.db3"))
     out = tmp_path / "bag.csv"
     assert main(["convert", str(db), str(out), "--topic", "/imu/data"]) == 0
@@ -253,7 +265,8 @@ def test_every_command_reads_the_bag_and_no_library_hint_reaches_the_user(
     assert "--ros-distro: unknown ROS 2 distribution 'melodic'" in capsys.readouterr().err
 
 
-def test_navsatfix_and_velocity_are_the_bags_gnss(bag):
+def test_navsatfix_and_velocity_are_the_bags_gnss(bags):
+    bag = bags["foxy"]
     with open_log(bag) as r:
         g = r.gnss()
     assert g is not None and len(g) == 29
