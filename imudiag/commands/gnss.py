@@ -68,9 +68,7 @@ def parse_lever_arm(text: str | None) -> tuple[float, float, float] | None:
 def check_gnss_options(args: argparse.Namespace) -> None:
     """Validate the options before the log is read."""
     if getattr(args, "gnss", None) in (None, "none"):
-        for opt in ("lever_arm", "gnss_latency"):
-            if getattr(args, opt, None) is not None:
-                raise BadInput(f"--{opt.replace('_', '-')}: needs GNSS (--gnss auto, log or FILE)")
+        _refuse_gnss_options(args, "needs GNSS (--gnss auto, log or FILE)")
         return
     if args.gnss == "auto" and not log_may_hold_gnss(args.log):
         check_gnss_options_without_log_gnss(args)
@@ -93,11 +91,14 @@ def log_may_hold_gnss(path: str) -> bool:
 
 def check_gnss_options_without_log_gnss(args: argparse.Namespace) -> None:
     """``--gnss auto`` on a log without GNSS of its own: the GNSS options are an error."""
+    _refuse_gnss_options(args, "needs --gnss FILE (the log holds no GNSS of its own)")
+
+
+def _refuse_gnss_options(args: argparse.Namespace, why: str) -> None:
+    """BadInput naming the first GNSS option given (``--lever-arm``, ``--gnss-latency``)."""
     for opt in ("lever_arm", "gnss_latency"):
         if getattr(args, opt, None) is not None:
-            raise BadInput(
-                f"--{opt.replace('_', '-')}: needs --gnss FILE (the log holds no GNSS of its own)"
-            )
+            raise BadInput(f"--{opt.replace('_', '-')}: {why}")
 
 
 def moving_config(args: argparse.Namespace) -> object:
