@@ -162,3 +162,37 @@ def test_the_library_takes_gnss_too(log2014, session):
     block = read_log(log2014)
     rep = imudiag.diagnose(block, str(SI_CERT), gnss=fixes, windows=False)
     assert rep["moving_base"]["gnss"]["clock"]["fixes"] == len(fixes)
+
+
+def test_a_fitted_clock_avoids_the_false_fault_a_constant_offset_raises():
+    # a simulated clean urban drive (imudiag.sim.drive) whose IMU and GPS messages are
+    # stamped by a boot clock 8.3 % slow, the fixes also carrying GPS time, as a
+    # flight controller logs them: tied by the fitted offset and rate, nothing is raised;
+    # tied by a constant offset (the old way: both clocks taken as UTC), the GNSS
+    # accelerations are 8.3 % off and a false accelerometer scale-factor fault appears
+    from dataclasses import replace
+
+    from imudiag.aiding.log_clock import moving_base_for_recording
+    from imudiag.aiding.tpv import parse_tpv, track_from_reports
+    from imudiag.certificate import load_default
+    from imudiag.logs.gnss_fixes import GnssFixes
+    from imudiag.sim.drive import simulate_drive
+
+    cert = load_default()
+    res, reports, _ = simulate_drive("urban", 300.0, cert, seed=11)
+    tr = track_from_reports([parse_tpv(r) for r in reports])
+    boot0 = res.samples.t[0] - 20.0  # the board booted 20 s before the drive
+    samples = replace(res.samples, t=(res.samples.t - boot0) / SLOW)
+    fixes = GnssFixes(
+        t_log=(tr.t - boot0) / SLOW, t_gnss=tr.t, lat_deg=tr.lat_deg, lon_deg=tr.lon_deg,
+        alt_m=tr.alt_m, vel_ned=tr.vel_ned, eps=tr.eps, mode=tr.mode, status=tr.status,
+        source="simulated GPS messages", clock="GPS time of each fix",
+    )  # fmt: skip
+    tied = moving_base_for_recording(samples, cert, "log", fixes, rate_hz=100.0 / SLOW)
+    assert tied["gnss"]["clock"]["rate"] == pytest.approx(SLOW, abs=1e-9)
+    assert tied["verdict"] == "ok" and tied["faults"] == []
+    offset = tr.t[0] - fixes.t_log[0]
+    shifted = replace(samples, t=samples.t + offset)
+    mis = moving_base_for_recording(shifted, cert, tr, None, rate_hz=100.0)
+    assert mis["verdict"] == "fault"
+    assert [(f["sensor"], f["cause"]) for f in mis["faults"]] == [("ax", "scale_factor")]
