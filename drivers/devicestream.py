@@ -156,7 +156,7 @@ class Timeline:
         first = self._last is None
         prev = np.empty(n, np.int64)
         prev[1:] = tk[:-1]
-        prev[0] = tk[0] if first else self._last
+        prev[0] = int(tk[0]) if self._last is None else self._last
         d = tk - prev
         if self.modulus:
             half = self.modulus // 2

@@ -443,14 +443,13 @@ class ISensorSource(DeviceSerialSource):
             rang = self._answer("read 5E", 1)[0]
             serial = self._answer("read 74", 1)[0]
             firm = self._answer("read 6C", 1)[0]
-        else:
-            prod_id = self._answer("read 7E", 1)[0]  # the ADIS1649x keep PROD_ID at page 0 0x7E
-            if prod_id == 16495:
-                self._cli("write 0 3")
-                firm = self._answer("read 78", 1)[0]
-                self._cli("write 0 4")
-                serial = self._answer("read 20", 1)[0]
-                self._cli("write 0 0")
+        elif self._answer("read 7E", 1)[0] == 16495:  # the ADIS1649x: PROD_ID at page 0 0x7E
+            prod_id = 16495
+            self._cli("write 0 3")
+            firm = self._answer("read 78", 1)[0]
+            self._cli("write 0 4")
+            serial = self._answer("read 20", 1)[0]
+            self._cli("write 0 0")
         model = model_from_registers(prod_id, rang, self.wanted_model)
         dec.set_model(model)
         dec.device_info.update(
