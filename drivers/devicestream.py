@@ -30,6 +30,7 @@ from .base import SourceError, SourceURL
 from .serial_port import SerialSource
 from .wire import Counters
 
+_FEW = 32  #: blocks of at most this many samples take the plain-Python timeline path
 #: device_info keys every device source fills (None where the device does not say)
 IDENTITY_KEYS = ("vendor", "product", "serial", "firmware", "datasheet")
 
@@ -149,6 +150,8 @@ class Timeline:
 
     def place(self, ticks: np.ndarray, counters: Counters) -> tuple[np.ndarray, np.ndarray]:
         """``keep`` (N,) bool and the times, s, of the kept samples; updates the counters."""
+        if len(ticks) <= _FEW:
+            return self._place_few(ticks, counters)
         tk = np.asarray(ticks, dtype=np.int64)
         n = tk.shape[0]
         if n == 0:
@@ -175,17 +178,17 @@ class Timeline:
             self._started = True
         elif first:  # re-anchored: one normal interval after the last sample
             dt[0] = self._last_dt
+        nominal = self.nominal_dt_s
+        if nominal:  # before the restarts get their stand-in interval: a restart loses nothing
+            k = dt / nominal
+            gaps = k[k > 1.5]
+            if gaps.size:
+                counters.lost += int(np.sum(np.rint(gaps) - 1))
         back = np.flatnonzero(dt < 0)
         if back.size:
             self.restarts += int(back.size)
             for r in back.tolist():
                 dt[r] = dt[r - 1] if r > 0 and dt[r - 1] > 0 else self._last_dt
-        nominal = self.nominal_dt_s
-        if nominal:
-            k = dt / nominal
-            gaps = k[k > 1.5]
-            if gaps.size:
-                counters.lost += int(np.sum(np.rint(gaps) - 1))
         t = self._t + np.cumsum(dt)
         kept_ticks = tk[keep]
         self._last = int(kept_ticks[-1])
@@ -195,6 +198,46 @@ class Timeline:
             self._last_dt = float(positive[-1])
         return keep, t
 
+    def _place_few(self, ticks: Any, counters: Counters) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`place` for a daemon's read (a few samples) in plain Python: the same
+        rules, without the fixed cost of a dozen numpy calls."""
+        tl = ticks.tolist() if isinstance(ticks, np.ndarray) else list(ticks)
+        keep = [True] * len(tl)
+        times: list[float] = []
+        last, t, last_dt = self._last, self._t, self._last_dt
+        tick, mod, nominal = self.tick_s, self.modulus, self.nominal_dt_s
+        half = mod // 2 if mod else 0
+        for i, tk in enumerate(tl):
+            if last is None:
+                if self._started:  # re-anchored: one normal interval after the last sample
+                    t += last_dt
+                else:
+                    t = 0.0 if self.origin_first else tk * tick
+                    self._started = True
+                last = tk
+                times.append(t)
+                continue
+            d = tk - last
+            if mod:
+                d = ((d + half) % mod) - half
+            if d == 0:
+                keep[i] = False
+                counters.duplicates += 1
+                continue
+            dt = d * tick
+            if dt < 0:
+                self.restarts += 1
+                dt = last_dt
+            elif nominal and dt > 1.5 * nominal:
+                counters.lost += round(dt / nominal) - 1
+            t += dt
+            last = tk
+            if dt > 0:
+                last_dt = dt
+            times.append(t)
+        self._last, self._t, self._last_dt = last, t, last_dt
+        return np.array(keep, dtype=bool), np.array(times, dtype=np.float64)
+
 
 def saturation_flags(
     gyro_raw: np.ndarray, accel_raw: np.ndarray, lo: int, hi: int, flags: np.ndarray
@@ -202,6 +245,9 @@ def saturation_flags(
     """``flags`` with the saturation bits set where a raw output sits at ``lo`` or ``hi``."""
     from imudiag.samples import FLAG_ACCEL_SATURATED, FLAG_GYRO_SATURATED
 
+    inside = lo < gyro_raw.min() and gyro_raw.max() < hi
+    if inside and lo < accel_raw.min() and accel_raw.max() < hi:
+        return flags.astype(np.uint16)  # the common case: nothing at full scale
     g = ((gyro_raw <= lo) | (gyro_raw >= hi)).any(axis=1)
     a = ((accel_raw <= lo) | (accel_raw >= hi)).any(axis=1)
     out = flags.astype(np.uint16)

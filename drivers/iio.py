@@ -176,21 +176,39 @@ class IIORecordDecoder(DeviceDecoder):
         self.rate_hz: float | None = None
         self.timeline = Timeline(1e-9, None, None, origin_first=True)
         self._count = 0
+        self._dtype = np.dtype([])
+        self._plain: dict[str, bool] = {}
 
-    def configure(self, elements: dict[str, Element], record_size: int, rate_hz: float | None):
+    def configure(
+        self, elements: dict[str, Element], record_size: int, rate_hz: float | None
+    ) -> None:
         """The layout of the records to come (after every (re)open)."""
         self.elements = elements
         self.record_size = record_size
         self.rate_hz = rate_hz
         self.timeline.nominal_dt_s = 1.0 / rate_hz if rate_hz else None
-
-    def _column(self, recs: np.ndarray, el: Element) -> np.ndarray:
-        st = el.type
-        dtype = np.dtype(f"{'>' if st.big_endian else '<'}u{st.storage_bits // 8}")
-        raw = np.ndarray(
-            (recs.shape[0],), dtype=dtype, buffer=recs, offset=el.offset, strides=(recs.strides[0],)
+        names, formats, offsets = [], [], []
+        for el in elements.values():
+            st = el.type
+            # a channel that fills its storage unshifted is read as a signed/unsigned integer
+            # directly; the others as unsigned storage words, then shifted and masked
+            plain = st.shift == 0 and st.real_bits == st.storage_bits and st.repeat == 1
+            kind = "i" if plain and st.signed else "u"
+            end = ">" if st.big_endian else "<"
+            names.append(el.name)
+            formats.append(f"{end}{kind}{st.storage_bits // 8}")
+            offsets.append(el.offset)
+        self._plain = {
+            el.name: el.type.shift == 0 and el.type.real_bits == el.type.storage_bits
+            for el in elements.values()
+        }
+        self._dtype = np.dtype(
+            {"names": names, "formats": formats, "offsets": offsets, "itemsize": record_size}
         )
-        return st.decode(raw)
+
+    def _values(self, recs: np.ndarray, name: str) -> np.ndarray:
+        col = recs[name]
+        return col if self._plain[name] else self.elements[name].type.decode(col)
 
     def _decode(self, buf: bytes) -> tuple[SampleBlock, int]:
         size = self.record_size
@@ -200,24 +218,26 @@ class IIORecordDecoder(DeviceDecoder):
         if m == 0:
             return SampleBlock.empty(), 0
         self.frame_bytes += m * size
-        recs = np.frombuffer(buf, dtype=np.uint8, count=m * size).reshape(m, size)
-        values = []
-        for name in WANTED:
+        recs = np.frombuffer(buf, dtype=self._dtype, count=m)
+        out = np.empty((m, 6), dtype=np.float64)
+        for j, name in enumerate(WANTED):
             el = self.elements[name]
-            values.append((self._column(recs, el) + el.value_offset) * el.scale)
-        gyro = np.column_stack(values[:3])
-        accel = np.column_stack(values[3:])
+            if el.value_offset:
+                out[:, j] = (self._values(recs, name) + el.value_offset) * el.scale
+            else:
+                np.multiply(self._values(recs, name), el.scale, out=out[:, j])
+        gyro = out[:, :3]
+        accel = out[:, 3:]
         if "timestamp" in self.elements:
-            ticks = self._column(recs, self.elements["timestamp"])
+            ticks = self._values(recs, "timestamp")
         else:
             period_ns = 1e9 / (self.rate_hz or 1.0)
             ticks = np.rint((self._count + np.arange(m)) * period_ns).astype(np.int64)
         self._count += m
         keep, t = self.timeline.place(ticks, self.counters)
-        return (
-            self._block(t, gyro[keep], accel[keep], None, np.zeros(t.shape[0], np.uint16)),
-            m * size,
-        )
+        if t.shape[0] != m:
+            gyro, accel = gyro[keep], accel[keep]
+        return self._block(t, gyro, accel, None, np.zeros(t.shape[0], np.uint16)), m * size
 
 
 @register("iio")

@@ -41,13 +41,20 @@ default 921600), ``exclusive``.
 from __future__ import annotations
 
 import math
+import struct
 import time
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from imudiag.samples import FLAG_ADC_ERROR, FLAG_SELF_TEST, SampleBlock
+from imudiag.samples import (
+    FLAG_ACCEL_SATURATED,
+    FLAG_ADC_ERROR,
+    FLAG_GYRO_SATURATED,
+    FLAG_SELF_TEST,
+    SampleBlock,
+)
 
 from .base import SourceError, SourceURL, register
 from .devicestream import DeviceDecoder, DeviceSerialSource, Timeline, saturation_flags
@@ -118,6 +125,9 @@ BURST_COMMAND = {G_FAMILY_1647X: 0x6800, G_FAMILY_1649X: 0x7C00}
 HEADER_WORDS = 5  #: UTC_LWR, UTC_UPR, TS_LWR, TS_UPR, SIG
 BURST_ID_1649X = 0xA5A5
 _MAX_LINE = 1024  #: bytes; a longer unterminated run is garbage
+_FEW_LINES = 32  #: reads of at most this many lines take the plain-Python checks
+_ENTRY_1647X = struct.Struct(">16H")  #: 5 header words + 11 burst words
+_OUTS_1647X = struct.Struct(">7h")  #: gyro x y z, accel x y z, TEMP_OUT (signed), at byte 14
 
 
 def bcd_version(word: int) -> str:
@@ -195,35 +205,114 @@ class ISensorDecoder(DeviceDecoder):
             self.counters.skipped_bytes += end + 1
             return SampleBlock.empty(), end + 1
         width = self.words_per_line
-        rows: list[list[int]] = []
-        sizes: list[int] = []
-        for raw in buf[: end + 1].split(b"\n")[:-1]:
-            size = len(raw) + 1
-            line = raw.strip(b"\r \t")
-            words = _parse_words(line, width)
-            if words is None:
-                self.counters.skipped_bytes += size
-                if line:
-                    self.other_lines += 1
-                continue
-            rows.append(words)
-            sizes.append(size)
-        if not rows:
-            return SampleBlock.empty(), end + 1
-        words_arr = np.array(rows, dtype=np.int64)
-        size_arr = np.array(sizes, dtype=np.int64)
+        raws = buf[: end + 1].split(b"\n")[:-1]
+        if len(raws) <= _FEW_LINES and self.model.family == G_FAMILY_1647X:
+            few = self._few_lines(raws, width)
+            if few is not None:
+                return few, end + 1
+        words_arr = _parse_all(raws, width)
+        if words_arr is not None:  # every line an entry of 4-digit words: one conversion
+            size_arr = np.array([len(r) + 1 for r in raws], dtype=np.int64)
+        else:
+            rows: list[list[int]] = []
+            sizes: list[int] = []
+            for raw in raws:
+                size = len(raw) + 1
+                line = raw.strip(b"\r \t")
+                words = _parse_words(line, width)
+                if words is None:
+                    self.counters.skipped_bytes += size
+                    if line:
+                        self.other_lines += 1
+                    continue
+                rows.append(words)
+                sizes.append(size)
+            if not rows:
+                return SampleBlock.empty(), end + 1
+            words_arr = np.array(rows, dtype=np.int64)
+            size_arr = np.array(sizes, dtype=np.int64)
         good = line_signature(words_arr) == words_arr[:, 4]
         data = words_arr[:, HEADER_WORDS:]
         if self.model is not None and self.model.family == G_FAMILY_1647X:
             good &= burst_checksum_1647x(data) == data[:, 10]
         else:
             good &= (data == BURST_ID_1649X).any(axis=1)
+        if good.all():
+            self.frame_bytes += int(size_arr.sum())
+            return self._samples(words_arr), end + 1
         bad = int(np.count_nonzero(~good))
-        if bad:
-            self.counters.crc_errors += bad
-            self.counters.skipped_bytes += int(size_arr[~good].sum())
+        self.counters.crc_errors += bad
+        self.counters.skipped_bytes += int(size_arr[~good].sum())
         self.frame_bytes += int(size_arr[good].sum())
         return self._samples(words_arr[good]), end + 1
+
+    def _few_lines(self, raws: list[bytes], width: int) -> SampleBlock | None:
+        """A daemon's read of ADIS1647x entries in plain Python (the rules of the general
+        path, without its fixed numpy cost); None, with nothing changed, when any line is
+        not a good 4-digit entry."""
+        fast = 5 * width - 1
+        rows = []
+        for raw in raws:
+            line = raw[:-1] if raw.endswith(b"\r") else raw
+            if len(line) != fast or line.count(b",") != width - 1:
+                return None
+            try:
+                packed = bytes.fromhex(line.replace(b",", b"").decode("ascii"))
+                w = _ENTRY_1647X.unpack(packed)
+            except (ValueError, UnicodeDecodeError, struct.error):
+                return None
+            if (sum(w) - w[4]) & 0xFFFF != w[4]:
+                return None
+            if sum(packed[12:30]) & 0xFFFF != w[15]:  # bytes of DIAG_STAT .. DATA_CNTR
+                return None
+            rows.append((w, _OUTS_1647X.unpack_from(packed, 14)))
+        if not rows:
+            return None
+        self.frame_bytes += sum(len(r) + 1 for r in raws)
+        model = self.model
+        assert model is not None
+        ticks: list[int] = []
+        outs: list[tuple[int, ...]] = []
+        flags: list[int] = []
+        fails: list[bool] = []
+        c = self.counters
+        last = self._last_cnt
+        for w, v in rows:
+            cnt = w[14]
+            d = 1 if last is None else (cnt - last) % 0x10000
+            if d == 0:
+                c.duplicates += 1
+                continue
+            if 1 < d < 0x8000:
+                c.lost += d - 1
+            last = cnt
+            ticks.append(w[2] | (w[3] << 16))
+            diag = w[6]
+            flag = FLAG_ADC_ERROR if diag & DIAG_ERROR_BITS else 0
+            if max(v[0:3]) >= 32767 or min(v[0:3]) <= -32768:
+                flag |= FLAG_GYRO_SATURATED
+            if max(v[3:6]) >= 32767 or min(v[3:6]) <= -32768:
+                flag |= FLAG_ACCEL_SATURATED
+            outs.append(v)
+            flags.append(flag)
+            fails.append(bool(diag & DIAG_SENSOR_FAILURE))
+        self._last_cnt = last
+        if not outs:
+            return SampleBlock.empty()
+        keep, t = self.timeline.place(ticks, c)
+        vals = np.array(outs, dtype=np.float64)
+        flag_a = np.array(flags, dtype=np.uint16)
+        fail_a = np.array(fails, dtype=bool)
+        if t.shape[0] != vals.shape[0]:
+            vals, flag_a, fail_a = vals[keep], flag_a[keep], fail_a[keep]
+        flag_a = self._self_test_flags(t, flag_a, fail_a)
+        return self._block(
+            t,
+            vals[:, 0:3] * model.gyro_lsb,
+            vals[:, 3:6] * model.accel_lsb,
+            vals[:, 6] * model.temp_lsb,
+            flag_a,
+        )
 
     # -- words -> samples ----------------------------------------------------
 
@@ -234,9 +323,10 @@ class ISensorDecoder(DeviceDecoder):
         data = words[:, HEADER_WORDS:]
         if model.family == G_FAMILY_1647X:
             diag = data[:, 1]
-            gyro = _signed16(data[:, 2:5]).astype(np.float64)
-            accel = _signed16(data[:, 5:8]).astype(np.float64)
-            temp = _signed16(data[:, 8]) * model.temp_lsb
+            outs = _signed16(data[:, 2:9])  # gyro x y z, accel x y z, temperature
+            gyro = outs[:, 0:3]
+            accel = outs[:, 3:6]
+            temp = outs[:, 6] * model.temp_lsb
             cnt = data[:, 9]
             lo16, hi16 = gyro, accel
             err = (diag & DIAG_ERROR_BITS) != 0
@@ -260,22 +350,36 @@ class ISensorDecoder(DeviceDecoder):
             failed = (diag & SYS_E_SELF_TEST) != 0
         keep = self._count_steps(cnt)
         ticks = words[:, 2] | (words[:, 3] << 16)
-        tkeep, t = self.timeline.place(ticks[keep], self.counters)
-        keep_idx = np.flatnonzero(keep)[tkeep]
-        flags = np.where(err[keep_idx], FLAG_ADC_ERROR, 0).astype(np.uint16)
-        flags = saturation_flags(lo16[keep_idx], hi16[keep_idx], -32768, 32767, flags)
-        flags = self._self_test_flags(t, flags, failed[keep_idx])
-        return self._block(
-            t,
-            gyro[keep_idx] * model.gyro_lsb,
-            accel[keep_idx] * model.accel_lsb,
-            temp[keep_idx],
-            flags,
-        )
+        if keep.all():
+            tkeep, t = self.timeline.place(ticks, self.counters)
+        else:
+            tkeep, t = self.timeline.place(ticks[keep], self.counters)
+        if t.shape[0] != words.shape[0]:
+            idx = np.flatnonzero(keep)[tkeep]
+            gyro, accel, temp = gyro[idx], accel[idx], temp[idx]
+            lo16, hi16, err, failed = lo16[idx], hi16[idx], err[idx], failed[idx]
+        flags = (err * FLAG_ADC_ERROR).astype(np.uint16)
+        flags = saturation_flags(lo16, hi16, -32768, 32767, flags)
+        flags = self._self_test_flags(t, flags, failed)
+        return self._block(t, gyro * model.gyro_lsb, accel * model.accel_lsb, temp, flags)
 
     def _count_steps(self, cnt: np.ndarray) -> np.ndarray:
         """Lost and repeated samples by the IMU's data counter; False for repeats."""
         n = cnt.shape[0]
+        if n <= 32:  # a daemon's read: plain Python
+            keep = [True] * n
+            last = self._last_cnt
+            for i, c in enumerate(cnt.tolist()):
+                d = 1 if last is None else (c - last) % 0x10000
+                if d == 0:
+                    keep[i] = False
+                    self.counters.duplicates += 1
+                    continue
+                if 1 < d < 0x8000:
+                    self.counters.lost += d - 1
+                last = c
+            self._last_cnt = last
+            return np.array(keep, dtype=bool)
         prev = np.empty(n, np.int64)
         prev[1:] = cnt[:-1]
         prev[0] = cnt[0] - 1 if self._last_cnt is None else self._last_cnt
@@ -306,6 +410,22 @@ class ISensorDecoder(DeviceDecoder):
                     "t": float(self._self_test_t0),
                 }
         return flags
+
+
+def _parse_all(raws: list[bytes], width: int) -> np.ndarray | None:
+    """(k, width) words of ``raws`` when every one is an entry of 4-digit hex words
+    (what the board prints), else None (then each line is parsed on its own)."""
+    fast = 5 * width - 1
+    lines = [r[:-1] if r.endswith(b"\r") else r for r in raws]
+    if not lines or any(len(x) != fast or x.count(b",") != width - 1 for x in lines):
+        return None
+    try:
+        packed = bytes.fromhex(b"".join(lines).replace(b",", b"").decode("ascii"))
+    except (ValueError, UnicodeDecodeError):
+        return None
+    if len(packed) != 2 * width * len(lines):
+        return None
+    return np.frombuffer(packed, dtype=">u2").reshape(len(lines), width).astype(np.int64)
 
 
 def _parse_words(line: bytes, width: int) -> list[int] | None:

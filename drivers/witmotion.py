@@ -25,14 +25,15 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
+import struct
 from typing import Any
 
 import numpy as np
 
-from imudiag.samples import SampleBlock
+from imudiag.samples import FLAG_ACCEL_SATURATED, FLAG_GYRO_SATURATED, SampleBlock
 
 from .base import SourceError, SourceURL, register
-from .devicestream import DeviceDecoder, DeviceSerialSource, Timeline, saturation_flags
+from .devicestream import DeviceDecoder, DeviceSerialSource, Timeline
 from .wire import Counters
 
 HEAD = 0x55
@@ -46,6 +47,8 @@ GYRO_FULL_SCALE_DPS = 2000.0  #: deg/s at int16 full scale (32768)
 TEMP_SCALE_C = 0.01  #: degC per count of the acceleration frame's fourth word
 DEFAULT_RATE_HZ = 200.0
 _EPOCH = _dt.datetime(2000, 1, 1)
+_WORDS = struct.Struct("<4h")
+_FEW_FRAMES = 64  #: reads of at most this many frames take the plain-Python path
 
 
 def frame_checksum(body: bytes | np.ndarray) -> int:
@@ -83,6 +86,8 @@ class WitmotionDecoder(DeviceDecoder):
         self._count = 0  # samples placed (the time base without time frames)
         self._last_tick: int | None = None
         self._clock_mode: str | None = None  # "time" or "count"
+        self._minute_key: tuple[int, ...] | None = None  # date part of the last time frame
+        self._minute_s = 0  # its seconds since 2000
 
     # -- bytes -> frames --------------------------------------------------
 
@@ -125,52 +130,85 @@ class WitmotionDecoder(DeviceDecoder):
         return out, pos
 
     def _decode(self, buf: bytes) -> tuple[SampleBlock, int]:
+        few = self._few_frames(buf)
+        if few is not None:  # a daemon's read: a few good frames, checked in plain Python
+            frames, used = few
+            self.frame_bytes += used
+            return self._samples(frames), used
         parts, used = self._scan(buf)
         if not parts:
             return SampleBlock.empty(), used
         rows = parts[0] if len(parts) == 1 else np.concatenate(parts)
-        return self._samples(rows), used
+        words = np.ascontiguousarray(rows[:, 2:10]).view("<i2").reshape(-1, 4).tolist()
+        frames = list(zip(rows[:, 1].tolist(), words, rows.tolist(), strict=True))
+        return self._samples(frames), used
+
+    @staticmethod
+    def _few_frames(buf: bytes) -> tuple[list[tuple[int, Any, Any]], int] | None:
+        """The frames of a short, aligned, all-good ``buf`` (and the bytes they take), or
+        None when the general path is needed (nothing is counted here)."""
+        m = len(buf) // FRAME_SIZE
+        if m == 0 or m > _FEW_FRAMES:
+            return None
+        used = m * FRAME_SIZE
+        if used < len(buf) and buf[used] != HEAD:
+            return None
+        frames = []
+        for p in range(0, used, FRAME_SIZE):
+            ftype = buf[p + 1]
+            if buf[p] != HEAD or not _TYPE_MIN <= ftype <= _TYPE_MAX:
+                return None
+            if sum(buf[p : p + 10]) & 0xFF != buf[p + 10]:
+                return None
+            frames.append((ftype, _WORDS.unpack_from(buf, p + 2), buf[p : p + FRAME_SIZE]))
+        return frames, used
 
     # -- frames -> samples -------------------------------------------------
 
-    def _samples(self, rows: np.ndarray) -> SampleBlock:
-        words = np.ascontiguousarray(rows[:, 2:10]).view("<i2").reshape(-1, 4)
-        types = rows[:, 1].tolist()
-        acc_rows: list[np.ndarray] = []
-        gyr_rows: list[np.ndarray] = []
+    def _samples(self, frames: list[tuple[int, Any, Any]]) -> SampleBlock:
+        """Pair the acceleration and rate frames; ``frames``: (type, 4 words, raw bytes)."""
+        acc_rows: list[Any] = []
+        gyr_rows: list[Any] = []
         ticks: list[int] = []
-        for i, ftype in enumerate(types):
+        flags: list[int] = []
+        for ftype, words, raw in frames:
             if ftype == TYPE_ACCEL:
                 if self._acc is not None:
                     self._unpaired()  # an acceleration frame without its rate frame
-                self._acc = words[i]
+                self._acc = words
             elif ftype == TYPE_GYRO:
-                if self._acc is None:
+                acc = self._acc
+                if acc is None:
                     self._unpaired()  # a rate frame without its acceleration frame
                     continue
-                acc_rows.append(self._acc)
-                gyr_rows.append(words[i])
+                acc_rows.append(acc)
+                gyr_rows.append(words)
                 self._acc = None
                 ticks.append(self._tick())
+                flag = 0
+                if max(words[:3]) >= 32767 or min(words[:3]) <= -32768:
+                    flag |= FLAG_GYRO_SATURATED
+                if max(acc[:3]) >= 32767 or min(acc[:3]) <= -32768:
+                    flag |= FLAG_ACCEL_SATURATED
+                flags.append(flag)
             elif ftype == TYPE_TIME:
-                self._time_frame(rows[i])
+                self._time_frame(raw)
             else:
                 self.other_frames += 1
         if not acc_rows:
             return SampleBlock.empty()
-        acc = np.array(acc_rows, dtype=np.int64)
-        gyr = np.array(gyr_rows, dtype=np.int64)
+        acc_a = np.array(acc_rows, dtype=np.float64)
+        gyr_a = np.array(gyr_rows, dtype=np.float64)
+        flag_a = np.array(flags, dtype=np.uint16)
         keep, t = self.timeline.place(np.array(ticks, dtype=np.int64), self.counters)
-        acc, gyr = acc[keep], gyr[keep]
-        flags = saturation_flags(
-            gyr[:, :3], acc[:, :3], -32768, 32767, np.zeros(acc.shape[0], np.uint16)
-        )
+        if t.shape[0] != acc_a.shape[0]:
+            acc_a, gyr_a, flag_a = acc_a[keep], gyr_a[keep], flag_a[keep]
         return self._block(
             t,
-            gyr[:, :3] * (GYRO_FULL_SCALE_DPS / 32768.0),
-            acc[:, :3] * (ACCEL_FULL_SCALE_G / 32768.0),
-            acc[:, 3] * TEMP_SCALE_C,
-            flags,
+            gyr_a[:, :3] * (GYRO_FULL_SCALE_DPS / 32768.0),
+            acc_a[:, :3] * (ACCEL_FULL_SCALE_G / 32768.0),
+            acc_a[:, 3] * TEMP_SCALE_C,
+            flag_a,
         )
 
     def _unpaired(self) -> None:
@@ -180,19 +218,25 @@ class WitmotionDecoder(DeviceDecoder):
         if self._time_us is None:
             self.counters.lost += 1
 
-    def _time_frame(self, row: np.ndarray) -> None:
-        yy, mo, dd, hh, mi, ss = (int(v) for v in row[2:8])
-        ms = int(row[8]) | (int(row[9]) << 8)
-        try:
-            when = _dt.datetime(2000 + yy, mo, dd, hh, mi, ss)
-        except ValueError:
-            self.bad_times += 1
-            return
-        if ms > 999:
+    def _time_frame(self, raw: Any) -> None:
+        """A time frame (bytes or a list of its 11 byte values)."""
+        key = tuple(raw[2:7])  # year .. minute: the date part changes once a minute
+        ss = int(raw[7])
+        ms = int(raw[8]) | (int(raw[9]) << 8)
+        if key != self._minute_key:
+            yy, mo, dd, hh, mi = (int(v) for v in key)
+            try:
+                when = _dt.datetime(2000 + yy, mo, dd, hh, mi)
+            except ValueError:
+                self.bad_times += 1
+                return
+            self._minute_key = key
+            self._minute_s = int((when - _EPOCH).total_seconds())
+        if ms > 999 or ss > 59:
             self.bad_times += 1
             return
         self.time_frames += 1
-        self._time_us = int((when - _EPOCH).total_seconds()) * 1_000_000 + ms * 1000
+        self._time_us = (self._minute_s + ss) * 1_000_000 + ms * 1000
         self._time_fresh = True
 
     def _tick(self) -> int:

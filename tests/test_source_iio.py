@@ -226,3 +226,22 @@ def test_missing_device_and_non_imu_are_refused(tree):
         open_source("iio://bmi160").open()
     with pytest.raises(SourceError, match="not an IMU"):
         open_source("iio://ads1015").open()
+
+
+def test_timeline_gives_the_same_times_and_counts_in_any_read_size():
+    """The daemon's small reads take a plain-Python path: it must agree with the
+    vectorised one on times, duplicates, losses and restarts."""
+    from imudiag.drivers.devicestream import Timeline
+    from imudiag.drivers.wire import Counters
+
+    rng = np.random.default_rng(3)
+    for _ in range(100):
+        n = int(rng.integers(5, 300))
+        ticks = 1000 + np.cumsum(rng.choice([0, 1, 1, 1, 1, 2, 3, -5], size=n))
+        results = []
+        for pieces in (1, max(1, n // 5)):  # one big block, then reads of about 5
+            tl, c = Timeline(1.0, None, 1.0), Counters()
+            t = np.concatenate([tl.place(p, c)[1] for p in np.array_split(ticks, pieces)])
+            results.append((t, c, tl.restarts))
+        (t1, c1, r1), (t2, c2, r2) = results
+        assert np.allclose(t1, t2) and c1 == c2 and r1 == r2

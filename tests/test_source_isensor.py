@@ -218,3 +218,20 @@ def test_unknown_part_and_silent_port_are_refused():
             fake.stop()
     with PtyPair() as pair, pytest.raises(SourceError, match="no answer"):
         open_source(f"isensor://{pair.slave_path}?timeout=0.3").open()
+
+
+def test_daemon_sends_the_self_test_command(board):
+    pair, fake = board
+    with DaemonThread(f"isensor://{pair.slave_path}?rate=200", None) as d:
+        d.wait_connected()
+        fake.queue(lines_of(still(40)))
+        d.wait(lambda s: s["counters"]["frames"] >= 40)
+        d.daemon.request_command("SELFTEST")
+        d.daemon.request_command("REBOOT")  # not a command of the device: noted, not sent
+        d.wait(lambda s: fake.self_tests == 1)  # the board has run it (an event, any line)
+        fake.queue(lines_of(still(40, t0=0.201), first_count=41))
+        noted = d.wait(lambda s: s["counters"]["frames"] >= 80 and "notes" in s)
+        info = d.daemon.source.device_info
+    assert fake.self_tests == 1
+    assert info["self_test"] == {"count": 1, "result": "pass", "t": pytest.approx(0.201)}
+    assert any("'REBOOT' not sent" in n for n in noted["notes"])

@@ -159,6 +159,8 @@ class Daemon:
         self._reload = False
         self._reloading: _ReloadThread | None = None
         self._reload_again = False
+        self._commands: deque[str] = deque()  # device commands to send (request_command)
+        self._command_note: str | None = None
         self._last_reason: str | None = None
         self._last_data_wall: float | None = None
         self._last_errors = 0
@@ -200,10 +202,29 @@ class Daemon:
         )
 
     def install_signal_handlers(self) -> None:
-        """SIGTERM/SIGINT stop, SIGHUP reloads the certificate (main thread only)."""
+        """SIGTERM/SIGINT stop, SIGHUP reloads the certificate, SIGUSR1 asks the device for
+        its self test (``SELFTEST``, docs/devices.md) (main thread only)."""
         signal.signal(signal.SIGTERM, lambda *_: self.request_stop())
         signal.signal(signal.SIGINT, lambda *_: self.request_stop())
         signal.signal(signal.SIGHUP, lambda *_: self.request_reload())
+        signal.signal(signal.SIGUSR1, lambda *_: self.request_command("SELFTEST"))
+
+    def request_command(self, line: str) -> None:
+        """Queue a device command (``SELFTEST``, ``INFO``, ...): sent to the source at the
+        start of the next loop turn; one the device does not take is logged and noted."""
+        self._commands.append(line)
+
+    def _send_commands(self) -> None:
+        while self._commands:
+            line = self._commands.popleft()
+            try:
+                self.source.write_command(line)
+            except ValueError as exc:
+                log.warning("%s", exc)
+                self._command_note = f"command {line!r} not sent: {exc}"
+            else:
+                log.info("command %r sent to %s", line, self.settings.source_url)
+                self._command_note = None
 
     def request_stop(self) -> None:
         """Ask the loop to finish after the current turn."""
@@ -405,6 +426,8 @@ class Daemon:
         if self.aiding is not None:
             status["aiding"] = self.aiding.status()
         notes = list(self.notes)
+        if self._command_note:
+            notes.append(self._command_note)
         why = self._no_data_reason(now, status["state"])
         if why:
             notes.append(why)
@@ -457,6 +480,8 @@ class Daemon:
                     self._reload = False
                     self._start_reload()
                 self._finish_reload()
+                if self._commands:
+                    self._send_commands()
                 try:
                     block = self.source.read(self.settings.read_timeout_s)
                 except EndOfStream:
