@@ -148,7 +148,9 @@ class Timeline:
             self._last = None
             self.restarts += 1
 
-    def place(self, ticks: np.ndarray, counters: Counters) -> tuple[np.ndarray, np.ndarray]:
+    def place(
+        self, ticks: np.ndarray | list[int], counters: Counters
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``keep`` (N,) bool and the times, s, of the kept samples; updates the counters."""
         if len(ticks) <= _FEW:
             return self._place_few(ticks, counters)

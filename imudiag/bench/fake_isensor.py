@@ -123,6 +123,8 @@ class FakeISensorBoard(threading.Thread):
         if not line:
             return
         self.commands.append(line)
+        if self.echo:  # the board echoes what it is sent until "echo 0"
+            self.pair.write((line + "\r\n").encode("ascii"))
         parts = line.split()
         cmd, args = parts[0], parts[1:]
         try:
