@@ -16,8 +16,9 @@ import threading
 import numpy as np
 import pytest
 
+from imudiag import units
 from imudiag.bench.fake_iio import Channel, FakeIIODevice, pack_records
-from imudiag.certificate import loads
+from imudiag.certificate import datasheet_certificate_path, load
 from imudiag.drivers.base import open_source
 from imudiag.drivers.iio import ScanType, record_layout
 from imudiag.drivers.reconnect import ReconnectingSource
@@ -40,33 +41,6 @@ CHANNELS = [
     Channel("timestamp", 7, "le:s64/64>>0"),
 ]
 RECORD = 32
-
-SI_CERT = """
-format: imudiag-certificate/1
-device: {model: ADIS16475-2 through IIO (test, SI), serial: unknown, calibrated: nominal}
-environment: {gravity: 9.80665, earth_rate: 7.292115e-05}
-sample_rate: 200
-gyro:
-  input_unit: rad/s
-  output_unit: rad/s
-  scale_factor: [1.0, 1.0, 1.0]
-  scale_factor_error: [0.0, 0.0, 0.0]
-  bias: [0.0, 0.0, 0.0]
-  misalignment: {xz: 0.0, xy: 0.0, yz: 0.0, yx: 0.0, zy: 0.0, zx: 0.0}
-  noise: {density: [6.1e-05, 6.1e-05, 6.1e-05]}
-  limits: {f0: 0.01, bias: [8.7e-4, 8.7e-4, 8.7e-4], scale_factor_error: [0.01, 0.01, 0.01],
-           misalignment: [0.005, 0.005, 0.005]}
-accel:
-  input_unit: m/s^2
-  output_unit: m/s^2
-  scale_factor: [1.0, 1.0, 1.0]
-  scale_factor_error: [0.0, 0.0, 0.0]
-  bias: [0.0, 0.0, 0.0]
-  misalignment: {xz: 0.0, xy: 0.0, yz: 0.0, yx: 0.0, zy: 0.0, zx: 0.0}
-  noise: {density: [9.8e-4, 9.8e-4, 9.8e-4]}
-  limits: {f0: 0.01, bias: [0.0196, 0.0196, 0.0196], scale_factor_error: [0.01, 0.01, 0.01],
-           misalignment: [0.005, 0.005, 0.005]}
-"""
 
 
 def records(block: SampleBlock, t0_ns: int = T0_NS) -> bytes:
@@ -176,10 +150,19 @@ def test_repeated_and_missing_time_stamps_are_counted(tree):
 
 
 def test_session_reaches_ok_and_names_the_bias_within_the_native_time(tree, tmp_path):
-    cert_path = tmp_path / "si.yaml"
-    cert_path.write_text(SI_CERT)
-    block = session_samples(loads(SI_CERT))
-    data = records(block)
+    """The device gives rad/s and m/s^2; the data-sheet certificate is in deg/s and g: the
+    daemon converts exactly (imudiag.units) and judges as the native protocol does."""
+    cert = load(datasheet_certificate_path("adis16475-2"))
+    cert.sample_rate = 200.0
+    cert_path = tmp_path / "adis16475-2-200hz.yaml"
+    cert.save(cert_path)
+    block = session_samples(cert)  # deg/s and g
+    si = SampleBlock(
+        t=block.t,
+        gyro=block.gyro * units.factor("gyro", "deg/s", "rad/s"),
+        accel=block.accel * units.factor("accel", "g", "m/s^2"),
+    )
+    data = records(si)
     with DaemonThread("iio://adis16475?rate=200", str(cert_path)) as d:
         d.wait_connected()
         writer = threading.Thread(target=tree.write, args=(data,), daemon=True)
@@ -189,7 +172,21 @@ def test_session_reaches_ok_and_names_the_bias_within_the_native_time(tree, tmp_
         last = d.sink.lines[-1]
     writer.join(5)
     assert last["counters"]["frames"] == len(block) and last["counters"]["lost"] == 0
+    assert {c["triad"]: (c["from"], c["to"]) for c in last["unit_conversion"]} == {
+        "gyro": ("rad/s", "deg/s"),
+        "accel": ("m/s^2", "g"),
+    }
     judge_session(d.sink.lines)
+
+
+def test_units_the_certificate_cannot_take_are_noted_not_judged(tree):
+    """A counts certificate (the bundled one) cannot judge m/s^2: nothing is fed, the
+    status says why."""
+    with DaemonThread("iio://adis16475?rate=200", None) as d:
+        d.wait_connected()
+        tree.write(records(still(40)))
+        noted = d.wait(lambda s: any("output_unit is 'count'" in n for n in s.get("notes", [])))
+    assert noted["t"] is None and noted["counters"]["frames"] == 40
 
 
 def test_unplug_and_replug_recover(tree):

@@ -20,9 +20,11 @@ from typing import Any, Protocol
 import numpy as np
 
 from .. import certificate as certmod
+from .. import units
 from ..certificate import Certificate, CertificateError
 from ..drivers.base import EndOfStream, SourceError
 from ..drivers.reconnect import ReconnectingSource
+from ..errors import BadInput
 from ..monitor import Monitor, MonitorConfig
 from ..noise_estimate import NoiseMeter
 from ..quasistatic import BAD_FLAGS
@@ -160,6 +162,9 @@ class Daemon:
         self._reloading: _ReloadThread | None = None
         self._reload_again = False
         self._commands: deque[str] = deque()  # device commands to send (request_command)
+        #: (certificate and stated units, their conversion), kept while both stay the same
+        self._conversion: tuple[Certificate, str, units.Conversion] | None = None
+        self._units_note: str | None = None
         self._command_note: str | None = None
         self._last_reason: str | None = None
         self._last_data_wall: float | None = None
@@ -213,6 +218,29 @@ class Daemon:
         """Queue a device command (``SELFTEST``, ``INFO``, ...): sent to the source at the
         start of the next loop turn; one the device does not take is logged and noted."""
         self._commands.append(line)
+
+    def _conform(self, block: SampleBlock) -> SampleBlock:
+        """``block`` in the certificate's units (:func:`imudiag.units.conform_meta`: a device
+        in deg/s and g against a certificate in rad/s and m/s^2, exactly). Units that cannot
+        be converted (counts against physical units) drop the samples and say so in the
+        status notes: they cannot be judged against this certificate."""
+        stated = block.meta.get("units")
+        if stated is None:
+            return block
+        cached = self._conversion
+        if cached is None or cached[0] is not self.certificate or cached[1] != repr(stated):
+            try:
+                conv = units.conform_meta(block.meta, self.certificate, self.settings.source_url)
+            except BadInput as exc:
+                if self._units_note != str(exc):
+                    log.warning("%s", exc)
+                self._units_note = str(exc)
+                return SampleBlock.empty()
+            self._units_note = None
+            cached = self._conversion = (self.certificate, repr(stated), conv)
+            if not conv.identity:
+                log.info("%s: %s", self.settings.source_url, conv)
+        return cached[2].apply(block)
 
     def _send_commands(self) -> None:
         while self._commands:
@@ -428,6 +456,10 @@ class Daemon:
         notes = list(self.notes)
         if self._command_note:
             notes.append(self._command_note)
+        if self._units_note:
+            notes.append(self._units_note)
+        if self._conversion is not None and not self._conversion[2].identity:
+            status["unit_conversion"] = self._conversion[2].describe()
         why = self._no_data_reason(now, status["state"])
         if why:
             notes.append(why)
@@ -490,6 +522,8 @@ class Daemon:
                     break
                 now = self.clock()
                 read_done = time.monotonic()
+                if len(block):
+                    block = self._conform(block)
                 if len(block):
                     self._last_data_wall = now
                     self.watchdog.frames_arrived(now)
