@@ -25,7 +25,7 @@ from imudiag.drivers.reconnect import ReconnectingSource
 from imudiag.errors import SourceError
 from imudiag.samples import SampleBlock
 from tests.device_sessions import DaemonThread, judge_session, session_samples
-from tests.helpers import read_samples
+from tests.helpers import read_samples, read_until_state
 
 G = 9.80665
 GYRO_SCALE = math.radians(1 / 40) / 65536  #: rad/s per LSB (ADIS16475-2, 32-bit output)
@@ -179,14 +179,15 @@ def test_session_reaches_ok_and_names_the_bias_within_the_native_time(tree, tmp_
     judge_session(d.sink.lines)
 
 
-def test_units_the_certificate_cannot_take_are_noted_not_judged(tree):
-    """A counts certificate (the bundled one) cannot judge m/s^2: nothing is fed, the
-    status says why."""
+def test_units_the_certificate_cannot_take_are_noted(tree):
+    """A counts certificate (the bundled one) cannot judge m/s^2: nothing is converted (no
+    guess), and the status says the verdicts do not hold."""
     with DaemonThread("iio://adis16475?rate=200", None) as d:
         d.wait_connected()
         tree.write(records(still(40)))
         noted = d.wait(lambda s: any("output_unit is 'count'" in n for n in s.get("notes", [])))
-    assert noted["t"] is None and noted["counters"]["frames"] == 40
+    assert noted["counters"]["frames"] == 40 and "unit_conversion" not in noted
+    assert any("the verdicts do not hold" in n for n in noted["notes"])
 
 
 def test_unplug_and_replug_recover(tree):
@@ -197,19 +198,12 @@ def test_unplug_and_replug_recover(tree):
         tree.write(records(still(20)))
         got1 = read_samples(src, 20)
         tree.unplug()
-        for _ in range(50):
-            src.read(0.02)
-            if src.state == "reconnecting":
-                break
-        assert src.state == "reconnecting" and "device gone" in (src.last_error or "")
+        assert read_until_state(src, "reconnecting", 50) == "reconnecting"
+        assert "device gone" in (src.last_error or "")
         src.read(0.05)  # an attempt while the device is absent fails and backs off
         assert "no device" in (src.last_error or "") or "no such device" in (src.last_error or "")
         tree.plug()
-        for _ in range(200):
-            src.read(0.02)
-            if src.state == "connected":
-                break
-        assert src.state == "connected" and src.reconnects == 1
+        assert read_until_state(src, "connected", 200) == "connected" and src.reconnects == 1
         tree.write(records(still(20, t0=0.1)))
         got2 = read_samples(src, 20)
     finally:

@@ -21,7 +21,7 @@ from imudiag.drivers.reconnect import ReconnectingSource
 from imudiag.errors import SourceError
 from imudiag.samples import FLAG_ADC_ERROR, FLAG_SELF_TEST, SampleBlock
 from tests.device_sessions import RATE_HZ, DaemonThread, judge_session, session_samples
-from tests.helpers import read_samples
+from tests.helpers import read_samples, read_until_state
 
 GYRO_LSB = 1 / 40  #: ADIS16475-2: deg/s per LSB of the 16-bit output (data sheet Table 1)
 ACCEL_LSB = 1 / 4000  #: ADIS16475: g per LSB (0.25 mg)
@@ -181,21 +181,14 @@ def test_unplug_and_replug_recover(tmp_path):
         got1 = read_samples(src, 40)
         fake1.stop()
         first.close_master()
-        for _ in range(50):
-            src.read(0.02)
-            if src.state == "reconnecting":
-                break
-        assert src.state == "reconnecting"
+        assert read_until_state(src, "reconnecting", 50) == "reconnecting"
         first.close()
         with PtyPair(link=link) as second:
             fake2 = FakeISensorBoard(second, prod_id=16475, range_model=2)
             fake2.start()
             try:
-                for _ in range(200):
-                    src.read(0.02)
-                    if src.state == "connected":
-                        break
-                assert src.state == "connected" and src.reconnects == 1
+                assert read_until_state(src, "connected") == "connected"
+                assert src.reconnects == 1
                 fake2.queue(lines_of(still(40, t0=0.201), first_count=41))
                 got2 = read_samples(src, 40)
             finally:

@@ -17,7 +17,7 @@ from imudiag.drivers.base import open_source
 from imudiag.drivers.reconnect import ReconnectingSource
 from imudiag.samples import FLAG_ACCEL_SATURATED, SampleBlock
 from tests.device_sessions import DaemonThread, judge_session, session_samples
-from tests.helpers import read_samples
+from tests.helpers import read_samples, read_until_state
 
 START = dt.datetime(2026, 11, 28, 12, 0, 0)
 
@@ -160,18 +160,10 @@ def test_unplug_and_replug_recover(tmp_path):
         first.write(b"".join(encode(still(50))))
         got1 = read_samples(src, 50)
         first.close_master()
-        for _ in range(50):  # the hang-up is seen on a read
-            src.read(0.02)
-            if src.state == "reconnecting":
-                break
-        assert src.state == "reconnecting"
+        assert read_until_state(src, "reconnecting", 50) == "reconnecting"
         first.close()
         with PtyPair(link=link) as second:
-            for _ in range(200):
-                src.read(0.02)
-                if src.state == "connected":
-                    break
-            assert src.state == "connected" and src.reconnects == 1
+            assert read_until_state(src, "connected", 200) == "connected" and src.reconnects == 1
             second.write(b"".join(encode(still(50, t0=0.25))))
             got2 = read_samples(src, 50)
     finally:

@@ -222,8 +222,9 @@ class Daemon:
     def _conform(self, block: SampleBlock) -> SampleBlock:
         """``block`` in the certificate's units (:func:`imudiag.units.conform_meta`: a device
         in deg/s and g against a certificate in rad/s and m/s^2, exactly). Units that cannot
-        be converted (counts against physical units) drop the samples and say so in the
-        status notes: they cannot be judged against this certificate."""
+        be converted (counts against physical units) are not guessed: the samples go on as
+        they are, as before the units were read, and the status notes say the verdicts do
+        not hold for them."""
         stated = block.meta.get("units")
         if stated is None:
             return block
@@ -232,10 +233,12 @@ class Daemon:
             try:
                 conv = units.conform_meta(block.meta, self.certificate, self.settings.source_url)
             except BadInput as exc:
-                if self._units_note != str(exc):
-                    log.warning("%s", exc)
-                self._units_note = str(exc)
-                return SampleBlock.empty()
+                note = f"{exc}; the samples are judged as they are, the verdicts do not hold"
+                if self._units_note != note:
+                    log.warning("%s", note)
+                self._units_note = note
+                self._conversion = (self.certificate, repr(stated), units.NO_CONVERSION)
+                return block
             self._units_note = None
             cached = self._conversion = (self.certificate, repr(stated), conv)
             if not conv.identity:
