@@ -228,3 +228,53 @@ def test_daemon_sends_the_self_test_command(board):
     assert fake.self_tests == 1
     assert info["self_test"] == {"count": 1, "result": "pass", "t": pytest.approx(0.201)}
     assert any("'REBOOT' not sent" in n for n in noted["notes"])
+
+
+def entry_1649x(ts_us: int, count: int, gyro, accel, sys_e_flag: int = 0) -> bytes:
+    """One buffer entry of an ADIS16495-2 burst (ADIS1649x data sheet: burst ID 0xA5A5,
+    SYS_E_FLAG, TEMP_OUT, then each output as _LOW and _OUT words, DATA_CNT, CRC)."""
+    g_lsb, a_lsb = 450 / 18000 / 65536, 8 / 32000 / 65536  # deg/s and g per 32-bit LSB
+    words = [0xA5A5, sys_e_flag, int(round(25.0 / 0.0125))]
+    for v, lsb in [*((x, g_lsb) for x in gyro), *((x, a_lsb) for x in accel)]:
+        raw = int(round(v / lsb)) & 0xFFFFFFFF
+        words += [raw & 0xFFFF, raw >> 16]
+    words += [count & 0xFFFF, 0x1234, 0x5678]  # the part's CRC-32 words (not checked)
+    data = [0x0000, *words, 0x0000]  # 20 words: BUF_LEN 40
+    head = [0, 0, ts_us & 0xFFFF, ts_us >> 16]
+    sig = (sum(head) + sum(data)) & 0xFFFF
+    return (",".join(f"{w:04X}" for w in [*head, sig, *data]) + "\r\n").encode("ascii")
+
+
+def test_adis16495_32_bit_burst():
+    with PtyPair() as pair:
+        fake = FakeISensorBoard(pair, prod_id=16495, serial=0x00C3, firmware=0x0105)
+        fake.start()
+        try:
+            with open_source(f"isensor://{pair.slave_path}?model=adis16495-2") as src:
+                lines = [
+                    entry_1649x(1000 + 500 * i, i, [0.123456, -45.5, 300.0], [0.0012, -0.5, 1.0])
+                    for i in range(10)
+                ]
+                lines[4] = entry_1649x(3000, 4, [0, 0, 0], [0, 0, 1.0], sys_e_flag=0x0020)
+                fake.queue(lines)
+                got = read_samples(src, 10)
+                info = src.device_info
+        finally:
+            fake.stop()
+    assert "write 13 7C" in fake.commands and "write 4 28" in fake.commands  # 0x7C00, 40 B
+    assert info["product"] == "ADIS16495-2" and info["serial"] == "00C3"
+    assert info["firmware"] == "1.05" and info["datasheet"] == "adis16495-2"
+    assert len(got) == 10 and np.allclose(got.t, 0.001 + 0.0005 * np.arange(10))
+    assert np.allclose(got.gyro[0], [0.123456, -45.5, 300.0], atol=1e-6)
+    assert np.allclose(got.accel[0], [0.0012, -0.5, 1.0], atol=1e-8)
+    assert np.allclose(got.temp, 25.0)
+    assert got.flags is not None and got.flags[4] & FLAG_ADC_ERROR
+    assert not np.any(np.delete(got.flags, 4))
+    with pytest.raises(SourceError, match="model=adis16495-2"):
+        with PtyPair() as pair:
+            fake = FakeISensorBoard(pair, prod_id=16495)
+            fake.start()
+            try:
+                open_source(f"isensor://{pair.slave_path}").open()
+            finally:
+                fake.stop()
