@@ -251,21 +251,25 @@ class ISensorDecoder(DeviceDecoder):
         path, without its fixed numpy cost); None, with nothing changed, when any line is
         not a good 4-digit entry."""
         fast = 5 * width - 1
-        rows = []
-        for raw in raws:
-            line = raw[:-1] if raw.endswith(b"\r") else raw
+        lines = [raw[:-1] if raw.endswith(b"\r") else raw for raw in raws]
+        for line in lines:
             if len(line) != fast or line.count(b",") != width - 1:
                 return None
-            try:
-                packed = bytes.fromhex(line.replace(b",", b"").decode("ascii"))
-                w = _ENTRY_1647X.unpack(packed)
-            except (ValueError, UnicodeDecodeError, struct.error):
-                return None
+        try:
+            packed = bytes.fromhex(b"".join(lines).replace(b",", b"").decode("ascii"))
+        except (ValueError, UnicodeDecodeError):
+            return None
+        size = _ENTRY_1647X.size
+        if len(packed) != size * len(lines):
+            return None
+        rows = []
+        for p in range(0, len(packed), size):
+            w = _ENTRY_1647X.unpack_from(packed, p)
             if (sum(w) - w[4]) & 0xFFFF != w[4]:
                 return None
-            if sum(packed[12:30]) & 0xFFFF != w[15]:  # bytes of DIAG_STAT .. DATA_CNTR
+            if sum(packed[p + 12 : p + 30]) & 0xFFFF != w[15]:  # DIAG_STAT .. DATA_CNTR bytes
                 return None
-            rows.append((w, _OUTS_1647X.unpack_from(packed, 14)))
+            rows.append((w, _OUTS_1647X.unpack_from(packed, p + 14)))
         if not rows:
             return None
         self.frame_bytes += sum(len(r) + 1 for r in raws)
