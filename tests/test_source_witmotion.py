@@ -192,3 +192,26 @@ def test_chunked_is_used_for_frames():
     dec = WitmotionDecoder(rate_hz=200)
     out = SampleBlock.concat([dec.feed(c) for c in chunked(data, 7)])
     assert len(out) == 20 and np.allclose(out.t, np.arange(20) / 200)
+
+
+def test_daemon_says_no_data_while_unplugged_and_recovers(tmp_path):
+    link = tmp_path / "wt901"
+    first = PtyPair(link=link)
+    path = datasheet_certificate_path("witmotion-wt901")
+    try:
+        with DaemonThread(f"witmotion://{link}?rate=200", str(path)) as d:
+            d.wait_connected()
+            first.write(b"".join(encode(still(200))))
+            d.wait(lambda s: s["state"] == "ok")  # the line of the change to ok (any frames)
+            first.close_master()
+            gone = d.wait(lambda s: s["link"] == "reconnecting")
+            assert gone["state"] == "no_data" and "reconnecting" in gone["notes"][-1]
+            first.close()
+            with PtyPair(link=link) as second:
+                d.wait_connected()
+                second.write(b"".join(encode(still(200, t0=1.0))))
+                back = d.wait(lambda s: s["counters"]["frames"] > 200 and s["state"] == "ok")
+    finally:
+        first.close()
+    assert back["link"] == "connected" and back["counters"]["crc_errors"] == 0
+    assert back["t"] >= 1.0  # the device clock carried on after the replug
