@@ -236,3 +236,25 @@ def test_timeline_gives_the_same_times_and_counts_in_any_read_size():
             results.append((t, c, tl.restarts))
         (t1, c1, r1), (t2, c2, r2) = results
         assert np.allclose(t1, t2) and c1 == c2 and r1 == r2
+
+
+def test_a_bench_scenario_served_by_the_fake_device(tmp_path):
+    """`python -m imudiag.bench.fake_device iio`: the bench's sensor-faults scenario on a
+    fake ADIS16475-2, read in m/s^2 (gravity on -z, then the +38-limit az bias)."""
+    from imudiag.bench.fake_device import serve
+    from imudiag.bench.scenario import load_bundled
+
+    scenario = load_bundled("sensor-faults").with_options(speed=10.0)
+    root, devdir = tmp_path / "devices", tmp_path / "dev"
+    fake, thread = serve("iio", scenario, "adis16475-2", 200.0, root=root, devdir=devdir)
+    try:
+        with open_source(f"iio://adis16475?root={root}&devdir={devdir}&rate=200") as src:
+            got = read_samples(src, 700, timeout_s=20)
+    finally:
+        thread.join(5)
+        fake.close()
+    assert len(got) >= 700 and np.allclose(got.t, np.arange(len(got)) / 200.0)
+    g = units.factor("accel", "g", "m/s^2")
+    assert got.accel[:50, 2].mean() == pytest.approx(-g, abs=0.01)
+    jump = got.accel[450:650, 2].mean() - got.accel[:350, 2].mean()  # after / before t = 2 s
+    assert jump == pytest.approx(800 / 21.0 * 0.002 * g, abs=0.01)

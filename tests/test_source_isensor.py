@@ -278,3 +278,25 @@ def test_adis16495_32_bit_burst():
                 open_source(f"isensor://{pair.slave_path}").open()
             finally:
                 fake.stop()
+
+
+def test_a_bench_scenario_served_by_the_fake_device(tmp_path):
+    """`python -m imudiag.bench.fake_device isensor`: the bench's sensor-faults scenario on
+    a fake ADIS16475-2 behind the board (the +38-limit az bias from t = 2 s)."""
+    from imudiag.bench.fake_device import serve
+    from imudiag.bench.scenario import load_bundled
+
+    scenario = load_bundled("sensor-faults").with_options(speed=10.0)
+    link = tmp_path / "isensor0"
+    board, thread = serve("isensor", scenario, "adis16475-2", 200.0, link=link)
+    try:
+        with open_source(f"isensor://{link}") as src:
+            got = read_samples(src, 700, timeout_s=20)
+            info = src.device_info
+    finally:
+        board.stop()
+        board.pair.close()
+    assert info["product"] == "ADIS16475-2" and len(got) >= 700  # whole 0.05 s chunks
+    assert np.allclose(got.t, np.arange(len(got)) / 200.0)
+    jump = got.accel[450:650, 2].mean() - got.accel[:350, 2].mean()
+    assert jump == pytest.approx(800 / 21.0 * 0.002, abs=0.002)

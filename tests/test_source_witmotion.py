@@ -215,3 +215,26 @@ def test_daemon_says_no_data_while_unplugged_and_recovers(tmp_path):
         first.close()
     assert back["link"] == "connected" and back["counters"]["crc_errors"] == 0
     assert back["t"] >= 1.0  # the device clock carried on after the replug
+
+
+def test_a_bench_scenario_served_by_the_fake_device(tmp_path):
+    """`python -m imudiag.bench.fake_device witmotion`: the bench's sensor-faults scenario
+    (az bias of 800 counts = 38 limits of the native board at t = 2 s) arrives as a
+    38-limit az bias of the WT901 (0.38 g)."""
+    from imudiag.bench.fake_device import serve
+    from imudiag.bench.scenario import load_bundled
+
+    scenario = load_bundled("sensor-faults").with_options(speed=10.0)
+    link = tmp_path / "wt901"
+    pair, writer = serve("witmotion", scenario, "", 200.0, link=link)
+    try:
+        with open_source(f"witmotion://{link}?rate=200") as src:
+            got = read_samples(src, 700, timeout_s=20)  # 3.5 s of sample time
+    finally:
+        writer.stop()
+        pair.close()
+    assert len(got) >= 600 and got.meta["units"] == {"gyro": "deg/s", "accel": "g"}
+    # (opening the port flushed what the fake sent before: time 0 is the first sample read,
+    # within the first second of the scenario at this pace)
+    before, after = got.accel[:50, 2].mean(), got.accel[-50:, 2].mean()  # t < 2 s, t > 3 s
+    assert after - before == pytest.approx(800 / 21.0 * 0.01, abs=0.01)
