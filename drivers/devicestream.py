@@ -28,7 +28,7 @@ from imudiag.samples import SampleBlock
 
 from .base import SourceError, SourceURL
 from .serial_port import SerialSource
-from .wire import Counters
+from .wire import Counters, PendingBytes
 
 _FEW = 32  #: blocks of at most this many samples take the plain-Python timeline path
 #: device_info keys every device source fills (None where the device does not say)
@@ -42,7 +42,7 @@ def identity(**known: Any) -> dict[str, Any]:
     return info
 
 
-class DeviceDecoder(ABC):
+class DeviceDecoder(PendingBytes, ABC):
     """Bytes of one device protocol in, :class:`SampleBlock` in physical units out.
 
     Byte accounting as the native decoder keeps it::
@@ -64,24 +64,12 @@ class DeviceDecoder(ABC):
         self._pending = b""
         self._meta: dict[str, Any] = {"units": dict(self.units)}
 
-    @property
-    def pending_bytes(self) -> int:
-        """Bytes held back waiting for the rest of a frame or line."""
-        return len(self._pending)
-
     def feed(self, data: bytes | bytearray | memoryview) -> SampleBlock:
         """Decode ``data`` plus held-back bytes; returns the complete good samples."""
-        data = bytes(data)
-        self.counters.bytes += len(data)
-        buf = self._pending + data if self._pending else data
+        buf = self._joined(data)
         block, used = self._decode(buf)
         self._pending = buf[used:]
         return block
-
-    def drop_pending(self) -> None:
-        """Discard held-back bytes (after a reconnect), counting them as skipped."""
-        self.counters.skipped_bytes += len(self._pending)
-        self._pending = b""
 
     @abstractmethod
     def _decode(self, buf: bytes) -> tuple[SampleBlock, int]:

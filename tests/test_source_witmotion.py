@@ -210,7 +210,10 @@ def test_daemon_says_no_data_while_unplugged_and_recovers(tmp_path):
             with PtyPair(link=link) as second:
                 d.wait_connected()
                 second.write(b"".join(encode(still(200, t0=1.0))))
-                back = d.wait(lambda s: s["counters"]["frames"] > 200 and s["state"] == "ok")
+                # (ok, or degraded if the reopened port dropped bytes in flight)
+                back = d.wait(
+                    lambda s: s["counters"]["frames"] > 200 and s["state"] in ("ok", "degraded")
+                )
     finally:
         first.close()
     assert back["link"] == "connected" and back["counters"]["crc_errors"] == 0
