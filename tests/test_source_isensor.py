@@ -227,6 +227,10 @@ def test_daemon_sends_the_self_test_command(board):
         info = d.daemon.source.device_info
     assert fake.self_tests == 1
     assert info["self_test"] == {"count": 1, "result": "pass", "t": pytest.approx(0.201)}
+    device = noted["device"]  # what the daemon is talking to, in its status
+    assert device["product"] == "ADIS16475-2" and device["prod_id"] == 16475
+    assert device["serial"] == "0A1B" and device["firmware"] == "1.07"
+    assert device["datasheet"] == "adis16475-2" and device["self_test"]["result"] == "pass"
     assert any("'REBOOT' not sent" in n for n in noted["notes"])
 
 

@@ -461,6 +461,9 @@ class Daemon:
             notes.append(self._command_note)
         if self._units_note:
             notes.append(self._units_note)
+        info = self.source.device_info
+        if info and "datasheet" in info:  # a device protocol's identity (docs/devices.md)
+            status["device"] = dict(info)
         if self._conversion is not None and not self._conversion[2].identity:
             status["unit_conversion"] = self._conversion[2].describe()
         why = self._no_data_reason(now, status["state"])
