@@ -27,7 +27,7 @@ from ..quasistatic import BAD_FLAGS, DetectorPool
 from ..samples import FLAG_SELF_TEST, SampleBlock
 from .config import DiagnosisConfig
 from .inputs import MagnitudeTable, check_units, log_rate_hz
-from .intervals import IntervalCollector
+from .intervals import IntervalCollector, QuasiStaticInterval
 from .known_rate import PLATEAU_DETECTOR
 from .params import PARAM_KEYS, cause_unit
 from .scalar_fit import NormalEquations, sample_rows
@@ -261,50 +261,28 @@ def diagnose_recording(
     return report
 
 
-def calibrate_recording(
+def collect_intervals(
     data: Recording,
     like: Certificate,
     config: DiagnosisConfig,
-    *,
     rate_hz: float | None = None,
-    magnitude: MagnitudeTable | str | Path | None = None,
+    table: MagnitudeTable | None = None,
     certificate_noise: bool = False,
     options: LogOptions | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
     progress: ProgressCallback | None = None,
-) -> CalibrationResult:
-    """Calibrate from a whole recording (``imudiag calibrate``); the result's ``noise``
-    holds the unit's white noise measured from the recording.
-
-    ``like`` gives scale factors, units, limits and starting values. The result's
-    ``generalisation`` and ``gyro_generalisation`` say whether the held-out checks
-    accept the calibration (``refusals()``: why not); nothing is written here.
-    ``progress``: told how far each pass has got. Raises
-    :class:`~imudiag.errors.BadInput` when the recording cannot calibrate (no still
-    interval, too few attitudes).
-    """
-    from .calibrate import calibrate, calibrate_known_rate  # not on diagnose's path
-
-    table = _magnitudes(magnitude)
-    if config.method == "moving-base" and table is None:
-        raise BadInput(
-            "--method moving-base: calibration needs independent magnitudes "
-            "(--magnitude FILE); the triad's own magnitude cannot calibrate it"
-        )
-    if table is not None and config.method != "moving-base":
-        raise BadInput("--magnitude: only the moving-base method uses independent magnitudes")
-    known = config.known_rate_rad_s
-    if known is not None and table is not None:
-        raise BadInput("--known-rate: only the exact method (no --magnitude) uses a known rate")
+) -> tuple[list[QuasiStaticInterval], float, dict[str, tuple[NormalEquations, float]]]:
+    """The still intervals the calibration fits (time order), the sample rate (Hz) and, with
+    independent magnitudes ``table``, each triad's moving-base normal equations and
+    reference magnitude (input units). Raises :class:`~imudiag.errors.BadInput` without
+    samples or without a still interval."""
     name = recording_name(data)
-    noise_report = measure_noise(
-        data, like, rate_hz, block_size, options, certificate_noise, progress
-    )
+    known = config.known_rate_rad_s
     detector_options: dict[str, Any] = {"certificate_noise": certificate_noise}
     if known is not None:
         detector_options.update(PLATEAU_DETECTOR)
     collector = None
-    intervals = []
+    intervals: list[QuasiStaticInterval] = []
     moving: dict[str, tuple[NormalEquations, float]] = {}
     rate = None
     with blocks(data, block_size, options, progress, "collecting intervals") as (meta, stream):
@@ -349,6 +327,52 @@ def calibrate_recording(
             "still long enough): nothing to calibrate from"
         )
     moving = {k: v for k, v in moving.items() if v[0].n > 0}
+    assert rate is not None
+    return intervals, float(rate), moving
+
+
+def calibrate_recording(
+    data: Recording,
+    like: Certificate,
+    config: DiagnosisConfig,
+    *,
+    rate_hz: float | None = None,
+    magnitude: MagnitudeTable | str | Path | None = None,
+    certificate_noise: bool = False,
+    options: LogOptions | None = None,
+    block_size: int = DEFAULT_BLOCK_SIZE,
+    progress: ProgressCallback | None = None,
+) -> CalibrationResult:
+    """Calibrate from a whole recording (``imudiag calibrate``); the result's ``noise``
+    holds the unit's white noise measured from the recording.
+
+    ``like`` gives scale factors, units, limits and starting values. The result's
+    ``generalisation`` and ``gyro_generalisation`` say whether the held-out checks
+    accept the calibration (``refusals()``: why not); nothing is written here.
+    ``progress``: told how far each pass has got. Raises
+    :class:`~imudiag.errors.BadInput` when the recording cannot calibrate (no still
+    interval, too few attitudes).
+    """
+    from .calibrate import calibrate, calibrate_known_rate  # not on diagnose's path
+
+    table = _magnitudes(magnitude)
+    if config.method == "moving-base" and table is None:
+        raise BadInput(
+            "--method moving-base: calibration needs independent magnitudes "
+            "(--magnitude FILE); the triad's own magnitude cannot calibrate it"
+        )
+    if table is not None and config.method != "moving-base":
+        raise BadInput("--magnitude: only the moving-base method uses independent magnitudes")
+    known = config.known_rate_rad_s
+    if known is not None and table is not None:
+        raise BadInput("--known-rate: only the exact method (no --magnitude) uses a known rate")
+    name = recording_name(data)
+    noise_report = measure_noise(
+        data, like, rate_hz, block_size, options, certificate_noise, progress
+    )
+    intervals, rate, moving = collect_intervals(
+        data, like, config, rate_hz, table, certificate_noise, options, block_size, progress
+    )
     measured = {
         triad: np.asarray(noise_report[triad]["measured"]["density"], dtype=float)
         for triad in ("gyro", "accel")
@@ -377,6 +401,7 @@ def calibrate_recording(
 
 
 __all__ = [
+    "collect_intervals",
     "DEFAULT_BLOCK_SIZE",
     "NOISE_SECONDS",
     "DiagnosisTrace",
