@@ -176,14 +176,28 @@ def run(args: argparse.Namespace) -> int:
         )
     for line in noise_lines(noise_report):
         print(line, file=out)
+    holds = result.holds or {}
+    if holds.get("found"):
+        dropped = "; ".join(f"{n} {why}" for why, n in holds["dropped"].items() if n)
+        print(
+            f"still holds: {holds['found']} found, {holds['used']} used"
+            + (f", dropped: {dropped}" if dropped else ""),
+            file=out,
+        )
     for c, what in ((check, "intervals"), (gcheck, "motions")):
         if c.get("leave_one_out_rms") is not None:
+            if c.get("by") == "attitude":
+                what, n_out = "attitudes", c["attitudes_held_out"]
+            else:
+                n_out = c["held_out"]
             print(
                 f"held-out check: {c['quantity']} rms {c['leave_one_out_rms']:.3e} "
                 f"leaving each of "
-                f"{c['held_out']} {what} out (in-sample {c['in_sample_rms']:.3e})",
+                f"{n_out} {what} out (in-sample {c['in_sample_rms']:.3e})",
                 file=out,
             )
+            if c.get("note"):
+                print(f"  note: {c['note']}", file=out)
     if refused:
         print(f"WARNING: {result.certificate.device['warning']}", file=sys.stderr)
     else:

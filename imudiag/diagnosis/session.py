@@ -271,10 +271,12 @@ def collect_intervals(
     options: LogOptions | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
     progress: ProgressCallback | None = None,
+    holds: dict[str, Any] | None = None,
 ) -> tuple[list[QuasiStaticInterval], float, dict[str, tuple[NormalEquations, float]]]:
     """The still intervals the calibration fits (time order), the sample rate (Hz) and, with
     independent magnitudes ``table``, each triad's moving-base normal equations and
-    reference magnitude (input units). Raises :class:`~imudiag.errors.BadInput` without
+    reference magnitude (input units). ``holds``, when given, is filled with the still runs
+    found, used and dropped (with why). Raises :class:`~imudiag.errors.BadInput` without
     samples or without a still interval."""
     name = recording_name(data)
     known = config.known_rate_rad_s
@@ -328,6 +330,15 @@ def collect_intervals(
         )
     moving = {k: v for k, v in moving.items() if v[0].n > 0}
     assert rate is not None
+    if holds is not None:
+        holds.update(
+            found=len(intervals) + collector.dropped_short,
+            used=len(intervals),
+            dropped={
+                f"still for less than the minimum hold ({config.min_interval_s:g} s after "
+                f"the {config.trim_s:g} s trim)": collector.dropped_short
+            },
+        )
     return intervals, float(rate), moving
 
 
@@ -370,8 +381,9 @@ def calibrate_recording(
     noise_report = measure_noise(
         data, like, rate_hz, block_size, options, certificate_noise, progress
     )
+    holds: dict[str, Any] = {}
     intervals, rate, moving = collect_intervals(
-        data, like, config, rate_hz, table, certificate_noise, options, block_size, progress
+        data, like, config, rate_hz, table, certificate_noise, options, block_size, progress, holds
     )
     measured = {
         triad: np.asarray(noise_report[triad]["measured"]["density"], dtype=float)
@@ -397,6 +409,7 @@ def calibrate_recording(
     except ValueError as exc:
         raise BadInput(f"{name}: {exc}") from None
     result.noise = noise_report
+    result.holds = holds
     return result
 
 
