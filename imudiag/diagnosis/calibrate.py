@@ -794,7 +794,6 @@ def _leave_one_out(
                 essential,
                 quantity,
                 point="attitude",
-                what="attitudes",
                 uncalibrated_allowance=True,
             )
             worst = out.pop("worst_attitude")
