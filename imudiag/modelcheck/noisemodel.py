@@ -170,7 +170,7 @@ def term_intervals(model: NoiseFit, allan: AllanResult, sel: np.ndarray) -> dict
         cov = np.linalg.inv(aw.T @ aw)
     except np.linalg.LinAlgError:
         return {}
-    out = {}
+    out: dict[str, list[float]] = {}
     for i, k in enumerate(keys):
         c = model.terms[k] ** 2
         half = 1.96 * math.sqrt(max(float(cov[i, i]), 0.0))
