@@ -101,6 +101,8 @@ _BUILTIN_MODULES: dict[str, str] = {
     "socket": "imudiag.drivers.serial_port",
     "hid": "imudiag.drivers.hid",
     "usb": "imudiag.drivers.usb",
+    "mavlink": "imudiag.drivers.mavlink",
+    "mavlink+udp": "imudiag.drivers.mavlink",
 }
 #: Entry-point group of the sources that live above the driver layer (``sim://`` and
 #: ``replay://`` in :mod:`imudiag.sources`, and any plug-in package's): name = scheme,
