@@ -271,6 +271,12 @@ class MavlinkDecoder:
         out, self._out = self._out, []
         return b"".join(out)
 
+    def hello(self) -> bytes:
+        """Our HEARTBEAT: an onboard controller (MAV_TYPE 18) that is no autopilot (8)."""
+        frame = self._mav.heartbeat_encode(18, 8, 0, 0, 4).pack(self._mav, force_mavlink1=self._v1)
+        self._mav.seq = (self._mav.seq + 1) % 256  # pymavlink counts in send(), not pack()
+        return bytes(frame)
+
     def request_rate(self, rate_hz: float) -> None:
         """Ask the autopilot for ``rate_hz`` of the IMU message (sent on its next HEARTBEAT)."""
         self.rate_hz = float(rate_hz)
@@ -458,7 +464,8 @@ class MavlinkDecoder:
         for row in held:
             self._sample(row, rows)
         self._describe_kind()
-        self._requests = [r for r in self._requests if r.what != "rate"]
+        if kind != "highres":  # the rate was asked for HIGHRES_IMU: ask for this one's
+            self._requests = [r for r in self._requests if r.what != "rate"]
 
     def _describe_kind(self) -> None:
         info = self.device_info
@@ -535,9 +542,7 @@ class MavlinkDecoder:
             info["firmware"] = info["autopilot"]
         if self.kind is not None:
             self._describe_kind()
-        self._send(
-            self._mav.heartbeat_encode(18, 8, 0, 0, 4)  # onboard controller, no autopilot
-        )
+        self._out.append(self.hello())
         self._send_requests()
 
     def _send_requests(self) -> None:
@@ -610,7 +615,8 @@ class MavlinkDecoder:
                 r.result = r.result or "accepted"
 
     def _send(self, msg: Any) -> None:
-        self._out.append(msg.pack(self._mav, force_mavlink1=self._v1))
+        self._out.append(bytes(msg.pack(self._mav, force_mavlink1=self._v1)))
+        self._mav.seq = (self._mav.seq + 1) % 256
 
 
 # -- transports -----------------------------------------------------------------------------
@@ -722,8 +728,7 @@ class MavlinkUdpSource(_MavlinkMixin, ByteSource):
         sock.setblocking(False)
         self._sock = sock
         if self.mode == "connect":  # make ourselves known before the autopilot's heartbeat
-            mav = self.decoder._mav
-            self._write_bytes(mav.heartbeat_encode(18, 8, 0, 0, 4).pack(mav))
+            self._write_bytes(self.decoder.hello())
 
     def _read_bytes(self, timeout_s: float) -> bytes:
         import select

@@ -26,6 +26,7 @@ import time
 import tty
 from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 
 class PtyPair:
@@ -41,7 +42,7 @@ class PtyPair:
         self.slave_path = os.ttyname(self._slave_fd)
         tty.setraw(self._slave_fd)  # no echo, no CR/LF translation, no signals
         self.link = Path(link) if link is not None else None
-        self._writers: list[BoardWriter] = []
+        self._writers: list[Any] = []  # writer threads (a .stop()), stopped on unplug
         self._command_buf = b""
         if self.link is not None:
             tmp = self.link.with_name(f".{self.link.name}.{os.getpid()}.tmp")
