@@ -31,6 +31,7 @@ from .config import DaemonConfig
 from .sdnotify import Notifier, WatchdogGate
 from .status import (
     StatusSchedule,
+    device_object,
     diagnosis_verdict,
     merge_faults,
     noise_object,
@@ -48,6 +49,9 @@ DAEMON_WINDOWS_KEPT = 16  #: past diagnosis windows the live diagnoser keeps in 
 
 #: status lines over which the status's ``cpu`` figures are taken (about 10 s at 1 Hz)
 CPU_WINDOW_LINES = 10
+
+#: ``--certificate auto``: how long the daemon waits for the source's identity, s
+IDENTITY_TIMEOUT_S = 10.0
 
 
 class StatusSink(Protocol):
@@ -76,7 +80,10 @@ class DaemonSettings:
     """
 
     source_url: str = _DEFAULTS.source
-    certificate_path: str | None = _DEFAULTS.certificate  #: None: the bundled certificate
+    #: None: the bundled certificate; "auto": the data-sheet certificate the source names
+    certificate_path: str | None = _DEFAULTS.certificate
+    #: with certificate "auto": the longest wait for the source's identity, s
+    identity_timeout_s: float = IDENTITY_TIMEOUT_S
     status_period_s: float = 1.0 / _DEFAULTS.status_rate_hz  #: steady status cadence, s
     #: no valid frame for this long -> state no_data, s
     no_data_timeout_s: float = _DEFAULTS.no_data_timeout_s
@@ -132,6 +139,18 @@ class Daemon:
         self.notifier = notifier or Notifier.from_env()
         self.watchdog = WatchdogGate(self.notifier)
         self.clock = clock
+        #: samples read while waiting for the device's identity (certificate "auto")
+        self._early: list[SampleBlock] = []
+        source: ReconnectingSource | None = None
+        if settings.certificate_path == certmod.AUTO:
+            source = ReconnectingSource(
+                settings.source_url,
+                min_backoff_s=settings.reconnect_min_s,
+                max_backoff_s=settings.reconnect_max_s,
+            )
+            self.certificate_file = certmod.datasheet_path(self._wait_identity(source))
+        else:
+            self.certificate_file = certificate_path_or_default(settings.certificate_path)
         self.certificate = self._load_certificate()
         self.monitor = Monitor(self.certificate, settings.monitor)
         #: the unit's white noise measured live, as every command measures it
@@ -147,7 +166,7 @@ class Daemon:
         self._merged: tuple[list[Any], list[Any], list[dict[str, Any]]] | None = None
         self._signature: tuple[str, list[dict[str, Any]], tuple[Any, ...]] | None = None
         self._paced: tuple[list[StatusSink], list[StatusSink]] | None = None
-        self.source = ReconnectingSource(
+        self.source = source or ReconnectingSource(
             settings.source_url,
             certificate=self.certificate,
             min_backoff_s=settings.reconnect_min_s,
@@ -172,7 +191,41 @@ class Daemon:
     # -- setup ------------------------------------------------------------
 
     def _load_certificate(self) -> Certificate:
-        return certmod.load(certificate_path_or_default(self.settings.certificate_path))
+        return certmod.load(self.certificate_file)
+
+    def _wait_identity(self, source: ReconnectingSource) -> str:
+        """Open ``source`` and read until its ``device_info`` names a data-sheet certificate
+        (the samples read meanwhile are kept for the loop); the key. SourceError naming the
+        source and what it said after ``identity_timeout_s``."""
+        url = self.settings.source_url
+        timeout = self.settings.identity_timeout_s
+        source.open()
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                block = source.read(min(0.1, max(0.0, deadline - time.monotonic())))
+            except EndOfStream:
+                break
+            if len(block):
+                self._early.append(block)
+            key = source.device_info.get("datasheet")
+            if key:
+                log.info("source %s names its data sheet %r", url, key)
+                return str(key)
+        source.close()
+        info = source.device_info
+        if source.state != "connected":
+            why = f"not connected ({source.last_error or 'no device'})"
+        elif "datasheet" in info:
+            named = {k: info[k] for k in ("vendor", "product", "message") if info.get(k)}
+            why = f"it names no data-sheet certificate (identity {named or 'none'})"
+        else:
+            c = source.counters
+            why = f"it sent no identity ({c.frames} samples, {c.bytes} bytes)"
+        raise SourceError(
+            f"source {url}: --certificate auto: no device identity within {timeout:g} s: {why}; "
+            "give a certificate file (--certificate PATH, e.g. from imudiag calibrate)"
+        )
 
     def _make_diagnoser(self, cert: Certificate) -> Any:
         if not self.settings.diagnosis:
@@ -223,7 +276,7 @@ class Daemon:
     def _read_certificate(self) -> Certificate | CertificateError:
         """Load the certificate file (runs in the reload thread): the certificate or the error."""
         try:
-            return certmod.load(certificate_path_or_default(self.settings.certificate_path))
+            return certmod.load(self.certificate_file)
         except CertificateError as exc:
             return exc
 
@@ -248,7 +301,7 @@ class Daemon:
             self._start_reload()
 
     def _apply_reload(self, new: Certificate | CertificateError | None) -> bool:
-        path = certificate_path_or_default(self.settings.certificate_path)
+        path = self.certificate_file
         if not isinstance(new, Certificate):
             msg = f"certificate reload failed, keeping the previous one: {new}"
             log.error(msg)
@@ -404,6 +457,9 @@ class Daemon:
             }
         if self.aiding is not None:
             status["aiding"] = self.aiding.status()
+        device = self.source.device_info
+        if device:  # what the daemon is talking to (docs/devices.md: the shared keys first)
+            status["device"] = device_object(device)
         notes = list(self.notes)
         why = self._no_data_reason(now, status["state"])
         if why:
@@ -458,7 +514,10 @@ class Daemon:
                     self._start_reload()
                 self._finish_reload()
                 try:
-                    block = self.source.read(self.settings.read_timeout_s)
+                    if self._early:  # read while waiting for the identity: first
+                        block = self._early.pop(0)
+                    else:
+                        block = self.source.read(self.settings.read_timeout_s)
                 except EndOfStream:
                     self._feed_batch(None)
                     self._emit(self.clock(), force=True)
