@@ -139,7 +139,8 @@ def test_mavlink1_frames_and_signed_frames_decode():
     signer.signing.link_id = 1
     signer.signing.timestamp = 1
     signer.signing.sign_outgoing = True
-    signed = bytes(signer.highres_imu_encode(7, 1, 2, 3, 4, 5, 6, 0, 0, 0, 0, 0, 0, 0, 63).pack(signer))
+    msg = signer.highres_imu_encode(7, 1, 2, 3, 4, 5, 6, 0, 0, 0, 0, 0, 0, 0, 63)
+    signed = bytes(msg.pack(signer))
     dec = MavlinkDecoder()
     b = dec.feed(signed)
     assert len(b) == 1 and dec.counters.skipped_bytes == 0
@@ -390,7 +391,8 @@ def _both_ok(s: dict) -> bool:
 
 
 def _az_bias(s: dict) -> bool:
-    return any((f["triad"], f["sensor"], f["cause"]) == ("accel", "az", "bias") for f in s["faults"])
+    named = {(f["triad"], f["sensor"], f["cause"]) for f in s["faults"]}
+    return ("accel", "az", "bias") in named
 
 
 def _session(n: int, dwell_s: float, seed: int, faults=()) -> SampleBlock:
