@@ -57,7 +57,7 @@ import re
 import socket
 import struct
 from types import ModuleType
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -310,16 +310,16 @@ class MavlinkDecoder:
                 length, iflags = buf[i + 1], buf[i + 2]
                 msgid = buf[i + 7] | (buf[i + 8] << 8) | (buf[i + 9] << 16)
                 head = HEADER_V2
-                full = lengths.get(msgid)
-                ok = full is not None and length <= full and not (iflags & ~IFLAG_SIGNED)
+                full = lengths.get(msgid, -1)
+                ok = 0 <= length <= full and not (iflags & ~IFLAG_SIGNED)
                 total = head + length + CRC_SIZE + (SIGNATURE_SIZE if iflags & 1 else 0)
             else:
                 if n - i < HEADER_V1:
                     return i
                 length, msgid = buf[i + 1], buf[i + 5]
                 head = HEADER_V1
-                full = lengths.get(msgid)
-                ok = full is not None and length <= full
+                full = lengths.get(msgid, -1)
+                ok = 0 <= length <= full
                 total = head + length + CRC_SIZE
             if not ok:  # not the start of a frame of a message we know
                 c.skipped_bytes += 1
@@ -547,7 +547,7 @@ class MavlinkDecoder:
 
     def _send_requests(self) -> None:
         """(Re)send what is not acknowledged yet; build the requests on first need."""
-        wanted = []
+        wanted: list[tuple[str, int, tuple[float, ...]]] = []
         if self.rate_hz > 0:
             msg = MSG_HIGHRES_IMU
             if self.kind == "scaled":
@@ -675,7 +675,7 @@ class _MavlinkMixin(ByteSource):
 class MavlinkSerialSource(_MavlinkMixin, SerialSource):
     """``mavlink:///dev/ttyACM0?baud=115200``: an autopilot on a serial or USB CDC port."""
 
-    url_keys = ("baud", "exclusive", *_URL_KEYS)
+    url_keys: ClassVar[tuple[str, ...] | None] = ("baud", "exclusive", *_URL_KEYS)
 
     def __init__(self, url: SourceURL, **options: Any) -> None:
         if url.scheme == "mavlink":
@@ -696,7 +696,7 @@ class MavlinkUdpSource(_MavlinkMixin, ByteSource):
     a silent autopilot is ``no_data``, never a lost device.
     """
 
-    url_keys = ("mode", *_URL_KEYS)
+    url_keys: ClassVar[tuple[str, ...] | None] = ("mode", *_URL_KEYS)
 
     def __init__(self, url: SourceURL, **options: Any) -> None:
         super().__init__(url, **options)

@@ -445,7 +445,7 @@ def test_certificate_auto_loads_the_data_sheet_and_says_so(tmp_path: Path):
     block = simulate(sheet, motion, seed=2).samples
     sink = CollectSink()
     with PtyPair() as pair:
-        writer = DeviceWriter(pair, MavlinkEncoder(sheet), _blocks(block), speed=5.0)
+        writer = DeviceWriter(pair, MavlinkEncoder(sheet), _blocks(block), 5.0, wait_host_s=20)
         writer.start()
         daemon = Daemon(
             DaemonSettings(
@@ -489,3 +489,41 @@ def test_certificate_auto_without_identity_names_the_source(tmp_path: Path):
         writer.stop()
     assert url in str(err.value) and "no device identity within 0.5 s" in str(err.value)
     assert "--certificate PATH" in str(err.value)
+
+
+def test_scaled_imu_in_mg_and_mrad_s_conformed_to_the_si_data_sheet():
+    """SCALED_IMU samples (mg, mrad/s) against the SI data-sheet certificate: converted
+    exactly by imudiag.units, said in the status, and the still unit passes F0."""
+    sheet = load(datasheet_path("mavlink-fc-imu"))
+    motion = multi_position(n_attitudes=1, dwell_s=4.0, rate_hz=RATE_HZ)
+    block = simulate(sheet, motion, seed=4).samples
+    sink = CollectSink()
+    enc = MavlinkEncoder(sheet, message="scaled")
+    with PtyPair() as pair:
+        daemon = Daemon(
+            DaemonSettings(
+                source_url=f"mavlink://{pair.slave_path}?message=scaled",
+                certificate_path=str(datasheet_path("mavlink-fc-imu")),
+                diagnosis=False,
+            ),
+            [sink],
+        )
+        thread = threading.Thread(target=daemon.run)
+        thread.start()
+        _wait(lambda: daemon.source.state == "connected")
+        writer = DeviceWriter(pair, enc, _blocks(block), speed=8.0)
+        writer.start()
+        try:
+            _wait(lambda: any(s["counters"]["frames"] >= len(block) for s in sink.lines), 20)
+        finally:
+            daemon.request_stop()
+            thread.join(10.0)
+            writer.stop()
+    last = sink.lines[-1]
+    assert last["device"]["message"] == "SCALED_IMU"
+    assert last["unit_conversion"] == [
+        {"triad": "gyro", "from": "mrad/s", "to": "rad/s", "factor": 0.001},
+        {"triad": "accel", "from": "mg", "to": "m/s^2", "factor": 0.00980665},
+    ]
+    assert last["f0"]["accel"]["checked"] > 0 and last["faults"] == []
+    assert last["state"] == "ok"

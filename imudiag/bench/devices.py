@@ -33,6 +33,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from imudiag import units
 from imudiag.certificate import Certificate
 from imudiag.drivers.mavlink import load_pymavlink
 from imudiag.drivers.wire import encode_samples
@@ -40,7 +41,7 @@ from imudiag.errors import BenchError
 from imudiag.samples import SampleBlock
 from imudiag.sim.board import SimulatedBoard
 
-from .pty import PtyPair, _write_all
+from .pty import PtyPair, write_all
 
 #: the SI units of a calibrated physical output per triad
 SI_UNITS = {"gyro": "rad/s", "accel": "m/s^2"}
@@ -62,6 +63,10 @@ class DeviceEncoder(Protocol):
 
     def answer(self, data: bytes) -> bytes:
         """The device's reply to bytes the host sent (b"" when nothing is answered)."""
+        ...
+
+    def idle(self) -> bytes:
+        """What the device sends while it waits for a host (b"": nothing)."""
         ...
 
 
@@ -140,10 +145,15 @@ class NativeEncoder:
         """The simulated board ignores commands (allowed by the spec)."""
         return b""
 
+    def idle(self) -> bytes:
+        """The board sends nothing before it streams."""
+        return b""
+
 
 class MavlinkEncoder:
     """A fake PX4 autopilot: HEARTBEAT every second, HIGHRES_IMU for every sample (the
-    certificate's nominal calibration applied, SI units), VIBRATION at 10 Hz; answers
+    certificate's nominal calibration applied, SI units; ``message="scaled"``: SCALED_IMU in
+    mg and mrad/s, whole numbers, time in ms), VIBRATION at 10 Hz; answers
     COMMAND_LONG (SET_MESSAGE_INTERVAL accepted, REQUEST_MESSAGE of AUTOPILOT_VERSION with
     that message) and everything else with MAV_RESULT_UNSUPPORTED. Everything is encoded by
     pymavlink (never by the source's decoder)."""
@@ -159,7 +169,11 @@ class MavlinkEncoder:
         uid: int = 0x0033_0021_3130_5111,
         fields_updated: int = 0x103F,
         mavlink1: bool = False,
+        message: str = "highres",
     ) -> None:
+        if message not in ("highres", "scaled"):
+            raise BenchError(f"fake autopilot: message must be highres or scaled, got {message!r}")
+        self.message = message
         self.dialect = dialect = load_pymavlink()
         self.scenario_certificate = cert
         self.certificate = calibrated_certificate(cert)
@@ -174,6 +188,8 @@ class MavlinkEncoder:
         self._next_heartbeat: float | None = None  # sample time, s
         self._next_vibration: float | None = None
         self._vib: list[list[float]] = []
+        self._mg = units.factor("accel", "m/s^2", "mg")
+        self._mrad = units.factor("gyro", "rad/s", "mrad/s")
 
     def pack(self, msg: Any) -> bytes:
         """One message's frame, as this autopilot sends it (the link sequence counting on)."""
@@ -201,7 +217,15 @@ class MavlinkEncoder:
                 self._next_heartbeat = (self._next_heartbeat or t) + 1.0
                 out.append(self.heartbeat())
             t_us = int(round(t * 1e6))
-            out.append(self.pack(enc(t_us, *a, *g, *zeros, tc, self.fields_updated)))
+            if self.message == "scaled":  # SCALED_IMU: mg, mrad/s and cdegC in int16
+                ia = [int(round(v * self._mg)) for v in a]
+                ig = [int(round(v * self._mrad)) for v in g]
+                imu = self.mav.scaled_imu_encode(
+                    t_us // 1000, *ia, *ig, 0, 0, 0, int(round(tc * 100)) or 1
+                )
+                out.append(self.pack(imu))
+            else:
+                out.append(self.pack(enc(t_us, *a, *g, *zeros, tc, self.fields_updated)))
             self._vib.append(a)
             if self._next_vibration is None:
                 self._next_vibration = t + 0.1
@@ -211,6 +235,10 @@ class MavlinkEncoder:
                 self._vib = []
                 out.append(self.pack(self.mav.vibration_encode(t_us, *rms, 0, 0, 0)))
         return b"".join(out)
+
+    def idle(self) -> bytes:
+        """A HEARTBEAT: an autopilot announces itself whether or not anyone listens."""
+        return self.heartbeat()
 
     def autopilot_version(self) -> bytes:
         """AUTOPILOT_VERSION of a PX4 v1.14.3 release on a Holybro board."""
@@ -294,9 +322,12 @@ class DeviceWriter(threading.Thread):
     (``speed`` 0: as fast as the host reads). Between blocks the host's bytes are read and
     the encoder's answers written. ``before`` (optional) is called with each block before it
     is encoded and may return bytes to send first (a transport fault: garbage, a corrupted
-    frame). Stops at the end of the blocks, on :meth:`stop`, or when the pty goes away (an
-    unplug: :meth:`PtyPair.close_master` stops it); :attr:`remaining` then holds the block
-    iterator, for a writer on the replugged pty to continue with.
+    frame). With ``wait_host_s`` the device first sends only :meth:`DeviceEncoder.idle`
+    (every 0.1 s) until the host has sent it something or that many seconds have passed
+    (opening a port flushes what arrived before). Stops at the end of the blocks, on
+    :meth:`stop`, or when the pty goes away (an unplug: :meth:`PtyPair.close_master` stops
+    it); :attr:`remaining` then holds the block iterator, for a writer on the replugged pty
+    to continue with.
     """
 
     def __init__(
@@ -306,11 +337,14 @@ class DeviceWriter(threading.Thread):
         blocks: Iterable[SampleBlock],
         speed: float = 1.0,
         before: Callable[[SampleBlock], bytes] | None = None,
+        wait_host_s: float | None = None,
     ) -> None:
         super().__init__(daemon=True, name=f"DeviceWriter-{encoder.name}")
+        self.wait_host_s = wait_host_s
+        self.host_spoke = False  #: the host has sent the device something
         self.pair = pair
         self.fd = pair.master_fd
-        pair._writers.append(self)  # close_master stops it
+        pair.add_writer(self)  # close_master stops it
         self.encoder = encoder
         self.remaining: Iterator[SampleBlock] = iter(blocks)
         self.speed = float(speed)
@@ -322,9 +356,16 @@ class DeviceWriter(threading.Thread):
         self._stop_event = threading.Event()
 
     def run(self) -> None:
-        start = time.monotonic()
         t0: float | None = None
         try:
+            if self.wait_host_s is not None:
+                end = time.monotonic() + self.wait_host_s
+                while not self.host_spoke and time.monotonic() < end:
+                    if self._stop_event.wait(0.1):
+                        return
+                    write_all(self.fd, self.encoder.idle(), self._stop_event)
+                    self._answer()
+            start = time.monotonic()
             for block in self.remaining:
                 if t0 is None:
                     t0 = float(block.t[0])
@@ -337,7 +378,7 @@ class DeviceWriter(threading.Thread):
                 self._answer()
                 data = self.before(block) if self.before is not None else b""
                 data += self.encoder.encode(block)
-                self.bytes_written += _write_all(self.fd, data, self._stop_event)
+                self.bytes_written += write_all(self.fd, data, self._stop_event)
                 self.samples_written += len(block)
                 self.t_last = float(block.t[-1])
                 if self._stop_event.is_set():
@@ -363,17 +404,17 @@ class DeviceWriter(threading.Thread):
                 continue
             break
         if data:
+            self.host_spoke = True
             reply = self.encoder.answer(data)
             if reply:
-                self.bytes_written += _write_all(self.fd, reply, self._stop_event)
+                self.bytes_written += write_all(self.fd, reply, self._stop_event)
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Stop writing and wait up to ``timeout_s`` seconds for the thread."""
         self._stop_event.set()
         if self.is_alive() and threading.current_thread() is not self:
             self.join(timeout_s)
-        if self in self.pair._writers:
-            self.pair._writers.remove(self)
+        self.pair.remove_writer(self)
 
 
 __all__ = [

@@ -27,6 +27,7 @@ from ..monitor import Monitor, MonitorConfig
 from ..noise_estimate import NoiseMeter
 from ..quasistatic import BAD_FLAGS
 from ..samples import SampleBlock
+from ..units import NO_CONVERSION, Conversion, conform
 from .config import DaemonConfig
 from .sdnotify import Notifier, WatchdogGate
 from .status import (
@@ -183,6 +184,9 @@ class Daemon:
         self._last_errors = 0
         self._errors_wall = -math.inf
         self.notes: list[str] = []
+        #: the samples' declared units (a device source's ``meta["units"]``) -> the
+        #: certificate's: (declared units, reloads) it was made for, and the conversion
+        self._conversion: tuple[Any, Conversion] = (None, NO_CONVERSION)
         self.reloads = 0
         self.statuses = 0
         #: (monotonic s, process CPU s, simulated board CPU s), one a second
@@ -460,6 +464,8 @@ class Daemon:
         device = self.source.device_info
         if device:  # what the daemon is talking to (docs/devices.md: the shared keys first)
             status["device"] = device_object(device)
+        if not self._conversion[1].identity:
+            status["unit_conversion"] = self._conversion[1].describe()
         notes = list(self.notes)
         why = self._no_data_reason(now, status["state"])
         if why:
@@ -525,6 +531,7 @@ class Daemon:
                 now = self.clock()
                 read_done = time.monotonic()
                 if len(block):
+                    block = self._conform(block)
                     self._last_data_wall = now
                     self.watchdog.frames_arrived(now)
                     self.monitor.update(block)
@@ -548,6 +555,21 @@ class Daemon:
             for sink in self.sinks:
                 sink.close()
         return 0
+
+    def _conform(self, block: SampleBlock) -> SampleBlock:
+        """``block`` in the certificate's output units (:func:`imudiag.units.conform` of the
+        units a device source declares); BadInput naming the source when they cannot be
+        converted (counts against physical units)."""
+        units = block.meta.get("units")
+        if units is None:
+            return block
+        key = (tuple(sorted(units.items())), self.reloads)
+        if self._conversion[0] != key:
+            where = f"source {self.settings.source_url}"
+            self._conversion = (key, conform(units, self.certificate, where))
+            if not self._conversion[1].identity:
+                log.info("%s: %s", where, self._conversion[1])
+        return self._conversion[1].apply(block)
 
     def _feed_batch(self, block: SampleBlock | None) -> None:
         """Gather ``block``; feed the noise meter and the diagnoser once
