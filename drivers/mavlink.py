@@ -144,6 +144,11 @@ def _rev16(c: int) -> int:
     return _REV8[c >> 8] | (_REV8[c & 0xFF] << 8)
 
 
+#: every 16-bit value bit-reversed: a stored checksum in the form :meth:`MavlinkDecoder._scan`
+#: computes it (the CRC register on bit-reversed bytes)
+_REV16 = [_rev16(c) for c in range(1 << 16)]
+
+
 def x25_crc(data: bytes) -> int:
     """MAVLink's X.25 checksum (CRC-16/MCRF4XX: reflected poly 0x1021, init 0xFFFF) of
     ``data``, through the standard library's CRC-CCITT on bit-reversed bytes."""
@@ -296,14 +301,17 @@ class MavlinkDecoder:
         lengths, extras = self._lengths, self._extras
         crc_hqx = binascii.crc_hqx
         pos = 0
+        rev16 = _REV16
         while pos < n:
-            m = _STX.search(buf, pos)
-            if m is None:
-                c.skipped_bytes += n - pos
-                return n
-            i = m.start()
-            c.skipped_bytes += i - pos
-            pos = i
+            i = pos
+            if buf[i] != STX_V2 and buf[i] != STX_V1:
+                m = _STX.search(buf, pos)
+                if m is None:
+                    c.skipped_bytes += n - pos
+                    return n
+                i = m.start()
+                c.skipped_bytes += i - pos
+                pos = i
             if buf[i] == STX_V2:
                 if n - i < HEADER_V2:
                     return i
@@ -328,8 +336,9 @@ class MavlinkDecoder:
             if n - i < total:
                 return i
             end = i + head + length
-            crc = _rev16(crc_hqx(extras[msgid], crc_hqx(rbuf[i + 1 : end], 0xFFFF)))
-            if crc != buf[end] | (buf[end + 1] << 8):
+            # the register on bit-reversed bytes, against the stored checksum reversed
+            crc = crc_hqx(extras[msgid], crc_hqx(rbuf[i + 1 : end], 0xFFFF))
+            if crc != rev16[buf[end] | (buf[end + 1] << 8)]:
                 c.crc_errors += 1
                 c.skipped_bytes += 1
                 pos = i + 1
@@ -351,6 +360,8 @@ class MavlinkDecoder:
     def _from_target(self, msgid: int, sysid: int, compid: int, payload: bytes) -> bool:
         """Whether a frame comes from the autopilot followed (chosen on its first HEARTBEAT,
         or the first IMU message before any)."""
+        if sysid == self.target_sysid and compid == self.target_compid:
+            return True
         if self.target_sysid is None:
             if msgid == MSG_HEARTBEAT:
                 autopilot = payload[5]
@@ -440,10 +451,14 @@ class MavlinkDecoder:
     def _imu(self, kind: str, row: tuple[float, ...], rows: list[tuple[float, ...]]) -> None:
         """One IMU message of ``kind``: a sample if it is the chosen kind (or held back while
         ``message=auto`` chooses)."""
+        if kind == self.kind:
+            self._sample(row, rows)
+            return
         if self.kind is None:
             t_us = int(row[0])
             if kind == "highres":
                 self._choose("highres", rows)
+                self._sample(row, rows)
             else:
                 held = self._held[kind]
                 held.append(row)
@@ -451,11 +466,8 @@ class MavlinkDecoder:
                     self._first_imu_us = t_us
                 if t_us - self._first_imu_us >= CHOOSE_S * 1e6:
                     self._choose(next(k for k in KINDS if self._held[k]), rows)
-                return
-        if kind != self.kind:
-            self.other_imu += 1
             return
-        self._sample(row, rows)
+        self.other_imu += 1
 
     def _choose(self, kind: str, rows: list[tuple[float, ...]]) -> None:
         self.kind = kind
