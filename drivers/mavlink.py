@@ -406,6 +406,7 @@ class MavlinkDecoder:
                 self.other_imu += 1
             elif v[14] & HIGHRES_UPDATED != HIGHRES_UPDATED:
                 self.not_updated += 1
+                self.device_info["not_updated"] = self.not_updated
             else:  # t us, gyro rad/s, accel m/s^2, temp degC
                 self._imu("highres", (v[0], v[4], v[5], v[6], v[1], v[2], v[3], v[13]), rows)
         elif msgid in (MSG_SCALED_IMU, MSG_SCALED_IMU2, MSG_SCALED_IMU3):

@@ -121,7 +121,7 @@ def test_garbage_bad_crc_lost_duplicates_and_not_updated_are_counted_and_skipped
     assert c.crc_errors == 1
     assert c.duplicates == 1  # good[4] twice, byte for byte
     assert c.lost == 1 + 2  # the bad frame's seq, and the two never sent
-    assert dec.not_updated == 1 and dec.other_imu == 1
+    assert dec.not_updated == 1 and dec.device_info["not_updated"] == 1 and dec.other_imu == 1
     assert c.bytes == dec.frame_bytes + c.skipped_bytes + dec.pending_bytes
     assert np.all(np.diff(got.t) > 0)
 
