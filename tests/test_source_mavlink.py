@@ -527,3 +527,37 @@ def test_scaled_imu_in_mg_and_mrad_s_conformed_to_the_si_data_sheet():
     ]
     assert last["f0"]["accel"]["checked"] > 0 and last["faults"] == []
     assert last["state"] == "ok"
+
+
+def test_bench_scenario_runs_on_the_fake_autopilot(tmp_path: Path):
+    """``device: mavlink`` in a bench scenario: the daemon (a real subprocess) reads the
+    fake autopilot on the pty; an accelerometer fault, garbage and an unplug are judged as
+    on the native board."""
+    from imudiag.bench import ScenarioError, loads, run_scenario
+
+    scenario = loads(
+        """
+format: imudiag-bench-scenario/1
+name: mavlink-smoke
+motion: static
+duration: 8.0
+seed: 3
+speed: 4.0
+device: mavlink
+injections:
+  - {t: 2.0, kind: bias, sensor: az, value: 800.0,
+     expect: [{triad: accel, cause: f0, within: 1.0}]}
+  - {t: 3.5, kind: garbage, bytes: 500}
+  - {t: 5.0, kind: unplug, outage: 1.0, within: 1.5, recover_within: 3.0}
+""",
+        "mavlink-smoke.yaml",
+    )
+    report = run_scenario(scenario, diagnosis=False, workdir=tmp_path).report
+    assert report["device"] == "mavlink"
+    assert report["passed"], report
+    with pytest.raises(ScenarioError, match="crc injection"):
+        loads(
+            "format: imudiag-bench-scenario/1\nname: x\nmotion: static\nduration: 4\n"
+            "device: mavlink\ninjections:\n  - {t: 1.0, kind: crc, frames: 2}\n",
+            "x.yaml",
+        )
