@@ -27,7 +27,7 @@ from ..monitor import Monitor, MonitorConfig
 from ..noise_estimate import NoiseMeter
 from ..quasistatic import BAD_FLAGS
 from ..samples import SampleBlock
-from ..units import NO_CONVERSION, Conversion, conform
+from ..units import NO_CONVERSION, Conversion, conform, stated_units
 from .config import DaemonConfig
 from .sdnotify import Notifier, WatchdogGate
 from .status import (
@@ -557,16 +557,19 @@ class Daemon:
         return 0
 
     def _conform(self, block: SampleBlock) -> SampleBlock:
-        """``block`` in the certificate's output units (:func:`imudiag.units.conform` of the
-        units a device source declares); BadInput naming the source when they cannot be
-        converted (counts against physical units)."""
-        units = block.meta.get("units")
-        if units is None:
+        """``block`` in the certificate's output units: :func:`imudiag.units.conform` of the
+        units a device source declares in ``device_info["units"]`` (docs/devices.md: a
+        device source is one with the shared identity keys; a replayed log's stated units
+        are left to the log commands, as before); BadInput naming the source when they
+        cannot be converted (counts against physical units)."""
+        info = self.source.device_info
+        units = info.get("units")
+        if not units or "datasheet" not in info:
             return block
-        key = (tuple(sorted(units.items())), self.reloads)
+        key = (units, self.reloads)
         if self._conversion[0] != key:
             where = f"source {self.settings.source_url}"
-            self._conversion = (key, conform(units, self.certificate, where))
+            self._conversion = (key, conform(stated_units(units), self.certificate, where))
             if not self._conversion[1].identity:
                 log.info("%s: %s", where, self._conversion[1])
         return self._conversion[1].apply(block)
