@@ -178,6 +178,28 @@ def _wait(cond, timeout_s: float = 10.0) -> None:
         time.sleep(0.01)
 
 
+def _frames(sink: CollectSink) -> int:
+    """Samples the daemon had read at its latest status line."""
+    return sink.lines[-1]["counters"]["frames"] if sink.lines else 0
+
+
+def _run_until(daemon: Daemon, done, writer: DeviceWriter | None = None, timeout_s=20.0) -> None:
+    """Run ``daemon`` in a thread (``writer`` started once the port is open) until
+    ``done()``; then stop both."""
+    thread = threading.Thread(target=daemon.run)
+    thread.start()
+    try:
+        if writer is not None:
+            _wait(lambda: daemon.source.state == "connected")  # opening flushes the port
+            writer.start()
+        _wait(done, timeout_s)
+    finally:
+        daemon.request_stop()
+        thread.join(10.0)
+        if writer is not None:
+            writer.stop()
+
+
 def test_pty_identity_rate_vibration_in_device_info():
     cert = load_default()
     enc = MavlinkEncoder(cert)
@@ -365,19 +387,14 @@ class _Run:
         self.t_end = float(session.t[-1])
 
     def lines(self) -> list[dict]:
-        thread = threading.Thread(target=self.daemon.run)
-        thread.start()
-        _wait(lambda: self.daemon.source.state == "connected")  # opening flushes the port
-        self.writer.start()
         try:
-            _wait(
+            _run_until(
+                self.daemon,
                 lambda: any(s["t"] is not None and s["t"] >= self.t_end for s in self.sink.lines),
+                self.writer,
                 120.0,
             )
         finally:
-            self.daemon.request_stop()
-            thread.join(10.0)
-            self.writer.stop()
             self.pair.close()
         return [s for s in self.sink.lines if s["t"] is not None]
 
@@ -457,13 +474,11 @@ def test_certificate_auto_loads_the_data_sheet_and_says_so(tmp_path: Path):
             [sink],
         )
         assert daemon.certificate_file.name == "mavlink-fc-imu.yaml"
-        thread = threading.Thread(target=daemon.run)
-        thread.start()
         try:
-            _wait(lambda: any(s["counters"]["frames"] >= len(block) for s in sink.lines), 20)
+            _run_until(
+                daemon, lambda: any(s["counters"]["frames"] >= len(block) for s in sink.lines)
+            )
         finally:
-            daemon.request_stop()
-            thread.join(10.0)
             writer.stop()
     last = sink.lines[-1]
     assert last["certificate"]["datasheet"] == "mavlink-fc-imu"
@@ -508,17 +523,8 @@ def test_scaled_imu_in_mg_and_mrad_s_conformed_to_the_si_data_sheet():
             ),
             [sink],
         )
-        thread = threading.Thread(target=daemon.run)
-        thread.start()
-        _wait(lambda: daemon.source.state == "connected")
         writer = DeviceWriter(pair, enc, _blocks(block), speed=8.0)
-        writer.start()
-        try:
-            _wait(lambda: any(s["counters"]["frames"] >= len(block) for s in sink.lines), 20)
-        finally:
-            daemon.request_stop()
-            thread.join(10.0)
-            writer.stop()
+        _run_until(daemon, lambda: _frames(sink) >= len(block), writer)
     last = sink.lines[-1]
     assert last["device"]["message"] == "SCALED_IMU"
     assert last["unit_conversion"] == [
