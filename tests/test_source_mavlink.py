@@ -538,7 +538,7 @@ def test_scaled_imu_in_mg_and_mrad_s_conformed_to_the_si_data_sheet():
 def test_bench_scenario_runs_on_the_fake_autopilot(tmp_path: Path):
     """``device: mavlink`` in a bench scenario: the daemon (a real subprocess) reads the
     fake autopilot on the pty; an accelerometer fault, garbage and an unplug are judged as
-    on the native board."""
+    on the native board, with the counters exact."""
     from imudiag.bench import ScenarioError, loads, run_scenario
 
     scenario = loads(
@@ -554,16 +554,19 @@ injections:
   - {t: 2.0, kind: bias, sensor: az, value: 800.0,
      expect: [{triad: accel, cause: f0, within: 1.0}]}
   - {t: 3.5, kind: garbage, bytes: 500}
+  - {t: 4.2, kind: crc, frames: 5}
   - {t: 5.0, kind: unplug, outage: 1.0, within: 1.5, recover_within: 3.0}
+  - {t: 6.5, kind: duplicate, frames: 2}
+  - {t: 7.0, kind: lost, frames: 10}
 """,
         "mavlink-smoke.yaml",
     )
     report = run_scenario(scenario, diagnosis=False, workdir=tmp_path).report
     assert report["device"] == "mavlink"
     assert report["passed"], report
-    with pytest.raises(ScenarioError, match="crc injection"):
+    with pytest.raises(ScenarioError, match="random garbage"):
         loads(
             "format: imudiag-bench-scenario/1\nname: x\nmotion: static\nduration: 4\n"
-            "device: mavlink\ninjections:\n  - {t: 1.0, kind: crc, frames: 2}\n",
+            "device: mavlink\ninjections:\n  - {t: 1.0, kind: garbage, bytes: 9, random: true}\n",
             "x.yaml",
         )

@@ -36,12 +36,13 @@ import numpy as np
 from imudiag import units
 from imudiag.certificate import Certificate
 from imudiag.drivers.mavlink import load_pymavlink
-from imudiag.drivers.wire import encode_samples
+from imudiag.drivers.wire import SAMPLE_FRAME_SIZE, TYPE_SAMPLE, encode_samples
 from imudiag.errors import BenchError
 from imudiag.samples import SampleBlock
 from imudiag.sim.board import SimulatedBoard
 
 from .pty import PtyPair, write_all
+from .transport import corrupt_sample_frames, frame_spans
 
 #: the SI units of a calibrated physical output per triad
 SI_UNITS = {"gyro": "rad/s", "accel": "m/s^2"}
@@ -67,6 +68,15 @@ class DeviceEncoder(Protocol):
 
     def idle(self) -> bytes:
         """What the device sends while it waits for a host (b"": nothing)."""
+        ...
+
+    def split(self, data: bytes) -> list[tuple[bytes, bool]]:
+        """The frames of ``data`` (whole frames this encoder made): (bytes, is a sample)."""
+        ...
+
+    def corrupt(self, frame: bytes) -> bytes | None:
+        """``frame`` with a payload byte changed so that its checksum fails and no frame
+        start appears inside it (None when no byte allows that)."""
         ...
 
 
@@ -148,6 +158,18 @@ class NativeEncoder:
     def idle(self) -> bytes:
         """The board sends nothing before it streams."""
         return b""
+
+    def split(self, data: bytes) -> list[tuple[bytes, bool]]:
+        """Frames of the wire protocol, sample frames flagged."""
+        return [
+            (data[p : p + n], t == TYPE_SAMPLE and n == SAMPLE_FRAME_SIZE)
+            for p, t, n in frame_spans(data)
+        ]
+
+    def corrupt(self, frame: bytes) -> bytes | None:
+        """A sample frame with its CRC broken (:func:`.transport.corrupt_sample_frames`)."""
+        bad, k = corrupt_sample_frames(frame)
+        return bad if k else None
 
 
 class MavlinkEncoder:
@@ -239,6 +261,35 @@ class MavlinkEncoder:
     def idle(self) -> bytes:
         """A HEARTBEAT: an autopilot announces itself whether or not anyone listens."""
         return self.heartbeat()
+
+    def split(self, data: bytes) -> list[tuple[bytes, bool]]:
+        """MAVLink frames by their length fields; the IMU messages are the samples."""
+        out: list[tuple[bytes, bool]] = []
+        pos = 0
+        while pos < len(data):
+            if data[pos] == 0xFD:
+                signed = data[pos + 2] & 1
+                size = 10 + data[pos + 1] + 2 + (13 if signed else 0)
+                msgid = data[pos + 7] | (data[pos + 8] << 8) | (data[pos + 9] << 16)
+            elif data[pos] == 0xFE:
+                size, msgid = 6 + data[pos + 1] + 2, data[pos + 5]
+            else:
+                raise BenchError(f"fake autopilot: no frame at byte {pos}")
+            out.append((data[pos : pos + size], msgid in (105, 26, 116, 129, 27)))
+            pos += size
+        return out
+
+    def corrupt(self, frame: bytes) -> bytes | None:
+        """The frame with one payload byte inverted, when neither it nor any other byte after
+        the first is a frame start (0xFD, 0xFE)."""
+        if any(b in (0xFD, 0xFE) for b in frame[1:]):
+            return None
+        head = 10 if frame[0] == 0xFD else 6
+        for i in range(head, len(frame) - 2):
+            flipped = frame[i] ^ 0xFF
+            if flipped not in (0xFD, 0xFE):
+                return frame[:i] + bytes([flipped]) + frame[i + 1 :]
+        return None
 
     def autopilot_version(self) -> bytes:
         """AUTOPILOT_VERSION of a PX4 v1.14.3 release on a Holybro board."""

@@ -274,7 +274,11 @@ class BoardFeeder:
             self._record(inj, index, expected, 0)
             return index
         if inj.kind == "duplicate":
-            frame = last_frame(self._last_piece)
+            if self.encoder is not None:
+                spans = self.encoder.split(self._last_piece)
+                frame = spans[-1][0] if spans else b""
+            else:
+                frame = last_frame(self._last_piece)
             if not frame:
                 raise FeederError(f"injection {inj.number}: no frame sent yet to duplicate")
             parts.append(frame * inj.count)
@@ -283,16 +287,40 @@ class BoardFeeder:
         n = min(inj.count, (self.board.total_samples or 0) - index)
         piece = self._generate(n)
         if inj.kind == "crc":
-            bad, k = corrupt_sample_frames(piece)
+            if self.encoder is not None:
+                bad, k, skipped = self._corrupt_device_frames(piece)
+            else:
+                bad, k = corrupt_sample_frames(piece)
+                skipped = k * 40
             parts.append(bad)
             self._samples_withheld += k
-            expected = {"crc_errors": k, "skipped_bytes": k * 40, "lost": k}
+            expected = {"crc_errors": k, "skipped_bytes": skipped, "lost": k}
             self._record(inj, index, expected, k)
         else:  # lost: the frames (of any type) of these samples are never sent
-            frames, samples = count_frames(piece)
+            if self.encoder is not None:
+                spans = self.encoder.split(piece)
+                frames, samples = len(spans), sum(1 for _, is_sample in spans if is_sample)
+            else:
+                frames, samples = count_frames(piece)
             self._samples_withheld += samples
             self._record(inj, index, {"lost": frames}, frames)
         return index + n
+
+    def _corrupt_device_frames(self, piece: bytes) -> tuple[bytes, int, int]:
+        """``piece`` with every sample frame the device can break broken (its checksum
+        fails, no frame start inside): (bytes, frames broken, their bytes)."""
+        assert self.encoder is not None
+        out: list[bytes] = []
+        k = skipped = 0
+        for frame, is_sample in self.encoder.split(piece):
+            bad = self.encoder.corrupt(frame) if is_sample else None
+            if bad is None:
+                out.append(frame)
+            else:
+                out.append(bad)
+                k += 1
+                skipped += len(bad)
+        return b"".join(out), k, skipped
 
     def _write(self, data: bytes) -> None:
         """Write all of ``data`` to the pty master, waiting for room (stops on :meth:`stop`)."""

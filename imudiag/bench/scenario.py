@@ -26,9 +26,8 @@ are not checked), ``crc`` (``frames`` corrupted),
 ``lost`` (``frames`` never sent), ``duplicate`` (the last frame sent again
 ``frames`` times), ``unplug`` (``outage`` s of wall time without the device),
 ``stall`` (the device stays plugged in but sends nothing for ``outage`` s of
-wall time). A device other than ``native`` (docs/devices.md) takes the transport kinds
-``garbage`` (never ``random``), ``unplug`` and ``stall``; the others are the native wire
-protocol's.
+wall time). A device other than ``native`` (docs/devices.md) takes every transport kind
+but ``random`` garbage (its frames are its own: the fake device splits and corrupts them).
 
 Every rule is checked on load; a violation raises :class:`ScenarioError`
 naming the file, the line and the key.
@@ -397,7 +396,7 @@ class _Reader:
 
 
 #: transport injections a device other than the native board takes
-DEVICE_TRANSPORT_KINDS = ("garbage", "unplug", "stall")
+DEVICE_TRANSPORT_KINDS = ("garbage", "crc", "lost", "duplicate", "unplug", "stall")
 
 
 def device_problem(device: str, injections: tuple[Injection, ...]) -> str | None:
@@ -410,10 +409,9 @@ def device_problem(device: str, injections: tuple[Injection, ...]) -> str | None
         return None
     for inj in injections:
         if inj.category != "sensor" and (inj.kind not in DEVICE_TRANSPORT_KINDS or inj.random):
-            what = "random garbage" if inj.kind == "garbage" else f"a {inj.kind} injection"
             return (
-                f"injection {inj.number} ({what}) is the native wire protocol's; device "
-                f"{device} takes {', '.join(DEVICE_TRANSPORT_KINDS)} (garbage not random)"
+                f"injection {inj.number} (random garbage) is the native wire protocol's; "
+                f"device {device} takes garbage without random"
             )
     return None
 
