@@ -52,7 +52,7 @@ from typing import Any
 import numpy as np
 
 from imudiag.bench.gnss import GnssFeed
-from imudiag.bench.pty import PtyPair, _write_all
+from imudiag.bench.pty import PtyPair, write_all
 from imudiag.certificate import load_default
 from imudiag.sim.board import SimulatedBoard
 from imudiag.sim.drive import DriveMotion, GnssSimConfig, drive_motion
@@ -90,7 +90,7 @@ class TimedWriter(threading.Thread):
                 break
             if self._stop_event.is_set():
                 break
-            _write_all(self.fd, chunk, self._stop_event)
+            write_all(self.fd, chunk, self._stop_event)
             self.done[i] = time.monotonic()
             if self.after_write is not None:
                 self.after_write(i * self.period)

@@ -7,6 +7,8 @@ python-can's interface registry::
     serial:///dev/ttyACM0?baud=921600   CDC-ACM serial port (pyserial; also loop://, socket://)
     hid://VID:PID                       USB HID input reports (hidapi)
     usb://VID:PID                       raw USB bulk-IN endpoint (pyusb)
+    mavlink:///dev/ttyACM0?imu=0        a PX4/ArduPilot autopilot's IMU messages (pymavlink)
+    mavlink+udp://:14550                the same through a MAVLink router's UDP endpoint
     replay://PATH?speed=1               a recorded log (.csv, .csv.gz, .npz, .bin)
     sim://SCENARIO?seed=N               the simulated board
 

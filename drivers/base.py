@@ -104,6 +104,8 @@ _BUILTIN_MODULES: dict[str, str] = {
     "isensor": "imudiag.drivers.isensor",
     "witmotion": "imudiag.drivers.witmotion",
     "iio": "imudiag.drivers.iio",
+    "mavlink": "imudiag.drivers.mavlink",
+    "mavlink+udp": "imudiag.drivers.mavlink",
 }
 #: Entry-point group of the sources that live above the driver layer (``sim://`` and
 #: ``replay://`` in :mod:`imudiag.sources`, and any plug-in package's): name = scheme,

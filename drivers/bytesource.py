@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import re
 from abc import abstractmethod
-from typing import Any
+from typing import Any, Protocol
 
 from imudiag.samples import SampleBlock
 
@@ -35,13 +35,34 @@ def format_command(line: str) -> bytes:
     return (text + "\n").encode("ascii")
 
 
+class StreamDecoder(Protocol):
+    """What a byte source needs of a protocol decoder (the native :class:`Decoder`, a device
+    protocol's, docs/devices.md): incremental bytes in, samples out, counters kept in the
+    :class:`~imudiag.drivers.wire.Counters` it was given, the device's identity."""
+
+    device_info: dict[str, Any]
+
+    def feed(self, data: bytes | bytearray | memoryview) -> SampleBlock:
+        """The complete good samples of ``data`` plus what was held back."""
+        ...
+
+    def drop_pending(self) -> None:
+        """Discard held-back bytes (a new connection), counting them as skipped."""
+        ...
+
+
 class ByteSource(Source):
     """Base of the byte transports (serial, HID, USB bulk, raw replay)."""
 
     def __init__(self, url: SourceURL, **options: Any) -> None:
         super().__init__(url, **options)
-        self.decoder = Decoder(self.counters)
+        self.decoder: StreamDecoder = self._make_decoder()
         self.is_open = False
+
+    def _make_decoder(self) -> StreamDecoder:
+        """The protocol decoder, sharing :attr:`counters` (the native wire protocol's here;
+        a device protocol's source returns its own)."""
+        return Decoder(self.counters)
 
     # -- transport hooks ----------------------------------------------------
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -680,6 +681,42 @@ def load_default() -> Certificate:
     return load(default_certificate_path())
 
 
+#: ``certificate: auto`` / ``--certificate auto``: the bundled data-sheet certificate named
+#: by the source's ``device_info["datasheet"]`` (docs/devices.md)
+AUTO = "auto"
+DATASHEETS_DIR = "datasheets"  #: bundled data-sheet certificates: config/datasheets/<key>.yaml
+_DATASHEET_KEY = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
+
+
+def datasheet_keys() -> list[str]:
+    """The keys of the bundled data-sheet certificates."""
+    from importlib import resources
+
+    folder = resources.files("imudiag.config").joinpath(DATASHEETS_DIR)
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
+def datasheet_path(key: str) -> Path:
+    """Path of the bundled data-sheet certificate ``key``; CertificateError naming the
+    bundled keys when there is none of that name."""
+    from importlib import resources
+
+    if not _DATASHEET_KEY.match(key) or key not in datasheet_keys():
+        raise CertificateError(
+            "(datasheet)",
+            f"no bundled data-sheet certificate {key!r} (bundled: {', '.join(datasheet_keys())})",
+        )
+    folder = resources.files("imudiag.config").joinpath(DATASHEETS_DIR)
+    return Path(str(folder.joinpath(f"{key}.yaml")))
+
+
+def datasheet_of(cert: Certificate) -> str | None:
+    """The data-sheet key of a data-sheet certificate (``device.datasheet``), else None: a
+    data-sheet certificate holds a part's typical figures, not a unit's calibration."""
+    key = cert.device.get("datasheet")
+    return str(key) if key else None
+
+
 __all__ = [
     "FORMAT",
     "Certificate",
@@ -693,6 +730,9 @@ __all__ = [
     "load_default",
     "loads",
     "default_certificate_path",
+    "datasheet_keys",
+    "datasheet_of",
+    "datasheet_path",
     "SENSOR_NAMES",
     "MISALIGNMENT_PAIRS",
     "TRIADS",

@@ -41,6 +41,7 @@ from imudiag.bench.pty import PtyPair
 from imudiag.errors import BenchError
 from imudiag.sim.board import SimulatedBoard
 
+from .devices import DeviceEncoder
 from .scenario import Injection
 from .transport import corrupt_sample_frames, count_frames, garbage, last_frame
 
@@ -98,6 +99,7 @@ class BoardFeeder:
         seed: int = 0,
         connect_timeout_s: float = 30.0,
         after_write: Callable[[float], None] | None = None,
+        encoder: DeviceEncoder | None = None,
     ) -> None:
         if not (speed > 0 and math.isfinite(speed)):
             raise ValueError(f"speed must be a positive number, got {speed!r}")
@@ -114,6 +116,8 @@ class BoardFeeder:
         #: called with the sample time (s) of the last sample sent after every write
         #: (a second stream paced by the same clock, e.g. the GNSS receiver of a drive)
         self.after_write = after_write
+        #: the fake device the samples go out as (None: the board's own wire bytes)
+        self.encoder = encoder
         self.pending = sorted(injections, key=lambda i: i.t_s)
         self.records: list[InjectionRecord] = []
         self.pair: PtyPair | None = None
@@ -238,7 +242,9 @@ class BoardFeeder:
         return int(math.ceil(inj.t_s * self.rate_hz - 1e-9))
 
     def _generate(self, n: int) -> bytes:
-        data, _ = self.board.generate(n)
+        data, block = self.board.generate(n)
+        if self.encoder is not None:
+            data = self.encoder.encode(block)
         self.samples_generated = self.board.next_index
         if data:
             self._last_piece = data
@@ -257,14 +263,22 @@ class BoardFeeder:
         """Splice ``inj`` at sample ``index`` into ``parts``; returns the next sample index."""
         assert inj.count is not None
         if inj.kind == "garbage":
-            parts.append(garbage(inj.count, self.rng, sync_free=not inj.random))
+            if self.encoder is not None:  # bytes that never start one of its frames
+                alphabet = np.frombuffer(self.encoder.garbage_alphabet, np.uint8)
+                parts.append(self.rng.choice(alphabet, inj.count).tobytes())
+            else:
+                parts.append(garbage(inj.count, self.rng, sync_free=not inj.random))
             expected: dict[str, int | None] = {"skipped_bytes": inj.count}
             if inj.random:
                 expected["crc_errors"] = None  # false frame candidates: not predictable
             self._record(inj, index, expected, 0)
             return index
         if inj.kind == "duplicate":
-            frame = last_frame(self._last_piece)
+            if self.encoder is not None:
+                spans = self.encoder.split(self._last_piece)
+                frame = spans[-1][0] if spans else b""
+            else:
+                frame = last_frame(self._last_piece)
             if not frame:
                 raise FeederError(f"injection {inj.number}: no frame sent yet to duplicate")
             parts.append(frame * inj.count)
@@ -273,16 +287,40 @@ class BoardFeeder:
         n = min(inj.count, (self.board.total_samples or 0) - index)
         piece = self._generate(n)
         if inj.kind == "crc":
-            bad, k = corrupt_sample_frames(piece)
+            if self.encoder is not None:
+                bad, k, skipped = self._corrupt_device_frames(piece)
+            else:
+                bad, k = corrupt_sample_frames(piece)
+                skipped = k * 40
             parts.append(bad)
             self._samples_withheld += k
-            expected = {"crc_errors": k, "skipped_bytes": k * 40, "lost": k}
+            expected = {"crc_errors": k, "skipped_bytes": skipped, "lost": k}
             self._record(inj, index, expected, k)
         else:  # lost: the frames (of any type) of these samples are never sent
-            frames, samples = count_frames(piece)
+            if self.encoder is not None:
+                spans = self.encoder.split(piece)
+                frames, samples = len(spans), sum(1 for _, is_sample in spans if is_sample)
+            else:
+                frames, samples = count_frames(piece)
             self._samples_withheld += samples
             self._record(inj, index, {"lost": frames}, frames)
         return index + n
+
+    def _corrupt_device_frames(self, piece: bytes) -> tuple[bytes, int, int]:
+        """``piece`` with every sample frame the device can break broken (its checksum
+        fails, no frame start inside): (bytes, frames broken, their bytes)."""
+        assert self.encoder is not None
+        out: list[bytes] = []
+        k = skipped = 0
+        for frame, is_sample in self.encoder.split(piece):
+            bad = self.encoder.corrupt(frame) if is_sample else None
+            if bad is None:
+                out.append(frame)
+            else:
+                out.append(bad)
+                k += 1
+                skipped += len(bad)
+        return b"".join(out), k, skipped
 
     def _write(self, data: bytes) -> None:
         """Write all of ``data`` to the pty master, waiting for room (stops on :meth:`stop`)."""

@@ -26,6 +26,7 @@ import time
 import tty
 from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 
 class PtyPair:
@@ -41,7 +42,7 @@ class PtyPair:
         self.slave_path = os.ttyname(self._slave_fd)
         tty.setraw(self._slave_fd)  # no echo, no CR/LF translation, no signals
         self.link = Path(link) if link is not None else None
-        self._writers: list[BoardWriter] = []
+        self._writers: list[Any] = []  # writer threads (a .stop()), stopped on unplug
         self._command_buf = b""
         if self.link is not None:
             tmp = self.link.with_name(f".{self.link.name}.{os.getpid()}.tmp")
@@ -57,7 +58,7 @@ class PtyPair:
 
     def write(self, data: bytes) -> None:
         """Write all of ``data`` to the master side (the board sending), blocking."""
-        _write_all(self.master_fd, data)
+        write_all(self.master_fd, data)
 
     def read_commands(self, timeout_s: float = 0.0) -> list[str]:
         """Command lines the host wrote to the port (what the board receives), without ``\\n``.
@@ -78,6 +79,15 @@ class PtyPair:
             ready, _, _ = select.select([self.master_fd], [], [], 0.0)
         *lines, self._command_buf = self._command_buf.split(b"\n")
         return [ln.decode("ascii", "replace") for ln in lines]
+
+    def add_writer(self, writer: Any) -> None:
+        """Register a writer thread (anything with ``stop()``) that :meth:`close_master` stops."""
+        self._writers.append(writer)
+
+    def remove_writer(self, writer: Any) -> None:
+        """Forget a writer that has stopped."""
+        if writer in self._writers:
+            self._writers.remove(writer)
 
     def close_master(self) -> None:
         """Unplug: stop this pair's writers, close the master; readers get a hangup."""
@@ -101,7 +111,7 @@ class PtyPair:
         self.close()
 
 
-def _write_all(fd: int, data: bytes, stop: threading.Event | None = None) -> int:
+def write_all(fd: int, data: bytes, stop: threading.Event | None = None) -> int:
     """Write ``data`` to ``fd``, waiting for room; returns the bytes written (fewer if stopped)."""
     view = memoryview(data)
     done = 0
@@ -166,7 +176,7 @@ class BoardWriter(threading.Thread):
                         break
                 if self._stop_event.is_set():
                     break
-                self.bytes_written += _write_all(self.fd, chunk, self._stop_event)
+                self.bytes_written += write_all(self.fd, chunk, self._stop_event)
                 self.chunks_written += 1
         except OSError as e:  # EIO/EBADF when the pty went away
             if e.errno not in (errno.EIO, errno.EBADF, errno.EPIPE):

@@ -29,6 +29,7 @@ from imudiag.sim.scenarios import parse_effects, scenario_motion
 
 from . import gnss
 from .daemon_process import DaemonProcess, StatusRecord
+from .devices import SOURCE_URLS, make_encoder
 from .evaluate import Evaluation
 from .feeder import BoardFeeder
 from .scenario import BenchScenario
@@ -87,9 +88,12 @@ def daemon_args(
     certificate: str | None,
     diagnosis: bool,
     aiding_url: str | None = None,
+    device: str = "native",
 ) -> list[str]:
-    """Command-line arguments of ``imudiag run`` for a bench run."""
-    args = ["--config", str(config_path), "--source", f"serial://{link}", "--status", "-"]
+    """Command-line arguments of ``imudiag run`` for a bench run (the source URL of
+    ``device`` on ``link``)."""
+    source = SOURCE_URLS[device].format(path=link)
+    args = ["--config", str(config_path), "--source", source, "--status", "-"]
     if aiding_url:
         args += ["--aiding", aiding_url]
     if certificate:
@@ -166,6 +170,12 @@ def run_scenario(
         config_path.write_text(yaml.safe_dump(scenario.daemon, sort_keys=False))
         link = tmp_path / "imu0"
         board = make_board(scenario)
+        certificate, encoder = scenario.certificate, None
+        if scenario.device != "native":  # the device's output obeys its own certificate
+            cert = certmod.load(certificate) if certificate else certmod.load_default()
+            encoder = make_encoder(scenario.device, cert)
+            certificate = str(tmp_path / f"{scenario.device}-certificate.yaml")
+            encoder.certificate.save(certificate)
         feed = make_gnss_feed(scenario, tmp_path)
         feeder = BoardFeeder(
             board,
@@ -175,6 +185,7 @@ def run_scenario(
             chunk_s=scenario.chunk_s,
             seed=scenario.seed,
             after_write=None if feed is None else feed.send_until,
+            encoder=encoder,
         )
         t_start = time.monotonic()
         try:
@@ -184,9 +195,10 @@ def run_scenario(
             args = daemon_args(
                 config_path,
                 link,
-                scenario.certificate,
+                certificate,
                 use_diagnosis,
                 None if feed is None else feed.url,
+                scenario.device,
             )
             daemon = DaemonProcess([*args, *extra_args], python=python)
             try:
@@ -216,6 +228,7 @@ def run_scenario(
         **header(REPORT_FORMAT),
         "scenario": scenario.name,
         "source": scenario.source,
+        "device": scenario.device,
         "description": scenario.description,
         "seed": scenario.seed,
         "speed": scenario.speed,

@@ -9,6 +9,7 @@ A scenario file (docs/bench.md has the full reference)::
     duration: 12.0                 # s of sample time
     seed: 3
     speed: 5.0                     # board pace relative to real time
+    device: native                 # the fake device (imudiag.bench.devices): native, mavlink
     effects: [board]               # imudiag.sim text effects
     daemon:                        # daemon configuration keys (config/imudiag.yaml layout)
       monitor: {stuck_samples: 50}
@@ -25,7 +26,8 @@ are not checked), ``crc`` (``frames`` corrupted),
 ``lost`` (``frames`` never sent), ``duplicate`` (the last frame sent again
 ``frames`` times), ``unplug`` (``outage`` s of wall time without the device),
 ``stall`` (the device stays plugged in but sends nothing for ``outage`` s of
-wall time).
+wall time). A device other than ``native`` (docs/devices.md) takes every transport kind
+but ``random`` garbage (its frames are its own: the fake device splits and corrupts them).
 
 Every rule is checked on load; a violation raises :class:`ScenarioError`
 naming the file, the line and the key.
@@ -251,6 +253,8 @@ class BenchScenario:
     source: str = "(scenario)"  #: file it was read from
     chunk_s: float = 0.05  #: sample time per write to the pty, s
     aiding: AidingSpec | None = None  #: GNSS aiding through a real gpsd (drives only)
+    #: the fake device the board's samples go out as (imudiag.bench.devices.ENCODERS)
+    device: str = "native"
 
     @property
     def sensor_injections(self) -> list[Injection]:
@@ -262,9 +266,16 @@ class BenchScenario:
         """Injections handled by the byte feeder, in time order."""
         return sorted((i for i in self.injections if i.category != "sensor"), key=lambda i: i.t_s)
 
-    def with_options(self, seed: int | None = None, speed: float | None = None) -> BenchScenario:
-        """A copy with a different seed or board speed."""
+    def with_options(
+        self, seed: int | None = None, speed: float | None = None, device: str | None = None
+    ) -> BenchScenario:
+        """A copy with a different seed, board speed or device."""
         changes: dict[str, Any] = {}
+        if device is not None:
+            problem = device_problem(device, self.injections)
+            if problem:
+                raise BadInput(f"--device: {problem}")
+            changes["device"] = device
         if seed is not None:
             changes["seed"] = int(seed)
         if speed is not None:
@@ -384,7 +395,29 @@ class _Reader:
 # parsing
 
 
+#: transport injections a device other than the native board takes
+DEVICE_TRANSPORT_KINDS = ("garbage", "crc", "lost", "duplicate", "unplug", "stall")
+
+
+def device_problem(device: str, injections: tuple[Injection, ...]) -> str | None:
+    """Why ``device`` cannot play these injections (None: it can)."""
+    from .devices import ENCODERS
+
+    if device not in ENCODERS:
+        return f"unknown device {device!r}; known: {', '.join(sorted(ENCODERS))}"
+    if device == "native":
+        return None
+    for inj in injections:
+        if inj.category != "sensor" and (inj.kind not in DEVICE_TRANSPORT_KINDS or inj.random):
+            return (
+                f"injection {inj.number} (random garbage) is the native wire protocol's; "
+                f"device {device} takes garbage without random"
+            )
+    return None
+
+
 _TOP_KEYS = (
+    "device",
     "format",
     "name",
     "description",
@@ -661,6 +694,10 @@ def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
                 f"transport injections at {a:g} s and {b:g} s are closer than "
                 f"{MIN_TRANSPORT_GAP_S:g} s (their counter increments could not be told apart)",
             )
+    device = r.text("device", "native")
+    problem = device_problem(device, injections)
+    if problem:
+        raise r.fail("device", problem)
     aiding = _aiding(r, motion, duration)
     if aiding is not None:
         drive = scenario_motion(motion, seed, params)
@@ -685,6 +722,7 @@ def from_dict(doc: Any, source: str = "(scenario)") -> BenchScenario:
         source=source,
         chunk_s=chunk,
         aiding=aiding,
+        device=device,
     )
 
 

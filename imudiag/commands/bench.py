@@ -52,6 +52,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="board pace relative to real time (overrides the scenario's)",
     )
     p.add_argument(
+        "--device",
+        help="the fake device the board's samples go out as: native (default), mavlink "
+        "(overrides the scenario's; docs/devices.md)",
+    )
+    p.add_argument(
         "--no-diagnosis", action="store_true", help="run the daemon with per-sample checks only"
     )
     p.add_argument(
@@ -80,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         if args.scenario_file
         else load_bundled(args.scenario or "sensor-faults")
     )
-    scenario = scenario.with_options(seed=args.seed, speed=args.speed)
+    scenario = scenario.with_options(seed=args.seed, speed=args.speed, device=args.device)
     try:
         report = run_bench(scenario, diagnosis=False if args.no_diagnosis else None)
     except BenchError as exc:

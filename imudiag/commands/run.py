@@ -35,7 +35,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="input URL: serial:///dev/ttyACM0?baud=921600, hid://VID:PID, usb://VID:PID, "
         f"replay://PATH?speed=1, sim://SCENARIO?seed=N (default {_DEFAULTS.source})",
     )
-    p.add_argument("--certificate", help="certificate YAML (default: the bundled one)")
+    p.add_argument(
+        "--certificate",
+        help="certificate YAML (default: the bundled one), or 'auto': the bundled data-sheet "
+        "certificate the device names (docs/devices.md)",
+    )
     p.add_argument(
         "--status",
         action="append",
@@ -110,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     logging.getLogger("imudiag.daemon").info(
         "monitoring %s with certificate %s",
         settings.source_url,
-        settings.certificate_path or "(bundled)",
+        daemon.certificate_file,
     )
     try:
         return daemon.run()

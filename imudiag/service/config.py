@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from imudiag import yamlio
+from imudiag.certificate import AUTO
 from imudiag.errors import BadInput
 
 BUNDLED_CONFIG_NAME = "imudiag.yaml"
@@ -41,7 +42,9 @@ class DaemonConfig:
     source: str = "sim://multiposition?loop=1"  #: sample source URL (drivers registry)
     #: pause after a read that brought samples, s: CPU share against verdict latency
     read_interval_s: float = 0.005
-    certificate: str | None = None  #: certificate file; None = the bundled one
+    #: certificate file; None = the bundled one; "auto" = the bundled data-sheet certificate
+    #: the source's identity names (docs/devices.md)
+    certificate: str | None = None
     status_stdout: bool = True  #: JSON status lines on standard output
     status_serial: str | None = None  #: NMEA status link URL; None = none
     status_rate_hz: float = 1.0  #: JSON status lines per second, Hz
@@ -233,7 +236,7 @@ def from_dict(doc: Any, source: str = "(config)", base: DaemonConfig | None = No
             changes[name] = check(value, fail_at(key))
 
     cert = changes.get("certificate")
-    if cert is not None:
+    if cert is not None and cert != AUTO:
         path = Path(cert).expanduser()
         if not path.is_absolute() and Path(source).is_file():
             path = Path(source).resolve().parent / path
@@ -265,7 +268,7 @@ def _check_consistency(
             ("reconnect_max_s", "reconnect_min_s"),
             f"{config.reconnect_max_s:g} s is below reconnect min_s = {config.reconnect_min_s:g} s",
         )
-    if config.certificate is not None and not Path(config.certificate).is_file():
+    if config.certificate not in (None, AUTO) and not Path(config.certificate).is_file():
         raise fail(("certificate",), f"no such certificate file: {config.certificate}")
 
 
@@ -339,7 +342,7 @@ def merge_cli(
                 return ConfigError(source, option(n), reason)
 
             changes[name] = check(value, fail)
-    if "certificate" in changes:
+    if "certificate" in changes and changes["certificate"] != AUTO:
         changes["certificate"] = str(Path(changes["certificate"]).expanduser())
     merged = config.replace(**changes)
 

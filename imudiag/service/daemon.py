@@ -20,19 +20,19 @@ from typing import Any, Protocol
 import numpy as np
 
 from .. import certificate as certmod
-from .. import units
 from ..certificate import Certificate, CertificateError
 from ..drivers.base import EndOfStream, SourceError
 from ..drivers.reconnect import ReconnectingSource
-from ..errors import BadInput
 from ..monitor import Monitor, MonitorConfig
 from ..noise_estimate import NoiseMeter
 from ..quasistatic import BAD_FLAGS
 from ..samples import SampleBlock
+from ..units import NO_CONVERSION, Conversion, conform, stated_units
 from .config import DaemonConfig
 from .sdnotify import Notifier, WatchdogGate
 from .status import (
     StatusSchedule,
+    device_object,
     diagnosis_verdict,
     merge_faults,
     noise_object,
@@ -50,6 +50,9 @@ DAEMON_WINDOWS_KEPT = 16  #: past diagnosis windows the live diagnoser keeps in 
 
 #: status lines over which the status's ``cpu`` figures are taken (about 10 s at 1 Hz)
 CPU_WINDOW_LINES = 10
+
+#: ``--certificate auto``: how long the daemon waits for the source's identity, s
+IDENTITY_TIMEOUT_S = 10.0
 
 
 class StatusSink(Protocol):
@@ -78,7 +81,10 @@ class DaemonSettings:
     """
 
     source_url: str = _DEFAULTS.source
-    certificate_path: str | None = _DEFAULTS.certificate  #: None: the bundled certificate
+    #: None: the bundled certificate; "auto": the data-sheet certificate the source names
+    certificate_path: str | None = _DEFAULTS.certificate
+    #: with certificate "auto": the longest wait for the source's identity, s
+    identity_timeout_s: float = IDENTITY_TIMEOUT_S
     status_period_s: float = 1.0 / _DEFAULTS.status_rate_hz  #: steady status cadence, s
     #: no valid frame for this long -> state no_data, s
     no_data_timeout_s: float = _DEFAULTS.no_data_timeout_s
@@ -134,6 +140,18 @@ class Daemon:
         self.notifier = notifier or Notifier.from_env()
         self.watchdog = WatchdogGate(self.notifier)
         self.clock = clock
+        #: samples read while waiting for the device's identity (certificate "auto")
+        self._early: list[SampleBlock] = []
+        source: ReconnectingSource | None = None
+        if settings.certificate_path == certmod.AUTO:
+            source = ReconnectingSource(
+                settings.source_url,
+                min_backoff_s=settings.reconnect_min_s,
+                max_backoff_s=settings.reconnect_max_s,
+            )
+            self.certificate_file = certmod.datasheet_path(self._wait_identity(source))
+        else:
+            self.certificate_file = certificate_path_or_default(settings.certificate_path)
         self.certificate = self._load_certificate()
         self.monitor = Monitor(self.certificate, settings.monitor)
         #: the unit's white noise measured live, as every command measures it
@@ -149,7 +167,7 @@ class Daemon:
         self._merged: tuple[list[Any], list[Any], list[dict[str, Any]]] | None = None
         self._signature: tuple[str, list[dict[str, Any]], tuple[Any, ...]] | None = None
         self._paced: tuple[list[StatusSink], list[StatusSink]] | None = None
-        self.source = ReconnectingSource(
+        self.source = source or ReconnectingSource(
             settings.source_url,
             certificate=self.certificate,
             min_backoff_s=settings.reconnect_min_s,
@@ -162,15 +180,15 @@ class Daemon:
         self._reloading: _ReloadThread | None = None
         self._reload_again = False
         self._commands: deque[str] = deque()  # device commands to send (request_command)
-        #: (certificate and stated units, their conversion), kept while both stay the same
-        self._conversion: tuple[Certificate, str, units.Conversion] | None = None
-        self._units_note: str | None = None
         self._command_note: str | None = None
         self._last_reason: str | None = None
         self._last_data_wall: float | None = None
         self._last_errors = 0
         self._errors_wall = -math.inf
         self.notes: list[str] = []
+        #: the samples' declared units (a device source's ``meta["units"]``) -> the
+        #: certificate's: (declared units, reloads) it was made for, and the conversion
+        self._conversion: tuple[Any, Conversion] = (None, NO_CONVERSION)
         self.reloads = 0
         self.statuses = 0
         #: (monotonic s, process CPU s, simulated board CPU s), one a second
@@ -179,7 +197,41 @@ class Daemon:
     # -- setup ------------------------------------------------------------
 
     def _load_certificate(self) -> Certificate:
-        return certmod.load(certificate_path_or_default(self.settings.certificate_path))
+        return certmod.load(self.certificate_file)
+
+    def _wait_identity(self, source: ReconnectingSource) -> str:
+        """Open ``source`` and read until its ``device_info`` names a data-sheet certificate
+        (the samples read meanwhile are kept for the loop); the key. SourceError naming the
+        source and what it said after ``identity_timeout_s``."""
+        url = self.settings.source_url
+        timeout = self.settings.identity_timeout_s
+        source.open()
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                block = source.read(min(0.1, max(0.0, deadline - time.monotonic())))
+            except EndOfStream:
+                break
+            if len(block):
+                self._early.append(block)
+            key = source.device_info.get("datasheet")
+            if key:
+                log.info("source %s names its data sheet %r", url, key)
+                return str(key)
+        source.close()
+        info = source.device_info
+        if source.state != "connected":
+            why = f"not connected ({source.last_error or 'no device'})"
+        elif "datasheet" in info:
+            named = {k: info[k] for k in ("vendor", "product", "message") if info.get(k)}
+            why = f"it names no data-sheet certificate (identity {named or 'none'})"
+        else:
+            c = source.counters
+            why = f"it sent no identity ({c.frames} samples, {c.bytes} bytes)"
+        raise SourceError(
+            f"source {url}: --certificate auto: no device identity within {timeout:g} s: {why}; "
+            "give a certificate file (--certificate PATH, e.g. from imudiag calibrate)"
+        )
 
     def _make_diagnoser(self, cert: Certificate) -> Any:
         if not self.settings.diagnosis:
@@ -219,32 +271,6 @@ class Daemon:
         start of the next loop turn; one the device does not take is logged and noted."""
         self._commands.append(line)
 
-    def _conform(self, block: SampleBlock) -> SampleBlock:
-        """``block`` in the certificate's units (:func:`imudiag.units.conform_meta`: a device
-        in deg/s and g against a certificate in rad/s and m/s^2, exactly). Units that cannot
-        be converted (counts against physical units) are not guessed: the samples go on as
-        they are, as before the units were read, and the status notes say the verdicts do
-        not hold for them."""
-        stated = block.meta.get("units")
-        if stated is None:
-            return block
-        cached = self._conversion
-        if cached is None or cached[0] is not self.certificate or cached[1] != repr(stated):
-            try:
-                conv = units.conform_meta(block.meta, self.certificate, self.settings.source_url)
-            except BadInput as exc:
-                note = f"{exc}; the samples are judged as they are, the verdicts do not hold"
-                if self._units_note != note:
-                    log.warning("%s", note)
-                self._units_note = note
-                self._conversion = (self.certificate, repr(stated), units.NO_CONVERSION)
-                return block
-            self._units_note = None
-            cached = self._conversion = (self.certificate, repr(stated), conv)
-            if not conv.identity:
-                log.info("%s: %s", self.settings.source_url, conv)
-        return cached[2].apply(block)
-
     def _send_commands(self) -> None:
         while self._commands:
             line = self._commands.popleft()
@@ -275,7 +301,7 @@ class Daemon:
     def _read_certificate(self) -> Certificate | CertificateError:
         """Load the certificate file (runs in the reload thread): the certificate or the error."""
         try:
-            return certmod.load(certificate_path_or_default(self.settings.certificate_path))
+            return certmod.load(self.certificate_file)
         except CertificateError as exc:
             return exc
 
@@ -300,7 +326,7 @@ class Daemon:
             self._start_reload()
 
     def _apply_reload(self, new: Certificate | CertificateError | None) -> bool:
-        path = certificate_path_or_default(self.settings.certificate_path)
+        path = self.certificate_file
         if not isinstance(new, Certificate):
             msg = f"certificate reload failed, keeping the previous one: {new}"
             log.error(msg)
@@ -456,16 +482,14 @@ class Daemon:
             }
         if self.aiding is not None:
             status["aiding"] = self.aiding.status()
+        device = self.source.device_info
+        if device:  # what the daemon is talking to (docs/devices.md: the shared keys first)
+            status["device"] = device_object(device)
+        if not self._conversion[1].identity:
+            status["unit_conversion"] = self._conversion[1].describe()
         notes = list(self.notes)
         if self._command_note:
             notes.append(self._command_note)
-        if self._units_note:
-            notes.append(self._units_note)
-        info = self.source.device_info
-        if info and "datasheet" in info:  # a device protocol's identity (docs/devices.md)
-            status["device"] = dict(info)
-        if self._conversion is not None and not self._conversion[2].identity:
-            status["unit_conversion"] = self._conversion[2].describe()
         why = self._no_data_reason(now, status["state"])
         if why:
             notes.append(why)
@@ -521,7 +545,10 @@ class Daemon:
                 if self._commands:
                     self._send_commands()
                 try:
-                    block = self.source.read(self.settings.read_timeout_s)
+                    if self._early:  # read while waiting for the identity: first
+                        block = self._early.pop(0)
+                    else:
+                        block = self.source.read(self.settings.read_timeout_s)
                 except EndOfStream:
                     self._feed_batch(None)
                     self._emit(self.clock(), force=True)
@@ -530,7 +557,6 @@ class Daemon:
                 read_done = time.monotonic()
                 if len(block):
                     block = self._conform(block)
-                if len(block):
                     self._last_data_wall = now
                     self.watchdog.frames_arrived(now)
                     self.monitor.update(block)
@@ -554,6 +580,24 @@ class Daemon:
             for sink in self.sinks:
                 sink.close()
         return 0
+
+    def _conform(self, block: SampleBlock) -> SampleBlock:
+        """``block`` in the certificate's output units: :func:`imudiag.units.conform` of the
+        units a device source declares in ``device_info["units"]`` (docs/devices.md: a
+        device source is one with the shared identity keys; a replayed log's stated units
+        are left to the log commands, as before); BadInput naming the source when they
+        cannot be converted (counts against physical units)."""
+        info = self.source.device_info
+        units = info.get("units")
+        if not units or "datasheet" not in info:
+            return block
+        key = (units, self.reloads)
+        if self._conversion[0] != key:
+            where = f"source {self.settings.source_url}"
+            self._conversion = (key, conform(stated_units(units), self.certificate, where))
+            if not self._conversion[1].identity:
+                log.info("%s: %s", where, self._conversion[1])
+        return self._conversion[1].apply(block)
 
     def _feed_batch(self, block: SampleBlock | None) -> None:
         """Gather ``block``; feed the noise meter and the diagnoser once

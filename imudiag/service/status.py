@@ -4,7 +4,8 @@ Every line starts with ``class`` (``STATUS``) and ``format`` (``imudiag-status/1
 :mod:`imudiag.reports`. Keys required by the contract: ``t`` (sample time, s), ``state`` (ok,
 degraded, fault, no_data), ``faults`` (triad, sensor where it can be told,
 cause), ``counters`` (the receiver counters). Added keys: ``link``,
-``static``, ``f0``, ``diagnosis``, ``certificate``, ``adc_errors``, ``notes``,
+``static``, ``f0``, ``diagnosis``, ``certificate`` (with ``datasheet`` and ``note`` when it
+is a data-sheet certificate), ``device`` (the source's identity), ``adc_errors``, ``notes``,
 ``status_link`` (NMEA sentences ``written`` and ``dropped`` when a serial link is set).
 
 The record is built here from what the daemon holds (:func:`status_record`,
@@ -19,7 +20,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
-from ..certificate import Certificate
+from ..certificate import Certificate, datasheet_of
 from ..monitor import Monitor
 from ..noise_estimate import METHOD as WHITE_NOISE_METHOD
 from ..noise_estimate import compare
@@ -96,11 +97,33 @@ def status_record(
         },
         "adc_errors": monitor.adc_errors,
         "self_test": monitor.self_test,
-        "certificate": {
-            "serial": str(certificate.device.get("serial", "")),
-            "reloads": reloads,
-        },
+        "certificate": certificate_object(certificate, reloads),
     }
+
+
+#: the device keys every source sets (docs/devices.md), first in the ``device`` object
+DEVICE_KEYS = ("vendor", "product", "serial", "firmware", "datasheet")
+
+
+def device_object(info: Mapping[str, Any]) -> dict[str, Any]:
+    """The ``device`` status object: the source's ``device_info``, the shared keys first."""
+    out = {k: info[k] for k in DEVICE_KEYS if k in info}
+    out.update({k: v for k, v in info.items() if k not in out})
+    return out
+
+
+def certificate_object(certificate: Certificate, reloads: int) -> dict[str, Any]:
+    """The ``certificate`` status object: its serial and reload count; for a data-sheet
+    certificate also ``datasheet`` (its key) and a ``note`` that it is no calibration."""
+    out: dict[str, Any] = {"serial": str(certificate.device.get("serial", "")), "reloads": reloads}
+    key = datasheet_of(certificate)
+    if key:
+        out["datasheet"] = key
+        out["note"] = (
+            f"data-sheet certificate {key}: the part's typical figures, not this unit's "
+            "calibration; replace it with the certificate of imudiag calibrate"
+        )
+    return out
 
 
 def noise_object(

@@ -1,0 +1,482 @@
+"""Fake devices: the project's simulator behind a pty, in a device's own protocol.
+
+As gpsd keeps ``gpsfake`` apart from the daemon, the fake devices live here, never in the
+sources they feed. A :class:`DeviceEncoder` turns blocks of simulated samples into the
+bytes a device sends (and answers what the host sends it); :class:`DeviceWriter` writes
+them into a :class:`~imudiag.bench.pty.PtyPair` at a pace set in sample time::
+
+    board = SimulatedBoard(cert, motion, ...)            # counts, the project's simulator
+    encoder = make_encoder("mavlink", cert)              # a fake PX4 autopilot
+    writer = DeviceWriter(pair, encoder, blocks_of(board), speed=10)
+    # the host reads mavlink://<pair.slave_path>; its certificate: encoder.certificate
+
+Every device is given the simulator's raw outputs in the scenario certificate's output
+units (counts for the bundled one). A device whose protocol carries physical units (MAVLink
+HIGHRES_IMU) applies the certificate's nominal bias and scale factor, as an autopilot
+applies its calibration: :func:`calibrated_certificate` is the certificate its output then
+obeys (the same sensor, so every decision of the monitor comes at the same sample time).
+
+Adding a device is one entry in :data:`ENCODERS` (docs/devices.md, "Fake devices").
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import errno
+import os
+import select
+import threading
+import time
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any, Protocol
+
+import numpy as np
+
+from imudiag import units
+from imudiag.certificate import Certificate
+from imudiag.drivers.mavlink import load_pymavlink
+from imudiag.drivers.wire import SAMPLE_FRAME_SIZE, TYPE_SAMPLE, encode_samples
+from imudiag.errors import BenchError
+from imudiag.samples import SampleBlock
+from imudiag.sim.board import SimulatedBoard
+
+from .pty import PtyPair, write_all
+from .transport import corrupt_sample_frames, frame_spans
+
+#: the SI units of a calibrated physical output per triad
+SI_UNITS = {"gyro": "rad/s", "accel": "m/s^2"}
+
+
+class DeviceEncoder(Protocol):
+    """A fake device's protocol side: samples in, the device's bytes out."""
+
+    name: str
+    #: the certificate the encoded samples obey (what the host must monitor them with)
+    certificate: Certificate
+    #: bytes a transport fault may insert as garbage without making a frame start
+    garbage_alphabet: bytes
+
+    def encode(self, block: SampleBlock) -> bytes:
+        """The device's bytes for ``block`` (raw outputs in the scenario certificate's
+        output units, ``t`` in s)."""
+        ...
+
+    def answer(self, data: bytes) -> bytes:
+        """The device's reply to bytes the host sent (b"" when nothing is answered)."""
+        ...
+
+    def idle(self) -> bytes:
+        """What the device sends while it waits for a host (b"": nothing)."""
+        ...
+
+    def split(self, data: bytes) -> list[tuple[bytes, bool]]:
+        """The frames of ``data`` (whole frames this encoder made): (bytes, is a sample)."""
+        ...
+
+    def corrupt(self, frame: bytes) -> bytes | None:
+        """``frame`` with a payload byte changed so that its checksum fails and no frame
+        start appears inside it (None when no byte allows that)."""
+        ...
+
+
+def calibrated_certificate(cert: Certificate) -> Certificate:
+    """The certificate of ``cert``'s sensor whose outputs are calibrated with its nominal
+    bias and scale factor into SI input units: ``x = (U - B) / S`` in rad/s and m/s^2.
+
+    Bias 0, scale factor 1, scale-factor error E/S, the same misalignment and F0 limit;
+    noise, bias and scale-factor limits divided by S (and multiplied by the unit's factor
+    to SI). Refused for extended models (temperature, nonlinearity, g-sensitivity).
+    """
+    out = copy.deepcopy(cert)
+    for name in ("gyro", "accel"):
+        tri = out.triad(name)
+        if tri.temperature is not None or tri.nonlinearity is not None:
+            raise BenchError(f"a calibrated device needs a linear {name} model in the certificate")
+        if tri.g_sensitivity is not None:
+            raise BenchError("a calibrated device needs a certificate without g_sensitivity")
+        k = tri.unit_to_si  # input unit -> SI
+        per_si = k / tri.scale_factor  # output counts -> SI input units, per axis
+        tri.scale_factor_error = tri.scale_factor_error / tri.scale_factor
+        tri.limits.scale_factor_error = tri.limits.scale_factor_error / tri.scale_factor
+        tri.limits.bias = tri.limits.bias * per_si
+        if tri.noise is not None:
+            for field in ("density", "bias_random_walk", "quantization", "bias_instability"):
+                v = getattr(tri.noise, field)
+                if v is not None:
+                    setattr(tri.noise, field, v * per_si)
+            for field in ("rate_ramp", "gauss_markov_sigma"):
+                v = getattr(tri.noise, field)
+                if v is not None:
+                    setattr(tri.noise, field, v * per_si)
+        tri.bias = np.zeros(3)
+        tri.scale_factor = np.ones(3)
+        tri.input_unit = SI_UNITS[name]
+        tri.output_unit = SI_UNITS[name]
+    out.device = {**cert.device, "model": f"{cert.device.get('model', 'IMU')} (calibrated SI)"}
+    return out
+
+
+def calibrate(block: SampleBlock, cert: Certificate) -> tuple[np.ndarray, np.ndarray]:
+    """``block``'s raw outputs through ``cert``'s nominal bias and scale factor: (gyro rad/s,
+    accel m/s^2), each (N, 3)."""
+    g, a = cert.gyro, cert.accel
+    gyro = (block.gyro - g.bias) / g.scale_factor * g.unit_to_si
+    accel = (block.accel - a.bias) / a.scale_factor * a.unit_to_si
+    return gyro, accel
+
+
+class NativeEncoder:
+    """The project's own board (spec/wire-protocol.md): sample frames in counts."""
+
+    name = "native"
+    garbage_alphabet = bytes(b for b in range(256) if b != 0xAA)
+
+    def __init__(self, cert: Certificate, **_: Any) -> None:
+        self.certificate = cert
+        self._seq = 1
+
+    def encode(self, block: SampleBlock) -> bytes:
+        """Sample frames of ``block`` (whole counts), seq counting on."""
+        n = len(block)
+        if not n:
+            return b""
+        data = encode_samples(
+            self._seq,
+            np.rint(block.t * 1e6),
+            np.hstack([block.gyro, block.accel]),
+            block.temp,
+            block.flags,
+        )
+        self._seq += n
+        return data
+
+    def answer(self, data: bytes) -> bytes:
+        """The simulated board ignores commands (allowed by the spec)."""
+        return b""
+
+    def idle(self) -> bytes:
+        """The board sends nothing before it streams."""
+        return b""
+
+    def split(self, data: bytes) -> list[tuple[bytes, bool]]:
+        """Frames of the wire protocol, sample frames flagged."""
+        return [
+            (data[p : p + n], t == TYPE_SAMPLE and n == SAMPLE_FRAME_SIZE)
+            for p, t, n in frame_spans(data)
+        ]
+
+    def corrupt(self, frame: bytes) -> bytes | None:
+        """A sample frame with its CRC broken (:func:`.transport.corrupt_sample_frames`)."""
+        bad, k = corrupt_sample_frames(frame)
+        return bad if k else None
+
+
+class MavlinkEncoder:
+    """A fake PX4 autopilot: HEARTBEAT every second, HIGHRES_IMU for every sample (the
+    certificate's nominal calibration applied, SI units; ``message="scaled"``: SCALED_IMU in
+    mg and mrad/s, whole numbers, time in ms), VIBRATION at 10 Hz; answers
+    COMMAND_LONG (SET_MESSAGE_INTERVAL accepted, REQUEST_MESSAGE of AUTOPILOT_VERSION with
+    that message) and everything else with MAV_RESULT_UNSUPPORTED. Everything is encoded by
+    pymavlink (never by the source's decoder)."""
+
+    name = "mavlink"
+    garbage_alphabet = bytes(b for b in range(256) if b not in (0xFD, 0xFE))
+
+    def __init__(
+        self,
+        cert: Certificate,
+        sysid: int = 1,
+        compid: int = 1,
+        uid: int = 0x0033_0021_3130_5111,
+        fields_updated: int = 0x103F,
+        mavlink1: bool = False,
+        message: str = "highres",
+    ) -> None:
+        if message not in ("highres", "scaled"):
+            raise BenchError(f"fake autopilot: message must be highres or scaled, got {message!r}")
+        self.message = message
+        self.dialect = dialect = load_pymavlink()
+        self.scenario_certificate = cert
+        self.certificate = calibrated_certificate(cert)
+        self.mav = dialect.MAVLink(None, sysid, compid)
+        self._host = dialect.MAVLink(None, 255, 0)
+        self._host.robust_parsing = True
+        self.uid = uid
+        self.fields_updated = fields_updated
+        self.mavlink1 = mavlink1
+        self.commands: list[Any] = []  #: COMMAND_LONG messages the host sent
+        self.heartbeats_received = 0
+        self._next_heartbeat: float | None = None  # sample time, s
+        self._next_vibration: float | None = None
+        self._vib: list[list[float]] = []
+        self._mg = units.factor("accel", "m/s^2", "mg")
+        self._mrad = units.factor("gyro", "rad/s", "mrad/s")
+
+    def pack(self, msg: Any) -> bytes:
+        """One message's frame, as this autopilot sends it (the link sequence counting on)."""
+        frame = bytes(msg.pack(self.mav, force_mavlink1=self.mavlink1))
+        self.mav.seq = (self.mav.seq + 1) % 256  # pymavlink counts in send(), not pack()
+        return frame
+
+    def heartbeat(self) -> bytes:
+        """A PX4 quadrotor's HEARTBEAT (MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_PX4, standby)."""
+        return self.pack(self.mav.heartbeat_encode(2, 12, 0, 0, 3))
+
+    def encode(self, block: SampleBlock) -> bytes:
+        """HEARTBEATs (1 Hz), one HIGHRES_IMU per sample and VIBRATIONs (10 Hz: the standard
+        deviation of the accelerations since the last one), in time order."""
+        if not len(block):
+            return b""
+        gyro, accel = calibrate(block, self.scenario_certificate)
+        temp = block.temp if block.temp is not None else np.full(len(block), 25.0)
+        enc = self.mav.highres_imu_encode
+        zeros = (0.0,) * 6  # magnetometer and pressures: not simulated
+        out: list[bytes] = []
+        rows = zip(block.t.tolist(), gyro.tolist(), accel.tolist(), temp.tolist(), strict=True)
+        for t, g, a, tc in rows:
+            if self._next_heartbeat is None or t >= self._next_heartbeat:
+                self._next_heartbeat = (self._next_heartbeat or t) + 1.0
+                out.append(self.heartbeat())
+            t_us = int(round(t * 1e6))
+            if self.message == "scaled":  # SCALED_IMU: mg, mrad/s and cdegC in int16
+                ia = [int(round(v * self._mg)) for v in a]
+                ig = [int(round(v * self._mrad)) for v in g]
+                imu = self.mav.scaled_imu_encode(
+                    t_us // 1000, *ia, *ig, 0, 0, 0, int(round(tc * 100)) or 1
+                )
+                out.append(self.pack(imu))
+            else:
+                out.append(self.pack(enc(t_us, *a, *g, *zeros, tc, self.fields_updated)))
+            self._vib.append(a)
+            if self._next_vibration is None:
+                self._next_vibration = t + 0.1
+            elif t >= self._next_vibration:
+                self._next_vibration += 0.1
+                rms = np.std(np.array(self._vib), axis=0).tolist()
+                self._vib = []
+                out.append(self.pack(self.mav.vibration_encode(t_us, *rms, 0, 0, 0)))
+        return b"".join(out)
+
+    def idle(self) -> bytes:
+        """A HEARTBEAT: an autopilot announces itself whether or not anyone listens."""
+        return self.heartbeat()
+
+    def split(self, data: bytes) -> list[tuple[bytes, bool]]:
+        """MAVLink frames by their length fields; the IMU messages are the samples."""
+        out: list[tuple[bytes, bool]] = []
+        pos = 0
+        while pos < len(data):
+            if data[pos] == 0xFD:
+                signed = data[pos + 2] & 1
+                size = 10 + data[pos + 1] + 2 + (13 if signed else 0)
+                msgid = data[pos + 7] | (data[pos + 8] << 8) | (data[pos + 9] << 16)
+            elif data[pos] == 0xFE:
+                size, msgid = 6 + data[pos + 1] + 2, data[pos + 5]
+            else:
+                raise BenchError(f"fake autopilot: no frame at byte {pos}")
+            out.append((data[pos : pos + size], msgid in (105, 26, 116, 129, 27)))
+            pos += size
+        return out
+
+    def corrupt(self, frame: bytes) -> bytes | None:
+        """The frame with one payload byte inverted, when neither it nor any other byte after
+        the first is a frame start (0xFD, 0xFE)."""
+        if any(b in (0xFD, 0xFE) for b in frame[1:]):
+            return None
+        head = 10 if frame[0] == 0xFD else 6
+        for i in range(head, len(frame) - 2):
+            flipped = frame[i] ^ 0xFF
+            if flipped not in (0xFD, 0xFE):
+                return frame[:i] + bytes([flipped]) + frame[i + 1 :]
+        return None
+
+    def autopilot_version(self) -> bytes:
+        """AUTOPILOT_VERSION of a PX4 v1.14.3 release on a Holybro board."""
+        return self.pack(
+            self.mav.autopilot_version_encode(
+                0xE4EF,
+                0x010E03FF,
+                0,
+                0,
+                0x00380000,
+                list(b"\x1a\x2b\x3c\x4d\x5e\x6f\x70\x81"),
+                [0] * 8,
+                [0] * 8,
+                0x3162,
+                0x0035,
+                self.uid,
+            )
+        )
+
+    def answer(self, data: bytes) -> bytes:
+        """COMMAND_ACKs (and AUTOPILOT_VERSION) for the host's commands."""
+        out: list[bytes] = []
+        try:
+            msgs = self._host.parse_buffer(data) or []
+        except Exception:  # a garbled request is not answered, as an autopilot would not
+            return b""
+        d = self.dialect
+        for m in msgs:
+            kind = m.get_type()
+            if kind == "HEARTBEAT":
+                self.heartbeats_received += 1
+            if kind != "COMMAND_LONG":
+                continue
+            self.commands.append(m)
+            if m.command == d.MAV_CMD_SET_MESSAGE_INTERVAL:
+                result = d.MAV_RESULT_ACCEPTED
+            elif m.command == d.MAV_CMD_REQUEST_MESSAGE and int(m.param1) == 148:
+                result = d.MAV_RESULT_ACCEPTED
+            else:
+                result = d.MAV_RESULT_UNSUPPORTED
+            out.append(self.pack(self.mav.command_ack_encode(m.command, result, 0, 0, 255, 0)))
+            if m.command == d.MAV_CMD_REQUEST_MESSAGE and result == d.MAV_RESULT_ACCEPTED:
+                out.append(self.autopilot_version())
+        return b"".join(out)
+
+
+#: the fake devices by name: ``device:`` of a bench scenario, ``make_encoder(name)``
+ENCODERS: dict[str, Callable[..., DeviceEncoder]] = {
+    "native": NativeEncoder,
+    "mavlink": MavlinkEncoder,
+}
+#: the source URL of each device for a port path
+SOURCE_URLS: dict[str, str] = {
+    "native": "serial://{path}",
+    "mavlink": "mavlink://{path}",
+}
+
+
+def make_encoder(name: str, cert: Certificate, **options: Any) -> DeviceEncoder:
+    """The fake device ``name`` (:data:`ENCODERS`) for samples of ``cert``'s sensor."""
+    try:
+        factory = ENCODERS[name]
+    except KeyError:
+        raise BenchError(f"unknown device {name!r}; known: {', '.join(sorted(ENCODERS))}") from None
+    return factory(cert, **options)
+
+
+def blocks_of(board: SimulatedBoard, chunk_s: float = 0.05) -> Iterator[SampleBlock]:
+    """The board's simulated samples (its raw outputs) in blocks of ``chunk_s`` s."""
+    n = max(1, int(round(chunk_s * board.rate_hz)))
+    while not board.exhausted:
+        _, block = board.generate(n)
+        if len(block):
+            yield block
+
+
+class DeviceWriter(threading.Thread):
+    """Writes a fake device's bytes into a pty master, paced in sample time.
+
+    Block i is written when ``(t_first_of_block - t0) / speed`` s of wall time have passed
+    (``speed`` 0: as fast as the host reads). Between blocks the host's bytes are read and
+    the encoder's answers written. ``before`` (optional) is called with each block before it
+    is encoded and may return bytes to send first (a transport fault: garbage, a corrupted
+    frame). With ``wait_host_s`` the device first sends only :meth:`DeviceEncoder.idle`
+    (every 0.1 s) until the host has sent it something or that many seconds have passed
+    (opening a port flushes what arrived before). Stops at the end of the blocks, on
+    :meth:`stop`, or when the pty goes away (an unplug: :meth:`PtyPair.close_master` stops
+    it); :attr:`remaining` then holds the block iterator, for a writer on the replugged pty
+    to continue with.
+    """
+
+    def __init__(
+        self,
+        pair: PtyPair,
+        encoder: DeviceEncoder,
+        blocks: Iterable[SampleBlock],
+        speed: float = 1.0,
+        before: Callable[[SampleBlock], bytes] | None = None,
+        wait_host_s: float | None = None,
+    ) -> None:
+        super().__init__(daemon=True, name=f"DeviceWriter-{encoder.name}")
+        self.wait_host_s = wait_host_s
+        self.host_spoke = False  #: the host has sent the device something
+        self.pair = pair
+        self.fd = pair.master_fd
+        pair.add_writer(self)  # close_master stops it
+        self.encoder = encoder
+        self.remaining: Iterator[SampleBlock] = iter(blocks)
+        self.speed = float(speed)
+        self.before = before
+        self.bytes_written = 0
+        self.samples_written = 0
+        self.t_last: float | None = None  #: sample time of the last sample written, s
+        self.error: OSError | None = None
+        self._stop_event = threading.Event()
+
+    def run(self) -> None:
+        t0: float | None = None
+        try:
+            if self.wait_host_s is not None:
+                end = time.monotonic() + self.wait_host_s
+                while not self.host_spoke and time.monotonic() < end:
+                    if self._stop_event.wait(0.1):
+                        return
+                    write_all(self.fd, self.encoder.idle(), self._stop_event)
+                    self._answer()
+            start = time.monotonic()
+            for block in self.remaining:
+                if t0 is None:
+                    t0 = float(block.t[0])
+                if self.speed > 0:
+                    delay = start + (float(block.t[0]) - t0) / self.speed - time.monotonic()
+                    if delay > 0 and self._stop_event.wait(delay):
+                        break
+                if self._stop_event.is_set():
+                    break
+                self._answer()
+                data = self.before(block) if self.before is not None else b""
+                data += self.encoder.encode(block)
+                self.bytes_written += write_all(self.fd, data, self._stop_event)
+                self.samples_written += len(block)
+                self.t_last = float(block.t[-1])
+                if self._stop_event.is_set():
+                    break
+            self._answer()
+        except OSError as e:  # EIO/EBADF when the pty went away
+            if e.errno not in (errno.EIO, errno.EBADF, errno.EPIPE):
+                raise
+            self.error = e
+
+    def _answer(self) -> None:
+        """Read what the host sent and write the device's answers."""
+        data = b""
+        while True:
+            ready, _, _ = select.select([self.fd], [], [], 0.0)
+            if not ready:
+                break
+            with contextlib.suppress(BlockingIOError):
+                chunk = os.read(self.fd, 65536)
+                if not chunk:
+                    break
+                data += chunk
+                continue
+            break
+        if data:
+            self.host_spoke = True
+            reply = self.encoder.answer(data)
+            if reply:
+                self.bytes_written += write_all(self.fd, reply, self._stop_event)
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Stop writing and wait up to ``timeout_s`` seconds for the thread."""
+        self._stop_event.set()
+        if self.is_alive() and threading.current_thread() is not self:
+            self.join(timeout_s)
+        self.pair.remove_writer(self)
+
+
+__all__ = [
+    "ENCODERS",
+    "SOURCE_URLS",
+    "DeviceEncoder",
+    "DeviceWriter",
+    "MavlinkEncoder",
+    "NativeEncoder",
+    "blocks_of",
+    "calibrate",
+    "calibrated_certificate",
+    "make_encoder",
+]
