@@ -22,7 +22,7 @@ from imudiag.certificate import datasheet_certificate_path, load
 from imudiag.drivers.base import open_source
 from imudiag.drivers.iio import ScanType, record_layout
 from imudiag.drivers.reconnect import ReconnectingSource
-from imudiag.errors import SourceError
+from imudiag.errors import BadInput, SourceError
 from imudiag.samples import SampleBlock
 from tests.device_sessions import DaemonThread, judge_session, session_samples
 from tests.helpers import read_samples, read_until_state
@@ -179,15 +179,26 @@ def test_session_reaches_ok_and_names_the_bias_within_the_native_time(tree, tmp_
     judge_session(d.sink.lines)
 
 
-def test_units_the_certificate_cannot_take_are_noted(tree):
-    """A counts certificate (the bundled one) cannot judge m/s^2: nothing is converted (no
-    guess), and the status says the verdicts do not hold."""
-    with DaemonThread("iio://adis16475?rate=200", None) as d:
+def test_units_the_certificate_cannot_take_are_refused(tree):
+    """A counts certificate (the bundled one) cannot judge m/s^2: the daemon stops with the
+    error ``diagnose`` gives such a log (exit 2 from the command line), naming the source
+    and the certificate's unit; nothing is converted by a guess."""
+    d = DaemonThread("iio://adis16475?rate=200", None)
+    errors: list[BadInput] = []
+
+    def run() -> None:
+        try:
+            d.daemon.run()
+        except BadInput as exc:
+            errors.append(exc)
+
+    d.thread = threading.Thread(target=run, name="daemon", daemon=True)
+    with d:
         d.wait_connected()
         tree.write(records(still(40)))
-        noted = d.wait(lambda s: any("output_unit is 'count'" in n for n in s.get("notes", [])))
-    assert noted["counters"]["frames"] == 40 and "unit_conversion" not in noted
-    assert any("the verdicts do not hold" in n for n in noted["notes"])
+        d.thread.join(30)
+    assert len(errors) == 1, "the daemon went on with units it cannot convert"
+    assert "iio://adis16475" in str(errors[0]) and "output_unit is 'count'" in str(errors[0])
 
 
 def test_unplug_and_replug_recover(tree):

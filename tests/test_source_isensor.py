@@ -215,7 +215,8 @@ def test_unknown_part_and_silent_port_are_refused():
 
 def test_daemon_sends_the_self_test_command(board):
     pair, fake = board
-    with DaemonThread(f"isensor://{pair.slave_path}?rate=200", None) as d:
+    cert = str(datasheet_certificate_path("adis16475-2"))
+    with DaemonThread(f"isensor://{pair.slave_path}?rate=200", cert) as d:
         d.wait_connected()
         fake.queue(lines_of(still(40)))
         d.wait(lambda s: s["counters"]["frames"] >= 40)
