@@ -244,6 +244,8 @@ def summary_lines(report: dict) -> list[str]:
         lines.append(
             f"{triad}: {v[triad]} (F0 checked {f0.get('checked', 0)}, failed {f0.get('failed', 0)})"
         )
+        if f0.get("why"):
+            lines.append(f"  F0 checked nothing: {f0['why']}")
     for f in v["faults"]:
         if f["cause"] == "f0":
             lines.append(

@@ -21,12 +21,17 @@ import numpy as np
 
 from .. import certificate as certmod
 from ..certificate import Certificate, CertificateError
+from ..diagnosis.inputs import check_units
+from ..diagnosis.session import add_monitor_faults
 from ..drivers.base import EndOfStream, SourceError
 from ..drivers.reconnect import ReconnectingSource
+from ..errors import BadInput
 from ..monitor import Monitor, MonitorConfig
 from ..noise_estimate import NoiseMeter
 from ..quasistatic import BAD_FLAGS
 from ..samples import SampleBlock
+from ..units import NO_CONVERSION, Conversion
+from ..vibration import vibration_object
 from .config import DaemonConfig
 from .sdnotify import Notifier, WatchdogGate
 from .status import (
@@ -133,6 +138,11 @@ class Daemon:
         self.watchdog = WatchdogGate(self.notifier)
         self.clock = clock
         self.certificate = self._load_certificate()
+        #: the exact conversion of the source's stated units to the certificate's
+        #: (:func:`imudiag.units.conform`, as ``imudiag diagnose`` does for a log); checked
+        #: when the source is open and at every certificate reload
+        self.units: Conversion = NO_CONVERSION
+        self._units_checked = False
         self.monitor = Monitor(self.certificate, settings.monitor)
         #: the unit's white noise measured live, as every command measures it
         #: (:mod:`imudiag.noise_estimate`), over the last NOISE_WINDOW_S of samples
@@ -182,7 +192,12 @@ class Daemon:
         # the daemon never reports past windows: keeping the diagnoser's default 10000
         # made its memory grow about 2 MB per hour of data (soak/)
         options = {"max_windows_kept": DAEMON_WINDOWS_KEPT, **self.settings.diagnosis_options}
-        return StreamingDiagnoser(cert, options)
+        # the still detector measures the unit's noise from the data, as ``imudiag diagnose``
+        # does by default (one decision path, issue 25): a data-sheet figure too low leaves
+        # no window still
+        return StreamingDiagnoser(
+            cert, options, rate_hz=self.monitor.rate_hz, certificate_noise=False
+        )
 
     def _make_aiding(self, cert: Certificate) -> Any:
         if not self.settings.aiding_url:
@@ -255,6 +270,15 @@ class Daemon:
             self.notes = [msg]
             self.notifier.ready()
             return False
+        try:
+            units = self._conform_units(new) if self._units_checked else self.units
+        except BadInput as exc:
+            msg = f"certificate reload refused, keeping the previous one: {exc}"
+            log.error(msg)
+            self.notes = [msg]
+            self.notifier.ready()
+            return False
+        self.units = units
         self.certificate = new
         self.monitor.set_certificate(new)
         if self.diagnoser is not None:
@@ -268,6 +292,45 @@ class Daemon:
         log.info("certificate reloaded from %s", path)
         self.notifier.ready()
         return True
+
+    def _units_where(self) -> str:
+        """How unit messages name the source: a replayed log by its path (as ``imudiag
+        diagnose`` names it), else the URL."""
+        path = getattr(getattr(self.source, "inner", None), "path", None)
+        return str(path) if path is not None else self.settings.source_url
+
+    def _conform_units(self, cert: Certificate) -> Conversion:
+        """The conversion of the source's stated units (its device information's ``units``)
+        to ``cert``'s; BadInput (the message of ``imudiag diagnose``) when they cannot be."""
+        return check_units(self._units_where(), dict(self.source.device_info), cert)
+
+    def _check_units(self) -> None:
+        """At start (the source open, or its first block): conform the units or refuse."""
+        if not self._units_checked:
+            self.units = self._conform_units(self.certificate)
+            self._units_checked = True
+            if not self.units.identity:
+                log.info("units: %s", self.units)
+            self._adopt_rate()
+
+    def _adopt_rate(self) -> None:
+        """Run the checks at the sample rate the source states (a replayed log's
+        ``sample_rate``), as ``imudiag diagnose`` does, rather than the certificate's;
+        only before the first sample."""
+        stated = self.source.device_info.get("sample_rate")
+        try:
+            rate = float(stated) if stated is not None else math.nan
+        except (TypeError, ValueError):
+            return
+        if not (math.isfinite(rate) and rate > 0) or self.monitor.samples:
+            return
+        if math.isclose(rate, self.monitor.rate_hz, rel_tol=1e-12):
+            return
+        self.monitor = Monitor(self.certificate, self.settings.monitor, rate_hz=rate)
+        self.noise = NoiseMeter(rate, max_chunks=int(NOISE_WINDOW_S))
+        self.diagnoser = self._make_diagnoser(self.certificate)
+        self._diag_view = None
+        self._merged = None
 
     # -- status -----------------------------------------------------------
 
@@ -320,6 +383,17 @@ class Daemon:
             out["board_percent"] = round(board, 2)
             out["monitor_percent"] = round(max(0.0, total - board), 2)
         return out
+
+    def _whole_verdict(self) -> dict[str, Any]:
+        """The verdict over every sample read since start (or the last reload), the one
+        definition ``imudiag diagnose`` reports (:func:`add_monitor_faults`): per triad ok,
+        fault or undetermined, and every named fault ever raised (triad, sensor, cause)."""
+        assert self.diagnoser is not None
+        v = add_monitor_faults(self.diagnoser.verdict(), self.monitor, self.certificate)
+        faults = [
+            {k: f[k] for k in ("triad", "sensor", "cause", "one_of") if k in f} for f in v["faults"]
+        ]
+        return {"accel": v["accel"], "gyro": v["gyro"], "faults": faults}
 
     def _diagnosis_view(self) -> tuple[list[dict[str, Any]], dict[str, Any]]:
         """The diagnoser's faults in force and its per-triad verdict (kept between feeds)."""
@@ -396,6 +470,10 @@ class Daemon:
             status["cpu"] = cpu
         if self.diagnoser is not None:
             status["diagnosis"] = dict(diagnosis)
+            status["verdict"] = self._whole_verdict()
+        status["vibration"] = vibration_object(
+            self.monitor.vibration, self.source.device_info.get("vibration")
+        )
         links = [s for s in self.sinks if hasattr(s, "dropped") and hasattr(s, "written")]
         if links:  # the serial NMEA link: sentences written and dropped (slow receiver)
             status["status_link"] = {
@@ -450,6 +528,12 @@ class Daemon:
             self.source.open()
         except SourceError as exc:
             log.warning("source not available yet, will retry: %s", exc)
+        else:
+            try:
+                self._check_units()
+            except BadInput:
+                self.source.close()
+                raise
         self.notifier.ready()
         try:
             while not self._stop:
@@ -461,11 +545,14 @@ class Daemon:
                     block = self.source.read(self.settings.read_timeout_s)
                 except EndOfStream:
                     self._feed_batch(None)
+                    self._finish_stream()
                     self._emit(self.clock(), force=True)
                     break
                 now = self.clock()
                 read_done = time.monotonic()
                 if len(block):
+                    self._check_units()
+                    block = self.units.apply(block)
                     self._last_data_wall = now
                     self.watchdog.frames_arrived(now)
                     self.monitor.update(block)
@@ -489,6 +576,14 @@ class Daemon:
             for sink in self.sinks:
                 sink.close()
         return 0
+
+    def _finish_stream(self) -> None:
+        """At the end of a finite stream (a replay): close the last still interval and
+        diagnose what is left, as ``imudiag diagnose`` does (issue 25 item 1)."""
+        self.monitor.flush()
+        if self.diagnoser is not None:
+            self.diagnoser.finish()
+            self._diag_view = None
 
     def _feed_batch(self, block: SampleBlock | None) -> None:
         """Gather ``block``; feed the noise meter and the diagnoser once

@@ -91,6 +91,7 @@ def status_record(
                 "checked": st.checked,
                 "failed": st.failed,
                 "last": finite_or_none(st.last_f0),
+                **({"why": monitor.f0_why(name)} if not st.checked else {}),
             }
             for name, st in monitor.state.items()
         },

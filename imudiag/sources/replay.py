@@ -80,7 +80,7 @@ class ReplaySource(Source):
         self._buffer = SampleBlock.empty()
         self._exhausted = False
         self._t0 = None
-        if name.endswith(".bin"):
+        if name.endswith(".bin") and self._wire_capture():
             self.decoder = Decoder(self.counters)
             self._blocks = self._bin_blocks()
         else:
@@ -89,6 +89,14 @@ class ReplaySource(Source):
             self._reader = open_log(self.path, self.block_size, options=self.log_options)
             self.device_info = dict(self._reader.meta)
             self._blocks = iter(self._reader)
+
+    def _wire_capture(self) -> bool:
+        """Whether a ``.bin`` file is a raw wire capture (not another format sharing the
+        extension, an ArduPilot DataFlash log: told by its first bytes, as ``open_log``
+        tells them)."""
+        from imudiag.logs.registry import lookup
+
+        return lookup(self.path).name == ".bin"
 
     def _bin_blocks(self) -> Iterator[SampleBlock]:
         assert self.decoder is not None
