@@ -119,8 +119,9 @@ class TriadState:
     #: the unit vibrating or moving, issue 25)
     noise_judged: int = 0
     noise_not_at_rest: int = 0
-    #: per axis, the largest measured / certificate white-noise sigma among judged checks
-    noise_worst: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    #: measured / certificate white-noise sigma (3 axes) of the judged checks with an axis
+    #: beyond ``noise_ratio`` (at most 100 000 kept): the noise fault's figure
+    noise_excess: list[np.ndarray] = field(default_factory=list)
 
 
 class _Thinned:
@@ -562,8 +563,9 @@ class Monitor:
     def noise_faults(self) -> list[dict[str, Any]]:
         """Excess-noise faults ever raised over the stream, per sensor (``diagnose``'s faults:
         the daemon's ``noise`` fault, the same checks and persistence). ``estimate``: the
-        largest white-noise sigma measured on a judged check (output units), ``certificate``
-        the certificate's sigma at the stream's rate, ``limit`` ``noise_ratio`` times it."""
+        median white-noise sigma of the judged checks beyond the limit (output units),
+        ``certificate`` the certificate's sigma at the stream's rate, ``limit``
+        ``noise_ratio`` times it."""
         out: list[dict[str, Any]] = []
         for name in TRIADS:
             st = self.state[name]
@@ -575,7 +577,9 @@ class Monitor:
                 if p.raised == 0 and gross.raised == 0:
                     continue
                 firsts = [q.t_first_raised for q in (p, gross) if q.t_first_raised is not None]
-                worst = float(st.noise_worst[axis])
+                excess = np.concatenate(st.noise_excess)[:, axis] if st.noise_excess else None
+                beyond = None if excess is None else excess[excess > self.config.noise_ratio]
+                worst = float(np.median(beyond)) if beyond is not None and beyond.size else math.nan
                 out.append(
                     {
                         "triad": name,
@@ -966,7 +970,10 @@ class Monitor:
             st.noise_not_at_rest += int(judged.size - np.count_nonzero(judged))
             ex = judged[rows]
             if ex.any():
-                st.noise_worst = np.fmax(st.noise_worst, ratios[name][ex].max(axis=0))
+                kept = ratios[name][ex]
+                beyond = kept[(kept > self.config.noise_ratio).any(axis=1)]
+                if beyond.size and sum(a.shape[0] for a in st.noise_excess) < 100_000:
+                    st.noise_excess.append(beyond)
             if not judged.any():
                 continue
             tj = t if judged.all() else t[judged]
