@@ -237,3 +237,72 @@ def test_the_simulated_faults_are_named_by_both(runs):
     named = _named(runs["session-faulty"]["report"]["verdict"]["faults"])
     assert ("accel", "ax", "bias") in named and ("gyro", "gy", "scale_factor") in named
     assert runs["session-clean"]["report"]["verdict"]["faults"] == []
+
+
+def _capture(path: Path, corrupt_at_s: float, lost_at_s: float, lost: int) -> Path:
+    """40 s of the simulated board (static, 200 Hz) as a raw wire capture with one frame's
+    CRC broken at ``corrupt_at_s`` and ``lost`` frames missing from ``lost_at_s``."""
+    from imudiag.drivers.wire import SAMPLE_FRAME_SIZE, encode_samples
+    from imudiag.sim.board import SimulatedBoard
+    from imudiag.sim.scenarios import scenario_motion
+
+    rate = 200.0
+    board = SimulatedBoard(load_default(), scenario_motion("static", 3), rate, 3, duration_s=40.0)
+    _, block = board.generate(int(40 * rate))
+    time_us = np.rint(block.t * 1e6).astype(np.int64)
+    data = bytearray(encode_samples(0, time_us, np.hstack([block.gyro, block.accel]), block.temp))
+    bad = int(corrupt_at_s * rate) * SAMPLE_FRAME_SIZE
+    data[bad + 20] ^= 0xFF  # a payload byte: the CRC fails
+    cut = int(lost_at_s * rate) * SAMPLE_FRAME_SIZE
+    del data[cut : cut + lost * SAMPLE_FRAME_SIZE]
+    path.write_bytes(bytes(data))
+    return path
+
+
+def test_wire_counters_in_sample_time_and_in_the_report(tmp_path):
+    """Issue 25 item 5: a capture's CRC error at 12.5 s and 11 lost frames at 30 s: the
+    replay's counters stay 0 (and the state not degraded) before 12.5 s of sample time;
+    diagnose names the counters in its JSON and its text."""
+    log = _capture(tmp_path / "board.bin", 12.5, 30.0, 11)
+    sink = CollectSink()
+    daemon = Daemon(DaemonSettings(source_url=f"replay://{log}?speed=0"), [sink])
+    assert daemon.run() == 0
+    lines = [s for s in sink.lines if s["t"] is not None]
+    t0 = lines[0]["t"]
+    before = [s for s in lines if s["t"] - t0 < 12.0]
+    assert before and all(s["counters"]["crc_errors"] == 0 for s in before)
+    assert all(s["counters"]["lost"] == 0 and s["state"] != "degraded" for s in before)
+    mid = [s for s in lines if 14.0 < s["t"] - t0 < 29.0]
+    assert mid and all(s["counters"]["crc_errors"] == 1 for s in mid)
+    assert lines[-1]["counters"]["lost"] >= 11
+    report = diagnose(str(log), None, windows=False)
+    assert report["wire"]["crc_errors"] == 1 and report["wire"]["lost"] >= 11
+    from conftest import run_imudiag
+
+    r = run_imudiag("diagnose", str(log), "--no-windows")
+    assert r.returncode == 0 and "1 CRC errors" in r.stdout and "lost" in r.stdout
+
+
+def test_moving_base_faults_reach_the_top_level_verdict():
+    """Issue 25 item 6: the drive's named and one-of faults, the gyros' in turns, as
+    top-level verdict faults (triad, sensor, cause; one_of kept)."""
+    from imudiag.commands.gnss import verdict_faults
+
+    one_of = [
+        {"sensor": "az", "cause": "bias", "estimate": 0.3, "std": 0.01},
+        {"sensor": "az", "cause": "scale_factor", "estimate": 0.03, "std": 0.001},
+    ]
+    mb = {
+        "faults": [
+            {"triad": "accel", "sensor": "ax", "cause": "bias", "named": True, "estimate": 1.0},
+            {"triad": "accel", "sensor": None, "cause": None, "named": False, "one_of": one_of},
+        ],
+        "gyro_turns": {"faults": [{"triad": "gyro", "cause": "f0", "named": False}]},
+    }
+    got = verdict_faults(mb)
+    assert [(f["triad"], f["sensor"], f["cause"], f["source"]) for f in got] == [
+        ("accel", "ax", "bias", "moving_base"),
+        ("accel", "az", "one_of", "moving_base"),
+        ("gyro", None, "f0", "gyro_turns"),
+    ]
+    assert got[1]["one_of"] == one_of

@@ -76,9 +76,11 @@ def blocks(
     options: LogOptions | None = None,
     progress: ProgressCallback | None = None,
     what: str = "reading",
+    opened: list[Any] | None = None,
 ) -> Iterator[tuple[dict[str, Any], Iterator[SampleBlock]]]:
     """The recording's metadata and its samples in blocks of at most ``block_size``;
-    ``progress`` is told ``(what, fraction read, samples read)`` after each block."""
+    ``progress`` is told ``(what, fraction read, samples read)`` after each block;
+    ``opened`` (a list) gets the log reader (its ``counters`` for a wire capture)."""
     if block_size < 1:
         raise BadInput(f"block size: must be >= 1, got {block_size}")
     if isinstance(data, SampleBlock):
@@ -96,6 +98,8 @@ def blocks(
         yield data.meta, in_memory()
         return
     with open_log(data, block_size=block_size, options=options) as reader:
+        if opened is not None:
+            opened.append(reader)
         if progress is None:
             yield reader.meta, iter(reader)
             return
@@ -201,7 +205,8 @@ def diagnose_recording(
     )
     monitor = None
     diag = None
-    with blocks(data, block_size, options, progress, "diagnosing") as (meta, stream):
+    opened: list[Any] = []
+    with blocks(data, block_size, options, progress, "diagnosing", opened) as (meta, stream):
         units = check_units(name, meta, cert)
         for block in stream:
             block = units.apply(block)
@@ -258,6 +263,9 @@ def diagnose_recording(
     if not units.identity:  # what was converted, exactly (imudiag.units)
         report["unit_conversion"] = units.describe()
     report["vibration"] = vibration_object(monitor.vibration)
+    wire = getattr(opened[0], "counters", None) if opened else None
+    if wire is not None:  # a raw wire capture: its receiver counters (spec/wire-protocol.md)
+        report["wire"] = wire.as_dict()
     report["self_test"] = monitor.self_test  # samples excluded: deflected on purpose
     report["adc_errors"] = monitor.adc_errors
     return report
