@@ -471,6 +471,8 @@ class Daemon:
         if self.diagnoser is not None:
             status["diagnosis"] = dict(diagnosis)
             status["verdict"] = self._whole_verdict()
+        if not self.units.identity:  # what was converted, exactly, as diagnose reports it
+            status["unit_conversion"] = self.units.describe()
         status["vibration"] = vibration_object(
             self.monitor.vibration, self.source.device_info.get("vibration")
         )
