@@ -531,13 +531,11 @@ class Monitor:
             return "no samples"
         if e["windows"] == 0:
             return f"no whole still-detector window ({cfg.static_window_s:g} s) yet"
-        det = self.detector
-        noise = "the data's" if not getattr(det, "_noise_fixed", {"gyro": 1}).get("gyro", 1) else (
-            "the certificate's"
-        )  # fmt: skip
         if e["static"] == 0:
             for tri in ("accel", "gyro"):
                 if e[f"{tri}_variance_ok"] == 0:
+                    has = self.certificate.triad(tri).noise_sigma(self.rate_hz) is not None
+                    noise = "the certificate's" if has else "the data's"
                     return (
                         f"never still: no {cfg.static_window_s:g} s window of the {tri} "
                         f"variance within the still detector's limit (the sum over the axes "
