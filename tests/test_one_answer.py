@@ -380,3 +380,42 @@ def test_a_reload_whose_units_are_refused_keeps_the_certificate(tmp_path):
         assert "refused" in note and "count" in note and str(IMUCAL) in note
     finally:
         daemon.source.close()
+
+
+def test_the_vibration_block_of_a_certificate(tmp_path):
+    """The optional ``vibration`` block: thresholds used, written back, a bad one refused
+    naming its key; without it ArduPilot's defaults. A source's own figures (an autopilot's
+    VIBRATION message) are judged the same way."""
+    from imudiag.certificate import CertificateError, from_dict
+    from imudiag.vibration import VibrationFigures, vibration_object
+
+    doc = load_default().to_dict()
+    doc["vibration"] = {"accel_high": 1.0, "accel_severe": 2.0, "clipping": 3}
+    cert = from_dict(doc)
+    assert cert.vibration is not None and cert.to_dict()["vibration"] == {
+        "accel_high": 1.0,
+        "accel_severe": 2.0,
+        "clipping": 3,
+    }
+    rng = np.random.default_rng(25)
+    n, rate = 400, 200.0
+    shake = np.zeros((n, 6))
+    shake[:, 3:] = rng.normal(size=(n, 3)) * 1.5 * np.asarray(cert.accel.scale_factor)  # 1.5 m/s^2
+    raw = np.asarray(cert.accel.bias)[None, :] + shake[:, 3:]
+    block = SampleBlock(t=np.arange(n) / rate, gyro=np.tile(cert.gyro.bias, (n, 1)), accel=raw)
+    for c, state in ((cert, "high"), (load_default(), "ok")):
+        meter = VibrationMeter(c, rate)
+        meter.update(block)
+        obj = vibration_object(meter)
+        assert obj["state"] == state, obj
+        assert 1.2 < max(obj["accel"]["level"]) < 1.7  # m/s^2 (the high-pass keeps ~95 %)
+    assert "severe" not in vibration_object(meter)["note"]
+    device = VibrationFigures(accel=[70.0, 5.0, 5.0], gyro=None, source="device").as_dict()
+    obj = vibration_object(VibrationMeter(load_default(), rate), device)
+    assert obj["state"] == "high" and obj["source"] == "device" and "severe" in obj["note"]
+    doc["vibration"] = {"accel_high": 10.0, "accel_severe": 5.0}
+    with pytest.raises(CertificateError, match="vibration.accel_severe"):
+        from_dict(doc)
+    doc["vibration"] = {"accel_hi": 10.0}
+    with pytest.raises(CertificateError, match="vibration.accel_hi"):
+        from_dict(doc)

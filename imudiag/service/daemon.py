@@ -49,6 +49,15 @@ log = logging.getLogger("imudiag.daemon")
 #: quietest quarter of them: motion in most of the window does not inflate it)
 NOISE_WINDOW_S = 600.0
 
+#: what the status's ``verdict`` is, and where the streaming side differs from ``imudiag
+#: diagnose`` (docs/service.md, "What the daemon decides")
+VERDICT_NOTE = (
+    "every fault raised since start or the last reload, as imudiag diagnose reports a log "
+    "('faults' holds those in force now); streaming differs in one setting: the window "
+    "diagnosis's still detector measures the noise per 0.5 s batch, not per 65536-sample "
+    "block, so its intervals can differ slightly (docs/service.md)"
+)
+
 DAEMON_WINDOWS_KEPT = 16  #: past diagnosis windows the live diagnoser keeps in memory
 
 #: status lines over which the status's ``cpu`` figures are taken (about 10 s at 1 Hz)
@@ -393,7 +402,7 @@ class Daemon:
         faults = [
             {k: f[k] for k in ("triad", "sensor", "cause", "one_of") if k in f} for f in v["faults"]
         ]
-        return {"accel": v["accel"], "gyro": v["gyro"], "faults": faults}
+        return {"accel": v["accel"], "gyro": v["gyro"], "faults": faults, "note": VERDICT_NOTE}
 
     def _diagnosis_view(self) -> tuple[list[dict[str, Any]], dict[str, Any]]:
         """The diagnoser's faults in force and its per-triad verdict (kept between feeds)."""
