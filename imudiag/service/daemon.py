@@ -156,7 +156,7 @@ class Daemon:
         #: the unit's white noise measured live, as every command measures it
         #: (:mod:`imudiag.noise_estimate`), over the last NOISE_WINDOW_S of samples
         self.noise = NoiseMeter(self.monitor.rate_hz, max_chunks=int(NOISE_WINDOW_S))
-        self.diagnoser = self._make_diagnoser(self.certificate)
+        self.diagnoser = self._make_diagnoser(self.certificate, self.monitor.rate_hz)
         self._diag_blocks: list[SampleBlock] = []  # gathered for the diagnoser and noise meter
         self._batch_t0 = 0.0  # time of the first sample gathered, s
         # the diagnoser's faults and verdict change only when it is fed: kept between feeds
@@ -193,7 +193,8 @@ class Daemon:
     def _load_certificate(self) -> Certificate:
         return certmod.load(certificate_path_or_default(self.settings.certificate_path))
 
-    def _make_diagnoser(self, cert: Certificate) -> Any:
+    def _make_diagnoser(self, cert: Certificate, rate_hz: float | None = None) -> Any:
+        """The live window diagnosis at ``rate_hz`` (the monitor's; None: the certificate's)."""
         if not self.settings.diagnosis:
             return None
         from ..diagnosis import StreamingDiagnoser
@@ -204,9 +205,7 @@ class Daemon:
         # the still detector measures the unit's noise from the data, as ``imudiag diagnose``
         # does by default (one decision path, issue 25): a data-sheet figure too low leaves
         # no window still
-        return StreamingDiagnoser(
-            cert, options, rate_hz=self.monitor.rate_hz, certificate_noise=False
-        )
+        return StreamingDiagnoser(cert, options, rate_hz=rate_hz, certificate_noise=False)
 
     def _make_aiding(self, cert: Certificate) -> Any:
         if not self.settings.aiding_url:
@@ -291,7 +290,7 @@ class Daemon:
         self.certificate = new
         self.monitor.set_certificate(new)
         if self.diagnoser is not None:
-            self.diagnoser = self._make_diagnoser(new)
+            self.diagnoser = self._make_diagnoser(new, self.monitor.rate_hz)
             self._diag_blocks = []  # gathered under the old certificate
             self._diag_view = None
         if self.aiding is not None:
@@ -337,7 +336,7 @@ class Daemon:
             return
         self.monitor = Monitor(self.certificate, self.settings.monitor, rate_hz=rate)
         self.noise = NoiseMeter(rate, max_chunks=int(NOISE_WINDOW_S))
-        self.diagnoser = self._make_diagnoser(self.certificate)
+        self.diagnoser = self._make_diagnoser(self.certificate, self.monitor.rate_hz)
         self._diag_view = None
         self._merged = None
 
