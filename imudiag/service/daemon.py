@@ -534,18 +534,16 @@ class Daemon:
 
     def run(self) -> int:
         """Run until stopped or a finite source ends; returns the exit status (0)."""
+        opened = False
         try:
             self.source.open()
+            opened = True
         except SourceError as exc:
             log.warning("source not available yet, will retry: %s", exc)
-        else:
-            try:
-                self._check_units()
-            except BadInput:
-                self.source.close()
-                raise
-        self.notifier.ready()
         try:
+            if opened:  # units refused: BadInput (exit 2), after closing everything below
+                self._check_units()
+            self.notifier.ready()
             while not self._stop:
                 if self._reload:
                     self._reload = False
