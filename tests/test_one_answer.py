@@ -419,3 +419,18 @@ def test_the_vibration_block_of_a_certificate(tmp_path):
     doc["vibration"] = {"accel_hi": 10.0}
     with pytest.raises(CertificateError, match="vibration.accel_hi"):
         from_dict(doc)
+
+
+def test_the_daemon_runs_with_diagnose_settings():
+    """One decision path: the bundled configuration gives the daemon the monitor and window
+    diagnosis settings ``imudiag diagnose`` uses by default."""
+    from imudiag.diagnosis import DiagnosisConfig
+    from imudiag.monitor import MonitorConfig
+    from imudiag.service.config import default_config
+    from imudiag.service.daemon import settings_from_config
+
+    settings = settings_from_config(default_config())
+    assert settings.monitor == MonitorConfig()
+    defaults = DiagnosisConfig()
+    for key, value in settings.diagnosis_options.items():
+        assert getattr(defaults, key) == value, key
