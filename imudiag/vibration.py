@@ -122,20 +122,33 @@ class VibrationMeter:
             flags = np.asarray(block.flags).astype(np.int64)
             self.clipping["accel"] += int(np.count_nonzero(flags & FLAG_ACCEL_SATURATED))
             self.clipping["gyro"] += int(np.count_nonzero(flags & FLAG_GYRO_SATURATED))
-        x = np.concatenate([block.gyro, block.accel], axis=1).astype(float)
-        x = np.where(np.isfinite(x), x, np.nan)
-        full = np.concatenate([self._tail, x]) if self._tail.size else x
         h = self.hp
+        full = np.empty((self._tail.shape[0] + n, 6))
+        full[: self._tail.shape[0]] = self._tail
+        full[self._tail.shape[0] :, :3] = block.gyro
+        full[self._tail.shape[0] :, 3:] = block.accel
+        x = full[self._tail.shape[0] :]
         # each sample minus the mean of the h samples ending at it (fewer at the stream's
         # start), from prefix sums of the samples centred on the first
-        ref = full[0]
-        c = np.concatenate([np.zeros((1, 6)), np.cumsum(full - ref, axis=0)])
-        end = np.arange(full.shape[0] - n, full.shape[0]) + 1
-        start = np.maximum(end - h, 0)
-        mean = (c[end] - c[start]) / (end - start)[:, None] + ref
-        hp = (x - mean) * self._to_si
+        ref = full[0].copy()
+        c = np.zeros((full.shape[0] + 1, 6))
+        np.cumsum(full - ref, axis=0, out=c[1:])
+        m = full.shape[0]
+        hi = c[m - n + 1 : m + 1]
+        if m - n + 1 - h >= 0:  # every window whole: contiguous slices, no gather
+            mean = hi - c[m - n + 1 - h : m + 1 - h]
+            mean /= h
+        else:
+            end = np.arange(m - n, m) + 1
+            start = np.maximum(end - h, 0)
+            mean = (hi - c[start]) / (end - start)[:, None]
+        mean += ref
+        hp = np.subtract(x, mean, out=mean)
+        hp *= self._to_si
         self._tail = full[-(h - 1) :].copy() if h > 1 else np.zeros((0, 6))
-        sq = np.nan_to_num(hp * hp, nan=0.0)
+        sq = np.square(hp, out=hp)
+        if not np.isfinite(sq).all():
+            sq = np.nan_to_num(sq, nan=0.0, posinf=0.0, neginf=0.0)
         # windows aligned on the stream index: cut the block where a window completes
         pos = 0
         while pos < n:
