@@ -390,6 +390,54 @@ class TriadModel:
 
 
 @dataclass
+class VibrationLimits:
+    """Thresholds of the installation's vibration check (the optional ``vibration`` block).
+
+    Defaults and their source: ArduPilot's vibration guide (ardupilot.org, "Measuring
+    Vibration"): VIBE levels (the standard deviation of the high-passed accelerometer, per
+    axis, m/s^2) below 30 are normally acceptable, above 30 may cause problems, above 60
+    nearly always do; any accelerometer clipping (samples at the sensor's range) is a
+    problem. imudiag's level is the RMS of the specific force high-passed at
+    ``highpass_hz`` over ``window_s`` (docs/diagnosis.md).
+    """
+
+    accel_high: float = 30.0  #: m/s^2 RMS per axis: vibration ``high`` beyond it
+    accel_severe: float = 60.0  #: m/s^2 RMS per axis: ``severe`` beyond it
+    clipping: int = 0  #: clipped samples tolerated before the vibration is ``high``
+    #: rad/s RMS per axis of the high-passed angular rate beyond which it is ``high``
+    #: (no published default: None, the angular level is reported only)
+    gyro_high: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The YAML block as plain Python types."""
+        out: dict[str, Any] = {
+            "accel_high": float(self.accel_high),
+            "accel_severe": float(self.accel_severe),
+            "clipping": int(self.clipping),
+        }
+        if self.gyro_high is not None:
+            out["gyro_high"] = float(self.gyro_high)
+        return out
+
+
+def _parse_vibration(node: Any) -> VibrationLimits:
+    v = _mapping(node, "vibration")
+    _check_keys(v, "vibration", (), ("accel_high", "accel_severe", "clipping", "gyro_high"))
+    out = VibrationLimits()
+    for key in ("accel_high", "accel_severe", "gyro_high"):
+        if key in v:
+            setattr(out, key, _positive(_finite(v[key], f"vibration.{key}"), f"vibration.{key}"))
+    if out.accel_severe < out.accel_high:
+        raise CertificateError("vibration.accel_severe", "must be >= vibration.accel_high")
+    if "clipping" in v:
+        c = v["clipping"]
+        if isinstance(c, bool) or not isinstance(c, int) or c < 0:
+            raise CertificateError("vibration.clipping", f"expected an integer >= 0, got {c!r}")
+        out.clipping = int(c)
+    return out
+
+
+@dataclass
 class Certificate:
     """A whole certificate: device text, environment magnitudes and both triads."""
 
@@ -400,6 +448,9 @@ class Certificate:
     sample_rate: float = 200.0  #: Hz, nominal
     device: dict[str, Any] = field(default_factory=dict)
     source: str | None = None  #: file it was read from, for messages
+    #: the optional ``vibration`` block (thresholds of the installation's vibration check,
+    #: docs/spec/certificate.md); None: the defaults of :class:`VibrationLimits`
+    vibration: VibrationLimits | None = None
 
     def triad(self, name: str) -> TriadModel:
         """The triad called ``gyro`` or ``accel``."""
@@ -425,6 +476,8 @@ class Certificate:
         out["sample_rate"] = int(rate) if rate.is_integer() else rate
         for name in TRIADS:
             out[name] = _triad_to_dict(self.triad(name))
+        if self.vibration is not None:
+            out["vibration"] = self.vibration.to_dict()
         return out
 
     def dumps(self) -> str:
@@ -600,7 +653,12 @@ def from_dict(doc: Any, source: str | None = None) -> Certificate:
     """Build and validate a certificate from a parsed YAML document."""
     try:
         doc = _mapping(doc, "(document)")
-        _check_keys(doc, "", ("format", "device", "environment", "sample_rate", "gyro", "accel"))
+        _check_keys(
+            doc,
+            "",
+            ("format", "device", "environment", "sample_rate", "gyro", "accel"),
+            ("vibration",),
+        )
         if doc["format"] != FORMAT:
             raise CertificateError("format", f"expected {FORMAT!r}, got {doc['format']!r}")
         device = _mapping(doc["device"], "device")
@@ -619,6 +677,7 @@ def from_dict(doc: Any, source: str | None = None) -> Certificate:
             sample_rate=rate,
             device={str(k): v for k, v in device.items()},
             source=source,
+            vibration=_parse_vibration(doc["vibration"]) if "vibration" in doc else None,
         )
     except CertificateError as exc:
         if source and exc.source is None:

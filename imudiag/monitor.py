@@ -51,6 +51,7 @@ from .samples import (
 )
 from .scalar import f0
 from .trailing import PrefixSums, median_side
+from .vibration import VibrationMeter
 
 #: triads in the ring's column order (raw gyro columns 1-3, accel 4-6)
 TRIADS_RING = ("gyro", "accel")
@@ -114,6 +115,13 @@ class TriadState:
     noise: list[Persistence] = field(default_factory=list)  #: per axis, excess noise
     noise_gross: list[Persistence] = field(default_factory=list)  #: per axis, gross noise
     noise_ratio_last: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    #: noise checks judged (the other triad at its own noise) and set aside (it was not:
+    #: the unit vibrating or moving, issue 25)
+    noise_judged: int = 0
+    noise_not_at_rest: int = 0
+    #: measured / certificate white-noise sigma (3 axes) of the judged checks with an axis
+    #: beyond ``noise_ratio`` (at most 100 000 kept): the noise fault's figure
+    noise_excess: list[np.ndarray] = field(default_factory=list)
 
 
 class _Thinned:
@@ -279,6 +287,8 @@ class Monitor:
             st.noise_gross = [Persistence(3, 5) for _ in range(3)]
             self._state[name] = st
         self.gyro_mode = self._gyro_mode(certificate.gyro, rate)
+        #: the installation's vibration (:mod:`imudiag.vibration`), fed every sample
+        self.vibration = VibrationMeter(certificate, rate)
         # per-certificate constants, computed once rather than on every block
         self._n_inv_t = {name: certificate.triad(name).n_inverse_t() for name in TRIADS}
         self._sigma = {name: certificate.triad(name).noise_sigma(rate) for name in TRIADS}
@@ -509,6 +519,80 @@ class Monitor:
             )
         return out
 
+    def f0_why(self, name: str) -> str | None:
+        """Why the F0 check of ``name`` has checked no sample (None once it has): which
+        criterion failed, with the figure and its threshold (issue 25 item 4)."""
+        st = self.state[name]
+        if st.checked:
+            return None
+        e = self.detector.explain
+        cfg = self.config
+        if self.samples == 0:
+            return "no samples"
+        if e["windows"] == 0:
+            return f"no whole still-detector window ({cfg.static_window_s:g} s) yet"
+        if e["static"] == 0:
+            for tri in ("accel", "gyro"):
+                if e[f"{tri}_variance_ok"] == 0:
+                    has = self.certificate.triad(tri).noise_sigma(self.rate_hz) is not None
+                    noise = "the certificate's" if has else "the data's"
+                    return (
+                        f"never still: no {cfg.static_window_s:g} s window of the {tri} "
+                        f"variance within the still detector's limit (the sum over the axes "
+                        f"of variance / {noise} white-noise variance); the quietest of "
+                        f"{e['windows']} windows was {e[f'{tri}_least_ratio']:.3g} x that "
+                        "limit: vibration or motion beyond the certificate's noise, or a "
+                        "certificate noise figure too low (the report's noise section)"
+                    )
+            return (
+                f"never still: {e['accel_variance_ok']} of {e['windows']} windows passed the "
+                "variance test, but the gyro rate band or the drift tests (a vehicle's "
+                "manoeuvre, a curve) failed every one"
+            )
+        if name == "gyro" and self.gyro_mode == "rest_rate":
+            return (
+                f"{e['static']} still samples, but no still stretch of "
+                f"{self._span / self.rate_hz:.3g} s (the rest-rate mean over "
+                f"{cfg.gyro_window_s:g} s and one detector window after it) without a "
+                "saturation or ADC-error flag"
+            )
+        return f"{e['static']} still samples, every one flagged (saturation or ADC error)"
+
+    def noise_faults(self) -> list[dict[str, Any]]:
+        """Excess-noise faults ever raised over the stream, per sensor (``diagnose``'s faults:
+        the daemon's ``noise`` fault, the same checks and persistence). ``estimate``: the
+        median white-noise sigma of the judged checks beyond the limit (output units),
+        ``certificate`` the certificate's sigma at the stream's rate, ``limit``
+        ``noise_ratio`` times it."""
+        out: list[dict[str, Any]] = []
+        for name in TRIADS:
+            st = self.state[name]
+            sigma = self._noise_sigma.get(name)
+            if sigma is None:
+                continue
+            unit = self.certificate.triad(name).output_unit
+            for axis, (p, gross) in enumerate(zip(st.noise, st.noise_gross, strict=True)):
+                if p.raised == 0 and gross.raised == 0:
+                    continue
+                firsts = [q.t_first_raised for q in (p, gross) if q.t_first_raised is not None]
+                excess = np.concatenate(st.noise_excess)[:, axis] if st.noise_excess else None
+                beyond = None if excess is None else excess[excess > self.config.noise_ratio]
+                worst = float(np.median(beyond)) if beyond is not None and beyond.size else math.nan
+                out.append(
+                    {
+                        "triad": name,
+                        "sensor": SENSOR_NAMES[name][axis],
+                        "cause": "noise",
+                        "estimate": worst * float(sigma[axis]) if math.isfinite(worst) else None,
+                        "certificate": float(sigma[axis]),
+                        "limit": self.config.noise_ratio * float(sigma[axis]),
+                        "unit": unit,
+                        "t_first": min(firsts) if firsts else None,
+                        "raised": p.raised + gross.raised,
+                    }
+                )
+        return out
+
     # -- the checks -------------------------------------------------------
 
     def update(self, block: SampleBlock) -> None:
@@ -660,6 +744,7 @@ class Monitor:
             st = self._state[name]
             assert st.saturation is not None
             st.saturation.update(sat[name], block.t)
+        self.vibration.update(block)
 
         # gyro
         rows = np.empty((n, 5))
@@ -857,6 +942,7 @@ class Monitor:
             # the gathered windows are a copy of our own: partitioned in place
             ratio6[g : g + group] = medians(windows[:, ends[rows[g : g + group]] - w]).T
         t = t[pos]
+        ratios: dict[str, np.ndarray] = {}
         for k, name in enumerate(TRIADS_RING):
             sigma = self._noise_sigma[name]
             if sigma is None:
@@ -864,8 +950,32 @@ class Monitor:
             st = self._state[name]
             ratio = np.sqrt(ratio6[:, 3 * k : 3 * k + 3] / (0.4549 * 6.0)) / sigma
             st.noise_ratio_last = ratio[-1]
+            ratios[name] = ratio
             for j, r in enumerate(limits):
                 fails[rows, j, 3 * k : 3 * k + 3] = ratio > r
+        # vibration is not noise (issue 25): a triad's noise is judged only while the other
+        # triad is at its own noise (no axis beyond ``noise_ratio``): a vehicle's vibration
+        # shakes both triads, a sensor's own noise is its alone. Both beyond: the unit is not
+        # at rest, and the excess is reported as vibration, never as a noise fault
+        excess: np.ndarray = np.any(fails[:, 0, :].reshape(-1, 2, 3), axis=2)  # (checks, 2)
+        for k, name in enumerate(TRIADS_RING):
+            if name not in ratios:
+                continue
+            st = self._state[name]
+            other = self._noise_sigma[TRIADS_RING[1 - k]]
+            judged = ~excess[:, 1 - k] if other is not None else np.ones(excess.shape[0], bool)
+            st.noise_judged += int(np.count_nonzero(judged))
+            st.noise_not_at_rest += int(judged.size - np.count_nonzero(judged))
+            ex = judged[rows]
+            if ex.any():
+                kept = ratios[name][ex]
+                beyond = kept[(kept > self.config.noise_ratio).any(axis=1)]
+                if beyond.size and sum(a.shape[0] for a in st.noise_excess) < 100_000:
+                    st.noise_excess.append(beyond)
+            if not judged.any():
+                continue
+            tj = t if judged.all() else t[judged]
             for axis in range(3):
-                st.noise[axis].update(fails[:, 0, 3 * k + axis], t)
-                st.noise_gross[axis].update(fails[:, 1, 3 * k + axis], t)
+                col = 3 * k + axis
+                st.noise[axis].update(_rows(fails[:, 0, col], judged), tj)
+                st.noise_gross[axis].update(_rows(fails[:, 1, col], judged), tj)

@@ -516,6 +516,17 @@ class QuasiStaticDetector:
                 self._noise_var[name] = None
                 self._noise_fixed[name] = False
         self._lim: _Limits | None = None
+        #: what explains the static flags given so far (:meth:`_note_windows`): windows
+        #: judged, per triad those within the variance limit and the least variance ratio
+        #: to that limit, and the static samples
+        self.explain: dict[str, Any] = {
+            "windows": 0,
+            "static": 0,
+            "gyro_variance_ok": 0,
+            "accel_variance_ok": 0,
+            "gyro_least_ratio": math.inf,
+            "accel_least_ratio": math.inf,
+        }
         #: the columns (gyro 0-2, accel 3-5) of the triads checked
         self._cols = np.array(
             [
@@ -630,6 +641,23 @@ class QuasiStaticDetector:
 
     def update(self, block: SampleBlock) -> np.ndarray:
         """Static flags (N,) bool for the samples of ``block``, in order."""
+        out = self._update(block)
+        self.explain["static"] += int(np.count_nonzero(out))
+        return out
+
+    def _note_windows(self, ratio: np.ndarray, still: np.ndarray) -> None:
+        """Keep what explains a stream without a still sample (:attr:`explain`): windows
+        judged, per triad those within the variance limit, and the least ratio of a window's
+        variance to that limit (``ratio`` (M, 2) over the limit, gyro then accel)."""
+        e = self.explain
+        e["windows"] += int(ratio.shape[0])
+        for c, name in enumerate(("gyro", "accel")):
+            e[f"{name}_variance_ok"] += int(np.count_nonzero(still[:, c]))
+            if ratio.shape[0]:
+                least = float(np.min(ratio[:, c]))
+                e[f"{name}_least_ratio"] = min(e[f"{name}_least_ratio"], least)
+
+    def _update(self, block: SampleBlock) -> np.ndarray:
         n = len(block)
         if n == 0:
             return np.zeros(0, dtype=bool)
@@ -650,6 +678,8 @@ class QuasiStaticDetector:
         # sum over each triad's axes of var_j / sigma_j^2
         ratio = (var / lim.var_ref).reshape(m, 2, 3).sum(axis=2)
         still = ratio <= limit
+        if not lim.missing:
+            self._note_windows(ratio / limit, still)
         if lim.missing:
             ok[:] = False
         for c in lim.checked:
@@ -755,6 +785,7 @@ class QuasiStaticDetector:
         new._restart = list(self._restart)
         new._noise_var = dict(self._noise_var)
         new._noise_fixed = dict(self._noise_fixed)
+        new.explain = dict(self.explain)
         return new
 
     def reset(self) -> None:
@@ -918,6 +949,14 @@ class SharedDetectorReader:
     def alone(self) -> bool:
         """Whether it went on with a detector of its own (it cut the stream differently)."""
         return self.reader.own is not None
+
+    @property
+    def explain(self) -> dict[str, Any]:
+        """As :attr:`QuasiStaticDetector.explain` (of the detector whose flags this reader
+        gets; a reader behind the others sees the figures of the blocks run so far)."""
+        runner = self.reader.own if self.reader.own is not None else self.reader.shared.runner
+        assert isinstance(runner, _Flags)
+        return runner.detector.explain
 
     def noise_sigma(self, triad: str) -> np.ndarray | None:
         """As :meth:`QuasiStaticDetector.noise_sigma` after this reader's last block."""

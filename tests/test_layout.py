@@ -53,6 +53,7 @@ FLOORS: list[tuple[str, ...]] = [
         "imudiag.quasistatic",
         "imudiag.noise_estimate",
         "imudiag.noise_stats",
+        "imudiag.vibration",
         "imudiag.monitor",
         "imudiag.sim",
         "imudiag.diagnosis",

@@ -39,6 +39,7 @@ from .gnss import (
     check_gnss_options,
     moving_base_lines,
     moving_base_section,
+    verdict_faults,
 )
 from .noise import add_noise_argument, noise_lines
 
@@ -250,7 +251,14 @@ def summary_lines(report: dict) -> list[str]:
         lines.append(
             f"{triad}: {v[triad]} (F0 checked {f0.get('checked', 0)}, failed {f0.get('failed', 0)})"
         )
+        if f0.get("why"):
+            lines.append(f"  F0 checked nothing: {f0['why']}")
     for f in v["faults"]:
+        if f.get("source") in ("moving_base", "gyro_turns"):
+            continue  # said with the moving-base section's lines
+        if f["cause"] == "noise" and f.get("estimate") is None:
+            lines.append(f"  FAULT {f['triad']} {f['sensor']} noise: persistent excess at rest")
+            continue
         if f["cause"] == "f0":
             lines.append(
                 f"  FAULT {f['triad']} {f['sensor'] or '(triad)'} f0: {f['failed']} of "
@@ -265,6 +273,13 @@ def summary_lines(report: dict) -> list[str]:
             f"  FAULT {f['triad']} {f['sensor']} {f['cause']}: estimate "
             f"{f['estimate']:.6g}{unit}, certificate {f['certificate']:.6g}{unit}, limit "
             f"{f['limit']:.6g}{unit}, first at t = {f['t_first']:.2f} s"
+        )
+    wire = report.get("wire")
+    if wire:
+        lines.append(
+            f"wire capture: {wire['frames']} frames, {wire['crc_errors']} CRC errors, "
+            f"{wire['lost']} lost, {wire['duplicates']} duplicates, "
+            f"{wire['skipped_bytes']} bytes skipped of {wire['bytes']}"
         )
     for u in v["undetermined"]:
         lines.append(f"  undetermined {u['triad']} {u['sensor']} {u['cause']}: {u['reason']}")
@@ -312,6 +327,10 @@ def run(args: argparse.Namespace) -> int:
     section = moving_base_section(args, cert, report["sample_rate"])
     if section is not None:
         report["moving_base"] = section
+        # every named fault in the top-level verdict, the drive's included (issue 25)
+        for fault in verdict_faults(section):
+            report["verdict"]["faults"].append(fault)
+            report["verdict"][fault["triad"]] = "fault"
     if trace is not None:
         from ..plots.diagnosis import write_diagnosis_plots
 

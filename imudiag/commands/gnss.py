@@ -131,6 +131,30 @@ def moving_base_section(args: argparse.Namespace, cert: Certificate, rate_hz: fl
     return section
 
 
+def verdict_faults(mb: dict) -> list[dict]:
+    """The moving-base section's faults (the accelerometers in motion and the gyros in
+    turns) as top-level ``verdict.faults`` entries (issue 25 item 6): ``triad``, ``sensor``
+    and ``cause`` where the drive names them; where it cannot tell the alternatives apart,
+    ``one_of`` lists them, ``sensor`` and ``cause`` are theirs when all share it (else
+    None and ``one_of``); ``source`` says which check raised it."""
+    out = []
+    raised = [(f, "moving_base") for f in mb.get("faults", [])]
+    raised += [(f, "gyro_turns") for f in (mb.get("gyro_turns") or {}).get("faults", [])]
+    for f, source in raised:
+        entry = {k: v for k, v in f.items() if k != "named"}
+        entry.setdefault("triad", "gyro" if source == "gyro_turns" else "accel")
+        entry["source"] = source
+        alts = f.get("one_of")
+        if not f.get("named") and alts:
+            sensors = {o["sensor"] for o in alts}
+            causes = {o["cause"] for o in alts}
+            entry["sensor"] = sensors.pop() if len(sensors) == 1 else None
+            entry["cause"] = causes.pop() if len(causes) == 1 else "one_of"
+        entry.setdefault("sensor", None)
+        out.append({k: entry[k] for k in ("triad", "sensor", "cause")} | entry)
+    return out
+
+
 def _with_unit(f: dict) -> str:
     """``estimate E U, certificate C U, limit L U`` of a named fault (U its ``unit``)."""
     u = f" {f['unit']}" if f.get("unit") else ""
@@ -219,6 +243,7 @@ __all__ = [
     "check_gnss_options_without_log_gnss",
     "moving_config",
     "gyro_turn_lines",
+    "verdict_faults",
     "moving_base_lines",
     "moving_base_section",
     "parse_lever_arm",

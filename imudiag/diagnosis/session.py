@@ -26,6 +26,7 @@ from ..logs.options import LogOptions
 from ..noise_estimate import NOISE_MISMATCH_FACTOR, NoiseMeter, compare
 from ..quasistatic import BAD_FLAGS, DetectorPool
 from ..samples import FLAG_SELF_TEST, SampleBlock
+from ..vibration import vibration_object
 from .config import DiagnosisConfig
 from .inputs import MagnitudeTable, check_units, log_rate_hz
 from .intervals import IntervalCollector, QuasiStaticInterval
@@ -36,7 +37,7 @@ from .stream import StreamingDiagnoser
 from .window import WindowResult
 
 if TYPE_CHECKING:
-    from ..monitor import F0Trace
+    from ..monitor import F0Trace, Monitor
     from .calibrate import CalibrationResult
 
 #: Longest stretch of a recording read to measure its white noise (s of sample time).
@@ -76,9 +77,11 @@ def blocks(
     options: LogOptions | None = None,
     progress: ProgressCallback | None = None,
     what: str = "reading",
+    opened: list[Any] | None = None,
 ) -> Iterator[tuple[dict[str, Any], Iterator[SampleBlock]]]:
     """The recording's metadata and its samples in blocks of at most ``block_size``;
-    ``progress`` is told ``(what, fraction read, samples read)`` after each block."""
+    ``progress`` is told ``(what, fraction read, samples read)`` after each block;
+    ``opened`` (a list) gets the log reader (its ``counters`` for a wire capture)."""
     if block_size < 1:
         raise BadInput(f"block size: must be >= 1, got {block_size}")
     if isinstance(data, SampleBlock):
@@ -96,6 +99,8 @@ def blocks(
         yield data.meta, in_memory()
         return
     with open_log(data, block_size=block_size, options=options) as reader:
+        if opened is not None:
+            opened.append(reader)
         if progress is None:
             yield reader.meta, iter(reader)
             return
@@ -201,7 +206,8 @@ def diagnose_recording(
     )
     monitor = None
     diag = None
-    with blocks(data, block_size, options, progress, "diagnosing") as (meta, stream):
+    opened: list[Any] = []
+    with blocks(data, block_size, options, progress, "diagnosing", opened) as (meta, stream):
         units = check_units(name, meta, cert)
         for block in stream:
             block = units.apply(block)
@@ -232,6 +238,15 @@ def diagnose_recording(
         t: {"checked": int(monitor.f0_checked[t]), "failed": int(monitor.f0_failed[t])}
         for t in ("accel", "gyro")
     }
+    for t, entry in f0.items():  # when nothing was checked: which criterion failed, and how
+        why = monitor.f0_why(t)
+        if why is not None:
+            if diag.intervals:
+                why += (
+                    f"; the window diagnosis's still detector (the data's noise) found "
+                    f"{diag.intervals} still interval(s)"
+                )
+            entry["why"] = why
     known_fault = None
     if config.known_rate_rad_s is not None:
         # on a turntable the gyro F0 is checked per plateau against the table's rate
@@ -239,9 +254,36 @@ def diagnose_recording(
         f0["gyro"] = {"checked": st["checked"], "failed": st["failed"], "check": "known_rate"}
         known_fault = diag.plateau_f0_fault()
     report = diag.report(f0=f0, windows=windows)
-    # persistent F0 failures are faults, by the daemon's own k-of-n persistence
-    # (``explained_by``: the parameter faults the window diagnosis names on that triad)
-    verdict = report["verdict"]
+    add_monitor_faults(report["verdict"], monitor, cert, known_fault)
+    report["log"] = name
+    report["certificate"] = cert.source or "(bundled)"
+    if cert.device.get("warning"):
+        report["certificate_warning"] = str(cert.device["warning"])
+    report["sample_rate"] = diag.rate_hz
+    report["noise"] = noise_report
+    if not units.identity:  # what was converted, exactly (imudiag.units)
+        report["unit_conversion"] = units.describe()
+    report["vibration"] = vibration_object(monitor.vibration)
+    wire = getattr(opened[0], "counters", None) if opened else None
+    if wire is not None:  # a raw wire capture: its receiver counters (spec/wire-protocol.md)
+        report["wire"] = wire.as_dict()
+    report["self_test"] = monitor.self_test  # samples excluded: deflected on purpose
+    report["adc_errors"] = monitor.adc_errors
+    return report
+
+
+def add_monitor_faults(
+    verdict: dict[str, Any],
+    monitor: Monitor,
+    cert: Certificate,
+    known_fault: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Complete a window diagnosis's ``verdict`` (:meth:`StreamingDiagnoser.verdict`, changed
+    in place and returned) with the monitor's faults ever raised: persistent F0 failures
+    (``explained_by``: the parameter faults the window diagnosis names on that triad) and
+    excess white noise at rest, by the daemon's own checks and persistence. The one
+    definition of the whole-stream verdict, for ``imudiag diagnose`` and the daemon's
+    status (issue 25: one answer)."""
     named = list(verdict["faults"])
     for fault in named:  # the unit of estimate, certificate and limit (spec/reports.md)
         if fault["cause"] in PARAM_KEYS:
@@ -254,17 +296,12 @@ def diagnose_recording(
         ]
         verdict["faults"].append(fault)
         verdict[fault["triad"]] = "fault"
-    report["log"] = name
-    report["certificate"] = cert.source or "(bundled)"
-    if cert.device.get("warning"):
-        report["certificate_warning"] = str(cert.device["warning"])
-    report["sample_rate"] = diag.rate_hz
-    report["noise"] = noise_report
-    if not units.identity:  # what was converted, exactly (imudiag.units)
-        report["unit_conversion"] = units.describe()
-    report["self_test"] = monitor.self_test  # samples excluded: deflected on purpose
-    report["adc_errors"] = monitor.adc_errors
-    return report
+    # excess white noise at rest (judged only while the other triad is at its noise, so
+    # vibration is not noise)
+    for fault in monitor.noise_faults():
+        verdict["faults"].append(fault)
+        verdict[fault["triad"]] = "fault"
+    return verdict
 
 
 def _collect_pass(
@@ -522,6 +559,7 @@ __all__ = [
     "Recording",
     "blocks",
     "calibrate_recording",
+    "add_monitor_faults",
     "diagnose_recording",
     "measure_noise",
     "recording_name",

@@ -21,13 +21,17 @@ import numpy as np
 
 from .. import certificate as certmod
 from ..certificate import Certificate, CertificateError
+from ..diagnosis.inputs import check_units
+from ..diagnosis.session import add_monitor_faults
 from ..drivers.base import EndOfStream, SourceError
 from ..drivers.reconnect import ReconnectingSource
+from ..errors import BadInput
 from ..monitor import Monitor, MonitorConfig
 from ..noise_estimate import NoiseMeter
 from ..quasistatic import BAD_FLAGS
 from ..samples import SampleBlock
-from ..units import NO_CONVERSION, Conversion, conform, stated_units
+from ..units import NO_CONVERSION, Conversion
+from ..vibration import vibration_object
 from .config import DaemonConfig
 from .sdnotify import Notifier, WatchdogGate
 from .status import (
@@ -45,6 +49,15 @@ log = logging.getLogger("imudiag.daemon")
 #: s of samples over which the status's measured white noise is taken (1 s chunks, the
 #: quietest quarter of them: motion in most of the window does not inflate it)
 NOISE_WINDOW_S = 600.0
+
+#: what the status's ``verdict`` is, and where the streaming side differs from ``imudiag
+#: diagnose`` (docs/service.md, "What the daemon decides")
+VERDICT_NOTE = (
+    "every fault raised since start or the last reload, as imudiag diagnose reports a log "
+    "('faults' holds those in force now); streaming differs in one setting: the window "
+    "diagnosis's still detector measures the noise per 0.5 s batch, not per 65536-sample "
+    "block, so its intervals can differ slightly (docs/service.md)"
+)
 
 DAEMON_WINDOWS_KEPT = 16  #: past diagnosis windows the live diagnoser keeps in memory
 
@@ -153,11 +166,17 @@ class Daemon:
         else:
             self.certificate_file = certificate_path_or_default(settings.certificate_path)
         self.certificate = self._load_certificate()
+        #: the exact conversion of the source's stated units to the certificate's
+        #: (:func:`imudiag.units.conform`, as ``imudiag diagnose`` does for a log); checked
+        #: when the source is open and at every certificate reload
+        self.units: Conversion = NO_CONVERSION
+        self._units_checked = False
+        self._units_stated = ""  #: repr of the source's stated units when last checked
         self.monitor = Monitor(self.certificate, settings.monitor)
         #: the unit's white noise measured live, as every command measures it
         #: (:mod:`imudiag.noise_estimate`), over the last NOISE_WINDOW_S of samples
         self.noise = NoiseMeter(self.monitor.rate_hz, max_chunks=int(NOISE_WINDOW_S))
-        self.diagnoser = self._make_diagnoser(self.certificate)
+        self.diagnoser = self._make_diagnoser(self.certificate, self.monitor.rate_hz)
         self._diag_blocks: list[SampleBlock] = []  # gathered for the diagnoser and noise meter
         self._batch_t0 = 0.0  # time of the first sample gathered, s
         # the diagnoser's faults and verdict change only when it is fed: kept between feeds
@@ -186,9 +205,6 @@ class Daemon:
         self._last_errors = 0
         self._errors_wall = -math.inf
         self.notes: list[str] = []
-        #: the samples' declared units (a device source's ``meta["units"]``) -> the
-        #: certificate's: (declared units, reloads) it was made for, and the conversion
-        self._conversion: tuple[Any, Conversion] = (None, NO_CONVERSION)
         self.reloads = 0
         self.statuses = 0
         #: (monotonic s, process CPU s, simulated board CPU s), one a second
@@ -233,7 +249,8 @@ class Daemon:
             "give a certificate file (--certificate PATH, e.g. from imudiag calibrate)"
         )
 
-    def _make_diagnoser(self, cert: Certificate) -> Any:
+    def _make_diagnoser(self, cert: Certificate, rate_hz: float | None = None) -> Any:
+        """The live window diagnosis at ``rate_hz`` (the monitor's; None: the certificate's)."""
         if not self.settings.diagnosis:
             return None
         from ..diagnosis import StreamingDiagnoser
@@ -241,7 +258,10 @@ class Daemon:
         # the daemon never reports past windows: keeping the diagnoser's default 10000
         # made its memory grow about 2 MB per hour of data (soak/)
         options = {"max_windows_kept": DAEMON_WINDOWS_KEPT, **self.settings.diagnosis_options}
-        return StreamingDiagnoser(cert, options)
+        # the still detector measures the unit's noise from the data, as ``imudiag diagnose``
+        # does by default (one decision path, issue 25): a data-sheet figure too low leaves
+        # no window still
+        return StreamingDiagnoser(cert, options, rate_hz=rate_hz, certificate_noise=False)
 
     def _make_aiding(self, cert: Certificate) -> Any:
         if not self.settings.aiding_url:
@@ -333,10 +353,19 @@ class Daemon:
             self.notes = [msg]
             self.notifier.ready()
             return False
+        try:
+            units = self._conform_units(new) if self._units_checked else self.units
+        except BadInput as exc:
+            msg = f"certificate reload refused, keeping the previous one: {exc}"
+            log.error(msg)
+            self.notes = [msg]
+            self.notifier.ready()
+            return False
+        self.units = units
         self.certificate = new
         self.monitor.set_certificate(new)
         if self.diagnoser is not None:
-            self.diagnoser = self._make_diagnoser(new)
+            self.diagnoser = self._make_diagnoser(new, self.monitor.rate_hz)
             self._diag_blocks = []  # gathered under the old certificate
             self._diag_view = None
         if self.aiding is not None:
@@ -346,6 +375,49 @@ class Daemon:
         log.info("certificate reloaded from %s", path)
         self.notifier.ready()
         return True
+
+    def _units_where(self) -> str:
+        """How unit messages name the source: a replayed log by its path (as ``imudiag
+        diagnose`` names it), else the URL."""
+        path = getattr(getattr(self.source, "inner", None), "path", None)
+        return str(path) if path is not None else self.settings.source_url
+
+    def _conform_units(self, cert: Certificate) -> Conversion:
+        """The conversion of the source's stated units (its device information's ``units``)
+        to ``cert``'s; BadInput (the message of ``imudiag diagnose``) when they cannot be."""
+        return check_units(self._units_where(), dict(self.source.device_info), cert)
+
+    def _check_units(self) -> None:
+        """At start (the source open, or its first block), and again whenever the source
+        states other units (a MAVLink autopilot that switched messages after a replug):
+        conform the units or refuse."""
+        stated = repr(self.source.device_info.get("units"))
+        if not self._units_checked or stated != self._units_stated:
+            self.units = self._conform_units(self.certificate)
+            self._units_checked = True
+            self._units_stated = stated
+            if not self.units.identity:
+                log.info("units: %s", self.units)
+            self._adopt_rate()
+
+    def _adopt_rate(self) -> None:
+        """Run the checks at the sample rate the source states (a replayed log's
+        ``sample_rate``), as ``imudiag diagnose`` does, rather than the certificate's;
+        only before the first sample."""
+        stated = self.source.device_info.get("sample_rate")
+        try:
+            rate = float(stated) if stated is not None else math.nan
+        except (TypeError, ValueError):
+            return
+        if not (math.isfinite(rate) and rate > 0) or self.monitor.samples:
+            return
+        if math.isclose(rate, self.monitor.rate_hz, rel_tol=1e-12):
+            return
+        self.monitor = Monitor(self.certificate, self.settings.monitor, rate_hz=rate)
+        self.noise = NoiseMeter(rate, max_chunks=int(NOISE_WINDOW_S))
+        self.diagnoser = self._make_diagnoser(self.certificate, self.monitor.rate_hz)
+        self._diag_view = None
+        self._merged = None
 
     # -- status -----------------------------------------------------------
 
@@ -398,6 +470,17 @@ class Daemon:
             out["board_percent"] = round(board, 2)
             out["monitor_percent"] = round(max(0.0, total - board), 2)
         return out
+
+    def _whole_verdict(self) -> dict[str, Any]:
+        """The verdict over every sample read since start (or the last reload), the one
+        definition ``imudiag diagnose`` reports (:func:`add_monitor_faults`): per triad ok,
+        fault or undetermined, and every named fault ever raised (triad, sensor, cause)."""
+        assert self.diagnoser is not None
+        v = add_monitor_faults(self.diagnoser.verdict(), self.monitor, self.certificate)
+        faults = [
+            {k: f[k] for k in ("triad", "sensor", "cause", "one_of") if k in f} for f in v["faults"]
+        ]
+        return {"accel": v["accel"], "gyro": v["gyro"], "faults": faults, "note": VERDICT_NOTE}
 
     def _diagnosis_view(self) -> tuple[list[dict[str, Any]], dict[str, Any]]:
         """The diagnoser's faults in force and its per-triad verdict (kept between feeds)."""
@@ -474,6 +557,12 @@ class Daemon:
             status["cpu"] = cpu
         if self.diagnoser is not None:
             status["diagnosis"] = dict(diagnosis)
+            status["verdict"] = self._whole_verdict()
+        if not self.units.identity:  # what was converted, exactly, as diagnose reports it
+            status["unit_conversion"] = self.units.describe()
+        status["vibration"] = vibration_object(
+            self.monitor.vibration, self.source.device_info.get("vibration")
+        )
         links = [s for s in self.sinks if hasattr(s, "dropped") and hasattr(s, "written")]
         if links:  # the serial NMEA link: sentences written and dropped (slow receiver)
             status["status_link"] = {
@@ -485,8 +574,6 @@ class Daemon:
         device = self.source.device_info
         if device:  # what the daemon is talking to (docs/devices.md: the shared keys first)
             status["device"] = device_object(device)
-        if not self._conversion[1].identity:
-            status["unit_conversion"] = self._conversion[1].describe()
         notes = list(self.notes)
         if self._command_note:
             notes.append(self._command_note)
@@ -531,12 +618,16 @@ class Daemon:
 
     def run(self) -> int:
         """Run until stopped or a finite source ends; returns the exit status (0)."""
+        opened = False
         try:
             self.source.open()
+            opened = True
         except SourceError as exc:
             log.warning("source not available yet, will retry: %s", exc)
-        self.notifier.ready()
         try:
+            if opened:  # units refused: BadInput (exit 2), after closing everything below
+                self._check_units()
+            self.notifier.ready()
             while not self._stop:
                 if self._reload:
                     self._reload = False
@@ -551,12 +642,14 @@ class Daemon:
                         block = self.source.read(self.settings.read_timeout_s)
                 except EndOfStream:
                     self._feed_batch(None)
+                    self._finish_stream()
                     self._emit(self.clock(), force=True)
                     break
                 now = self.clock()
                 read_done = time.monotonic()
                 if len(block):
-                    block = self._conform(block)
+                    self._check_units()
+                    block = self.units.apply(block)
                     self._last_data_wall = now
                     self.watchdog.frames_arrived(now)
                     self.monitor.update(block)
@@ -581,23 +674,13 @@ class Daemon:
                 sink.close()
         return 0
 
-    def _conform(self, block: SampleBlock) -> SampleBlock:
-        """``block`` in the certificate's output units: :func:`imudiag.units.conform` of the
-        units a device source declares in ``device_info["units"]`` (docs/devices.md: a
-        device source is one with the shared identity keys; a replayed log's stated units
-        are left to the log commands, as before); BadInput naming the source when they
-        cannot be converted (counts against physical units)."""
-        info = self.source.device_info
-        units = info.get("units")
-        if not units or "datasheet" not in info:
-            return block
-        key = (units, self.reloads)
-        if self._conversion[0] != key:
-            where = f"source {self.settings.source_url}"
-            self._conversion = (key, conform(stated_units(units), self.certificate, where))
-            if not self._conversion[1].identity:
-                log.info("%s: %s", where, self._conversion[1])
-        return self._conversion[1].apply(block)
+    def _finish_stream(self) -> None:
+        """At the end of a finite stream (a replay): close the last still interval and
+        diagnose what is left, as ``imudiag diagnose`` does (issue 25 item 1)."""
+        self.monitor.flush()
+        if self.diagnoser is not None:
+            self.diagnoser.finish()
+            self._diag_view = None
 
     def _feed_batch(self, block: SampleBlock | None) -> None:
         """Gather ``block``; feed the noise meter and the diagnoser once

@@ -92,7 +92,14 @@ def status_record(
                 "checked": st.checked,
                 "failed": st.failed,
                 "last": finite_or_none(st.last_f0),
+                **({"why": monitor.f0_why(name)} if not st.checked else {}),
             }
+            for name, st in monitor.state.items()
+        },
+        # the white-noise checks judged (the other triad at its noise) and set aside (both
+        # triads shaken: vibration or motion, never a noise fault), per triad
+        "noise_checks": {
+            name: {"judged": st.noise_judged, "set_aside": st.noise_not_at_rest}
             for name, st in monitor.state.items()
         },
         "adc_errors": monitor.adc_errors,

@@ -22,12 +22,12 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
 from imudiag.drivers.base import EndOfStream, Source, SourceError, SourceURL, register
-from imudiag.drivers.wire import SAMPLE_FRAME_SIZE, Decoder
+from imudiag.drivers.wire import SAMPLE_FRAME_SIZE, Counters, Decoder
 from imudiag.errors import BadInput
 from imudiag.logs.options import URL_KEYS as LOG_URL_KEYS
 from imudiag.logs.options import options_from_query
@@ -35,6 +35,10 @@ from imudiag.samples import SampleBlock
 
 DEFAULT_BLOCK_SIZE = 16384  #: samples per block read from the file
 DEFAULT_STEP_S = 0.05  #: sample time returned per read at speed 0, s
+#: frames of a ``.bin`` capture decoded at a time: its counters (CRC errors, lost frames,
+#: ...) reach the source's :attr:`counters` when the samples decoded with them are read,
+#: so they accumulate in sample time (to within these frames), not all at the first read
+BIN_CHUNK_FRAMES = 64
 
 
 @register("replay")
@@ -65,6 +69,9 @@ class ReplaySource(Source):
         except BadInput as exc:
             raise SourceError(f"{url.url}: {exc}") from None
         self.decoder: Decoder | None = None
+        self._wire_counters = Counters()
+        self._counter_marks: list[tuple[int, dict[str, int]]] = []
+        self._pulled = self._taken = 0  # samples decoded and read (a .bin capture)
         self._reader: Any = None
         self._blocks: Iterator[SampleBlock] | None = None
         self._buffer = SampleBlock.empty()
@@ -80,8 +87,13 @@ class ReplaySource(Source):
         self._buffer = SampleBlock.empty()
         self._exhausted = False
         self._t0 = None
-        if name.endswith(".bin"):
-            self.decoder = Decoder(self.counters)
+        if name.endswith(".bin") and self._wire_capture():
+            # the decoder counts into counters of its own; they are published as the
+            # samples are read (:meth:`_publish_counters`)
+            self._wire_counters = Counters()
+            self._counter_marks = []
+            self._pulled = self._taken = 0
+            self.decoder = Decoder(self._wire_counters)
             self._blocks = self._bin_blocks()
         else:
             from imudiag.logs import open_log
@@ -90,6 +102,14 @@ class ReplaySource(Source):
             self.device_info = dict(self._reader.meta)
             self._blocks = iter(self._reader)
 
+    def _wire_capture(self) -> bool:
+        """Whether a ``.bin`` file is a raw wire capture (not another format sharing the
+        extension, an ArduPilot DataFlash log: told by its first bytes, as ``open_log``
+        tells them)."""
+        from imudiag.logs.registry import lookup
+
+        return lookup(self.path).name == ".bin"
+
     def _bin_blocks(self) -> Iterator[SampleBlock]:
         assert self.decoder is not None
         try:
@@ -97,7 +117,7 @@ class ReplaySource(Source):
         except OSError as e:
             raise SourceError(f"{self.url.url}: cannot read {self.path}: {e}") from e
         try:
-            while chunk := fh.read(self.block_size * SAMPLE_FRAME_SIZE):
+            while chunk := fh.read(BIN_CHUNK_FRAMES * SAMPLE_FRAME_SIZE):
                 yield self._temp_said(self.decoder.feed(chunk))
             yield self._temp_said(self.decoder.finish())
         finally:
@@ -119,6 +139,9 @@ class ReplaySource(Source):
             return False
         if self.decoder is not None:
             self.device_info = self.decoder.device_info
+            self._pulled += len(block)
+            snapshot = self._wire_counters.as_dict()
+            self._counter_marks.append((self._pulled, snapshot))
         else:
             self.counters.frames += len(block)
         if len(block):
@@ -128,7 +151,21 @@ class ReplaySource(Source):
     def _take(self, n: int) -> SampleBlock:
         out = self._buffer.slice(0, n)
         self._buffer = self._buffer.slice(n, len(self._buffer))
+        if self.decoder is not None:
+            self._taken += len(out)
+            self._publish_counters()
         return out
+
+    def _publish_counters(self, everything: bool = False) -> None:
+        """Copy into :attr:`counters` the capture's counters as of the samples read (all of
+        them at the end of the file)."""
+        latest = None
+        marks = self._counter_marks
+        while marks and (everything or marks[0][0] <= self._taken):
+            latest = marks.pop(0)[1]
+        if latest is not None:
+            for key, value in latest.items():
+                setattr(self.counters, key, value)
 
     def read(self, timeout_s: float = 0.1) -> SampleBlock:
         """The samples due by now (all of the next block at speed 0); EndOfStream at the end."""
@@ -138,7 +175,7 @@ class ReplaySource(Source):
             while not len(self._buffer) and self._pull():
                 pass
             if not len(self._buffer):
-                raise EndOfStream(str(self.path))
+                self._end()
             t = self._buffer.t
             if t[-1] - t[0] < self.step_s and not self._exhausted:
                 self._pull()  # one step may span two file blocks
@@ -150,7 +187,7 @@ class ReplaySource(Source):
             while not len(self._buffer) and self._pull():
                 pass
             if not len(self._buffer):
-                raise EndOfStream(str(self.path))
+                self._end()
             self._t0 = float(self._buffer.t[0])
             self._wall0 = time.monotonic()
         while True:
@@ -162,12 +199,18 @@ class ReplaySource(Source):
             if n_due:
                 return self._take(n_due)
             if not len(self._buffer):
-                raise EndOfStream(str(self.path))
+                self._end()
             next_wall = self._wall0 + (float(self._buffer.t[0]) - self._t0) / self.speed
             if next_wall > deadline:
                 time.sleep(max(0.0, deadline - now))
                 return SampleBlock.empty()
             time.sleep(max(0.0, next_wall - now))
+
+    def _end(self) -> NoReturn:
+        """The end of the file: every counter published, then EndOfStream."""
+        if self.decoder is not None:
+            self._publish_counters(everything=True)
+        raise EndOfStream(str(self.path))
 
     def close(self) -> None:
         """Close the file; safe to call twice."""
