@@ -22,6 +22,7 @@ from ..argtypes import (
     nonnegative_float,
     positive_float,
     positive_int,
+    sample_rate,
     writable_directory,
     writable_output_path,
 )
@@ -125,7 +126,7 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--rate",
-        type=positive_float("Hz"),
+        type=sample_rate,
         metavar="HZ",
         help="sample rate (default: the log's sample_rate, else from t)",
     )

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
-from ..argtypes import positive_float, seed, writable_output_path
+from ..argtypes import positive_float, sample_rate, seed, writable_output_path
 from ..certificate import load, load_default
 from ..errors import BadInput
 from ..logs import log_format, lookup, open_writer
@@ -88,7 +88,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     p.add_argument(
         "--rate",
-        type=positive_float("Hz"),
+        type=sample_rate,
         metavar="HZ",
         help="sample rate, Hz (default: the certificate's sample_rate)",
     )

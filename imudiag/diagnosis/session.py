@@ -26,7 +26,7 @@ from ..noise_estimate import NOISE_MISMATCH_FACTOR, NoiseMeter, compare
 from ..quasistatic import BAD_FLAGS, DetectorPool
 from ..samples import FLAG_SELF_TEST, SampleBlock
 from .config import DiagnosisConfig
-from .inputs import MagnitudeTable, check_units, log_rate_hz
+from .inputs import MagnitudeTable, check_units, session_rate_hz
 from .intervals import IntervalCollector
 from .known_rate import PLATEAU_DETECTOR
 from .params import PARAM_KEYS, cause_unit
@@ -127,7 +127,9 @@ def measure_noise(
     with blocks(data, block_size, options, progress, "measuring noise") as (meta, stream):
         for block in stream:
             if meter is None:
-                meter = NoiseMeter(rate_hz or log_rate_hz(meta, block, cert))
+                meter = NoiseMeter(
+                    session_rate_hz(rate_hz, meta, block, cert, recording_name(data))
+                )
                 t0 = float(block.t[0]) if len(block) else None
             good = None
             if block.flags is not None:
@@ -202,7 +204,7 @@ def diagnose_recording(
         for block in stream:
             if diag is None:
                 check_units(name, meta, cert)
-                rate = rate_hz or log_rate_hz(meta, block, cert)
+                rate = session_rate_hz(rate_hz, meta, block, cert, name)
                 # one still detector for both when theirs are alike (the same settings and
                 # noise figures: with the certificate's noise, or a certificate without any)
                 pool = DetectorPool()
@@ -311,7 +313,7 @@ def calibrate_recording(
         for block in stream:
             if collector is None:
                 check_units(name, meta, like)
-                rate = rate_hz or log_rate_hz(meta, block, like)
+                rate = session_rate_hz(rate_hz, meta, block, like, name)
                 collector = IntervalCollector(
                     like,
                     rate,
