@@ -255,6 +255,17 @@ def format_float(values: np.ndarray) -> list[str]:
     return list(map(repr, values.tolist()))
 
 
+def units_text(units: Any) -> Any:
+    """The units metadata as logs write it (docs/spec/sample-log.md): ``{"gyro": "rad/s",
+    "accel": "m/s^2"}`` -> ``gyro=rad/s accel=m/s^2``; text is kept as it is."""
+    if not isinstance(units, dict):
+        return units
+    order = [k for k in ("gyro", "accel") if k in units] + sorted(
+        k for k in units if k not in ("gyro", "accel")
+    )
+    return " ".join(f"{k}={units[k]}" for k in order)
+
+
 class LogWriter:
     """Writes blocks to a new log; the file appears under its name on :meth:`close`.
 
@@ -268,6 +279,8 @@ class LogWriter:
     def __init__(self, path: str | Path, meta: dict[str, Any] | None = None) -> None:
         self.path = str(path)
         self.meta = dict(meta or {})
+        if "units" in self.meta:
+            self.meta["units"] = units_text(self.meta["units"])
         self.samples_written = 0
         self._part_path: str | None = None  # the unique temporary, made on first use
         self._columns: list[str] | None = None
