@@ -368,3 +368,39 @@ def test_calibrate_states_its_uncertainty_and_a_second_recording_is_judged_with_
     # the gyro misalignment std of this short session (a few mrad: the issue's 3.5 mrad case)
     assert np.all(cert.gyro.uncertainty.misalignment < cert.gyro.limits.misalignment)
     assert _gyro_faults(capsys, REAL / "mpu6050/rot90x.csv.gz", cal, tmp_path) == []
+
+
+# ---------------------------------------------------------------------------
+# certificate import --format imu_tk: the units of its files
+
+
+def test_imu_tk_import_needs_the_units_of_its_data(tmp_path, capsys):
+    """imu_tk's files are in the units of the data it calibrated: SI data, imported without
+    --like, were labelled with the bundled certificate's count and deg/s."""
+    like_si = ROOT / "tests/data/interop/like-si.yaml"
+    prefix = tmp_path / "si"
+    assert _cli(capsys, "certificate", "export", str(like_si), "--format", "imu_tk",
+                "--out", str(prefix))[0] == 0  # fmt: skip
+    out = tmp_path / "tk.yaml"
+    line = _refused(capsys, "certificate", "import", str(prefix), "--format", "imu_tk",
+                    "--out", str(out))  # fmt: skip
+    assert "units of the data imu_tk calibrated" in line and "--units" in line
+    assert not out.exists()
+    code, stdout, err = _cli(capsys, "certificate", "import", str(prefix), "--format", "imu_tk",
+                             "--units", "gyro=rad/s,accel=m/s^2", "--out", str(out))  # fmt: skip
+    assert code == 0, err
+    assert "outputs gyro in rad/s (--units), accel in m/s^2 (--units)" in stdout
+    cert = load(out)
+    assert (cert.gyro.output_unit, cert.accel.output_unit) == ("rad/s", "m/s^2")
+    # S in output per input unit: rad/s per deg/s (the bundled input unit), m/s^2 per m/s^2
+    assert np.allclose(cert.gyro.scale_factor, cert.gyro.unit_to_si)
+    assert np.allclose(cert.accel.scale_factor, 1.0)
+    # with --like the units are its output units, and the command says so
+    code, stdout, err = _cli(capsys, "certificate", "import", str(prefix), "--format", "imu_tk",
+                             "--like", str(like_si), "--out", str(tmp_path / "l.yaml"))  # fmt: skip
+    assert code == 0, err
+    assert "outputs gyro in rad/s (--like), accel in m/s^2 (--like)" in stdout
+    kalibr = ROOT / "tests/data/interop/kalibr_results-imu.yaml"
+    line = _refused(capsys, "certificate", "import", str(kalibr), "--format", "kalibr",
+                    "--units", "gyro=rad/s", "--out", str(tmp_path / "k.yaml"))  # fmt: skip
+    assert "--units: only imu_tk" in line
