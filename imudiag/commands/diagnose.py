@@ -81,7 +81,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--k-sigma",
         type=positive_float("std"),
         metavar="K",
-        help="a fault deviates by more than K std as well as the limit (default 4)",
+        help="a fault deviates by more than K std (the estimate's and the certificate's "
+        "stated uncertainty combined) as well as the limit (default 4)",
     )
     p.add_argument(
         "--min-dof",
