@@ -169,6 +169,11 @@ CASES: list[tuple] = [
     ),
     (["certificate", "import", NONE, "--out", "{tmp}/c.yaml"], "--format", ["matlab"]),
     (
+        ["certificate", "import", NONE, "--format", "imu_tk", "--out", "{tmp}/c.yaml"],
+        "--units",
+        ["gyro=furlong", "speed=1", "accel"],
+    ),
+    (
         ["certificate", "import", "--format", "imu_tk", "--gyro", NONE, "--out", "{tmp}/c.yaml"],
         "--accel",
         [NONE],

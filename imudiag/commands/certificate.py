@@ -136,6 +136,8 @@ def _imu_tk_units(args: argparse.Namespace, like_path: str) -> dict[str, str]:
 
 def run_import(args: argparse.Namespace) -> int:
     """Import a tool's calibration into a certificate."""
+    if args.units:
+        parse_units(args.units)  # a bad value is refused before any file is read
     sources = _import_sources(args)
     refuse_overwrite(sources, [("--out", args.out)])
     like_path = args.like or str(default_certificate_path())
