@@ -20,12 +20,13 @@ from pathlib import Path
 
 #: Largest seed accepted (numpy's generators take any integer >= 0; this keeps it a uint64).
 MAX_SEED = 2**64 - 1
-#: The sample rates an IMU log can have, Hz: from 1 Hz (a logger's slowest output) to
-#: 100 kHz (above the fastest MEMS output data rates, 32 kHz). A stated rate, a log's
-#: ``sample_rate`` and the rate its time stamps show are refused outside it: 1e9 Hz is a
-#: typing slip, and each buffer sized in seconds of samples (the still detector's windows)
-#: grows with it; 0.2 Hz is a t column in ms read as seconds.
-MIN_RATE_HZ = 1.0
+#: The sample rates an IMU log can have, Hz: from 0.5 Hz (below the 1 Hz at which PX4
+#: logs its raw sensor topics by default) to 100 kHz (above the fastest MEMS output data
+#: rates, 32 kHz). A stated rate, a log's ``sample_rate`` and the rate its time stamps
+#: show are refused outside it: 1e9 Hz is a typing slip, and each buffer sized in seconds
+#: of samples (the still detector's windows) grows with it; 0.2 Hz is a t column in ms
+#: read as seconds (a 200 Hz log).
+MIN_RATE_HZ = 0.5
 MAX_RATE_HZ = 100_000.0
 
 
