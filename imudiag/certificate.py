@@ -28,6 +28,7 @@ import numpy as np
 import yaml
 
 from . import yamlio
+from .argtypes import rate_problem
 from .errors import CertificateError as _CertificateErrorBase
 from .rowwise import BIG_ROWS, rows_op
 from .units import STANDARD_GRAVITY_M_S2, TO_SI
@@ -661,6 +662,8 @@ def from_dict(doc: Any, source: str | None = None) -> Certificate:
             _finite(env["earth_rate"], "environment.earth_rate"), "environment.earth_rate"
         )
         rate = _positive(_finite(doc["sample_rate"], "sample_rate"), "sample_rate")
+        if rate_problem(rate):  # a certificate's rate sizes the daemon's buffers too
+            raise CertificateError("sample_rate", str(rate_problem(rate)))
         return Certificate(
             gyro=_parse_triad(doc["gyro"], "gyro"),
             accel=_parse_triad(doc["accel"], "accel"),

@@ -20,7 +20,7 @@ import pytest
 
 from imudiag import atomic
 from imudiag.argtypes import MAX_RATE_HZ, MIN_RATE_HZ, output_dests, rate_problem
-from imudiag.certificate import Uncertainty, load, load_default
+from imudiag.certificate import Uncertainty, load, load_default, loads
 from imudiag.cli import build_parser, main
 from imudiag.logs import open_log, read_log
 from imudiag.logs.options import LogOptions
@@ -140,6 +140,19 @@ def test_the_rate_bound_and_a_fast_rate_without_time_stamps(tmp_path, capsys):
                           "--rate", f"{MAX_RATE_HZ:g}")  # fmt: skip
     assert code == 0, err
     assert f"2000 samples at {MAX_RATE_HZ:g} Hz" in out
+
+
+def test_a_certificate_with_an_implausible_rate_is_refused(tmp_path, capsys, log200):
+    from imudiag.errors import CertificateError
+
+    text = load_default().dumps().replace("sample_rate: 200", "sample_rate: 1000000000")
+    with pytest.raises(CertificateError, match="sample_rate: 1e[+]09 Hz is not an IMU's"):
+        loads(text, source="x.yaml")
+    cert = tmp_path / "fast.yaml"
+    cert.write_text(text)
+    line = _refused(capsys, "simulate", "still", "--duration", "1", "--certificate", str(cert),
+                    "--out", str(tmp_path / "s.csv"))  # fmt: skip
+    assert "sample_rate" in line and "not an IMU's sample rate" in line
 
 
 @pytest.mark.parametrize("command", ["diagnose", "allan"])
