@@ -61,6 +61,9 @@ scenario parameters (--param key=value):
   vehicle: still accel speed cruise turn turn_deg final latitude
   urban, highway, hilly, aircraft: length (s, whole legs; default 600); sample time is UTC
     Unix seconds from 2026-01-01, and --gnss OUT writes the drive's GNSS as a gpspipe -w log
+  bounds: latitude -90..90 deg; times, lengths and speed >= 0 (length, turn, accel > 0);
+    n a whole number >= 1, loop 0 or 1; fault times >= 0 s. A finite scenario that ends
+    before --duration is written whole, with a warning saying how long it is
 """
 
 
