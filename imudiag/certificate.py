@@ -711,6 +711,24 @@ def default_certificate_path() -> Path:
     return Path(str(resources.files("imudiag.config").joinpath(DEFAULT_CERTIFICATE_NAME)))
 
 
+DATASHEETS_DIR = "datasheets"  #: bundled data-sheet certificates, ``<key>.yaml``
+
+
+def datasheet_certificate_path(key: str) -> Path:
+    """Path of the bundled data-sheet certificate ``key`` (a device source's
+    ``device_info["datasheet"]``, e.g. ``adis16475-2``); CertificateError if there is none."""
+    from importlib import resources
+
+    folder = Path(str(resources.files("imudiag.config").joinpath(DATASHEETS_DIR)))
+    path = folder / f"{key}.yaml"
+    if not key or "/" in key or not path.is_file():
+        known = sorted(p.stem for p in folder.glob("*.yaml"))
+        raise CertificateError(
+            "(file)", f"no bundled data-sheet certificate {key!r}; known: {', '.join(known)}"
+        )
+    return path
+
+
 def load_default() -> Certificate:
     """The bundled certificate of the simulated ADXRS300/ADXL202 board."""
     return load(default_certificate_path())

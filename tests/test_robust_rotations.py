@@ -221,8 +221,11 @@ def test_gyro_held_out_check_on_real_recordings(recording, like):
     """Xsens (37 motions): held out 9.8e-3 rad against 8.7e-3 in sample and 5.8e-2
     uncalibrated, passes; MPU-6050 (6 motions, 3 essential): 1.5e-2 against 5.5e-3 in
     sample, 2.6e-2 uncalibrated, passes (its accelerometers are refused); imucal: no
-    usable rotation, no check. No real motion is rejected."""
-    res = imudiag.calibrate(REAL / recording, load(LIKE / like))
+    usable rotation, no check. No real motion is rejected. These are the default detector's
+    intervals (``short_holds: never``); on the MPU-6050 the short-hold detector, which
+    ``calibrate`` uses by default there (issue 29), leaves 7 motions of which 6 are essential,
+    and the gyro check then says it cannot check (below)."""
+    res = imudiag.calibrate(REAL / recording, load(LIKE / like), config={"short_holds": "never"})
     check = res.gyro_generalisation
     assert [r for r in res.rejected() if r["triad"] == "gyro"] == []
     if recording.startswith("imucal"):
@@ -239,3 +242,6 @@ def test_gyro_held_out_check_on_real_recordings(recording, like):
     else:
         assert check["held_out"] + check["essential"] == 6
         assert check["leave_one_out_rms"] == pytest.approx(1.5e-2, rel=0.1)
+        short = imudiag.calibrate(REAL / recording, load(LIKE / like)).gyro_generalisation
+        assert short is not None and short["generalises"] is None
+        assert "6 of 7 motions are essential" in short["reason"]

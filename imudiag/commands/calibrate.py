@@ -16,6 +16,7 @@ import sys
 
 from ..argtypes import writable_directory, writable_output_path
 from ..certificate import load
+from ..diagnosis.config import SHORT_HOLDS
 from ..diagnosis.session import calibrate_recording
 from ..errors import BadInput
 from ..logs.options import log_options
@@ -67,6 +68,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "after; with --known-rate |w|/rate - 1 of the plateaus (gyro_norm_residuals.png); "
         "needs matplotlib (pip install 'imudiag[plots]')",
     )
+    p.add_argument(
+        "--short-holds",
+        choices=SHORT_HOLDS,
+        help="the short-hold detector (a 16-sample window, the minimum hold from the measured "
+        "noise and the rate): auto (default) when the default detector keeps fewer than 18 "
+        "holds or drops more than it keeps; always; never (the default with --min-interval)",
+    )
     p.set_defaults(func=run, inputs=("log", "like", "magnitude"), outputs=("out", "json"))
 
 
@@ -76,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
 
     check_plots(args, FILES)
     like = load(args.like)
-    cfg = make_config(args)
+    short = args.short_holds or ("never" if args.min_interval is not None else "auto")
+    cfg = make_config(args, short_holds=short)
     with for_command("calibrate", args.quiet) as progress:
         result = calibrate_recording(
             args.log,
@@ -176,14 +185,29 @@ def run(args: argparse.Namespace) -> int:
         )
     for line in noise_lines(noise_report):
         print(line, file=out)
+    holds = result.holds or {}
+    if holds.get("found"):
+        dropped = "; ".join(f"{n} {why}" for why, n in holds["dropped"].items() if n)
+        print(
+            f"still holds: {holds['found']} found, {holds['used']} used"
+            + (f", dropped: {dropped}" if dropped else "")
+            + f"; detector: {holds['detector']}",
+            file=out,
+        )
     for c, what in ((check, "intervals"), (gcheck, "motions")):
         if c.get("leave_one_out_rms") is not None:
+            if c.get("by") == "attitude":
+                what, n_out = "attitudes", c["attitudes_held_out"]
+            else:
+                n_out = c["held_out"]
             print(
                 f"held-out check: {c['quantity']} rms {c['leave_one_out_rms']:.3e} "
                 f"leaving each of "
-                f"{c['held_out']} {what} out (in-sample {c['in_sample_rms']:.3e})",
+                f"{n_out} {what} out (in-sample {c['in_sample_rms']:.3e})",
                 file=out,
             )
+            if c.get("note"):
+                print(f"  note: {c['note']}", file=out)
     if refused:
         print(f"WARNING: {result.certificate.device['warning']}", file=sys.stderr)
     else:

@@ -69,6 +69,7 @@ from .scalar_fit import (
     robust_exact_fit,
 )
 from .window import (
+    attitude_groups,
     count_rotations,
     distinct_attitudes,
     interval_labels,
@@ -198,6 +199,9 @@ class CalibrationResult:
     #: ``gyro_norm`` (known rate: |w|/rate - 1 of each plateau); each holds ``t`` (s, the
     #: interval's middle or the rotation's end), ``before`` (with --like) and ``after``
     residuals: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    #: the still runs of the recording: ``found``, ``used`` and ``dropped`` ({why: count}),
+    #: where the caller collected them (:func:`.session.collect_intervals`)
+    holds: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         for fit in (self.accel, self.gyro):
@@ -226,6 +230,7 @@ class CalibrationResult:
             "generalisation": self.generalisation,
             "gyro_generalisation": self.gyro_generalisation,
             "known_rate": self.known_rate,
+            "holds": self.holds,
         }
 
     def refusals(self) -> list[str]:
@@ -418,8 +423,16 @@ def calibrate(
     generalisation = None
     if method == "exact":
         kept = acc_fit.kept if acc_fit.kept is not None else np.ones(len(means), dtype=bool)
+        ups = np.array([iv.up for iv in intervals])[kept]
         generalisation = _leave_one_out(
-            acc_like, means[kept], mvar[kept], g_in, acc_fit, acc_prior, ratio
+            acc_like,
+            means[kept],
+            mvar[kept],
+            g_in,
+            acc_fit,
+            acc_prior,
+            ratio,
+            groups=attitude_groups(ups, cfg.attitude_separation_deg),
         )
     new = like.copy()
     new.sample_rate = rate
@@ -722,15 +735,21 @@ def _leave_one_out(
     prior: np.ndarray,
     ratio: float,
     quantity: str = "|a|/g - 1",
+    groups: np.ndarray | None = None,
 ) -> dict[str, Any]:
-    """Leave-one-interval-out check of a calibration (dimensionless ``quantity``: |a|/g - 1,
-    or |w|/rate - 1 on a turntable; ``g_in`` the reference magnitude, input units).
+    """Held-out check of a calibration (dimensionless ``quantity``: |a|/g - 1, or
+    |w|/rate - 1 on a turntable; ``g_in`` the reference magnitude, input units).
 
-    Each interval is predicted by the fit to all the others (same pinned
-    parameters). The calibration generalises by the rule of :func:`.holdout.judge`
-    (below the uncalibrated RMS, at most 3 K / dof times the in-sample RMS); a fit that only
-    reproduces the holds it was made from (too few holds, one outlier carrying a
-    parameter) fails, with the reason.
+    With ``groups`` (K,) (each interval's attitude, :func:`.window.attitude_groups`) the
+    check leaves one attitude out at a time: all its intervals are predicted by the fit to
+    the other attitudes (same pinned parameters), which is what another session of the unit
+    asks of the calibration (intervals of one attitude share its errors, and an interval
+    left out beside its siblings is predicted far too well). Where fewer than 3 attitudes
+    can be left out (each is essential: without it a free parameter is unseen), the check
+    falls back to leaving one interval out, and says so (``by``). The calibration
+    generalises by the rule of :func:`.holdout.judge` (below the uncalibrated RMS, at most
+    3 n / dof times the in-sample RMS, n the attitudes or intervals held out); a fit that
+    only reproduces the holds it was made from fails, with the reason.
     """
     k = means.shape[0]
 
@@ -750,15 +769,22 @@ def _leave_one_out(
     inside = norm_err(model_of(fit), means)
     before = norm_err(like, means)
     free = prior != PINNED_PRIOR
-    held = np.full(k, np.nan)
-    essential = 0
-    if k >= 3:
-        for i in range(k):
-            keep = np.arange(k) != i
+
+    def held_out(labels: np.ndarray) -> tuple[np.ndarray, int, int]:
+        held = np.full(k, np.nan)
+        essential = 0
+        names = np.unique(labels)
+        if names.size < 3:
+            return held, 0, int(names.size)
+        for name in names.tolist():
+            out = labels == name
+            if (~out).sum() < 3:
+                essential += 1
+                continue
             f = exact_fit(
                 like,
-                means[keep],
-                mvar[keep],
+                means[~out],
+                mvar[~out],
                 g_in,
                 prior_factor=prior,
                 determined_std_ratio=ratio,
@@ -767,9 +793,48 @@ def _leave_one_out(
             if np.any(free & ~f.determined):
                 essential += 1  # without it a free parameter is unseen: nothing to predict
                 continue
-            held[i] = norm_err(model_of(f), means[i : i + 1])[0]
+            held[out] = norm_err(model_of(f), means[out])
+        return held, essential, int(names.size)
 
-    return judge(inside, held, before, k, fit.dof, essential, quantity, uncalibrated_allowance=True)
+    by = "attitude"
+    if groups is not None and k >= 3:
+        labels = np.asarray(groups)
+        held, essential, n_groups = held_out(labels)
+        checked = np.unique(labels[np.isfinite(held)]).size
+        if checked >= 3:
+            # the observations of the rule are the attitudes, the redundancy theirs
+            params = k - fit.dof if np.isfinite(fit.dof) else float(k)
+            out = judge(
+                inside,
+                held,
+                before,
+                n_groups,
+                n_groups - params,
+                essential,
+                quantity,
+                point="attitude",
+                uncalibrated_allowance=True,
+            )
+            worst = out.pop("worst_attitude")
+            out["worst_attitude"] = None if worst is None else int(labels[worst])
+            out["by"] = by
+            out["attitudes"] = n_groups
+            out["attitudes_held_out"] = int(checked)
+            return out
+        note = (
+            f"{essential} of {n_groups} attitudes are essential (without any one of them a "
+            "parameter is unseen): checked by leaving one interval out instead, which "
+            "predicts another session of the unit less well"
+        )
+    else:
+        note = ""
+    by = "interval"
+    held, essential, _ = held_out(np.arange(k)) if k >= 3 else (np.full(k, np.nan), 0, k)
+    out = judge(inside, held, before, k, fit.dof, essential, quantity, uncalibrated_allowance=True)
+    out["by"] = by
+    if note:
+        out["note"] = note
+    return out
 
 
 def _with_density(noise: Noise | None, density: np.ndarray) -> Noise:

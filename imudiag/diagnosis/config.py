@@ -8,6 +8,7 @@ from typing import Any
 
 METHODS = ("exact", "linear", "moving-base")
 GYRO_MODES = ("auto", "earth-rate", "rotation")
+SHORT_HOLDS = ("auto", "always", "never")
 
 
 @dataclass
@@ -27,6 +28,13 @@ class DiagnosisConfig:
     #: interval is weighted by the noise of its mean, so a short one counts for less)
     min_interval_s: float = 0.5
     max_interval_s: float = 30.0  #: s, longer still runs are split
+    #: ``calibrate`` only: the short-hold detector (a window of ``short_hold_window`` samples,
+    #: the minimum hold from the measured noise and the rate, :func:`.session.collect_intervals`):
+    #: ``auto`` when the default detector keeps fewer than ``short_hold_min_intervals`` holds
+    #: or drops more holds as too short than it keeps; ``always``; ``never``
+    short_holds: str = "auto"
+    short_hold_window: int = 16  #: samples, the short-hold detector's window (and least hold)
+    short_hold_min_intervals: int = 18  #: holds the default detector must keep (auto)
     trim_s: float = 0.25  #: s, dropped at the end of each still run
     #: s, how far a motion's gyro integral reaches into the still intervals on both sides:
     #: a smooth turn starts and ends below the detector's threshold (a 4 s raised-cosine
@@ -59,6 +67,14 @@ class DiagnosisConfig:
             raise ValueError(
                 f"gyro_mode must be one of {', '.join(GYRO_MODES)}, got {self.gyro_mode!r}"
             )
+        if self.short_holds not in SHORT_HOLDS:
+            raise ValueError(
+                f"short_holds must be one of {', '.join(SHORT_HOLDS)}, got {self.short_holds!r}"
+            )
+        if self.short_hold_window < 4:
+            raise ValueError(
+                f"short_hold_window must be >= 4 samples, got {self.short_hold_window}"
+            )
         if self.known_rate_rad_s is not None and not (
             math.isfinite(self.known_rate_rad_s) and self.known_rate_rad_s > 0
         ):
@@ -79,4 +95,4 @@ class DiagnosisConfig:
         return cls(**d)
 
 
-__all__ = ["DiagnosisConfig", "METHODS", "GYRO_MODES"]
+__all__ = ["DiagnosisConfig", "METHODS", "GYRO_MODES", "SHORT_HOLDS"]

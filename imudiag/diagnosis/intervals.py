@@ -196,6 +196,8 @@ class IntervalCollector:
         self._count = 0
         self.samples = 0  #: samples seen
         self.static_samples = 0  #: samples flagged static by the detector
+        #: still runs dropped as shorter than the minimum hold (after the trim)
+        self.dropped_short = 0
 
     # -- buffers ---------------------------------------------------------------
 
@@ -283,6 +285,7 @@ class IntervalCollector:
             out.append(self._emit(rows[:keep]))
             self._gap_append(rows[keep:])
         else:
+            self.dropped_short += 1
             self._gap_append(rows)
 
     def _split_long_run(self, out: list[QuasiStaticInterval]) -> None:

@@ -10,6 +10,7 @@ interval collector of the calibration).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -27,7 +28,7 @@ from ..quasistatic import BAD_FLAGS, DetectorPool
 from ..samples import FLAG_SELF_TEST, SampleBlock
 from .config import DiagnosisConfig
 from .inputs import MagnitudeTable, check_units, session_rate_hz
-from .intervals import IntervalCollector
+from .intervals import IntervalCollector, QuasiStaticInterval
 from .known_rate import PLATEAU_DETECTOR
 from .params import PARAM_KEYS, cause_unit
 from .scalar_fit import NormalEquations, sample_rows
@@ -268,6 +269,181 @@ def diagnose_recording(
     return report
 
 
+def _collect_pass(
+    data: Recording,
+    like: Certificate,
+    config: DiagnosisConfig,
+    rate_hz: float | None = None,
+    table: MagnitudeTable | None = None,
+    certificate_noise: bool = False,
+    options: LogOptions | None = None,
+    block_size: int = DEFAULT_BLOCK_SIZE,
+    progress: ProgressCallback | None = None,
+    holds: dict[str, Any] | None = None,
+    short: tuple[float, float, float, float] | None = None,
+) -> tuple[
+    list[QuasiStaticInterval], float, dict[str, tuple[NormalEquations, float]], np.ndarray | None
+]:
+    """One pass of the interval collector; ``short``: (window, minimum hold, trim, motion
+    margin), s, in place of the configured ones. Also returns the accelerometer noise sigma
+    (3,) per sample the detector measured (output units), None when unknown."""
+    name = recording_name(data)
+    known = config.known_rate_rad_s
+    detector_options: dict[str, Any] = {"certificate_noise": certificate_noise}
+    if known is not None:
+        detector_options.update(PLATEAU_DETECTOR)
+    collector = None
+    intervals: list[QuasiStaticInterval] = []
+    moving: dict[str, tuple[NormalEquations, float]] = {}
+    rate = None
+    with blocks(data, block_size, options, progress, "collecting intervals") as (meta, stream):
+        units = check_units(name, meta, like)
+        for block in stream:
+            block = units.apply(block)
+            if collector is None:
+                rate = session_rate_hz(rate_hz, meta, block, like, name)
+                collector = IntervalCollector(
+                    like,
+                    rate,
+                    detector_window_s=config.detector_window_s if short is None else short[0],
+                    min_interval_s=config.min_interval_s if short is None else short[1],
+                    max_interval_s=config.max_interval_s,
+                    trim_s=config.trim_s if short is None else short[2],
+                    motion_margin_s=config.motion_margin_s if short is None else short[3],
+                    max_motion_s=config.max_motion_s,
+                    detector_options=detector_options,
+                )
+                if table is not None:
+                    moving = {
+                        "accel": (NormalEquations(), like.gravity / like.accel.unit_to_si),
+                        "gyro": (NormalEquations(), 1.0 / like.gyro.unit_to_si),
+                    }
+            intervals.extend(collector.update(block))
+            if table is not None:
+                mags = table.at(block.t)
+                for triad, (ne, m0) in moving.items():
+                    if triad in mags:
+                        tri = like.triad(triad)
+                        sigma = collector.detector.noise_sigma(triad)
+                        nv = None if sigma is None else (sigma / (tri.scale_factor * m0)) ** 2
+                        ne.add(
+                            *sample_rows(
+                                tri, block.triad(triad), mags[triad] / tri.unit_to_si, m0, nv
+                            )
+                        )
+    if collector is None:
+        raise BadInput(f"{name}: no samples")
+    intervals.extend(collector.flush())
+    if not intervals:
+        raise BadInput(
+            f"{name}: no quasi-static interval found (the unit never stood "
+            "still long enough): nothing to calibrate from"
+        )
+    moving = {k: v for k, v in moving.items() if v[0].n > 0}
+    assert rate is not None
+    if holds is not None:
+        min_s = config.min_interval_s if short is None else short[1]
+        trim_s = config.trim_s if short is None else short[2]
+        holds.update(
+            found=len(intervals) + collector.dropped_short,
+            used=len(intervals),
+            dropped={
+                f"still for less than the minimum hold ({min_s:.3g} s after the {trim_s:.3g} s "
+                "trim)": collector.dropped_short
+            },
+        )
+    sigma = collector.detector.noise_sigma("accel")
+    return intervals, float(rate), moving, None if sigma is None else np.asarray(sigma)
+
+
+def collect_intervals(
+    data: Recording,
+    like: Certificate,
+    config: DiagnosisConfig,
+    rate_hz: float | None = None,
+    table: MagnitudeTable | None = None,
+    certificate_noise: bool = False,
+    options: LogOptions | None = None,
+    block_size: int = DEFAULT_BLOCK_SIZE,
+    progress: ProgressCallback | None = None,
+    holds: dict[str, Any] | None = None,
+) -> tuple[list[QuasiStaticInterval], float, dict[str, tuple[NormalEquations, float]]]:
+    """The still intervals the calibration fits (time order), the sample rate (Hz) and, with
+    independent magnitudes ``table``, each triad's moving-base normal equations and
+    reference magnitude (input units). ``holds``, when given, is filled with the still runs
+    found, used and dropped (with why) and the detector used. Raises
+    :class:`~imudiag.errors.BadInput` without samples or without a still interval.
+
+    Short holds (``config.short_holds``; not with a known rate or independent magnitudes):
+    hand sessions hold each attitude 0.5-1 s, which the default detector (a 0.5 s trailing
+    window, 0.25 s trim, 0.5 s minimum) cannot see. The short-hold detector has a window of
+    ``config.short_hold_window`` samples (0.1 s at 155 Hz), a trim of 2 samples, and a
+    minimum hold of the window or of the samples whose mean reaches a quarter of the
+    accelerometer bias limit through the measured white noise, whichever is longer. Each
+    hold's mean is weighted by its own noise in the fits
+    (:meth:`.intervals.QuasiStaticInterval.mean_var`). ``auto`` takes the short-hold
+    intervals when the default detector keeps fewer than ``short_hold_min_intervals``
+    holds or drops more holds than it keeps.
+    """
+    first: dict[str, Any] = {}
+    intervals, rate, moving, sigma = _collect_pass(
+        data, like, config, rate_hz, table, certificate_noise, options, block_size, progress, first
+    )
+    mode = config.short_holds
+    if table is not None or config.known_rate_rad_s is not None:
+        mode = "never"
+    dropped = sum(first["dropped"].values())
+    if mode == "auto":
+        mode = (
+            "always"
+            if len(intervals) < config.short_hold_min_intervals or dropped > len(intervals)
+            else "never"
+        )
+    first["detector"] = (
+        f"default ({config.detector_window_s:g} s window, {config.min_interval_s:g} s minimum hold)"
+    )
+    if mode == "always":
+        window = int(config.short_hold_window)
+        n_min = window
+        lim = np.asarray(like.accel.limits.bias, dtype=float)
+        if sigma is not None and np.all(np.isfinite(sigma)) and np.all(lim > 0):
+            n_min = max(n_min, int(math.ceil(float(np.max((sigma / (0.25 * lim)) ** 2)))))
+        short = (
+            window / rate,
+            n_min / rate,
+            2.0 / rate,
+            min(config.motion_margin_s, 0.3),
+        )
+        second: dict[str, Any] = {}
+        try:
+            s_iv, _, _, _ = _collect_pass(
+                data,
+                like,
+                config,
+                rate,
+                None,
+                certificate_noise,
+                options,
+                block_size,
+                progress,
+                second,
+                short,
+            )
+        except BadInput:
+            s_iv = []
+        if len(s_iv) > len(intervals):
+            intervals = s_iv
+            second["detector"] = (
+                f"short holds ({window} samples = {window / rate:.3g} s window, minimum hold "
+                f"{n_min} samples = {n_min / rate:.3g} s; the default detector kept "
+                f"{first['used']} of {first['found']})"
+            )
+            first = second
+    if holds is not None:
+        holds.update(first)
+    return intervals, rate, moving
+
+
 def calibrate_recording(
     data: Recording,
     like: Certificate,
@@ -307,56 +483,10 @@ def calibrate_recording(
     noise_report = measure_noise(
         data, like, rate_hz, block_size, options, certificate_noise, progress
     )
-    detector_options: dict[str, Any] = {"certificate_noise": certificate_noise}
-    if known is not None:
-        detector_options.update(PLATEAU_DETECTOR)
-    collector = None
-    intervals = []
-    moving: dict[str, tuple[NormalEquations, float]] = {}
-    rate = None
-    with blocks(data, block_size, options, progress, "collecting intervals") as (meta, stream):
-        units = check_units(name, meta, like)
-        for block in stream:
-            block = units.apply(block)
-            if collector is None:
-                rate = session_rate_hz(rate_hz, meta, block, like, name)
-                collector = IntervalCollector(
-                    like,
-                    rate,
-                    detector_window_s=config.detector_window_s,
-                    min_interval_s=config.min_interval_s,
-                    max_interval_s=config.max_interval_s,
-                    trim_s=config.trim_s,
-                    max_motion_s=config.max_motion_s,
-                    detector_options=detector_options,
-                )
-                if table is not None:
-                    moving = {
-                        "accel": (NormalEquations(), like.gravity / like.accel.unit_to_si),
-                        "gyro": (NormalEquations(), 1.0 / like.gyro.unit_to_si),
-                    }
-            intervals.extend(collector.update(block))
-            if table is not None:
-                mags = table.at(block.t)
-                for triad, (ne, m0) in moving.items():
-                    if triad in mags:
-                        tri = like.triad(triad)
-                        sigma = collector.detector.noise_sigma(triad)
-                        nv = None if sigma is None else (sigma / (tri.scale_factor * m0)) ** 2
-                        ne.add(
-                            *sample_rows(
-                                tri, block.triad(triad), mags[triad] / tri.unit_to_si, m0, nv
-                            )
-                        )
-    if collector is None:
-        raise BadInput(f"{name}: no samples")
-    intervals.extend(collector.flush())
-    if not intervals:
-        raise BadInput(
-            f"{name}: no quasi-static interval found (the unit never stood "
-            "still long enough): nothing to calibrate from"
-        )
-    moving = {k: v for k, v in moving.items() if v[0].n > 0}
+    holds: dict[str, Any] = {}
+    intervals, rate, moving = collect_intervals(
+        data, like, config, rate_hz, table, certificate_noise, options, block_size, progress, holds
+    )
     measured = {
         triad: np.asarray(noise_report[triad]["measured"]["density"], dtype=float)
         for triad in ("gyro", "accel")
@@ -381,10 +511,12 @@ def calibrate_recording(
     except ValueError as exc:
         raise BadInput(f"{name}: {exc}") from None
     result.noise = noise_report
+    result.holds = holds
     return result
 
 
 __all__ = [
+    "collect_intervals",
     "DEFAULT_BLOCK_SIZE",
     "NOISE_SECONDS",
     "DiagnosisTrace",

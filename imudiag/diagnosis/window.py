@@ -79,18 +79,33 @@ class WindowResult:
         }
 
 
-def distinct_attitudes(up: np.ndarray, separation_deg: float) -> int:
-    """Number of directions (K, 3) at least ``separation_deg`` apart (greedy clustering)."""
+def attitude_groups(up: np.ndarray, separation_deg: float) -> np.ndarray:
+    """Attitude number (K,) of each direction (K, 3): greedy clustering in order, a direction
+    joins the first centre within ``separation_deg``, else starts a new one; -1 for a
+    direction that is not finite or zero."""
     cos_sep = math.cos(math.radians(separation_deg))
     up = np.asarray(up, dtype=float).reshape(-1, 3)
     valid = np.all(np.isfinite(up), axis=1) & np.any(up, axis=1)
     centres = np.empty_like(up)  # the first k rows: the centres so far
+    labels = np.full(up.shape[0], -1, dtype=int)
     k = 0
-    for u, ok in zip(up, valid.tolist(), strict=True):
-        if ok and (not k or (centres[:k] @ u).max() < cos_sep):
+    for i, (u, ok) in enumerate(zip(up, valid.tolist(), strict=True)):
+        if not ok:
+            continue
+        near = np.flatnonzero(centres[:k] @ u >= cos_sep) if k else np.zeros(0, dtype=int)
+        if near.size:
+            labels[i] = int(near[0])
+        else:
             centres[k] = u
+            labels[i] = k
             k += 1
-    return k
+    return labels
+
+
+def distinct_attitudes(up: np.ndarray, separation_deg: float) -> int:
+    """Number of directions (K, 3) at least ``separation_deg`` apart (greedy clustering)."""
+    labels = attitude_groups(up, separation_deg)
+    return int(labels.max()) + 1 if labels.size else 0
 
 
 def model_with(triad: TriadModel, estimate: np.ndarray) -> TriadModel:
@@ -517,4 +532,11 @@ def diagnose_window(
     )
 
 
-__all__ = ["WindowResult", "diagnose_window", "distinct_attitudes", "model_with", "rotation_pairs"]
+__all__ = [
+    "WindowResult",
+    "attitude_groups",
+    "diagnose_window",
+    "distinct_attitudes",
+    "model_with",
+    "rotation_pairs",
+]

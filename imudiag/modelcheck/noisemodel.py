@@ -10,6 +10,8 @@ Candidate models (every one has white noise N; u = output units):
 - ``bias_drift``: N + rate random walk K (u/sqrt(s));
 - ``rate_ramp``: N + rate ramp R (u/s; a steady drift of the bias, e.g. warming up);
 - ``bias_instability+bias_drift``: N + B + K;
+- ``bias_instability+rate_ramp``, ``bias_drift+rate_ramp``,
+  ``bias_instability+bias_drift+rate_ramp``: the long-term terms jointly;
 - ``gauss_markov``: N + first-order Gauss-Markov bias (sigma u, correlation time T s).
 
 Selection on held-out data: the run is split in halves; each candidate is fitted on one
@@ -20,6 +22,11 @@ per extra term (its likelihood-ratio significance is at least ``z_min``): the cr
 penalises extra terms. The chosen model is then fitted on the whole run, and its closed-form
 Allan deviation (:meth:`imudiag.certificate.Noise.allan_deviation`) is compared with the
 measured one at every cluster time from 0.1 s to a tenth of the run.
+
+Each term of the chosen model carries a 95 % interval from the record length
+(:func:`term_intervals`: the weighted least squares on the Allan variance, each point's
+variance 2 / n_independent relative), and the report names the cluster times the record
+supports (the measured deviation's 95 % interval within +-30 %).
 """
 
 from __future__ import annotations
@@ -42,7 +49,15 @@ CANDIDATES: dict[str, tuple[str, ...]] = {
     "gauss_markov": ("gauss_markov_sigma", "gauss_markov_time"),
     "rate_ramp": ("rate_ramp",),
     "bias_instability+bias_drift": ("bias_instability", "bias_drift"),
+    # the long-term terms identified jointly (issue 29): a ramp beside a flicker floor or a
+    # rate random walk, and all three
+    "bias_instability+rate_ramp": ("bias_instability", "rate_ramp"),
+    "bias_drift+rate_ramp": ("bias_drift", "rate_ramp"),
+    "bias_instability+bias_drift+rate_ramp": ("bias_instability", "bias_drift", "rate_ramp"),
 }
+#: a cluster time is supported by the record when the 95 % interval of its measured Allan
+#: deviation (1.96 / sqrt(2 n_independent)) is within this fraction
+SUPPORTED_INTERVAL = 0.30
 TAU_MIN_S = 0.1  #: s, shortest cluster time compared
 MIN_RUN_S = 60.0  #: s, shorter still runs do not support a noise model (tau up to 6 s)
 POINTS_PER_DECADE = 5
@@ -125,6 +140,49 @@ def fit(name: str, allan: AllanResult, sel: np.ndarray) -> NoiseFit:
                 },
             )
     return NoiseFit(name, best[1])
+
+
+def term_intervals(model: NoiseFit, allan: AllanResult, sel: np.ndarray) -> dict[str, list[float]]:
+    """95 % interval [low, high] (u, as the terms) of each power-law term of ``model`` from
+    the record: the covariance of the weighted linear fit of the Allan variance
+    (relative standard error sqrt(2 / n_independent) per cluster time; overlapping cluster
+    times are correlated, so the interval is a lower bound on the true one), the term the
+    square root of its variance coefficient. Gauss-Markov terms get none."""
+    keys = [
+        k
+        for k in ("density", "quantization", "bias_instability", "bias_drift", "rate_ramp")
+        if k in model.terms
+    ]
+    tau = allan.tau[sel]
+    basis = {
+        "density": 1.0 / tau / 2.0,
+        "quantization": 3.0 / tau**2,
+        "bias_instability": np.full_like(tau, FLICKER_FACTOR**2),
+        "bias_drift": tau / 3.0,
+        "rate_ramp": tau**2 / 2.0,
+    }
+    if not keys or tau.shape[0] <= len(keys):
+        return {}
+    a = np.stack([basis[k] for k in keys], 1)
+    sd = allan.adev[sel] ** 2 * np.sqrt(2.0 / np.maximum(allan.independent[sel], 1.0))
+    aw = a / sd[:, None]
+    try:
+        cov = np.linalg.inv(aw.T @ aw)
+    except np.linalg.LinAlgError:
+        return {}
+    out: dict[str, list[float]] = {}
+    for i, k in enumerate(keys):
+        c = model.terms[k] ** 2
+        half = 1.96 * math.sqrt(max(float(cov[i, i]), 0.0))
+        out[k] = [math.sqrt(max(c - half, 0.0)), math.sqrt(c + half)]
+    return out
+
+
+def supported_taus(allan: AllanResult, sel: np.ndarray) -> np.ndarray:
+    """Mask (sel's points) of the cluster times whose measured Allan deviation has a 95 %
+    interval within +-:data:`SUPPORTED_INTERVAL`."""
+    ind = np.maximum(allan.independent[sel].astype(float), 1.0)
+    return np.asarray(1.96 / np.sqrt(2.0 * ind) <= SUPPORTED_INTERVAL)
 
 
 def nll(model: NoiseFit, allan: AllanResult, sel: np.ndarray) -> float:
@@ -275,9 +333,14 @@ def report_entry(sn: SensorNoise, unit: str) -> dict[str, Any]:
     worst = float(np.max(np.maximum(ratio, 1.0 / ratio))) if ratio.shape[0] else None
     err = np.asarray(c["relative_error"])
     out = np.abs(np.log(ratio)) > math.log(MAX_RATIO)
+    tau = np.asarray(c["tau"])
+    sup = supported_taus(sn.allan, sn.window)
     return {
         "model": sn.model.name,
         "terms": dict(sn.model.terms),
+        "terms_ci95": term_intervals(sn.model, sn.allan, sn.window),
+        # the cluster times the record supports: measured 95 % interval within +-30 %
+        "tau_supported_s": [float(tau[sup].min()), float(tau[sup].max())] if sup.any() else None,
         "density_method": DENSITY_METHOD,
         "units": {
             k: v.replace("u", unit, 1) if v.startswith("u") else v
@@ -315,6 +378,8 @@ __all__ = [
     "nll",
     "report_entry",
     "select",
+    "supported_taus",
+    "term_intervals",
 ]
 
 
