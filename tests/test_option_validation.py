@@ -96,6 +96,7 @@ CASES: list[tuple] = [
     (LOG_COMMANDS["calibrate"], "--block-size", COUNTS),
     (LOG_COMMANDS["calibrate"], "--json", BAD_OUTPUTS),
     (LOG_COMMANDS["calibrate"], "--known-rate", ["0rpm"]),
+    (LOG_COMMANDS["calibrate"], "--short-holds", ["sometimes", ""]),
     (LOG_COMMANDS["calibrate"], "--method", ["best"]),
     (LOG_COMMANDS["calibrate"], "--gyro-mode", ["psychic"]),
     (LOG_COMMANDS["calibrate"], "--magnitude", [NONE], "none.yaml"),
