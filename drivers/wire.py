@@ -248,6 +248,10 @@ class Decoder(PendingBytes):
         self._seq_abs = 0  # unwrapped seq of the last accepted frame
         self._time_abs = 0  # unwrapped time, us, of the last accepted frame
         self._last_dt_us = 0  # last normal frame interval, us
+        # added to the unwrapped seq of the sample frames: set at the first one so that its
+        # seq is its own 16-bit value (a device-info frame before it, with the seq just
+        # below, 0xFFFF before 0, must not make the samples start at 65536)
+        self._seq_origin: int | None = None
 
     def feed(self, data: bytes | bytearray | memoryview) -> SampleBlock:
         """Decode ``data`` (plus any held-back bytes); returns the complete good samples."""
@@ -310,8 +314,19 @@ class Decoder(PendingBytes):
             accel=raw[:, 3:],
             temp=frames["temp"] * TEMP_SCALE_C,
             flags=frames["flags"].astype(np.uint16),
-            seq=np.arange(self._seq_abs - m + 1, self._seq_abs + 1, dtype=np.int64),
+            seq=self._sample_seq(
+                np.arange(self._seq_abs - m + 1, self._seq_abs + 1, dtype=np.int64),
+                int(frames["seq"][0]),
+            ),
         )
+
+    def _sample_seq(self, seq_abs: np.ndarray, first_raw: int) -> np.ndarray:
+        """The seq of sample frames (``seq_abs``, unwrapped over every frame; ``first_raw``
+        the 16-bit seq of the first): the first sample frame ever decoded keeps its own
+        16-bit seq and the rest count on from it."""
+        if self._seq_origin is None:
+            self._seq_origin = first_raw - int(seq_abs[0])
+        return seq_abs + self._seq_origin if self._seq_origin else seq_abs
 
     def _decode(self, buf: bytes, final: bool) -> SampleBlock:
         if len(buf) <= _FEW_FRAMES_BYTES and not final:
@@ -493,7 +508,7 @@ class Decoder(PendingBytes):
             accel=raw[:, 3:].astype(np.float64),
             temp=frames["temp"] * TEMP_SCALE_C,
             flags=frames["flags"].astype(np.uint16),
-            seq=seq_abs,
+            seq=self._sample_seq(seq_abs, int(frames["seq"][0])),
         )
 
     def _frame_seq_time(self, payload: tuple[int, int]) -> tuple[int, int]:

@@ -20,6 +20,25 @@ from pathlib import Path
 
 #: Largest seed accepted (numpy's generators take any integer >= 0; this keeps it a uint64).
 MAX_SEED = 2**64 - 1
+#: The sample rates an IMU log can have, Hz: from 0.5 Hz (below the 1 Hz at which PX4
+#: logs its raw sensor topics by default) to 100 kHz (above the fastest MEMS output data
+#: rates, 32 kHz). A stated rate, a log's ``sample_rate`` and the rate its time stamps
+#: show are refused outside it: 1e9 Hz is a typing slip, and each buffer sized in seconds
+#: of samples (the still detector's windows) grows with it; 0.2 Hz is a t column in ms
+#: read as seconds (a 200 Hz log).
+MIN_RATE_HZ = 0.5
+MAX_RATE_HZ = 100_000.0
+
+
+def rate_problem(rate_hz: float) -> str | None:
+    """Why ``rate_hz`` cannot be an IMU's sample rate (outside :data:`MIN_RATE_HZ` ..
+    :data:`MAX_RATE_HZ`, or not a finite number), or None when it can."""
+    if not (math.isfinite(rate_hz) and MIN_RATE_HZ <= rate_hz <= MAX_RATE_HZ):
+        return (
+            f"{rate_hz:g} Hz is not an IMU's sample rate "
+            f"(expected {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} Hz)"
+        )
+    return None
 
 
 def _number(text: str, unit: str) -> float:
@@ -52,6 +71,15 @@ def positive_float(unit: str, above: float = 0.0) -> Callable[[str], float]:
         return value
 
     return _named(convert, "positive_float")
+
+
+def sample_rate(text: str) -> float:
+    """An IMU's sample rate in Hz: :data:`MIN_RATE_HZ` to :data:`MAX_RATE_HZ`."""
+    value = _number(text, "Hz")
+    problem = rate_problem(value)
+    if problem:
+        raise argparse.ArgumentTypeError(f"got {text!r}: {problem}")
+    return value
 
 
 def nonnegative_float(unit: str) -> Callable[[str], float]:
@@ -128,6 +156,7 @@ def writable_output_path(stdout: bool = False) -> Callable[[str], str]:
         _check_directory(path.parent, repr(text))
         return text
 
+    convert.writes_file = True  # type: ignore[attr-defined]  # found by output_dests
     return _named(convert, "writable_output_path")
 
 
@@ -157,14 +186,39 @@ def named_paths(args: argparse.Namespace, keys: tuple[str, ...]) -> list[tuple[s
     ]
 
 
+def output_dests(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[str, ...]:
+    """The dests of every option of the command ``args`` ran (its subcommand, and the action
+    of a command with actions) whose type is :func:`writable_output_path`: each file a
+    command writes, found from its parser so that none can be left out of the check that no
+    two outputs, and no output and input, name one file
+    (:func:`imudiag.atomic.refuse_overwrite`)."""
+    found: list[str] = []
+    stack = [parser]
+    while stack:
+        p = stack.pop()
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                chosen = action.choices.get(getattr(args, action.dest, None) or "")
+                if chosen is not None:
+                    stack.append(chosen)
+            elif getattr(action.type, "writes_file", False) and action.dest not in found:
+                found.append(action.dest)
+    return tuple(found)
+
+
 __all__ = [
+    "MAX_RATE_HZ",
     "MAX_SEED",
+    "MIN_RATE_HZ",
     "finite_float",
     "named_paths",
     "nonnegative_float",
+    "output_dests",
     "nonnegative_int",
     "positive_float",
     "positive_int",
+    "rate_problem",
+    "sample_rate",
     "seed",
     "writable_directory",
     "writable_output_path",

@@ -14,6 +14,7 @@ import atexit
 import contextlib
 import errno
 import os
+import stat
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
@@ -29,8 +30,9 @@ _live: set[str] = set()  # temporaries created and not yet renamed or removed
 def temp_path(path: str | os.PathLike[str]) -> str:
     """Create and return a unique, empty temporary file beside ``path``.
 
-    Its mode is what a new file would get. Pass it to :func:`commit` or
-    :func:`discard` when done; it is removed at exit otherwise.
+    Its mode is the mode of ``path`` when that exists (replacing a 0600 file keeps it
+    0600), else what a new file would get. Pass it to :func:`commit` or :func:`discard`
+    when done; it is removed at exit otherwise.
     """
     dest = os.fspath(path)
     directory = os.path.dirname(dest) or "."
@@ -48,6 +50,14 @@ def temp_path(path: str | os.PathLike[str]) -> str:
             continue
         except BaseException:
             discard(tmp)  # interrupted (it may exist): removed, or at exit if cut short again
+            raise
+        try:
+            os.fchmod(fd, stat.S_IMODE(os.stat(dest).st_mode))  # the file it replaces
+        except FileNotFoundError:
+            pass
+        except BaseException:
+            os.close(fd)
+            discard(tmp)
             raise
         os.close(fd)
         return tmp

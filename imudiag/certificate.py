@@ -29,6 +29,7 @@ import numpy as np
 import yaml
 
 from . import yamlio
+from .argtypes import rate_problem
 from .errors import CertificateError as _CertificateErrorBase
 from .rowwise import BIG_ROWS, rows_op
 from .units import STANDARD_GRAVITY_M_S2, TO_SI
@@ -123,6 +124,25 @@ class Limits:
     bias: np.ndarray  #: output units, per axis
     scale_factor_error: np.ndarray  #: output per input unit, per axis
     misalignment: np.ndarray  #: rad, on d1, d2, d3
+
+
+@dataclass
+class Uncertainty:
+    """Standard deviations of the certified values themselves (a certificate written by a
+    calibration: the fit's std), in the units of the values; NaN where not stated."""
+
+    bias: np.ndarray  #: output units, per axis
+    scale_factor_error: np.ndarray  #: output per input unit, per axis
+    misalignment: np.ndarray  #: rad, on the differences d1, d2, d3 (as the limits)
+
+    def vector(self) -> np.ndarray:
+        """(9,) in the order of the diagnosed parameters (bias, scale factor error,
+        misalignment differences); NaN where not stated."""
+        return np.concatenate([self.bias, self.scale_factor_error, self.misalignment])
+
+
+#: The keys of ``<triad>.uncertainty``, in the order of :meth:`Uncertainty.vector`.
+UNCERTAINTY_KEYS = ("bias", "scale_factor_error", "misalignment")
 
 
 #: FLICKER_FACTOR * B is the flat Allan deviation of a bias instability B: sqrt(2 ln 2 / pi)
@@ -238,6 +258,9 @@ class TriadModel:
     temperature: Temperature | None = None
     nonlinearity: np.ndarray | None = None  #: output per (input unit)^2
     g_sensitivity: np.ndarray | None = None  #: 3x3, gyro output per accel input unit
+    #: std of the certified bias, scale factor error and misalignment differences (a
+    #: calibration's own uncertainty); None: not stated (taken as exact)
+    uncertainty: Uncertainty | None = None
 
     # -- derived quantities -------------------------------------------------
 
@@ -513,6 +536,11 @@ def _triad_to_dict(t: TriadModel) -> dict[str, Any]:
         "scale_factor_error": [float(v) for v in t.limits.scale_factor_error],
         "misalignment": [float(v) for v in t.limits.misalignment],
     }
+    if t.uncertainty is not None:
+        d["uncertainty"] = {
+            key: [float(v) if math.isfinite(v) else None for v in getattr(t.uncertainty, key)]
+            for key in UNCERTAINTY_KEYS
+        }
     if t.temperature is not None:
         d["temperature"] = {
             "reference": float(t.temperature.reference),
@@ -556,7 +584,7 @@ def _parse_triad(node: Any, name: str) -> TriadModel:
             "misalignment",
             "limits",
         ),
-        ("noise", "temperature", "nonlinearity", "g_sensitivity"),
+        ("noise", "temperature", "nonlinearity", "g_sensitivity", "uncertainty"),
     )
     unit = node["input_unit"]
     if not isinstance(unit, str) or unit not in INPUT_UNITS_TO_SI[name]:
@@ -633,6 +661,14 @@ def _parse_triad(node: Any, name: str) -> TriadModel:
             raise CertificateError(f"{name}.g_sensitivity", "expected 3 rows of 3 numbers")
         g_sens = np.vstack([_vector(r, f"{name}.g_sensitivity[{i}]") for i, r in enumerate(rows)])
 
+    uncertainty = None
+    if "uncertainty" in node:
+        un = _mapping(node["uncertainty"], f"{name}.uncertainty")
+        _check_keys(un, f"{name}.uncertainty", (), UNCERTAINTY_KEYS)
+        uncertainty = Uncertainty(
+            *(_std_vector(un.get(key), f"{name}.uncertainty.{key}") for key in UNCERTAINTY_KEYS)
+        )
+
     return TriadModel(
         name=name,
         input_unit=unit,
@@ -646,7 +682,23 @@ def _parse_triad(node: Any, name: str) -> TriadModel:
         temperature=temperature,
         nonlinearity=nonlinearity,
         g_sensitivity=g_sens,
+        uncertainty=uncertainty,
     )
+
+
+def _std_vector(value: Any, key: str) -> np.ndarray:
+    """Three standard deviations >= 0 (null, or the key left out: not stated, NaN)."""
+    if value is None:
+        return np.full(3, np.nan)
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
+        raise CertificateError(key, f"expected a list of 3 numbers (or null), got {value!r}")
+    out = np.array(
+        [np.nan if v is None else _finite(v, f"{key}[{i}]") for i, v in enumerate(value)]
+    )
+    for i, v in enumerate(out):
+        if v < 0:
+            raise CertificateError(f"{key}[{i}]", f"a standard deviation must be >= 0, got {v}")
+    return out
 
 
 def from_dict(doc: Any, source: str | None = None) -> Certificate:
@@ -669,6 +721,8 @@ def from_dict(doc: Any, source: str | None = None) -> Certificate:
             _finite(env["earth_rate"], "environment.earth_rate"), "environment.earth_rate"
         )
         rate = _positive(_finite(doc["sample_rate"], "sample_rate"), "sample_rate")
+        if rate_problem(rate):  # a certificate's rate sizes the daemon's buffers too
+            raise CertificateError("sample_rate", str(rate_problem(rate)))
         return Certificate(
             gyro=_parse_triad(doc["gyro"], "gyro"),
             accel=_parse_triad(doc["accel"], "accel"),
@@ -781,6 +835,8 @@ __all__ = [
     "Certificate",
     "CertificateError",
     "Limits",
+    "UNCERTAINTY_KEYS",
+    "Uncertainty",
     "Noise",
     "Temperature",
     "TriadModel",

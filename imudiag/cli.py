@@ -147,7 +147,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
-    from .argtypes import named_paths
+    from .argtypes import named_paths, output_dests
     from .atomic import refuse_overwrite
 
     if args.command in BATCH_COMMANDS:
@@ -158,11 +158,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     # the words naming the command in messages: a command with actions sets ``command_name``
     name = getattr(args, "command_name", None) or args.command
+    # every file option of the command: those it declares and each of type writable_output_path
+    declared = tuple(getattr(args, "outputs", ()))
+    outputs = declared + tuple(d for d in output_dests(parser, args) if d not in declared)
     try:
-        refuse_overwrite(
-            named_paths(args, getattr(args, "inputs", ())),
-            named_paths(args, getattr(args, "outputs", ())),
-        )
+        refuse_overwrite(named_paths(args, getattr(args, "inputs", ())), named_paths(args, outputs))
         return int(args.func(args) or 0)
     except ImudiagError as exc:
         print(f"imudiag {name}: error: {exc}", file=sys.stderr)

@@ -96,6 +96,7 @@ CASES: list[tuple] = [
     (LOG_COMMANDS["calibrate"], "--block-size", COUNTS),
     (LOG_COMMANDS["calibrate"], "--json", BAD_OUTPUTS),
     (LOG_COMMANDS["calibrate"], "--known-rate", ["0rpm"]),
+    (LOG_COMMANDS["calibrate"], "--short-holds", ["sometimes", ""]),
     (LOG_COMMANDS["calibrate"], "--method", ["best"]),
     (LOG_COMMANDS["calibrate"], "--gyro-mode", ["psychic"]),
     (LOG_COMMANDS["calibrate"], "--magnitude", [NONE], "none.yaml"),
@@ -169,6 +170,11 @@ CASES: list[tuple] = [
         "none.yaml",
     ),
     (["certificate", "import", NONE, "--out", "{tmp}/c.yaml"], "--format", ["matlab"]),
+    (
+        ["certificate", "import", NONE, "--format", "imu_tk", "--out", "{tmp}/c.yaml"],
+        "--units",
+        ["gyro=furlong", "speed=1", "accel"],
+    ),
     (
         ["certificate", "import", "--format", "imu_tk", "--gyro", NONE, "--out", "{tmp}/c.yaml"],
         "--accel",

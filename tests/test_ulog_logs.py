@@ -86,7 +86,7 @@ def test_commands_take_a_ulog_and_say_which_topic(tmp_path):
     # the converted log says where its samples came from, and in which units
     head = out.read_text().splitlines()[:4]
     assert "# source: sensor_combined, 250 Hz" in head[0]
-    assert '"gyro": "rad/s"' in head[1]
+    assert head[1] == "# units: gyro=rad/s accel=m/s^2"  # the spec's line (issue 27)
     r = run_imudiag("convert", str(SMALL), str(tmp_path / "raw.csv"), "--instance", "2")
     assert r.returncode == 0, r.stderr
     assert len(read_log(tmp_path / "raw.csv")) <= 6

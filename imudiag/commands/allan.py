@@ -19,12 +19,12 @@ from typing import Any
 
 import numpy as np
 
-from ..argtypes import finite_float, positive_float, positive_int, writable_output_path
+from ..argtypes import finite_float, positive_int, rate_problem, sample_rate, writable_output_path
 from ..atomic import write_text_atomic
 from ..errors import BadInput
 from ..logs import LogError, open_log
 from ..logs.options import LogOptions, add_log_options, log_options
-from ..logs.timing import timing_report
+from ..logs.timing import stated_rate_problem, timing_report
 from ..noise_estimate import METHOD as WHITE_NOISE_METHOD
 from ..noise_estimate import NoiseMeter
 from ..noise_stats import identify_noise, overlapping_allan, welch_psd
@@ -79,7 +79,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--rate",
-        type=positive_float("Hz"),
+        type=sample_rate,
         metavar="HZ",
         help="sample rate (default: the log's sample_rate, else from t)",
     )
@@ -175,6 +175,8 @@ def analyse(
 def run(args: argparse.Namespace) -> int:
     """Analyse the log; returns the exit code."""
     sensors = [s.strip() for s in args.sensors.split(",") if s.strip()]
+    if not sensors:
+        raise BadInput(f"--sensors: names no sensor; expected some of {' '.join(SENSORS)}")
     for s in sensors:
         if s not in SENSORS:
             raise BadInput(f"--sensors: unknown sensor {s!r}; expected {' '.join(SENSORS)}")
@@ -185,14 +187,19 @@ def run(args: argparse.Namespace) -> int:
     median_dt = float(np.median(dt))
     timing = timing_report(t, meta)
     rate = args.rate
-    if rate is None:
+    if rate is not None:
+        problem = stated_rate_problem(rate, t)
+        if problem:
+            raise BadInput(f"{args.log}: {problem}")
+    else:
         # the log's numeric sample_rate, else the rate its time stamps show (a
         # descriptive sample_rate such as "about 90-100" is stated, not fatal)
         rate = timing.metadata_rate_hz or 1.0 / median_dt
     if timing.note:
         print(f"{args.log}: {timing.note}", file=sys.stderr)
-    if not (rate > 0 and math.isfinite(rate)):
-        raise BadInput(f"--rate: must be > 0 Hz, got {rate}")
+    problem = rate_problem(rate)
+    if problem:
+        raise BadInput(f"{args.log}: sample_rate: {problem}")
     gaps = int(np.count_nonzero(dt > 1.5 / rate))
     report = {
         **header(FORMAT),

@@ -19,6 +19,7 @@ from ..certificate import default_certificate_path, load, loads
 from ..errors import BadInput
 from ..interop import DEFAULT_GAUGE, FORMATS, GAUGES, output_paths, read, to_certificate, write
 from ..interop import imu_tk as imu_tk_files
+from ..logs.options import parse_units
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -51,6 +52,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="CERT",
         help="certificate giving what the file lacks: units, limits, noise, temperature "
         "(default: the bundled certificate)",
+    )
+    imp.add_argument(
+        "--units",
+        metavar="SPEC",
+        help="imu_tk: the units of the data imu_tk calibrated, which its files are in and do "
+        "not state: gyro=rad/s|deg/s|count,accel=m/s^2|g|count (needed without --like)",
     )
     imp.add_argument(
         "--gauge",
@@ -101,19 +108,55 @@ def _import_sources(args: argparse.Namespace) -> list[tuple[str, str]]:
         return [("--accel", args.accel or names["accel"]), ("--gyro", args.gyro or names["gyro"])]
     if args.accel or args.gyro:
         raise BadInput(f"--accel/--gyro: only the imu_tk format has two files, not {args.format}")
+    if args.units:
+        raise BadInput(
+            f"--units: only imu_tk's files leave their units unstated, not {args.format}"
+        )
     if not args.input:
         raise BadInput(f"{args.format}: FILE is required")
     return [("FILE", args.input)]
 
 
+def _imu_tk_units(args: argparse.Namespace, like_path: str) -> dict[str, str]:
+    """The output units of an imu_tk calibration: its files are in the units of the data
+    imu_tk was given (raw counts, or SI), which they do not state. ``--units`` states them;
+    without it they are --like's output units (and a note says so); with neither, BadInput
+    (the bundled certificate's counts would label SI data as counts)."""
+    units = parse_units(args.units) if args.units else {}
+    missing = [t for t in ("gyro", "accel") if t not in units]
+    if missing and not args.like:
+        raise BadInput(
+            f"imu_tk: its .calib files are in the units of the data imu_tk calibrated, which "
+            f"they do not state ({' and '.join(missing)}): give --units "
+            "gyro=UNIT,accel=UNIT (gyro=rad/s,accel=m/s^2 for SI data, count for raw counts) "
+            "or --like CERT whose output units are the data's"
+        )
+    return units
+
+
 def run_import(args: argparse.Namespace) -> int:
     """Import a tool's calibration into a certificate."""
+    if args.units:
+        parse_units(args.units)  # a bad value is refused before any file is read
     sources = _import_sources(args)
     refuse_overwrite(sources, [("--out", args.out)])
     like_path = args.like or str(default_certificate_path())
     like = load(like_path)
     ic = read(args.format, args.input or "", accel=args.accel, gyro=args.gyro)
+    stated = _imu_tk_units(args, like_path) if args.format == "imu_tk" else {}
+    for name, unit in stated.items():
+        ic.triad(name).output_unit = unit
     cert, prov = to_certificate(ic, like, gauge=args.gauge)
+    for name in stated:
+        prov.fields[f"{name}.output_unit"] = "--units"
+    if args.format == "imu_tk":
+        said = ", ".join(
+            f"{n} in {cert.triad(n).output_unit} ({'--units' if n in stated else '--like'})"
+            for n in ("gyro", "accel")
+        )
+        prov.notes.append(
+            f"imu_tk: its files are in the units of the data it calibrated: outputs {said}"
+        )
     note = f"imported from {args.format} ({', '.join(p for _, p in sources)})"
     cert.device = {**cert.device, "calibrated": note}
     prov.fields["device.calibrated"] = "import"

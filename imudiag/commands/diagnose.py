@@ -21,6 +21,7 @@ from ..argtypes import (
     nonnegative_float,
     positive_float,
     positive_int,
+    sample_rate,
     writable_directory,
     writable_output_path,
 )
@@ -86,7 +87,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--k-sigma",
         type=positive_float("std"),
         metavar="K",
-        help="a fault deviates by more than K std as well as the limit (default 4)",
+        help="a fault deviates by more than K std (the estimate's and the certificate's "
+        "stated uncertainty combined) as well as the limit (default 4)",
     )
     p.add_argument(
         "--min-dof",
@@ -131,7 +133,7 @@ def add_common_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--rate",
-        type=positive_float("Hz"),
+        type=sample_rate,
         metavar="HZ",
         help="sample rate (default: the log's sample_rate, else from t)",
     )

@@ -65,8 +65,30 @@ def parse_lever_arm(text: str | None) -> tuple[float, float, float] | None:
     return (vals[0], vals[1], vals[2])
 
 
+def check_latency(latency_s: float | None) -> None:
+    """BadInput when ``--gnss-latency`` (s) lies outside the +-``max_latency_s`` (s) the
+    latency estimate searches (docs/moving-base.md: receivers report 0.02-0.2 s late): a
+    value in ms given as seconds (2, -3, 120) would shift every GNSS epoch by seconds and
+    raise false accelerometer faults. Names the reading in ms when that one fits."""
+    from ..aiding.moving import MovingConfig
+
+    bound = MovingConfig.max_latency_s
+    if latency_s is None or abs(latency_s) <= bound:
+        return
+    hint = (
+        f"; if {latency_s:g} is in ms, give --gnss-latency {latency_s / 1000:g}"
+        if abs(latency_s) / 1000 <= bound
+        else ""
+    )
+    raise BadInput(
+        f"--gnss-latency: {latency_s:g} s is beyond the +-{bound:g} s a GNSS latency can be "
+        f"(the range its estimate searches; the option is in s){hint}"
+    )
+
+
 def check_gnss_options(args: argparse.Namespace) -> None:
     """Validate the options before the log is read."""
+    check_latency(getattr(args, "gnss_latency", None))
     if getattr(args, "gnss", None) in (None, "none"):
         _refuse_gnss_options(args, "needs GNSS (--gnss auto, log or FILE)")
         return
@@ -240,6 +262,7 @@ def gyro_turn_lines(gt: dict) -> list[str]:
 __all__ = [
     "add_gnss_arguments",
     "check_gnss_options",
+    "check_latency",
     "check_gnss_options_without_log_gnss",
     "moving_config",
     "gyro_turn_lines",

@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import shutil
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
-from ..argtypes import positive_float, seed, writable_output_path
+from ..argtypes import positive_float, rate_problem, sample_rate, seed, writable_output_path
 from ..certificate import load, load_default
 from ..errors import BadInput
 from ..logs import log_format, lookup, open_writer
@@ -36,6 +36,7 @@ from ..sim.simulator import Simulator, true_certificate
 
 T = TypeVar("T")
 CHUNK_S = 30.0  #: seconds simulated per written block
+MAX_CHUNK = 1 << 18  #: samples simulated per written block at most (fast rates)
 _BIN_META_LIMIT = 249  #: bytes of JSON a device-info frame holds
 
 EPILOG = """\
@@ -60,6 +61,9 @@ scenario parameters (--param key=value):
   vehicle: still accel speed cruise turn turn_deg final latitude
   urban, highway, hilly, aircraft: length (s, whole legs; default 600); sample time is UTC
     Unix seconds from 2026-01-01, and --gnss OUT writes the drive's GNSS as a gpspipe -w log
+  bounds: latitude -90..90 deg; times, lengths and speed >= 0 (length, turn, accel > 0);
+    n a whole number >= 1, loop 0 or 1; fault times >= 0 s. A finite scenario that ends
+    before --duration is written whole, with a warning saying how long it is
 """
 
 
@@ -88,7 +92,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     p.add_argument(
         "--rate",
-        type=positive_float("Hz"),
+        type=sample_rate,
         metavar="HZ",
         help="sample rate, Hz (default: the certificate's sample_rate)",
     )
@@ -199,6 +203,22 @@ def check_free_space(
         )
 
 
+def shorter(scenario: str, length_s: float, duration_s: float) -> str:
+    """What to say when the finite ``scenario`` (``length_s`` s) ends before ``--duration``
+    ``duration_s`` s: the session written is the scenario's length, and how to get longer."""
+    longer = (
+        "--param length=S makes a longer drive"
+        if scenario in DRIVES
+        else "--param loop=1 repeats it"
+        if scenario == "multiposition"
+        else "its --param values make it longer"
+    )
+    return (
+        f"--duration {duration_s:g} s: the {scenario} scenario ends at {length_s:g} s, so "
+        f"{length_s:g} s are written, not {duration_s:g} s ({longer})"
+    )
+
+
 def _size(n: float) -> str:
     """``n`` bytes as text with a decimal unit (B to EB)."""
     for unit in ("B", "kB", "MB", "GB", "TB", "PB", "EB"):
@@ -229,11 +249,18 @@ def run(args: argparse.Namespace) -> int:
     effects = _parsed("--effect", parse_effects, args.effect)
     faults = _parsed("--fault", parse_faults, args.fault)
     rate = float(args.rate) if args.rate is not None else float(cert.sample_rate)
-    if not (rate > 0 and math.isfinite(rate)):
-        raise BadInput(f"--rate: must be > 0 Hz, got {args.rate}")
+    problem = rate_problem(rate)
+    if problem:
+        where = "--rate" if args.rate is not None else f"{cert.source}: sample_rate"
+        raise BadInput(f"{where}: {problem}")
     total = motion.n_samples(rate)
     if args.duration is not None:  # finite and > 0: checked when parsed
         want = int(round(args.duration * rate))
+        if total is not None and total < want:
+            print(
+                f"imudiag simulate: warning: {shorter(scenario, total / rate, args.duration)}",
+                file=sys.stderr,
+            )
         total = want if total is None else min(total, want)
     elif total is None:
         raise BadInput(f"--duration: required for the endless scenario {scenario!r}")
@@ -246,7 +273,7 @@ def run(args: argparse.Namespace) -> int:
     device = str(cert.device.get("model", "simulated IMU"))
     meta = _meta(args, rate, device, scenario, effects, faults)
     sim = Simulator(cert, effects, faults, args.seed, meta=dict(meta))
-    chunk = max(1, int(round(CHUNK_S * rate)))
+    chunk = max(1, min(MAX_CHUNK, int(round(CHUNK_S * rate))))
     written = 0
     with open_writer(args.out, meta=meta) as writer, for_command("simulate", args.quiet) as bar:
         done = 0

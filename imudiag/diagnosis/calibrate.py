@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from ..certificate import Certificate, Noise, TriadModel
+from ..certificate import Certificate, Noise, TriadModel, Uncertainty
 from ..reports import CALIBRATION_FORMAT, header
 from .config import DiagnosisConfig
 from .gauge import n_symmetric, p_matrix, shape_of_triad, small_rotation
@@ -52,6 +52,7 @@ from .intervals import QuasiStaticInterval
 from .known_rate import classify_plateaus
 from .params import (
     TriadFit,
+    certificate_std_vector,
     certificate_vector,
     limit_vector,
     parameter_units,
@@ -152,6 +153,20 @@ def _pinned_fit(
     return fit, prior(pinned)
 
 
+def state_uncertainty(triad: TriadModel, fit: TriadFit) -> None:
+    """Write the calibration's own std into ``triad.uncertainty`` (the certificate it
+    writes): the fit's std for each parameter it determined, the ``--like`` value's stated
+    std (NaN: none) for each it kept; a diagnosis against this certificate adds it to the
+    std of each deviation (:mod:`.predicates`)."""
+    kept = triad.uncertainty.vector() if triad.uncertainty is not None else np.full(9, np.nan)
+    std = np.where(np.asarray(fit.determined, dtype=bool) & np.isfinite(fit.std), fit.std, kept)
+    triad.uncertainty = (
+        Uncertainty(std[:3].copy(), std[3:6].copy(), std[6:9].copy())
+        if np.any(np.isfinite(std))
+        else None
+    )
+
+
 @dataclass
 class CalibrationResult:
     """A calibrated certificate and how well the session determined it."""
@@ -187,6 +202,10 @@ class CalibrationResult:
     #: the still runs of the recording: ``found``, ``used`` and ``dropped`` ({why: count}),
     #: where the caller collected them (:func:`.session.collect_intervals`)
     holds: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        for fit in (self.accel, self.gyro):
+            state_uncertainty(self.certificate.triad(fit.triad), fit)
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary of the calibration."""
@@ -930,6 +949,7 @@ def _gyro_rest_rotation(
         points=len(intervals),
         extra=extra,
         dof=dof,
+        certificate_std=certificate_std_vector(gyr_like),
     )
     return fit, n_g, kept, rot
 

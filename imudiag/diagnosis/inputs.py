@@ -4,7 +4,8 @@
   accel=m/s^2``) differs from the certificate's ``output_unit`` is converted exactly
   when both are physical units, else rejected naming both.
 - :func:`log_rate_hz`: the sample rate from the log's ``sample_rate`` metadata,
-  else from its time stamps, else the certificate's.
+  else from its time stamps, else the certificate's; :func:`session_rate_hz`: a stated
+  rate (``--rate``) checked against the time stamps, else that.
 - :class:`MagnitudeTable`: independent magnitudes for the moving-base variant,
   a CSV ``t,accel,gyro`` (s, m/s^2, rad/s; either magnitude column may be
   missing), interpolated onto sample times.
@@ -17,8 +18,10 @@ from typing import Any
 
 import numpy as np
 
+from ..argtypes import rate_problem
 from ..certificate import Certificate
 from ..errors import BadInput
+from ..logs.timing import stated_rate_problem
 from ..samples import SampleBlock
 from ..units import Conversion, conform_meta
 
@@ -30,12 +33,19 @@ def check_units(log_path: str, meta: dict[str, Any], cert: Certificate) -> Conve
     return conform_meta(meta, cert, log_path)
 
 
-def log_rate_hz(meta: dict[str, Any], first: SampleBlock | None, cert: Certificate) -> float:
-    """Sample rate (Hz): log metadata, else the median time step of the first block, else cert."""
+def log_rate_hz(
+    meta: dict[str, Any], first: SampleBlock | None, cert: Certificate, name: str = "the log"
+) -> float:
+    """Sample rate (Hz): log metadata, else the median time step of the first block, else cert.
+
+    BadInput naming the log ``name`` when its ``sample_rate`` is not an IMU's rate."""
     if "sample_rate" in meta:
         try:
             rate = float(meta["sample_rate"])
             if rate > 0 and np.isfinite(rate):
+                problem = rate_problem(rate)
+                if problem:
+                    raise BadInput(f"{name}: sample_rate (metadata): {problem}")
                 return rate
         except (TypeError, ValueError):
             pass
@@ -44,6 +54,29 @@ def log_rate_hz(meta: dict[str, Any], first: SampleBlock | None, cert: Certifica
         if dt > 0:
             return 1.0 / dt
     return float(cert.sample_rate)
+
+
+def session_rate_hz(
+    stated: float | None,
+    meta: dict[str, Any],
+    first: SampleBlock | None,
+    cert: Certificate,
+    name: str = "the log",
+) -> float:
+    """The sample rate (Hz) a recording is analysed at: ``stated`` (``--rate``) when given,
+    else :func:`log_rate_hz`. BadInput when ``stated`` is not an IMU's rate, or disagrees
+    with the time stamps of the first block by more than
+    :data:`~imudiag.logs.timing.RATE_TOLERANCE` (both figures named)."""
+    if stated is None:
+        return log_rate_hz(meta, first, cert, name)
+    problem = rate_problem(stated)
+    if problem:
+        raise BadInput(f"--rate: {problem}")
+    if first is not None and len(first) > 2:
+        problem = stated_rate_problem(stated, first.t)
+        if problem:
+            raise BadInput(f"{name}: {problem}")
+    return float(stated)
 
 
 class MagnitudeTable:
@@ -104,4 +137,10 @@ def write_magnitudes(path: str | Path, t: np.ndarray, accel: np.ndarray, gyro: n
     np.savetxt(path, data, delimiter=",", header="t,accel,gyro", comments="", fmt="%.9g")
 
 
-__all__ = ["check_units", "log_rate_hz", "MagnitudeTable", "write_magnitudes"]
+__all__ = [
+    "check_units",
+    "log_rate_hz",
+    "session_rate_hz",
+    "MagnitudeTable",
+    "write_magnitudes",
+]

@@ -54,6 +54,14 @@ def std_above_limit(std: float, ratio: float, limit: float, unit: str) -> str:
     return f"std {std:.3g} {unit} above {ratio:g} x limit {limit:.3g} {unit}"
 
 
+def certificate_std_vector(triad: TriadModel) -> np.ndarray:
+    """The std (9,) of the certificate's own (B, E, d) in certificate units: its stated
+    ``uncertainty`` (a calibration's), 0 where it states none."""
+    if triad.uncertainty is None:
+        return np.zeros(9)
+    return np.nan_to_num(triad.uncertainty.vector(), nan=0.0)
+
+
 def certificate_vector(triad: TriadModel) -> np.ndarray:
     """The certificate's (B, E, d) as a (9,) vector in certificate units."""
     return np.concatenate(
@@ -115,6 +123,9 @@ class TriadFit:
     excess_var: float = 0.0
     #: names of the points behind ``loo_deviation`` rows, for reports
     point_labels: list[str] | None = None
+    #: (9,) std of the certificate's own values (:func:`certificate_std_vector`), certificate
+    #: units: 0 unless the certificate states an ``uncertainty`` (a calibration's)
+    certificate_std: np.ndarray = field(default_factory=lambda: np.zeros(9))
 
     def require_redundancy(self, dof: float, min_dof: float, idx: range, what: str) -> None:
         """Mark parameters ``idx`` unjudged when the fit's effective dof is below ``min_dof``."""
@@ -133,6 +144,12 @@ class TriadFit:
     def deviation(self) -> np.ndarray:
         """Estimate minus certificate (9,), certificate units."""
         return self.estimate - self.certificate
+
+    @property
+    def deviation_std(self) -> np.ndarray:
+        """Std (9,) of :attr:`deviation`, certificate units: the estimate's and the
+        certificate's own (:attr:`certificate_std`) combined, sqrt(std^2 + cert_std^2)."""
+        return np.hypot(self.std, self.certificate_std)
 
     def to_json(self) -> dict:
         """Estimates and standard deviations grouped by cause (non-finite values as null)."""
@@ -167,6 +184,7 @@ def undetermined_fit(triad: TriadModel, method: str, reason: str) -> TriadFit:
         limit=limit_vector(triad),
         determined=np.zeros(9, dtype=bool),
         reasons=[reason] * 9,
+        certificate_std=certificate_std_vector(triad),
     )
 
 
@@ -174,6 +192,7 @@ __all__ = [
     "CAUSES",
     "PARAM_KEYS",
     "TriadFit",
+    "certificate_std_vector",
     "certificate_vector",
     "limit_vector",
     "internal_scale",

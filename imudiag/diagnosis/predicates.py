@@ -2,10 +2,13 @@
 
 Parameter i of a triad is a *candidate* in a window when its deviation from
 the certificate exceeds both the limit lambda_i and ``k_sigma`` standard
-deviations of the estimate; it becomes a *fault* when it stays a candidate
-(with the same sign) in ``persist`` consecutive windows that estimated it, and
-stays active until it has not been a candidate for ``persist`` consecutive
-windows. Undetermined windows neither confirm nor clear a fault.
+deviations of the deviation: the estimate's std and the certificate's own (its
+stated ``uncertainty``, a calibration's) combined, sqrt(std^2 + cert_std^2), so
+a certificate that is itself uncertain is not taken as exact; it becomes a
+*fault* when it stays a candidate (with the same sign) in ``persist``
+consecutive windows that estimated it, and stays active until it has not been
+a candidate for ``persist`` consecutive windows. Undetermined windows neither
+confirm nor clear a fault.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from .params import CAUSES, TriadFit, sensor_of
 
 def _beyond(dev: np.ndarray, fit: TriadFit, k_sigma: float) -> np.ndarray:
     with np.errstate(invalid="ignore"):
-        return (np.abs(dev) > fit.limit) & (np.abs(dev) > k_sigma * fit.std)
+        return (np.abs(dev) > fit.limit) & (np.abs(dev) > k_sigma * fit.deviation_std)
 
 
 def _eligible(fit: TriadFit, k_sigma: float) -> np.ndarray:
@@ -158,6 +161,10 @@ class PredicateTracker:
             "limit": float(fit.limit[i]),
             "std": float(fit.std[i]) if np.isfinite(fit.std[i]) else None,
             "t": float(t),
+            # the certificate's own std, when it states one (a calibration's)
+            **(
+                {"certificate_std": float(fit.certificate_std[i])} if fit.certificate_std[i] else {}
+            ),
         }
 
     def active(self) -> list[dict]:
@@ -182,6 +189,7 @@ def _public(f: dict) -> dict:
         "t_first",
         "t_last",
         "std",
+        "certificate_std",
     )
     return {k: f[k] for k in keys if k in f}
 

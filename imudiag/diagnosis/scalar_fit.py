@@ -30,6 +30,7 @@ from ..certificate import TriadModel
 from .gauge import p_matrix, shape_of_triad
 from .params import (
     TriadFit,
+    certificate_std_vector,
     certificate_vector,
     internal_scale,
     limit_vector,
@@ -124,6 +125,7 @@ def _finish(
         condition=condition,
         points=points,
         rms_residual=rms,
+        certificate_std=certificate_std_vector(triad),
     )
 
 

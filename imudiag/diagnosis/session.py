@@ -28,7 +28,7 @@ from ..quasistatic import BAD_FLAGS, DetectorPool
 from ..samples import FLAG_SELF_TEST, SampleBlock
 from ..vibration import vibration_object
 from .config import DiagnosisConfig
-from .inputs import MagnitudeTable, check_units, log_rate_hz
+from .inputs import MagnitudeTable, check_units, session_rate_hz
 from .intervals import IntervalCollector, QuasiStaticInterval
 from .known_rate import PLATEAU_DETECTOR
 from .params import PARAM_KEYS, cause_unit
@@ -135,7 +135,9 @@ def measure_noise(
         for block in stream:
             block = units.apply(block)
             if meter is None:
-                meter = NoiseMeter(rate_hz or log_rate_hz(meta, block, cert))
+                meter = NoiseMeter(
+                    session_rate_hz(rate_hz, meta, block, cert, recording_name(data))
+                )
                 t0 = float(block.t[0]) if len(block) else None
             good = None
             if block.flags is not None:
@@ -212,7 +214,7 @@ def diagnose_recording(
         for block in stream:
             block = units.apply(block)
             if diag is None:
-                rate = rate_hz or log_rate_hz(meta, block, cert)
+                rate = session_rate_hz(rate_hz, meta, block, cert, name)
                 # one still detector for both when theirs are alike (the same settings and
                 # noise figures: with the certificate's noise, or a certificate without any)
                 pool = DetectorPool()
@@ -336,7 +338,7 @@ def _collect_pass(
         for block in stream:
             block = units.apply(block)
             if collector is None:
-                rate = rate_hz or log_rate_hz(meta, block, like)
+                rate = session_rate_hz(rate_hz, meta, block, like, name)
                 collector = IntervalCollector(
                     like,
                     rate,

@@ -33,6 +33,7 @@ from .intervals import MotionSegment, QuasiStaticInterval, stacked_mean_var
 from .known_rate import classify_plateaus
 from .params import (
     TriadFit,
+    certificate_std_vector,
     certificate_vector,
     limit_vector,
     parameter_units,
@@ -440,6 +441,7 @@ def gyro_window_fit(
         dof=rot_dof,
         loo_deviation=loo_rows,
         point_labels=motion_labels(pairs) if loo_rows is not None else None,
+        certificate_std=certificate_std_vector(tri),
     )
     if rotations:
         fit.require_redundancy(rot_dof, config.min_dof, range(3, 9), f"{len(pairs)} motions")

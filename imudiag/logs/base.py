@@ -19,6 +19,7 @@ import numpy as np
 from ..errors import BadInput
 from ..samples import SampleBlock
 from .gnss_fixes import GnssFixes
+from .timing import RATE_CHECK_SAMPLES, time_unit_problem
 
 
 class LogError(BadInput):
@@ -126,6 +127,9 @@ class LogReader:
     """
 
     format = ""
+    #: the format's t column may be in another unit (``--time-unit``): text tables, CSV,
+    #: MATLAB, R; other formats stamp their samples in a unit of their own
+    time_unit_option = False
 
     def __init__(self, path: str | Path, block_size: int = DEFAULT_BLOCK_SIZE) -> None:
         if int(block_size) < 1:
@@ -139,12 +143,29 @@ class LogReader:
     def __iter__(self) -> Iterator[SampleBlock]:
         self.samples_read = 0
         total = 0
+        head: list[np.ndarray] | None = []  # the first time stamps, until they are checked
         for block in self._blocks():
+            if head is not None:
+                head.append(block.t[:RATE_CHECK_SAMPLES])
+                if sum(map(len, head)) >= RATE_CHECK_SAMPLES:
+                    self._check_time_stamps(np.concatenate(head))
+                    head = None
             total += len(block)
             self.samples_read = total
             yield block
         if total == 0:
             raise LogError(self.path, "empty log: no samples")
+        if head is not None:
+            self._check_time_stamps(np.concatenate(head))
+
+    def _check_time_stamps(self, t: np.ndarray) -> None:
+        """LogError when the rate of the first time stamps ``t`` (s) is not an IMU's: a t
+        column in ms read as seconds (0.2 Hz for 200 Hz) is named with its likely unit."""
+        options = getattr(self, "options", None)
+        unit = getattr(options, "time_unit", None) or "s"
+        problem = time_unit_problem(t, unit, self.time_unit_option)
+        if problem:
+            raise LogError(self.path, problem)
 
     def _blocks(self) -> Iterator[SampleBlock]:
         raise NotImplementedError
@@ -240,6 +261,17 @@ def format_float(values: np.ndarray) -> list[str]:
     return list(map(repr, values.tolist()))
 
 
+def units_text(units: Any) -> Any:
+    """The units metadata as logs write it (docs/spec/sample-log.md): ``{"gyro": "rad/s",
+    "accel": "m/s^2"}`` -> ``gyro=rad/s accel=m/s^2``; text is kept as it is."""
+    if not isinstance(units, dict):
+        return units
+    order = [k for k in ("gyro", "accel") if k in units] + sorted(
+        k for k in units if k not in ("gyro", "accel")
+    )
+    return " ".join(f"{k}={units[k]}" for k in order)
+
+
 class LogWriter:
     """Writes blocks to a new log; the file appears under its name on :meth:`close`.
 
@@ -253,6 +285,8 @@ class LogWriter:
     def __init__(self, path: str | Path, meta: dict[str, Any] | None = None) -> None:
         self.path = str(path)
         self.meta = dict(meta or {})
+        if "units" in self.meta:
+            self.meta["units"] = units_text(self.meta["units"])
         self.samples_written = 0
         self._part_path: str | None = None  # the unique temporary, made on first use
         self._columns: list[str] | None = None

@@ -40,6 +40,8 @@ from .base import (
 class CsvReader(LogReader):
     """Streaming reader of ``.csv`` and ``.csv.gz`` logs (parsing vectorised per block)."""
 
+    time_unit_option = True  #: --time-unit reads its t column in ms, us, ns
+
     def __init__(self, path: str | Path, block_size: int = DEFAULT_BLOCK_SIZE) -> None:
         super().__init__(path, block_size)
         self.gzip = self.path.lower().endswith(".gz")

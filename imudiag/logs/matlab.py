@@ -27,6 +27,8 @@ V73_TEXT = b"MATLAB 7.3 MAT-file"
 class MatReader(ColumnsReader):
     """Reader of a numeric matrix in a MATLAB ``.mat`` file."""
 
+    time_unit_option = True  #: --time-unit reads its t column in ms, us, ns
+
     format = ".mat"
 
     def __init__(

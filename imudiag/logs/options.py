@@ -14,13 +14,12 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..argtypes import nonnegative_int, positive_float
+from ..argtypes import nonnegative_int, rate_problem, sample_rate
 from ..errors import BadInput
 from ..units import canonical, units_of
 from .base import OPTIONAL_COLUMNS, REQUIRED_COLUMNS
+from .timing import TIME_UNITS
 
-#: Seconds per unit of ``t``.
-TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 #: Units a log's outputs may be stated in, per triad (``count`` is raw ADC output; the
 #: physical ones convert exactly to a certificate's, imudiag.units).
 GYRO_UNITS = units_of("gyro")
@@ -124,13 +123,17 @@ def parse_time_unit(text: str, where: str = "--time-unit") -> str:
 
 
 def parse_rate(value: Any, where: str = "--rate") -> float:
-    """A sample rate in Hz, finite and > 0; raises BadInput."""
+    """A sample rate in Hz, finite and an IMU's (:func:`imudiag.argtypes.rate_problem`);
+    raises BadInput."""
     try:
         rate = float(value)
     except (TypeError, ValueError):
         raise BadInput(f"{where}: expected a rate in Hz, got {value!r}") from None
     if not (rate > 0 and math.isfinite(rate)):
         raise BadInput(f"{where}: must be a finite rate > 0 Hz, got {value!r}")
+    problem = rate_problem(rate)
+    if problem:
+        raise BadInput(f"{where}: {problem}")
     return rate
 
 
@@ -176,7 +179,7 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
     if "--rate" not in parser._option_string_actions:
         g.add_argument(
             "--rate",
-            type=positive_float("Hz"),
+            type=sample_rate,
             metavar="HZ",
             help="sample rate of a log without a t column (Hz)",
         )

@@ -66,6 +66,8 @@ def _as_table(obj: Any) -> _Table | None:
 class RDataReader(ColumnsReader):
     """Reader of a data.frame or numeric matrix in an R ``.rda`` / ``.RData`` / ``.rds`` file."""
 
+    time_unit_option = True  #: --time-unit reads its t column in ms, us, ns
+
     format = "rdata"
 
     def __init__(

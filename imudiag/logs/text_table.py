@@ -83,6 +83,8 @@ def _is_number(text: str) -> bool:
 class TextTableReader(LogReader):
     """Streaming reader of delimited text tables, with column names, time unit and rate."""
 
+    time_unit_option = True  #: --time-unit reads its t column in ms, us, ns
+
     format = "text"
 
     def __init__(

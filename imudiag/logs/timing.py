@@ -11,6 +11,67 @@ from typing import Any
 
 import numpy as np
 
+from ..argtypes import MAX_RATE_HZ, MIN_RATE_HZ, rate_problem
+
+#: Seconds per unit of ``t`` (``--time-unit``).
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+#: Largest relative difference between a stated rate (``--rate``, a log's ``sample_rate``)
+#: and the rate of the log's time stamps (1 / median step) taken as agreement: 5 %, wider
+#: than any crystal's error (50 ppm) and a host's jitter on the median step, narrower than
+#: any confusion of rates (200 vs 250 Hz is 25 %).
+RATE_TOLERANCE = 0.05
+#: Time stamps the rate checks look at, from the start of a log.
+RATE_CHECK_SAMPLES = 256
+
+
+def step_rate_hz(t: np.ndarray) -> float:
+    """1 / the median positive step of ``t`` (s), Hz; nan with no positive step."""
+    dt = np.diff(np.asarray(t, dtype=float))
+    dt = dt[dt > 0]
+    return 1.0 / float(np.median(dt)) if dt.size else math.nan
+
+
+def time_unit_problem(t: np.ndarray, unit: str = "s", option: bool = True) -> str | None:
+    """Why the time stamps ``t`` (s, read from a column in ``unit``) cannot be an IMU's,
+    naming the unit the column is likely in, or None when their rate is plausible.
+    ``option``: the format takes ``--time-unit`` (a text table, CSV, MATLAB, R)."""
+    rate = step_rate_hz(t)
+    if not math.isfinite(rate) or rate_problem(rate) is None:
+        return None
+    step = 1.0 / rate / TIME_UNITS[unit]  # the median step in the column's own unit
+    text = (
+        f"t steps by a median {step:.6g} {unit} per sample, {rate:.6g} Hz, not an IMU's "
+        f"sample rate ({MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} Hz)"
+    )
+    likely = {
+        u: rate * TIME_UNITS[unit] / scale
+        for u, scale in TIME_UNITS.items()
+        if u != unit and rate_problem(rate * TIME_UNITS[unit] / scale) is None
+    }
+    if not likely:
+        return text
+    readings = " or ".join(f"in {u} ({r:.6g} Hz)" for u, r in likely.items())
+    advice = (
+        f"give --time-unit {next(iter(likely))}"
+        if option and len(likely) == 1
+        else ("give --time-unit with the unit of t" if option else "the log's clock is wrong")
+    )
+    return f"{text}; it is likely {readings}: {advice}"
+
+
+def stated_rate_problem(stated_hz: float, t: np.ndarray, what: str = "--rate") -> str | None:
+    """Why the rate ``stated_hz`` (named ``what``) disagrees with the time stamps ``t`` (s)
+    by more than :data:`RATE_TOLERANCE`, giving both figures, or None when they agree (or
+    ``t`` has no positive step)."""
+    rate = step_rate_hz(t)
+    if not math.isfinite(rate) or abs(stated_hz - rate) <= RATE_TOLERANCE * rate:
+        return None
+    return (
+        f"{what} {stated_hz:g} Hz disagrees with the log's time stamps ({rate:.6g} Hz, median "
+        f"step {1e3 / rate:.6g} ms) by {abs(stated_hz / rate - 1) * 100:.3g} %, more than "
+        f"{RATE_TOLERANCE * 100:g} %: leave {what} out to use the time stamps"
+    )
+
 
 @dataclass
 class TimingReport:
@@ -87,6 +148,6 @@ def timing_report(t: np.ndarray, meta: dict[str, Any] | None = None) -> TimingRe
                 f"metadata sample_rate {meta['sample_rate']!r} is not a number; "
                 "the rate estimated from t is used"
             )
-        elif math.isfinite(rate) and abs(stated - rate) > 0.05 * rate:
+        elif math.isfinite(rate) and abs(stated - rate) > RATE_TOLERANCE * rate:
             report.note = f"metadata sample_rate {stated:g} Hz disagrees with t ({rate:.6g} Hz)"
     return report

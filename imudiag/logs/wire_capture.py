@@ -99,7 +99,7 @@ class BinWriter(LogWriter):
     if any, is written first as a device-info frame (its JSON must fit the
     frame: at most 249 bytes), with the seq just before the first sample's.
     ``seq`` is taken from the blocks when present (gaps kept; it reads back
-    modulo 65536, unwrapped from the first frame), otherwise counted from 1.
+    from the first sample's 16-bit value, unwrapped), otherwise counted from 1.
     The decoder always yields flags (0 where the blocks had none). Blocks without
     temperature are written with ``"temperature": false`` in the device-info
     frame and read back without temperature (the frames' temp field is 0).

@@ -152,6 +152,11 @@ def _f0_figure(trace: DiagnosisTrace) -> Any:
         if tr.check == "f0":
             ax.set_yscale("log")  # F0 of a good unit is orders of magnitude below its limit
             vp, vf = np.maximum(np.abs(vp), floor), np.maximum(np.abs(vf), floor)
+        if tp.size + tf.size == 0:
+            # no point: the limit line alone spans no height, and matplotlib warns of
+            # identical low and high y limits when it scales to it: a range around it, set
+            # before anything is drawn (which would ask for that scaling)
+            ax.set_ylim(*((floor, 10 * tr.limit) if tr.check == "f0" else (0, 2 * tr.limit)))
         ax.plot(_time(tp, trace.t0), vp, ".", ms=2, color="tab:blue",
                 label=f"passed ({tr.passed.seen} checks)")  # fmt: skip
         if tf.size:
@@ -159,7 +164,7 @@ def _f0_figure(trace: DiagnosisTrace) -> Any:
                     label=f"failed ({tr.failed.seen} checks)")  # fmt: skip
         ax.axhline(tr.limit, color="tab:red", ls="--", lw=1.2, label=f"limit {tr.limit:g}")
         if tr.checks == 0:
-            ax.text(0.5, 0.5, "no check applied (the unit was never still long enough)",
+            ax.text(0.5, 0.35, "no check applied (the unit was never still long enough)",
                     ha="center", va="center", transform=ax.transAxes)  # fmt: skip
         title = f"{name}: {what}"
         if thin > 1:

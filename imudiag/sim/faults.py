@@ -109,6 +109,8 @@ def parse_fault(text: str) -> Fault:
         value = float(parts[3]) if len(parts) == 4 else None
     except ValueError:
         raise ValueError(f"fault {text!r}: time and value must be numbers") from None
+    if t_s < 0:
+        raise ValueError(f"fault {text!r}: the time must be >= 0 s (from the session's start)")
     try:
         return Fault(kind, sensor, t_s, value)
     except ValueError as exc:

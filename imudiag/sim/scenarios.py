@@ -89,6 +89,43 @@ _PARAMS: dict[str, tuple[str, ...]] = {
 }
 
 
+#: Bounds of the numeric scenario parameters: (lowest, highest, lowest allowed itself, unit);
+#: times and lengths are never negative, a latitude lies within +-90 deg. Others (angles,
+#: turn rates, slip) take any finite number.
+_BOUNDS: dict[str, tuple[float, float, bool, str]] = {
+    "latitude": (-90.0, 90.0, True, "deg"),
+    "dwell": (0.0, math.inf, True, "s"),
+    "first_dwell": (0.0, math.inf, True, "s"),
+    "turn": (0.0, math.inf, False, "s"),
+    "ramp": (0.0, math.inf, True, "s"),
+    "length": (0.0, math.inf, False, "s"),
+    "still": (0.0, math.inf, True, "s"),
+    "accel": (0.0, math.inf, False, "s"),
+    "speed": (0.0, math.inf, True, "m/s"),
+    "cruise": (0.0, math.inf, True, "s"),
+    "final": (0.0, math.inf, True, "s"),
+}
+#: Parameters that are whole numbers: (lowest, highest).
+_INTEGERS: dict[str, tuple[int, int]] = {"n": (1, 10**6), "loop": (0, 1)}
+
+
+def _check_bounds(sc: str, key: str, v: float) -> None:
+    """ValueError when the value ``v`` of parameter ``key`` is outside its bounds."""
+    if key in _INTEGERS:
+        lo_i, hi_i = _INTEGERS[key]
+        if v != int(v) or not lo_i <= v <= hi_i:
+            raise ValueError(
+                f"scenario {sc}: {key} must be a whole number {lo_i}..{hi_i}, got {v:g}"
+            )
+    elif key in _BOUNDS:
+        lo, hi, closed, unit = _BOUNDS[key]
+        if not (lo <= v if closed else lo < v) or v > hi:
+            what = f">= {lo:g}" if closed else f"> {lo:g}"
+            if math.isfinite(hi):
+                what = f"{lo:g} to {hi:g}"
+            raise ValueError(f"scenario {sc}: {key} must be {what} {unit}, got {v:g} {unit}")
+
+
 def scenario_names() -> tuple[str, ...]:
     """Every scenario name (``default`` is an alias of ``static``)."""
     return SCENARIOS
@@ -132,6 +169,7 @@ def scenario_motion(name: str, seed: int = 0, params: Mapping[str, str] | None =
             ) from None
         if not math.isfinite(v):
             raise ValueError(f"scenario {sc}: {key} must be finite, got {params[key]!r}")
+        _check_bounds(sc, key, v)
         return v
 
     if sc in DRIVES:

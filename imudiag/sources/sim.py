@@ -41,6 +41,7 @@ import time
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
+from imudiag.argtypes import rate_problem
 from imudiag.certificate import Certificate, load_default
 from imudiag.drivers.base import EndOfStream, SourceError, SourceURL, register
 from imudiag.drivers.bytesource import ByteSource
@@ -88,8 +89,8 @@ class SimSource(ByteSource):
         cert = options.get("certificate")
         self.certificate: Certificate = cert if cert is not None else load_default()
         rate = float(url.get("rate", self.certificate.sample_rate, float))
-        if not (rate > 0 and math.isfinite(rate)):
-            raise SourceError(f"{url.url}: bad value for 'rate': {rate}")
+        if not (rate > 0 and math.isfinite(rate)) or rate_problem(rate):
+            raise SourceError(f"{url.url}: bad value for 'rate': {rate_problem(rate) or rate}")
         scen_params = {k: v[-1] for k, v in lists.items() if k not in _OWN_KEYS}
         try:
             motion = scenario_motion(self.scenario, self.seed, scen_params)
