@@ -16,6 +16,7 @@ from .diagnosis.config import DiagnosisConfig
 from .diagnosis.inputs import MagnitudeTable
 from .diagnosis.session import (
     DEFAULT_BLOCK_SIZE,
+    ProgressCallback,
     Recording,
     calibrate_recording,
     diagnose_recording,
@@ -57,6 +58,7 @@ def diagnose(
     log_options: LogOptions | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
     windows: bool = True,
+    progress: ProgressCallback | None = None,
 ) -> dict[str, Any]:
     """Diagnose a recording against a certificate: the report of ``imudiag diagnose --json``.
 
@@ -78,6 +80,7 @@ def diagnose(
         options=log_options,
         block_size=block_size,
         windows=windows,
+        progress=progress,
     )
 
 
