@@ -29,8 +29,8 @@ from ..sim.simulator import Simulator
 
 #: Formats the flights are written in, in turn.
 FORMATS = (".csv", ".npz", ".csv.gz", ".bin")
-#: Flight types: scenario, share of the flights.
-FLIGHT_TYPES = (("multiposition", 0.75), ("static", 0.25))
+#: Flight types in turn: three pre-flight multi-position checks, then a static cycle.
+FLIGHT_TYPES = ("multiposition", "multiposition", "multiposition", "static")
 #: Parameters that drift on a drifting unit, in turn: (triad, sensor, cause).
 DRIFTS = (("accel", "az", "bias"), ("gyro", "gy", "bias"), ("accel", "ax", "scale_factor"))
 #: A drifting parameter's offset on the first and the last flight, in limits.
@@ -176,7 +176,7 @@ def simulate_fleet(
         }
         when = EPOCH + dt.timedelta(hours=float(rng.uniform(0, 48)))
         for k in range(flights):
-            kind = "multiposition" if rng.uniform() < FLIGHT_TYPES[0][1] else "static"
+            kind = FLIGHT_TYPES[k % len(FLIGHT_TYPES)]
             fmt = FORMATS[(v + k) % len(FORMATS)]
             faults = [
                 f

@@ -1,0 +1,238 @@
+"""imudiag fleet (issue 28, docs/fleet.md): a small simulated fleet of short logs diagnosed
+on a real two-worker Dask LocalCluster; every drifting unit ranked with its parameter, no
+steady unit; every corrupt file a row with its reason; a real ``imudiag fleet`` killed
+after its first records resumes to the same table; the report opened in real headless
+Chromium."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import PROJECT_DIR
+
+from imudiag.certificate import default_certificate_path
+from imudiag.fleet.records import RECORDS, read_records
+from imudiag.fleet.simulate import simulate_fleet
+from imudiag.reports import FLEET_FORMAT
+
+pytest.importorskip("dask.distributed", reason="the fleet extra (dask[distributed]) is needed")
+pytest.importorskip("pyarrow", reason="the fleet extra (pyarrow) is needed")
+
+VEHICLES, FLIGHTS = 4, 4
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    """4 vehicles x 4 flights of 30-36 s, two of them drifting, 3 corrupt files; the bundled
+    certificate in one vehicle's folder and a map naming another's."""
+    root = tmp_path_factory.mktemp("fleet") / "flights"
+    truth = simulate_fleet(root, VEHICLES, FLIGHTS, seed=11, drifting=2, seconds=(30.0, 36.0))
+    shutil.copy(default_certificate_path(), root / "unit-02" / "certificate.yaml")
+    named = truth["vehicles"][2]["vehicle"]
+    (root / "map.yaml").write_text(f"{named}: {default_certificate_path()}\n")
+    return root, truth
+
+
+@pytest.fixture(scope="module")
+def two_workers(fleet: tuple[Path, dict], tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The fleet run by the library on a real LocalCluster of two worker processes."""
+    import imudiag.fleet
+
+    root, _ = fleet
+    out = tmp_path_factory.mktemp("out")
+    records = imudiag.fleet.run(
+        [str(root)], out, workers=2, certificates=str(root / "map.yaml"), timeout_s=300
+    )
+    assert len(records) == len(read_records(out))
+    return out
+
+
+def test_two_worker_cluster_ranks_the_drifting_units(
+    fleet: tuple[Path, dict], two_workers: Path
+) -> None:
+    root, truth = fleet
+    summary = json.loads((two_workers / "fleet.json").read_text())
+    assert (summary["class"], summary["format"]) == ("FLEET", FLEET_FORMAT)
+    records = read_records(two_workers)
+    assert len({r["worker_pid"] for r in records if "worker_pid" in r}) == 2  # both worked
+    by_name = {v["vehicle"]: v for v in summary["vehicles"]}
+    assert set(by_name) == {v["vehicle"] for v in truth["vehicles"]}
+    drifting = {v["vehicle"]: v["drifting"] for v in truth["vehicles"] if v["drifting"]}
+    assert len(drifting) == 2
+    assert set(summary["look_at"]) == set(drifting)  # every drifting unit, no steady one
+    for name, drift in drifting.items():
+        v = by_name[name]
+        assert v["look_at"] is True
+        top = v["reasons"][0]
+        assert (top["triad"], top["sensor"], top["cause"]) == (
+            drift["triad"],
+            drift["sensor"],
+            drift["cause"],
+        )
+        assert [(r["sensor"], r["cause"]) for r in v["reasons"]] == [
+            (drift["sensor"], drift["cause"])
+        ]
+        assert top["unit"] == drift["unit"]
+        # the sign and size of the drift per log: the simulated step is within 3 std
+        step = drift["offsets"][1] - drift["offsets"][0]
+        assert abs(top["slope"]["per_log"] - step) < 3 * top["slope_std"]["per_log"]
+        assert top["slope"]["per_day"] is not None and top["slope_std"]["per_day"] > 0
+        # the simulated offsets pass the limit between two flights; the first flagged
+        # flight is the first whose offset is beyond it
+        first = next(k for k, o in enumerate(drift["offsets"]) if abs(o) > drift["limit"])
+        assert top["crosses_limit_index"] in (first, first + 1)
+    for v in summary["vehicles"]:
+        assert v["logs"] >= FLIGHTS
+        if v["vehicle"] not in drifting:
+            assert v["look_at"] is False and v["reasons"] == []
+
+
+def test_every_corrupt_file_is_a_row_with_its_reason(
+    fleet: tuple[Path, dict], two_workers: Path
+) -> None:
+    root, truth = fleet
+    records = {Path(r["path"]).relative_to(root).as_posix(): r for r in read_records(two_workers)}
+    corrupt = {c["path"] for c in truth["corrupt"]}
+    assert len(corrupt) == 3
+    errors = {k for k, r in records.items() if r["status"] == "error"}
+    assert errors == corrupt
+    for path in corrupt:
+        reason = records[path]["reason"]
+        assert path.split("/")[-1] in reason and len(reason) > 20
+    summary = json.loads((two_workers / "fleet.json").read_text())
+    assert sorted(Path(e["path"]).name for e in summary["errors"]) == sorted(
+        Path(p).name for p in corrupt
+    )
+    flights = sum(len(v["flights"]) for v in truth["vehicles"])
+    assert summary["logs"] == flights + 3 and summary["ok"] == flights
+
+
+def test_records_carry_the_contract(fleet: tuple[Path, dict], two_workers: Path) -> None:
+    root, truth = fleet
+    import pyarrow.parquet as pq
+
+    records = read_records(two_workers)
+    for r in records:
+        for key in ("path", "vehicle", "start", "status", "reason"):
+            assert key in r
+        if r["status"] == "ok":
+            assert r["report"]["class"] == "DIAGNOSIS" and r["reason"] is None
+            assert r["start"].startswith("2026-")
+    sources = {
+        Path(r["path"]).parent.name: r["certificate_source"] for r in records if r["status"] == "ok"
+    }
+    assert sources["unit-02"] == "certificate.yaml in the vehicle's folder"
+    assert sources["unit-03"].startswith("--certificates ")
+    assert sources["unit-01"].startswith("bundled")
+    named = {r["vehicle_source"] for r in records if r["status"] == "ok"}
+    assert named == {"log metadata 'vehicle'", "folder name (the log names no vehicle)"}
+    table = pq.read_table(two_workers / "logs.parquet")
+    assert table.num_rows == len(records)
+    assert sorted(table.column("path").to_pylist()) == sorted(r["path"] for r in records)
+
+
+class DirectoryWatch:
+    """Linux inotify on a folder: :meth:`wait` returns when a file in it is created, written
+    or closed (or after ``bound_s``, so the caller can look at its process again)."""
+
+    IN_MODIFY, IN_CLOSE_WRITE, IN_CREATE = 0x2, 0x8, 0x100
+
+    def __init__(self, folder: Path) -> None:
+        import ctypes
+
+        self.libc = ctypes.CDLL(None, use_errno=True)
+        self.fd = self.libc.inotify_init1(os.O_NONBLOCK | os.O_CLOEXEC)
+        if self.fd < 0:
+            pytest.skip("no inotify on this system")
+        mask = self.IN_MODIFY | self.IN_CLOSE_WRITE | self.IN_CREATE
+        if self.libc.inotify_add_watch(self.fd, str(folder).encode(), mask) < 0:
+            raise OSError(ctypes.get_errno(), f"inotify_add_watch {folder}")
+
+    def wait(self, bound_s: float = 2.0) -> None:
+        import select
+
+        ready, _, _ = select.select([self.fd], [], [], bound_s)
+        if ready:
+            try:
+                os.read(self.fd, 65536)
+            except BlockingIOError:
+                pass
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
+def _lines(path: Path) -> int:
+    try:
+        return path.read_bytes().count(b"\n")
+    except FileNotFoundError:
+        return 0
+
+
+def test_a_killed_run_resumes_to_the_same_table(
+    fleet: tuple[Path, dict], two_workers: Path, tmp_path: Path
+) -> None:
+    """A real ``imudiag fleet`` killed (SIGKILL to its process group: the command, the
+    Dask scheduler in it, the nannies and workers) once its first records are on disk; the
+    same command again skips what was recorded and ends with the table of the clean run."""
+    root, _ = fleet
+    out = tmp_path / "out"
+    out.mkdir()
+    cmd = [sys.executable, "-m", "imudiag", "fleet", str(root), "--out", str(out)]
+    cmd += ["--workers", "1", "--certificates", str(root / "map.yaml"), "--quiet"]
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen(
+        cmd,
+        cwd=PROJECT_DIR,
+        env=env,
+        start_new_session=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    watch = DirectoryWatch(out)  # wait on the folder's changes, not on a clock
+    try:
+        while _lines(out / RECORDS) < 2 and proc.poll() is None:
+            watch.wait()
+        assert proc.poll() is None, proc.communicate()
+    finally:
+        watch.close()
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    first = read_records(out)
+    total = len(read_records(two_workers))
+    assert 2 <= len(first) < total
+    assert not (out / "fleet.json").exists()
+    resumed = subprocess.run(
+        cmd, cwd=PROJECT_DIR, env=env, capture_output=True, text=True, timeout=600, check=False
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    again = read_records(out)
+    clean = {r["sha256"]: r for r in read_records(two_workers)}
+    assert sorted(r["sha256"] for r in again) == sorted(clean)
+    assert {r["sha256"] for r in first} <= {r["sha256"] for r in again}
+    for r in again:
+        c = clean[r["sha256"]]
+        assert (r["path"], r["vehicle"], r["status"], r["reason"]) == (
+            c["path"],
+            c["vehicle"],
+            c["status"],
+            c["reason"],
+        )
+        assert r.get("parameters") == c.get("parameters")
+    s1 = json.loads((out / "fleet.json").read_text())
+    s2 = json.loads((two_workers / "fleet.json").read_text())
+    assert s1["look_at"] == s2["look_at"] and s1["errors"] == s2["errors"]
+    # once more: everything is recorded, nothing runs, the summary is rebuilt the same
+    third = subprocess.run(
+        cmd, cwd=PROJECT_DIR, env=env, capture_output=True, text=True, timeout=600, check=False
+    )
+    assert third.returncode == 0, third.stderr
+    assert _lines(out / RECORDS) == len(again)
+    assert json.loads((out / "fleet.json").read_text())["vehicles"] == s1["vehicles"]
