@@ -15,11 +15,12 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import PROJECT_DIR
+from conftest import PROJECT_DIR, run_imudiag_without
 
 from imudiag.certificate import default_certificate_path
 from imudiag.fleet.records import RECORDS, read_records
 from imudiag.fleet.simulate import simulate_fleet
+from imudiag.fleet.task import Job, diagnose_log
 from imudiag.reports import FLEET_FORMAT
 
 pytest.importorskip("dask.distributed", reason="the fleet extra (dask[distributed]) is needed")
@@ -236,3 +237,100 @@ def test_a_killed_run_resumes_to_the_same_table(
     assert third.returncode == 0, third.stderr
     assert _lines(out / RECORDS) == len(again)
     assert json.loads((out / "fleet.json").read_text())["vehicles"] == s1["vehicles"]
+
+
+CHROMIUM, CHROMEDRIVER = shutil.which("chromium"), shutil.which("chromedriver")
+
+
+def test_the_report_renders_in_headless_chromium(
+    fleet: tuple[Path, dict], two_workers: Path, tmp_path: Path
+) -> None:
+    """report.html opened in real headless Chromium (Debian's chromium and chromium-driver,
+    installed by .ci/run) through Selenium: the fleet table and the ranked list render, the
+    trend figures have a size, the console has no error, and nothing outside the file is
+    fetched (every host name resolves to nothing, so a fetch would be a console error)."""
+    if not (CHROMIUM and CHROMEDRIVER):
+        pytest.skip(
+            "no chromium + chromedriver on this machine (Debian: apt-get install "
+            "chromium chromium-driver; .ci/run does it as root)"
+        )
+    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium (test extra)")
+    from selenium.webdriver.chrome.service import Service
+    from selenium.webdriver.common.by import By
+
+    summary = json.loads((two_workers / "fleet.json").read_text())
+    html = (two_workers / "report.html").read_text()
+    for outside in ("src=", 'href="http', "@import", "url(", "<script", "<link"):
+        assert outside not in html
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = CHROMIUM
+    for flag in (
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        f"--user-data-dir={tmp_path / 'profile'}",
+        "--host-resolver-rules=MAP * ~NOTFOUND",
+    ):
+        opts.add_argument(flag)
+    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    os.environ.setdefault("SE_OFFLINE", "true")  # Selenium Manager: never download a driver
+    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
+    try:
+        driver.get((two_workers / "report.html").as_uri())
+        assert driver.title == "imudiag fleet report"
+        rows = driver.find_elements(By.CSS_SELECTOR, "#fleet tbody tr")
+        assert len(rows) == len(summary["vehicles"])
+        assert [r.find_element(By.TAG_NAME, "td").text for r in rows] == [
+            v["vehicle"] for v in summary["vehicles"]
+        ]
+        ranked = driver.find_elements(By.CSS_SELECTOR, "#look-at li")
+        assert [li.text.split(":")[0] for li in ranked] == summary["look_at"]
+        logs = driver.find_elements(By.CSS_SELECTOR, "#logs tbody tr")
+        assert len(logs) == summary["logs"]
+        figures = driver.find_elements(By.CSS_SELECTOR, "figure svg")
+        assert figures and all(f.size["width"] > 100 and f.size["height"] > 100 for f in figures)
+        errors = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "WARNING")]
+        assert errors == []
+    finally:
+        driver.quit()
+
+
+def test_without_the_extra_the_command_names_it(tmp_path: Path) -> None:
+    r = run_imudiag_without("distributed", "fleet", str(tmp_path), "--out", str(tmp_path / "o"))
+    assert r.returncode == 2
+    assert "pip install 'imudiag[fleet]'" in r.stderr and len(r.stderr.splitlines()) == 1
+
+
+def _job(path: Path, **kw: object) -> Job:
+    from imudiag.fleet.discovery import describe
+
+    info = describe(path)
+    return Job(info.path, info.sha256, info.size, info.mtime_ns, str(path.parent), **kw)
+
+
+def test_the_task_uses_the_certificate_given_and_stops_at_its_timeout(
+    fleet: tuple[Path, dict], tmp_path: Path
+) -> None:
+    """The per-log task alone (no Dask): ``--certificate`` wins over the folder's
+    certificate.yaml and is in the record; a timeout makes an error row with the reason."""
+    root, _ = fleet
+    log = next((root / "unit-02").glob("flight-001.*"))
+    cert = tmp_path / "mine.yaml"
+    shutil.copy(default_certificate_path(), cert)
+    rec = diagnose_log(_job(log, certificate=str(cert)))
+    assert rec["status"] == "ok" and rec["certificate_source"] == "--certificate"
+    assert rec["certificate"] == str(cert)
+    assert rec["certificate_sha256"] and rec["parameters"]
+    assert "windows" not in rec["report"]
+    rec = diagnose_log(_job(log))
+    assert rec["certificate_source"] == "certificate.yaml in the vehicle's folder"
+    late = diagnose_log(_job(log, timeout_s=1e-9))
+    assert late["status"] == "error" and late["reason"].startswith("timeout: ")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("accel: [1, 2\n")
+    rec = diagnose_log(_job(log, certificate=str(bad)))
+    assert rec["status"] == "error" and rec["reason"].startswith("loading the certificate: ")

@@ -194,7 +194,11 @@ def run(
         if p.is_dir():
             roots[str(p.absolute())] = p.absolute()
     previous = [] if redo else read_records(outdir)
-    known = {(r["path"], r.get("size"), r.get("mtime_ns")): r["sha256"] for r in previous}
+    known: dict[tuple[str, int, int], str] = {
+        (r["path"], r["size"], r["mtime_ns"]): r["sha256"]
+        for r in previous
+        if isinstance(r.get("size"), int) and isinstance(r.get("mtime_ns"), int)
+    }
     done = {r["sha256"] for r in previous}
     jobs: list[Job] = []
     queued: set[str] = set()

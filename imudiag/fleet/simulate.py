@@ -151,7 +151,7 @@ def simulate_fleet(
             for s in sensors:
                 lim = _limit(cert, triad, s, "bias")
                 steady.append(Fault("bias", s, 0.0, float(rng.uniform(-STEADY, STEADY) * lim)))
-        drift = None
+        drift: dict[str, Any] | None = None
         if v in drift_units:
             triad, sensor, cause = DRIFTS[sorted(drift_units).index(v) % len(DRIFTS)]
             lim = _limit(cert, triad, sensor, cause)
