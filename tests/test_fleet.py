@@ -43,14 +43,25 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
 
 @pytest.fixture(scope="module")
 def two_workers(fleet: tuple[Path, dict], tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The fleet run by the library on a real LocalCluster of two worker processes."""
+    """The fleet run by the library on a real LocalCluster of two worker processes, reached
+    through its scheduler's address as an existing cluster is (``--scheduler``; the
+    command's own LocalCluster runs in the resume test)."""
+    from dask.distributed import LocalCluster
+
     import imudiag.fleet
 
     root, _ = fleet
     out = tmp_path_factory.mktemp("out")
-    records = imudiag.fleet.run(
-        [str(root)], out, workers=2, certificates=str(root / "map.yaml"), timeout_s=300
-    )
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster:
+        records = imudiag.fleet.run(
+            [str(root)],
+            out,
+            scheduler=cluster.scheduler_address,
+            certificates=str(root / "map.yaml"),
+            timeout_s=300,
+        )
     assert len(records) == len(read_records(out))
     return out
 
@@ -334,3 +345,39 @@ def test_the_task_uses_the_certificate_given_and_stops_at_its_timeout(
     bad.write_text("accel: [1, 2\n")
     rec = diagnose_log(_job(log, certificate=str(bad)))
     assert rec["status"] == "error" and rec["reason"].startswith("loading the certificate: ")
+
+
+def test_a_drive_with_its_gnss_beside_gets_the_moving_base_diagnosis(tmp_path: Path) -> None:
+    """A simulated urban drive with its GNSS stream as ``LOG.gnss``: the record's report
+    carries the moving-base section equal to ``imudiag diagnose LOG --gnss GNSS``'s, its
+    start is the first sample's UTC time, and its vehicle is its folder (said so)."""
+    from conftest import run_imudiag
+
+    log = tmp_path / "car-7" / "drive.npz"
+    log.parent.mkdir()
+    gnss = Path(f"{log}.gnss")
+    r = run_imudiag(
+        "simulate",
+        "urban",
+        "--param",
+        "length=120",
+        "--seed",
+        "4",
+        "--out",
+        str(log),
+        "--gnss",
+        str(gnss),
+        "-q",
+    )
+    assert r.returncode == 0, r.stderr
+    rec = diagnose_log(_job(log))
+    assert rec["status"] == "ok" and rec["gnss"] == str(gnss)
+    assert (rec["vehicle"], rec["vehicle_source"]) == (
+        "car-7",
+        "folder name (the log names no vehicle)",
+    )
+    assert rec["start"] == "2026-01-01T00:00:00+00:00"
+    out = tmp_path / "report.json"
+    r = run_imudiag("diagnose", str(log), "--gnss", str(gnss), "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    assert rec["report"]["moving_base"] == json.loads(out.read_text())["moving_base"]

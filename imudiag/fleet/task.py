@@ -23,6 +23,10 @@ from ..errors import ImudiagError
 FOLDER_CERTIFICATES = ("certificate.yaml", "certificate.yml")
 #: Triads and parameter kinds of a diagnosis report's windows, in order.
 TRIADS = ("accel", "gyro")
+#: A log's GNSS stream sits beside it as ``LOG.gnss`` or ``LOG.gnss.gz`` (a ``gpspipe -w``
+#: log in UTC Unix time, as ``imudiag simulate --gnss`` writes): the record's report then
+#: carries the moving-base diagnosis (``moving_base``), as ``imudiag diagnose --gnss``.
+GNSS_SUFFIXES = (".gnss", ".gnss.gz")
 #: Report keys left out of a record (the per-window estimates: the record keeps each
 #: parameter's best-determined window instead).
 DROPPED_REPORT_KEYS = ("windows",)
@@ -133,6 +137,31 @@ def best_estimates(report: dict[str, Any], cert: Any) -> list[dict[str, Any]]:
     return out
 
 
+def gnss_beside(path: str | Path) -> Path | None:
+    """The GNSS stream recorded beside a log (:data:`GNSS_SUFFIXES`), or None."""
+    for suffix in GNSS_SUFFIXES:
+        candidate = Path(f"{path}{suffix}")
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def moving_base(path: str, gnss: Path, cert: Any, rate_hz: float) -> dict[str, Any]:
+    """The moving-base section of ``imudiag diagnose LOG --gnss GNSS`` with its defaults:
+    the command's own parser and code, nothing copied."""
+    import argparse
+
+    from ..commands.gnss import add_gnss_arguments, moving_base_section
+    from ..logs import open_log
+
+    parser = argparse.ArgumentParser(add_help=False)
+    add_gnss_arguments(parser)
+    args = parser.parse_args(["--gnss", str(gnss)])
+    with open_log(path) as reader:
+        blocks = list(reader)
+    return moving_base_section(args, blocks, cert, rate_hz)
+
+
 def _peek(path: str) -> tuple[str, dict[str, Any], float | None]:
     """The log's format name, metadata and first sample time (s), reading one block."""
     from ..logs import log_format, open_log
@@ -213,6 +242,11 @@ def diagnose_log(job: Job) -> dict[str, Any]:
                 )
 
         report = diagnose(job.path, cert, config=job.config or None, progress=watch)
+        gnss = gnss_beside(job.path)
+        if gnss is not None:
+            stage = f"the moving-base diagnosis with {gnss.name}"
+            report["moving_base"] = moving_base(job.path, gnss, cert, report["sample_rate"])
+        record["gnss"] = str(gnss) if gnss else None
         record["parameters"] = best_estimates(report, cert)
         for key in DROPPED_REPORT_KEYS:
             report.pop(key, None)
