@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -94,6 +95,9 @@ def _client(
             finally:
                 client.close()
             return
+        # the scheduler always serves /health on 8787 (the dashboard stays off unless asked
+        # for); another cluster on the machine moves it to a free port: not worth a warning
+        warnings.filterwarnings("ignore", message="Port 8787 is already in use")
         cluster = LocalCluster(
             n_workers=workers or os.cpu_count() or 1,
             threads_per_worker=1,
