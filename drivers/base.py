@@ -101,6 +101,9 @@ _BUILTIN_MODULES: dict[str, str] = {
     "socket": "imudiag.drivers.serial_port",
     "hid": "imudiag.drivers.hid",
     "usb": "imudiag.drivers.usb",
+    "isensor": "imudiag.drivers.isensor",
+    "witmotion": "imudiag.drivers.witmotion",
+    "iio": "imudiag.drivers.iio",
 }
 #: Entry-point group of the sources that live above the driver layer (``sim://`` and
 #: ``replay://`` in :mod:`imudiag.sources`, and any plug-in package's): name = scheme,

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 import select
-from typing import Any
+from typing import Any, ClassVar
 
 import serial
 
@@ -39,7 +39,7 @@ def _flag(value: str) -> bool:
 class SerialSource(ByteSource):
     """A wire-protocol byte stream read with pyserial ``serial_for_url``."""
 
-    url_keys = ("baud", "exclusive")
+    url_keys: ClassVar[tuple[str, ...] | None] = ("baud", "exclusive")
 
     def __init__(self, url: SourceURL, **options: Any) -> None:
         super().__init__(url, **options)

@@ -191,7 +191,31 @@ def encode_info(seq: int, time_us: int, info: dict[str, Any]) -> bytes:
 _KIND_SAMPLE, _KIND_INFO, _KIND_OTHER = 0, 1, 2
 
 
-class Decoder:
+class PendingBytes:
+    """The bytes a decoder holds back between reads (a frame cut by the read), with the
+    byte counters: shared by the native decoder and the device protocols' decoders."""
+
+    counters: Counters
+    _pending: bytes
+
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes held back waiting for the rest of a frame."""
+        return len(self._pending)
+
+    def _joined(self, data: bytes | bytearray | memoryview) -> bytes:
+        """The held-back bytes and ``data``, counted as read."""
+        data = bytes(data)
+        self.counters.bytes += len(data)
+        return self._pending + data if self._pending else data
+
+    def drop_pending(self) -> None:
+        """Discard held-back bytes (after a reconnect), counting them as skipped."""
+        self.counters.skipped_bytes += len(self._pending)
+        self._pending = b""
+
+
+class Decoder(PendingBytes):
     """Incremental wire-protocol decoder: bytes in, :class:`SampleBlock` out.
 
     Feed chunks of any size; frames may straddle chunks. Keeps the receiver
@@ -225,27 +249,14 @@ class Decoder:
         self._time_abs = 0  # unwrapped time, us, of the last accepted frame
         self._last_dt_us = 0  # last normal frame interval, us
 
-    @property
-    def pending_bytes(self) -> int:
-        """Bytes held back waiting for the rest of a frame."""
-        return len(self._pending)
-
     def feed(self, data: bytes | bytearray | memoryview) -> SampleBlock:
         """Decode ``data`` (plus any held-back bytes); returns the complete good samples."""
-        data = bytes(data)
-        self.counters.bytes += len(data)
-        buf = self._pending + data if self._pending else data
-        return self._decode(buf, final=False)
+        return self._decode(self._joined(data), final=False)
 
     def finish(self) -> SampleBlock:
         """End of stream: decode what can be decoded and count the rest as skipped."""
         buf, self._pending = self._pending, b""
         return self._decode(buf, final=True)
-
-    def drop_pending(self) -> None:
-        """Discard held-back bytes (after a reconnect), counting them as skipped."""
-        self.counters.skipped_bytes += len(self._pending)
-        self._pending = b""
 
     # -- byte level --------------------------------------------------------
 

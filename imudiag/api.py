@@ -8,7 +8,7 @@ without the printing and the file writing.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .certificate import Certificate, load, load_default
 from .diagnosis.calibrate import CalibrationResult
@@ -23,6 +23,9 @@ from .diagnosis.session import (
 )
 from .errors import BadInput
 from .logs.options import LogOptions
+
+if TYPE_CHECKING:
+    from .aiding.moving import MovingConfig
 
 #: A certificate argument: a loaded one, a YAML file's path, or None for the bundled one.
 CertificateLike = Certificate | str | Path | None
@@ -58,6 +61,8 @@ def diagnose(
     log_options: LogOptions | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
     windows: bool = True,
+    gnss: Any = "auto",
+    moving: MovingConfig | None = None,
     progress: ProgressCallback | None = None,
 ) -> dict[str, Any]:
     """Diagnose a recording against a certificate: the report of ``imudiag diagnose --json``.
@@ -69,10 +74,22 @@ def diagnose(
     the sample rate, Hz (default: the log's, else from ``t``). The verdict is in
     ``report["verdict"]`` (``ok`` / ``fault`` / ``undetermined`` per triad, the faults
     with sensor, cause and value, and what the data could not determine).
+
+    ``gnss`` (as ``--gnss``): ``"auto"`` (default) the log's own GNSS where it has it
+    (DataFlash GPS, ULog vehicle_gps_position / sensor_gps, ROS NavSatFix + velocity),
+    its clock tied to GNSS time by a fitted offset and rate; ``"log"`` the same, refused
+    (:class:`~imudiag.errors.BadInput`) when it cannot; ``"none"``; a gpsd TPV log's path;
+    a :class:`~imudiag.aiding.tpv.GnssTrack` in the samples' clock; or
+    :class:`~imudiag.logs.gnss_fixes.GnssFixes` of samples in memory. The moving-base
+    diagnosis is then ``report["moving_base"]`` (``moving``: its
+    :class:`~imudiag.aiding.moving.MovingConfig`). ``progress(what, fraction, samples)``:
+    told how far each pass has got (an exception it raises ends the diagnosis:
+    ``imudiag fleet``'s per-log timeout).
     """
-    return diagnose_recording(
+    cert = _certificate(certificate)
+    report = diagnose_recording(
         data,
-        _certificate(certificate),
+        cert,
         _config(config),
         rate_hz=rate_hz,
         magnitude=magnitude,
@@ -82,6 +99,14 @@ def diagnose(
         windows=windows,
         progress=progress,
     )
+    from .aiding.log_clock import gnss_section_of  # the aiding code only when it is used
+
+    section = gnss_section_of(
+        data, cert, gnss, moving, report.get("sample_rate"), log_options, block_size
+    )
+    if section is not None:
+        report["moving_base"] = section
+    return report
 
 
 def calibrate(

@@ -30,14 +30,15 @@ import yaml
 from . import yamlio
 from .errors import CertificateError as _CertificateErrorBase
 from .rowwise import BIG_ROWS, rows_op
+from .units import STANDARD_GRAVITY_M_S2, TO_SI
 
 FORMAT = "imudiag-certificate/1"
 
-#: Conversion factor from each allowed input unit to SI (rad/s, m/s^2).
-STANDARD_GRAVITY_M_S2 = 9.80665
+#: Conversion factor from each input unit spec/certificate.md allows to SI (rad/s, m/s^2);
+#: the factors are imudiag.units' (the one table of exact conversions).
 INPUT_UNITS_TO_SI: dict[str, dict[str, float]] = {
-    "gyro": {"rad/s": 1.0, "deg/s": math.pi / 180.0},
-    "accel": {"m/s^2": 1.0, "g": STANDARD_GRAVITY_M_S2},
+    "gyro": {u: TO_SI["gyro"][u] for u in ("rad/s", "deg/s")},
+    "accel": {u: TO_SI["accel"][u] for u in ("m/s^2", "g")},
 }
 TRIADS = ("gyro", "accel")
 AXES = ("x", "y", "z")
@@ -654,6 +655,24 @@ def default_certificate_path() -> Path:
     from importlib import resources  # only for the bundled one (issue 14: start-up)
 
     return Path(str(resources.files("imudiag.config").joinpath(DEFAULT_CERTIFICATE_NAME)))
+
+
+DATASHEETS_DIR = "datasheets"  #: bundled data-sheet certificates, ``<key>.yaml``
+
+
+def datasheet_certificate_path(key: str) -> Path:
+    """Path of the bundled data-sheet certificate ``key`` (a device source's
+    ``device_info["datasheet"]``, e.g. ``adis16475-2``); CertificateError if there is none."""
+    from importlib import resources
+
+    folder = Path(str(resources.files("imudiag.config").joinpath(DATASHEETS_DIR)))
+    path = folder / f"{key}.yaml"
+    if not key or "/" in key or not path.is_file():
+        known = sorted(p.stem for p in folder.glob("*.yaml"))
+        raise CertificateError(
+            "(file)", f"no bundled data-sheet certificate {key!r}; known: {', '.join(known)}"
+        )
+    return path
 
 
 def load_default() -> Certificate:

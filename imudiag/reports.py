@@ -9,6 +9,10 @@ version it does not know. A contract that changes incompatibly gets a new versio
 
 from __future__ import annotations
 
+import json
+import math
+from typing import Any
+
 STATUS_FORMAT = "imudiag-status/1"  #: a daemon status line (spec/reports.md)
 DIAGNOSIS_FORMAT = "imudiag-diagnosis/1"  #: imudiag diagnose --json
 CALIBRATION_FORMAT = "imudiag-calibration/1"  #: imudiag calibrate --json
@@ -34,6 +38,27 @@ def header(fmt: str) -> dict[str, str]:
     return {"class": CLASSES[fmt], "format": fmt}
 
 
+def finite_or_null(obj: Any) -> Any:
+    """``obj`` with every non-finite float (NaN, +-inf: a value not determined) as None, so
+    it is valid JSON (``null``); numpy scalars and arrays become plain numbers and lists."""
+    if isinstance(obj, dict):
+        return {k: finite_or_null(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_or_null(v) for v in obj]
+    if hasattr(obj, "tolist") and not isinstance(obj, (str, bytes)):
+        return finite_or_null(obj.tolist())  # numpy arrays and scalars
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def json_text(report: Any, indent: int | None = 1) -> str:
+    """The JSON text of a report, the one writer of every command's report: a value not
+    determined (NaN, +-inf) is written as ``null`` (spec/reports.md), never as a bare
+    ``NaN`` token, which is not JSON."""
+    return json.dumps(finite_or_null(report), indent=indent, allow_nan=False)
+
+
 __all__ = [
     "ALLAN_FORMAT",
     "BENCH_FORMAT",
@@ -43,5 +68,7 @@ __all__ = [
     "FLEET_FORMAT",
     "MODEL_CHECK_FORMAT",
     "STATUS_FORMAT",
+    "finite_or_null",
     "header",
+    "json_text",
 ]

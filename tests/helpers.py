@@ -19,6 +19,16 @@ def read_samples(src: Source, n: int, timeout_s: float = 5.0) -> SampleBlock:
     return SampleBlock.concat(blocks)
 
 
+def read_until_state(src: Source, state: str, reads: int = 200) -> str:
+    """Read from a ReconnectingSource (0.02 s each, at most ``reads`` times) until its
+    link ``state`` is reached; returns the state it ended in (an event, not a clock)."""
+    for _ in range(reads):
+        src.read(0.02)
+        if getattr(src, "state", None) == state:
+            break
+    return str(getattr(src, "state", ""))
+
+
 class CollectSink:
     """A daemon status sink that keeps every status it is given, in order."""
 

@@ -27,6 +27,7 @@ FLOORS: list[tuple[str, ...]] = [
     # 0 ground: errors, the YAML loader, atomic files, bundled configuration
     (
         "imudiag.errors",
+        "imudiag.units",
         "imudiag.yamlio",
         "imudiag.atomic",
         "imudiag.config",

@@ -52,6 +52,7 @@ LOG_OPTIONS: list[tuple[str, list[str]]] = [
     ("--instance", ["-1", "first", "0"]),
     ("--variable", ["imu"]),
     ("--topic", ["/imu/data"]),
+    ("--ros-distro", ["melodic", "humble"]),  # unknown; a CSV is no ROS bag
     ("--units", ["gyro=furlong", "speed=1"]),
     ("--time-unit", ["fortnight"]),
     ("--columns", ["t,gx,gy", "t,gx,gy,gz,ax,ay,qq"]),

@@ -13,7 +13,6 @@ The samples are taken as uniformly spaced; gaps in ``t`` are counted and reporte
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from typing import Any
@@ -29,7 +28,7 @@ from ..logs.timing import timing_report
 from ..noise_estimate import METHOD as WHITE_NOISE_METHOD
 from ..noise_estimate import NoiseMeter
 from ..noise_stats import identify_noise, overlapping_allan, welch_psd
-from ..reports import ALLAN_FORMAT, header
+from ..reports import ALLAN_FORMAT, header, json_text
 
 SENSORS = ("gx", "gy", "gz", "ax", "ay", "az")
 FORMAT = ALLAN_FORMAT
@@ -209,7 +208,7 @@ def run(args: argparse.Namespace) -> int:
     # the table goes to stderr when the JSON report takes stdout
     _print_table(report, sys.stderr if args.json == "-" else sys.stdout)
     if args.json:
-        text = json.dumps(report, indent=1)
+        text = json_text(report)
         if args.json == "-":
             sys.stdout.write(text + "\n")
         else:

@@ -9,12 +9,12 @@ it named the right triad, sensor and cause; as a table and as JSON.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 from ..argtypes import positive_float, seed, writable_output_path
 from ..atomic import write_text_atomic
 from ..errors import BadInput
+from ..reports import json_text
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"imudiag bench: {exc}", file=sys.stderr)
         return 1
     table = format_table(report)
-    text = json.dumps(report, indent=2, allow_nan=False)
+    text = json_text(report, indent=2)
     if args.json == "-":
         print(table, file=sys.stderr)
         print(text)

@@ -13,7 +13,6 @@ comparison with the default exact fit.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
@@ -31,10 +30,16 @@ from ..diagnosis.config import GYRO_MODES, METHODS, DiagnosisConfig
 from ..diagnosis.known_rate import parse_known_rate
 from ..diagnosis.session import DiagnosisTrace, diagnose_recording
 from ..errors import BadInput
-from ..logs import DEFAULT_BLOCK_SIZE, open_log
+from ..logs import DEFAULT_BLOCK_SIZE
 from ..logs.options import add_log_options, log_options
 from ..progress import for_command
-from .gnss import add_gnss_arguments, check_gnss_options, moving_base_lines, moving_base_section
+from ..reports import json_text
+from .gnss import (
+    add_gnss_arguments,
+    check_gnss_options,
+    moving_base_lines,
+    moving_base_section,
+)
 from .noise import add_noise_argument, noise_lines
 
 
@@ -212,8 +217,9 @@ def load_certificate(path: str | None) -> Certificate:
 
 
 def write_json(report: dict, out: str) -> None:
-    """Write ``report`` to ``out`` ('-' for standard output)."""
-    text = json.dumps(report, indent=1, allow_nan=False)
+    """Write ``report`` to ``out`` ('-' for standard output); a value not determined (NaN)
+    is ``null``."""
+    text = json_text(report)
     if out == "-":
         sys.stdout.write(text + "\n")
         sys.stdout.flush()
@@ -303,10 +309,9 @@ def run(args: argparse.Namespace) -> int:
         )
     report["log"] = str(args.log)
     noise_report = report["noise"]
-    if args.gnss:
-        with open_log(args.log, block_size=args.block_size, options=log_options(args)) as reader:
-            kept = list(reader)
-        report["moving_base"] = moving_base_section(args, kept, cert, report["sample_rate"])
+    section = moving_base_section(args, cert, report["sample_rate"])
+    if section is not None:
+        report["moving_base"] = section
     if trace is not None:
         from ..plots.diagnosis import write_diagnosis_plots
 

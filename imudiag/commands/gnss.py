@@ -5,12 +5,9 @@ from __future__ import annotations
 import argparse
 import math
 
-import numpy as np
-
 from ..argtypes import finite_float, positive_float
 from ..certificate import Certificate
 from ..errors import BadInput
-from ..samples import SampleBlock
 
 
 def add_gnss_arguments(p: argparse.ArgumentParser) -> None:
@@ -18,9 +15,13 @@ def add_gnss_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("moving base (GNSS aiding, docs/moving-base.md)")
     g.add_argument(
         "--gnss",
-        metavar="FILE",
-        help="gpsd TPV log (gpspipe -w, plain or .gz): adds the moving-base F0 and "
-        "accelerometer fit in motion to the report",
+        metavar="auto|log|none|FILE",
+        default="auto",
+        help="GNSS for the moving-base F0 and accelerometer fit in motion: auto (default) "
+        "the log's own GNSS where it has it (DataFlash GPS, ULog vehicle_gps_position/"
+        "sensor_gps, ROS NavSatFix + velocity; its clock tied to GNSS time by a fitted "
+        "offset and rate), log (the same, refused when it cannot), none, or a gpsd TPV log "
+        "FILE (gpspipe -w, plain or .gz; both in UTC Unix time)",
     )
     g.add_argument(
         "--lever-arm",
@@ -66,42 +67,67 @@ def parse_lever_arm(text: str | None) -> tuple[float, float, float] | None:
 
 def check_gnss_options(args: argparse.Namespace) -> None:
     """Validate the options before the log is read."""
-    if not getattr(args, "gnss", None):
-        for opt in ("lever_arm", "gnss_latency"):
-            if getattr(args, opt, None) is not None:
-                raise BadInput(f"--{opt.replace('_', '-')}: needs --gnss FILE")
+    if getattr(args, "gnss", None) in (None, "none"):
+        _refuse_gnss_options(args, "needs GNSS (--gnss auto, log or FILE)")
         return
+    if args.gnss == "auto" and not log_may_hold_gnss(args.log):
+        check_gnss_options_without_log_gnss(args)
     parse_lever_arm(args.lever_arm)  # --gnss-interval and --gnss-window: checked when parsed
 
 
-def moving_base_section(
-    args: argparse.Namespace, blocks: list[SampleBlock], cert: Certificate, rate_hz: float
-) -> dict:
-    """Run the moving-base diagnosis over the collected blocks."""
-    from ..aiding.moving import MovingConfig, moving_base_diagnosis
-    from ..aiding.tpv import read_gpspipe_log
+#: Log formats that may carry their own GNSS (``reader.gnss()``).
+GNSS_LOG_FORMATS = ("dataflash", ".ulg", "rosbag1", "rosbag2")
 
-    track = read_gpspipe_log(args.gnss)
-    block = SampleBlock(
-        t=np.concatenate([b.t for b in blocks]),
-        gyro=np.concatenate([b.gyro for b in blocks]),
-        accel=np.concatenate([b.accel for b in blocks]),
-    )
-    if len(track) and (track.t[-1] < block.t[0] or track.t[0] > block.t[-1]):
-        raise BadInput(
-            f"{args.gnss}: the GNSS log ({track.t[0]:.3f} .. {track.t[-1]:.3f} s) does not "
-            f"overlap the sample log ({block.t[0]:.3f} .. {block.t[-1]:.3f} s): both need "
-            "UTC Unix time"
-        )
-    cfg = MovingConfig(
+
+def log_may_hold_gnss(path: str) -> bool:
+    """Whether the log's format can carry GNSS fixes of its own (a CSV cannot)."""
+    from ..logs import lookup
+
+    try:
+        return lookup(path).name in GNSS_LOG_FORMATS
+    except BadInput:
+        return False  # the reader says what is wrong with the file
+
+
+def check_gnss_options_without_log_gnss(args: argparse.Namespace) -> None:
+    """``--gnss auto`` on a log without GNSS of its own: the GNSS options are an error."""
+    _refuse_gnss_options(args, "needs --gnss FILE (the log holds no GNSS of its own)")
+
+
+def _refuse_gnss_options(args: argparse.Namespace, why: str) -> None:
+    """BadInput naming the first GNSS option given (``--lever-arm``, ``--gnss-latency``)."""
+    for opt in ("lever_arm", "gnss_latency"):
+        if getattr(args, opt, None) is not None:
+            raise BadInput(f"--{opt.replace('_', '-')}: {why}")
+
+
+def moving_config(args: argparse.Namespace) -> object:
+    """The moving-base configuration of the command line's ``--gnss-*`` options."""
+    from ..aiding.moving import MovingConfig
+
+    return MovingConfig(
         interval_s=args.gnss_interval,
         latency_s=args.gnss_latency,
         lever_arm_m=parse_lever_arm(args.lever_arm),
         window_s=args.gnss_window,
         step_s=args.gnss_window / 3.0,
     )
-    section = moving_base_diagnosis(block, cert, track, cfg, rate_hz=rate_hz)
-    section["log"] = str(args.gnss)
+
+
+def moving_base_section(args: argparse.Namespace, cert: Certificate, rate_hz: float) -> dict | None:
+    """The moving-base section of ``diagnose``'s report (None: no GNSS to run it with):
+    the log read again, with its own GNSS fixes for ``--gnss auto|log``."""
+    if args.gnss == "auto" and not log_may_hold_gnss(args.log):
+        return None  # a CSV: the aiding code is not even imported
+    from ..aiding.log_clock import gnss_section_of
+    from ..logs.options import log_options
+
+    section = gnss_section_of(
+        args.log, cert, args.gnss, moving_config(args), rate_hz, log_options(args),
+        args.block_size,
+    )  # fmt: skip
+    if section is None:
+        check_gnss_options_without_log_gnss(args)
     return section
 
 
@@ -122,6 +148,8 @@ def _counts(counts: dict[str, int]) -> str:
 def moving_base_lines(mb: dict) -> list[str]:
     """A short account of the moving-base section."""
     g = mb["gnss"]
+    if "epochs" not in g:
+        return [f"moving base: {mb.get('verdict')} ({mb.get('reason', '')})"]
     lat = g.get("latency", {})
     lines = [
         f"moving base: GNSS {g['fixes']} fixes every {g['period_s']} s, {g.get('used', 0)} of "
@@ -129,6 +157,13 @@ def moving_base_lines(mb: dict) -> list[str]:
         f"latency {lat.get('used_s')} s"
         + ("" if lat.get("determined") else f" ({lat.get('reason')})")
     ]
+    clock = g.get("clock", {})
+    if clock.get("how") == "fitted":
+        lines.append(
+            f"  IMU clock tied to GNSS time: rate {clock['rate']:.6f} GNSS s per log s "
+            f"({clock['drift_ppm']:+.0f} ppm), residual rms {1e3 * clock['residual_rms_s']:.1f} "
+            f"ms, max {1e3 * clock['residual_max_s']:.1f} ms over {clock['fixes']} fixes"
+        )
     lev = g.get("lever_arm")
     if lev:
         est = ", ".join(
@@ -181,6 +216,8 @@ def gyro_turn_lines(gt: dict) -> list[str]:
 __all__ = [
     "add_gnss_arguments",
     "check_gnss_options",
+    "check_gnss_options_without_log_gnss",
+    "moving_config",
     "gyro_turn_lines",
     "moving_base_lines",
     "moving_base_section",

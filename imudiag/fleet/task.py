@@ -25,7 +25,8 @@ FOLDER_CERTIFICATES = ("certificate.yaml", "certificate.yml")
 TRIADS = ("accel", "gyro")
 #: A log's GNSS stream sits beside it as ``LOG.gnss`` or ``LOG.gnss.gz`` (a ``gpspipe -w``
 #: log in UTC Unix time, as ``imudiag simulate --gnss`` writes): the record's report then
-#: carries the moving-base diagnosis (``moving_base``), as ``imudiag diagnose --gnss``.
+#: carries the moving-base diagnosis (``moving_base``), as ``imudiag diagnose --gnss
+#: FILE``; without one, the log's own GNSS where it has some (``--gnss auto``).
 GNSS_SUFFIXES = (".gnss", ".gnss.gz")
 #: Report keys left out of a record (the per-window estimates: the record keeps each
 #: parameter's best-determined window instead).
@@ -146,22 +147,6 @@ def gnss_beside(path: str | Path) -> Path | None:
     return None
 
 
-def moving_base(path: str, gnss: Path, cert: Any, rate_hz: float) -> dict[str, Any]:
-    """The moving-base section of ``imudiag diagnose LOG --gnss GNSS`` with its defaults:
-    the command's own parser and code, nothing copied."""
-    import argparse
-
-    from ..commands.gnss import add_gnss_arguments, moving_base_section
-    from ..logs import open_log
-
-    parser = argparse.ArgumentParser(add_help=False)
-    add_gnss_arguments(parser)
-    args = parser.parse_args(["--gnss", str(gnss)])
-    with open_log(path) as reader:
-        blocks = list(reader)
-    return moving_base_section(args, blocks, cert, rate_hz)
-
-
 def _peek(path: str) -> tuple[str, dict[str, Any], float | None]:
     """The log's format name, metadata and first sample time (s), reading one block."""
     from ..logs import log_format, open_log
@@ -241,12 +226,17 @@ def diagnose_log(job: Job) -> dict[str, Any]:
                     f"timeout: the diagnosis ran past {job.timeout_s:g} s (while {what})"
                 )
 
-        report = diagnose(job.path, cert, config=job.config or None, progress=watch)
         gnss = gnss_beside(job.path)
-        if gnss is not None:
-            stage = f"the moving-base diagnosis with {gnss.name}"
-            report["moving_base"] = moving_base(job.path, gnss, cert, report["sample_rate"])
-        record["gnss"] = str(gnss) if gnss else None
+        report = diagnose(
+            job.path,
+            cert,
+            config=job.config or None,
+            progress=watch,
+            gnss=str(gnss) if gnss else "auto",
+        )
+        record["gnss"] = (
+            str(gnss) if gnss else ("the log's own" if "moving_base" in report else None)
+        )
         record["parameters"] = best_estimates(report, cert)
         for key in DROPPED_REPORT_KEYS:
             report.pop(key, None)

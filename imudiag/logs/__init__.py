@@ -187,6 +187,8 @@ def open_log(
     for opt in CHOOSERS:
         if options is not None and getattr(options, opt) is not None and fmt.chooser != opt:
             raise LogError(str(path), f"--{opt} does not apply to {fmt.name} logs")
+    if options is not None and options.ros_distro and fmt.name not in ("rosbag1", "rosbag2"):
+        raise LogError(str(path), f"--ros-distro does not apply to {fmt.name} logs")
     table = options is not None and bool(options.columns or options.time_unit)
     if fmt.name in (".csv", ".csv.gz") and table:
         reader: LogReader = TextTableReader(path, block_size, options=options)

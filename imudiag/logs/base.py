@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import BadInput
 from ..samples import SampleBlock
+from .gnss_fixes import GnssFixes
 
 
 class LogError(BadInput):
@@ -150,6 +151,11 @@ class LogReader:
 
     def _total_samples(self) -> int | None:
         """Samples in the log when the format knows before reading them (None: it does not)."""
+        return None
+
+    def gnss(self) -> GnssFixes | None:
+        """The GNSS fixes the log itself carries, in the samples' clock (None: the format
+        carries none, or this log holds none)."""
         return None
 
     def fraction_read(self) -> float | None:

@@ -1,29 +1,42 @@
 """ArduPilot DataFlash logs (``.bin`` that starts with a FMT message) through pymavlink's
-DFReader (extra ``[ardupilot]``).
+DFReader (extra ``[ardupilot]``), of every era.
 
 A ``.bin`` is a raw wire capture unless its first bytes are a DataFlash FMT
 message (``A3 95 80``): the registry's magic test tells them apart. The samples
-are the ``IMU`` messages of one instance: field ``I`` in current firmware, or the
-message name in older logs (``IMU``, ``IMU2``, ``IMU3`` for instances 0, 1, 2).
-``--instance N`` chooses; by default the lowest, and the ``source`` metadata
-lists the instances there. ``GyrX..Z`` are rad/s, ``AccX..Z`` m/s^2, ``T``
-degC; ``t`` is ``TimeUS`` in s since boot. The file is parsed whole (pymavlink
-reads message by message in Python), then handed out in blocks.
+of one IMU instance (``--instance N``, by default the lowest; the ``source``
+metadata lists the instances), from the first of:
+
+- ``ACC`` / ``GYR`` (raw IMU logging, every sample, ``SampleUS``), when logged at
+  least as fast as ``IMU``; the accelerometer interpolated to the gyro's times;
+- ``IMU`` (field ``I`` in current firmware; ``IMU``, ``IMU2``, ``IMU3`` for
+  instances 0, 1, 2 in older logs);
+- the batch sampler's ``ISBH`` / ``ISBD`` bursts (raw int16 / ``mul``), only when
+  the log has neither (they come in bursts with gaps between).
+
+``GyrX..Z`` are rad/s, ``AccX..Z`` m/s^2, ``T`` degC; ``t`` is ``TimeUS`` (or
+``TimeMS`` in logs before 2015, or ``SampleUS``) in s since boot. ``GPS`` (and
+``GPA``'s speed accuracy) are the log's own GNSS fixes (:meth:`DataFlashReader.gnss`):
+boot time (``TimeUS``, or ``T`` ms before 2015) and GPS time (``GWk``/``GMS``, or
+``Week``/``TimeMS`` before 2015). The file is parsed whole (pymavlink reads message
+by message in Python), then handed out in blocks.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from .base import DEFAULT_BLOCK_SIZE, ColumnsReader, LogError
 from .extras import require
+from .gnss_fixes import GnssFixes, gps_week_ms_to_unix, mode_of_fix_type
 from .options import LogOptions
 
 #: First bytes of a DataFlash log: the message head A3 95 and the FMT message id 128.
 DATAFLASH_MAGIC = b"\xa3\x95\x80"
 _NAMES = {"IMU": 0, "IMU2": 1, "IMU3": 2}
+_TYPES = [*_NAMES, "ACC", "GYR", "ISBH", "ISBD", "GPS", "GPA"]
 
 
 def is_dataflash(head: bytes) -> bool:
@@ -31,8 +44,23 @@ def is_dataflash(head: bytes) -> bool:
     return head.startswith(DATAFLASH_MAGIC)
 
 
+def boot_s(m: Any) -> float:
+    """A DataFlash message's time since boot, s: ``TimeUS`` or, before 2015, ``TimeMS``."""
+    us = getattr(m, "TimeUS", None)
+    if us is not None:
+        return float(us) * 1e-6
+    ms = getattr(m, "TimeMS", None)
+    if ms is None:
+        raise ValueError(f"{m.get_type()} message without TimeUS or TimeMS")
+    return float(ms) * 1e-3
+
+
+def _rate(t: np.ndarray) -> float:
+    return float(1.0 / np.median(np.diff(t))) if t.shape[0] > 1 else 0.0
+
+
 class DataFlashReader(ColumnsReader):
-    """Reader of the IMU messages of one instance of an ArduPilot DataFlash log."""
+    """Reader of the IMU samples of one instance of an ArduPilot DataFlash log."""
 
     format = "dataflash"
 
@@ -48,58 +76,189 @@ class DataFlashReader(ColumnsReader):
         head = self._read_head(len(DATAFLASH_MAGIC))
         if not is_dataflash(head):
             raise LogError(self.path, "not a DataFlash log (no FMT message at the start)")
-        rows: dict[int, list[tuple[float, ...]]] = {}
+        imu: dict[int, list[tuple[float, ...]]] = {}
+        raw: dict[tuple[str, int], list[tuple[float, ...]]] = {}
+        batches: dict[int, dict[str, Any]] = {}
+        gps: list[tuple[float, ...]] = []
+        gpa: dict[float, float] = {}
+        self.gps_unread = 0  #: GPS messages of a layout without boot time, speed or course
         try:
             log = dfreader.DFReader_binary(self.path, zero_time_base=True)
             while True:
-                m = log.recv_match(type=list(_NAMES))
+                m = log.recv_match(type=_TYPES)
                 if m is None:
                     break
                 name = m.get_type()
-                inst = int(getattr(m, "I", _NAMES[name])) if name == "IMU" else _NAMES[name]
-                rows.setdefault(inst, []).append(
-                    (
-                        m.TimeUS * 1e-6,
-                        m.GyrX,
-                        m.GyrY,
-                        m.GyrZ,
-                        m.AccX,
-                        m.AccY,
-                        m.AccZ,
-                        float(getattr(m, "T", np.nan)),
-                    )
-                )
+                if name in _NAMES:
+                    inst = int(getattr(m, "I", _NAMES[name])) if name == "IMU" else _NAMES[name]
+                    imu.setdefault(inst, []).append(
+                        (boot_s(m), m.GyrX, m.GyrY, m.GyrZ, m.AccX, m.AccY, m.AccZ,
+                         float(getattr(m, "T", np.nan)))
+                    )  # fmt: skip
+                elif name in ("ACC", "GYR"):
+                    p = "Acc" if name == "ACC" else "Gyr"
+                    raw.setdefault((name, int(getattr(m, "I", 0))), []).append(
+                        (float(getattr(m, "SampleUS", m.TimeUS)) * 1e-6,
+                         getattr(m, p + "X"), getattr(m, p + "Y"), getattr(m, p + "Z"))
+                    )  # fmt: skip
+                elif name == "ISBH":
+                    batches[int(m.N)] = {"head": m, "data": []}
+                elif name == "ISBD":
+                    if int(m.N) in batches:
+                        batches[int(m.N)]["data"].append((int(m.seqno), m.x, m.y, m.z))
+                elif name == "GPS" and int(getattr(m, "I", 0)) == 0:
+                    try:  # a GPS layout without these fields gives no fixes, not an error
+                        gps.append(self._gps_row(m))
+                    except (AttributeError, TypeError, ValueError):
+                        self.meta["gps_messages_unread"] = (
+                            self.meta.get("gps_messages_unread", 0) + 1
+                        )
+                elif name == "GPA" and int(getattr(m, "I", 0)) == 0:
+                    gpa[boot_s(m)] = float(getattr(m, "SAcc", np.nan))
+        except LogError:
+            raise
         except Exception as exc:  # pymavlink raises plain errors on corrupt logs
             raise LogError(self.path, f"not a readable DataFlash log: {exc}") from None
-        if not rows:
-            raise LogError(self.path, "no IMU messages in the DataFlash log")
-        have = sorted(rows)
+        self._gnss = self._fixes(gps, gpa)
+        sources = self._sources(imu, raw, batches)
+        if not sources:
+            raise LogError(
+                self.path, "no IMU messages in the DataFlash log (IMU, ACC/GYR or ISBH/ISBD)"
+            )
+        kind, cols_by_inst = sources
+        have = sorted(cols_by_inst)
         listed = ", ".join(map(str, have))
         wanted = self.options.instance
-        if wanted is not None and wanted not in rows:
+        if wanted is not None and wanted not in cols_by_inst:
             raise LogError(
                 self.path, f"--instance {wanted}: no IMU of that instance (have {listed})"
             )
         inst = have[0] if wanted is None else wanted
-        m = np.asarray(rows[inst], dtype=float)
-        names = ("t", "gx", "gy", "gz", "ax", "ay", "az", "temp")
-        self._cols = {n: m[:, i] for i, n in enumerate(names)}
-        if not np.all(np.isfinite(self._cols["temp"])):
+        self._cols = cols_by_inst[inst]
+        if "temp" in self._cols and not np.all(np.isfinite(self._cols["temp"])):
             del self._cols["temp"]
         how = "--instance" if wanted is not None else "the lowest; --instance N for another"
-        step = float(np.median(np.diff(m[:, 0]))) if m.shape[0] > 1 else 0.0
+        rate = _rate(self._cols["t"])
         self.meta.update(
             {
-                "source": f"DataFlash IMU instance {inst} ({how}; instances in the log: {listed})",
+                "source": f"DataFlash {kind} instance {inst} ({how}; instances in the log: "
+                f"{listed})",
                 "units": {"gyro": "rad/s", "accel": "m/s^2"},
                 "device": f"ArduPilot DataFlash {Path(self.path).name}",
             }
         )
-        if step > 0:
-            self.meta["sample_rate"] = round(1.0 / step, 3)
+        if rate > 0:
+            self.meta["sample_rate"] = round(rate, 3)
+
+    # -- IMU sources ----------------------------------------------------------
+
+    def _sources(
+        self,
+        imu: dict[int, list[tuple[float, ...]]],
+        raw: dict[tuple[str, int], list[tuple[float, ...]]],
+        batches: dict[int, dict[str, Any]],
+    ) -> tuple[str, dict[int, dict[str, np.ndarray]]] | None:
+        names = ("t", "gx", "gy", "gz", "ax", "ay", "az", "temp")
+        imu_cols = {
+            i: {n: m[:, k] for k, n in enumerate(names)}
+            for i, rows in imu.items()
+            for m in [np.asarray(rows, dtype=float)]
+        }
+        raw_cols: dict[int, dict[str, np.ndarray]] = {}
+        for (name, i), rows in raw.items():
+            if name == "GYR" and ("ACC", i) in raw:
+                g = np.asarray(rows, dtype=float)
+                a = np.asarray(raw[("ACC", i)], dtype=float)
+                cols = _pair(g, a)
+                if cols is not None:
+                    raw_cols[i] = cols
+        imu_rate = max((_rate(c["t"]) for c in imu_cols.values()), default=0.0)
+        if raw_cols and max(_rate(c["t"]) for c in raw_cols.values()) >= imu_rate:
+            return "ACC/GYR", raw_cols
+        if imu_cols:
+            return "IMU", imu_cols
+        isb = _batch_columns(batches)
+        return ("ISBH/ISBD batch sampler", isb) if isb else None
+
+    # -- GNSS -----------------------------------------------------------------
+
+    @staticmethod
+    def _gps_row(m: Any) -> tuple[float, ...]:
+        if hasattr(m, "TimeUS"):
+            t_log = float(m.TimeUS) * 1e-6
+            week, ms = getattr(m, "GWk", 0), getattr(m, "GMS", 0)
+        else:  # before 2015: TimeMS is GPS ms of week, T the boot time in ms
+            t_log = float(getattr(m, "T", np.nan)) * 1e-3
+            week, ms = getattr(m, "Week", 0), getattr(m, "TimeMS", 0)
+        t_gnss = float(gps_week_ms_to_unix(np.array([week]), np.array([ms]))[0])
+        spd, crs = float(m.Spd), np.radians(float(m.GCrs))
+        mode, status = mode_of_fix_type(float(m.Status))
+        alt = float(getattr(m, "Alt", np.nan))
+        return (t_log, t_gnss, float(m.Lat), float(m.Lng), alt, spd * np.cos(crs),
+                spd * np.sin(crs), float(m.VZ), np.nan, float(mode), float(status))  # fmt: skip
+
+    @staticmethod
+    def _fixes(gps: list[tuple[float, ...]], gpa: dict[float, float]) -> GnssFixes | None:
+        rows = [r for r in gps if np.isfinite(r[0])]
+        if not rows:
+            return None
+        rows = [(*r[:8], gpa.get(r[0], np.nan), *r[9:]) for r in rows]
+        return GnssFixes.from_rows(
+            rows,
+            "DataFlash GPS (instance 0; GPA SAcc as speed accuracy)",
+            "GPS week and ms of week of each GPS message (GWk/GMS, Week/TimeMS before 2015)",
+        )
+
+    def gnss(self) -> GnssFixes | None:
+        """The log's GPS messages (instance 0) with boot time and GPS time."""
+        return self._gnss
 
     def _where(self, index: int) -> str:
-        return f"IMU message {index + 1}"
+        return f"IMU sample {index + 1}"
 
 
-__all__ = ["DATAFLASH_MAGIC", "DataFlashReader", "is_dataflash"]
+def _pair(g: np.ndarray, a: np.ndarray) -> dict[str, np.ndarray] | None:
+    """Gyro rows (t, x, y, z) with the accelerometer interpolated to their times, only where
+    an accelerometer sample lies within 1.5 of its steps (bursts are not bridged)."""
+    g = g[np.argsort(g[:, 0], kind="stable")]
+    a = a[np.argsort(a[:, 0], kind="stable")]
+    if g.shape[0] < 2 or a.shape[0] < 2:
+        return None
+    step = float(np.median(np.diff(a[:, 0])))
+    j = np.clip(np.searchsorted(a[:, 0], g[:, 0]), 1, a.shape[0] - 1)
+    near = np.minimum(np.abs(a[j, 0] - g[:, 0]), np.abs(a[j - 1, 0] - g[:, 0]))
+    bridge = a[j, 0] - a[j - 1, 0]
+    on_sample = near <= 1e-9  # a gyro sample at an accelerometer sample's time
+    keep = (on_sample | ((near <= 1.5 * step) & (bridge <= 1.5 * step))) & (g[:, 0] >= a[0, 0])
+    keep &= g[:, 0] <= a[-1, 0]
+    if keep.sum() < 2:
+        return None
+    t = g[keep, 0]
+    cols = {"t": t}
+    for k, axis in enumerate("xyz"):
+        cols[f"g{axis}"] = g[keep, 1 + k]
+        cols[f"a{axis}"] = np.interp(t, a[:, 0], a[:, 1 + k])
+    return cols
+
+
+def _batch_columns(batches: dict[int, dict[str, Any]]) -> dict[int, dict[str, np.ndarray]]:
+    """The batch sampler's bursts (ISBH type 0 accel, 1 gyro; ISBD int16 x/y/z / mul) as
+    columns per instance."""
+    rows: dict[tuple[int, int], list[np.ndarray]] = {}
+    for b in batches.values():
+        h, data = b["head"], sorted(b["data"], key=lambda d: d[0])
+        if not data or float(h.smp_rate) <= 0 or float(h.mul) == 0:
+            continue
+        xyz = np.concatenate([np.asarray(d[1:], dtype=float).T for d in data]) / float(h.mul)
+        t = float(h.SampleUS) * 1e-6 + np.arange(xyz.shape[0]) / float(h.smp_rate)
+        rows.setdefault((int(h.type), int(h.instance)), []).append(np.column_stack([t, xyz]))
+    out: dict[int, dict[str, np.ndarray]] = {}
+    for (kind, inst), parts in rows.items():
+        if kind == 1 and (0, inst) in rows:
+            cols = _pair(np.concatenate(parts), np.concatenate(rows[(0, inst)]))
+            if cols is not None:
+                out[inst] = cols
+    return out
+
+
+__all__ = ["DATAFLASH_MAGIC", "DataFlashReader", "boot_s", "is_dataflash"]

@@ -16,16 +16,27 @@ from typing import Any
 
 from ..argtypes import nonnegative_int, positive_float
 from ..errors import BadInput
+from ..units import canonical, units_of
 from .base import OPTIONAL_COLUMNS, REQUIRED_COLUMNS
 
 #: Seconds per unit of ``t``.
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
-#: Units a log's outputs may be stated in, per triad (``count`` is raw ADC output).
-GYRO_UNITS = ("rad/s", "deg/s", "count")
-ACCEL_UNITS = ("m/s^2", "g", "count")
+#: Units a log's outputs may be stated in, per triad (``count`` is raw ADC output; the
+#: physical ones convert exactly to a certificate's, imudiag.units).
+GYRO_UNITS = units_of("gyro")
+ACCEL_UNITS = units_of("accel")
 #: Column names --columns accepts, besides ``_`` (skip).
 COLUMN_NAMES = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
 GYRO_COLUMNS = ("gx", "gy", "gz")
+
+#: The ROS 2 distribution whose message definitions read a bag that stores none and
+#: does not say its own (``--ros-distro``): the current LTS, Lyrical Luth (May 2026).
+#: sensor_msgs/Imu, NavSatFix and the geometry_msgs velocities are the same since Foxy.
+DEFAULT_ROS_DISTRO = "lyrical"
+#: ROS 2 distributions rosbags has message definitions of (``--ros-distro``).
+ROS2_DISTROS = (
+    "dashing", "eloquent", "foxy", "galactic", "humble", "iron", "jazzy", "kilted", "lyrical",
+)  # fmt: skip
 
 
 @dataclass
@@ -42,6 +53,9 @@ class LogOptions:
     gyro_only: bool = False
     instance: int | None = None  #: the sensor instance of a multi-sensor log (PX4 multi id)
     topic: str | None = None  #: the IMU topic of a ROS bag
+    #: the ROS 2 distribution whose message definitions read a bag that stores none and
+    #: does not name its own (default: the current LTS)
+    ros_distro: str | None = None
 
     def given(self) -> bool:
         """True when any option was given."""
@@ -53,6 +67,7 @@ class LogOptions:
             or self.variable
             or self.instance is not None
             or self.topic
+            or self.ros_distro
         )
 
 
@@ -94,8 +109,7 @@ def parse_units(text: str, where: str = "--units") -> dict[str, str]:
         allowed = {"gyro": GYRO_UNITS, "accel": ACCEL_UNITS}.get(key)
         if not sep or allowed is None:
             raise BadInput(f"{where}: expected gyro=UNIT,accel=UNIT, got {part!r}")
-        if value == "m/s2":
-            value = "m/s^2"
+        value = canonical(value) if value else value
         if value not in allowed:
             raise BadInput(f"{where}: {key} unit {value!r} unknown; expected {', '.join(allowed)}")
         units[key] = value
@@ -147,6 +161,12 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
         help="the sensor_msgs/msg/Imu topic of a ROS bag (needed when it has several)",
     )
     g.add_argument(
+        "--ros-distro",
+        metavar="NAME",
+        help="ROS 2 distribution of a bag that stores no message definitions and does not "
+        "name its own (foxy, humble, iron, jazzy, ...; default: the current LTS)",
+    )
+    g.add_argument(
         "--instance",
         metavar="N",
         type=nonnegative_int("a sensor instance"),
@@ -179,7 +199,18 @@ def log_options(args: argparse.Namespace) -> LogOptions:
         opts.instance = parse_instance(args.instance)
     if getattr(args, "topic", None):
         opts.topic = args.topic
+    if getattr(args, "ros_distro", None):
+        opts.ros_distro = parse_ros_distro(args.ros_distro)
     return opts
+
+
+def parse_ros_distro(text: str, where: str = "--ros-distro") -> str:
+    """A ROS 2 distribution's name, lower case (foxy, humble, ...); raises BadInput."""
+    name = str(text).strip().lower()
+    if name not in ROS2_DISTROS:
+        raise BadInput(f"{where}: unknown ROS 2 distribution {text!r}; expected one of "
+                       f"{', '.join(ROS2_DISTROS)}")  # fmt: skip
+    return name
 
 
 def parse_instance(text: str, where: str = "--instance") -> int:
@@ -212,6 +243,8 @@ def options_from_query(query: dict[str, str]) -> LogOptions:
         opts.topic = query["topic"]
     if "instance" in query:
         opts.instance = parse_instance(query["instance"], "replay://?instance")
+    if "ros_distro" in query:
+        opts.ros_distro = parse_ros_distro(query["ros_distro"], "replay://?ros_distro")
     return opts
 
 
@@ -232,4 +265,6 @@ def units_from_meta(meta: dict[str, Any]) -> dict[str, str]:
 
 
 #: The replay:// query keys these options add.
-URL_KEYS = ("columns", "units", "time_unit", "rate", "variable", "instance", "topic")
+URL_KEYS = (
+    "columns", "units", "time_unit", "rate", "variable", "instance", "topic", "ros_distro",
+)  # fmt: skip

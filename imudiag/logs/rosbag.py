@@ -14,16 +14,19 @@ advance (repeated or out of order) is skipped and counted
 
 from __future__ import annotations
 
+import sqlite3
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from ..samples import SampleBlock
 from .base import DEFAULT_BLOCK_SIZE, LogError, LogReader, first_violation, make_block
-from .extras import require
-from .options import LogOptions
+from .extras import MissingExtra, require
+from .gnss_fixes import GnssFixes
+from .options import DEFAULT_ROS_DISTRO, ROS2_DISTROS, LogOptions
 
 #: The message type read (rosbags' name, ROS 1 and ROS 2 alike).
 IMU_TYPE = "sensor_msgs/msg/Imu"
@@ -33,6 +36,71 @@ ROSBAG1_MAGIC = b"#ROSBAG V2.0"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 #: First bytes of a SQLite 3 database (a ROS 2 ``.db3``).
 SQLITE_MAGIC = b"SQLite format 3\x00"
+#: The GNSS messages read from a bag: fixes, and velocities (ENU, REP 103) matched to them.
+NAVSATFIX_TYPE = "sensor_msgs/msg/NavSatFix"
+VELOCITY_TYPES = (
+    "geometry_msgs/msg/TwistWithCovarianceStamped",
+    "geometry_msgs/msg/TwistStamped",
+    "geometry_msgs/msg/Vector3Stamped",
+)
+
+
+class _PlainReader:
+    """rosbags' ROS 2 reader with a typestore for a bag that stores no definitions: the
+    reader interface the IMU and GNSS reads use (connections, messages, deserialize)."""
+
+    def __init__(self, reader: Any, store: Any) -> None:
+        self.reader, self.store = reader, store
+        self.connections = reader.connections
+
+    def messages(self, connections: Any = ()) -> Any:
+        return self.reader.messages(connections=connections)
+
+    def deserialize(self, raw: bytes, msgtype: str) -> Any:
+        try:
+            return self.store.deserialize_cdr(raw, msgtype)
+        except KeyError:
+            raise LogError(
+                str(self.reader.path), f"no definition of {msgtype} in the typestore"
+            ) from None
+
+    def close(self) -> None:
+        self.reader.close()
+
+
+def typestore_for(distro: str | None, where: str) -> Any:
+    """rosbags' typestore of a ROS 2 distribution (None: :data:`DEFAULT_ROS_DISTRO`), built
+    once per distribution."""
+    typesys = require("rosbags.typesys", "ros", "ROS bags")
+    name = (distro or DEFAULT_ROS_DISTRO).lower()
+    store = getattr(typesys.Stores, f"ROS2_{name.upper()}", None)
+    if store is None:
+        raise LogError(
+            where,
+            f"ROS distribution {name!r}: no message definitions for it "
+            f"(known: {', '.join(ROS2_DISTROS)}; an older rosbags may lack the newest: "
+            "pip install -U rosbags)",
+        )
+    if name not in _STORES:
+        _STORES[name] = typesys.get_typestore(store)
+    return _STORES[name]
+
+
+_STORES: dict[str, Any] = {}
+
+
+def sqlite_distro(db3: Path) -> str | None:
+    """The ``ros_distro`` a ROS 2 ``.db3`` names in its ``schema`` table (Humble and later;
+    None for older bags)."""
+    try:
+        con = sqlite3.connect(f"file:{db3}?mode=ro", uri=True)
+        try:
+            row = con.execute("SELECT ros_distro FROM schema").fetchone()
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return None
+    return str(row[0]) if row and row[0] else None
 
 
 def is_bag_directory(path: str | Path) -> bool:
@@ -68,6 +136,8 @@ class RosbagReader(LogReader):
             }.get(p.suffix.lower(), False)
             if not ok:
                 raise LogError(self.path, f"not a ROS bag ({p.suffix} without its file header)")
+        self._bag = self._bag_path(p)
+        self._store = self._typestore(p)
         topics = self._imu_topics()
         self.topic = self._choose(topics)
         self.meta.update(
@@ -79,12 +149,74 @@ class RosbagReader(LogReader):
         )
         self.meta["skipped_stamps"] = 0
 
-    def _open_bag(self) -> Any:
+    def _bag_path(self, p: Path) -> Path:
+        """What rosbags opens: a ROS 1 ``.bag``; a ROS 2 bag directory; for one ``.db3`` /
+        ``.mcap`` its directory when that holds its metadata.yaml naming it, else the lone
+        file (rosbags reads the topics from the storage file itself)."""
+        if p.is_dir() or p.suffix.lower() == ".bag":
+            return p
+        meta = p.parent / "metadata.yaml"
+        if meta.is_file():
+            try:
+                info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+                files = [Path(str(f)).name for f in info.get("relative_file_paths", [])]
+            except Exception:  # a broken metadata.yaml: rosbags names the problem
+                files = [p.name]
+            if p.name in files:
+                return p.parent
+        return p  # rosbags reads a lone storage file, its topics from its own tables
+
+    def _typestore(self, p: Path) -> Any:
+        """The message definitions for a bag that stores none: the distribution the bag
+        names (metadata.yaml ``ros_distro``, or the .db3's ``schema`` table), else
+        ``--ros-distro``, else :data:`DEFAULT_ROS_DISTRO`; ``ros_distro`` metadata says which."""
+        if self._bag.suffix.lower() == ".bag":
+            return None  # a ROS 1 bag stores each connection's definition
+        named, how = None, ""
         try:
-            reader = self._anyreader([Path(self.path)])
+            info = yaml.safe_load((self._bag / "metadata.yaml").read_text())
+            named = info["rosbag2_bagfile_information"].get("ros_distro")
+            how = "the bag's metadata.yaml"
+        except Exception:  # rosbags reports a broken metadata.yaml when the bag is opened
+            pass
+        if not named:
+            dbs = [self._bag / n for n in sorted(x.name for x in self._bag.glob("*.db3"))]
+            named = sqlite_distro(dbs[0]) if dbs else None
+            how = "the .db3's schema table"
+        given = self.options.ros_distro
+        if named and str(named).lower() in ROS2_DISTROS:
+            distro = str(named).lower()
+        elif given:
+            distro, how = given, "--ros-distro"
+        else:
+            distro = DEFAULT_ROS_DISTRO
+            how = "the default (current LTS; --ros-distro for another)"
+            if named:
+                how = f"the default: the bag names {named!r}, which rosbags has no types of"
+        self.meta["ros_distro"] = f"{distro} ({how})"
+        return typestore_for(distro, self.path)
+
+    def _open_bag(self) -> Any:
+        """An open reader of the bag: rosbags' own ROS 2 reader with the distribution's
+        typestore for a bag that stores no definitions (the typestore built once), else
+        rosbags' AnyReader with the bag's own definitions."""
+        try:
+            if self._store is not None:
+                rosbag2 = require("rosbags.rosbag2", "ros", "ROS bags")
+                plain = rosbag2.Reader(self._bag)
+                plain.open()
+                if all(not c.msgdef.data for c in plain.connections):
+                    return _PlainReader(plain, self._store)
+                plain.close()
+            reader = self._anyreader([self._bag], default_typestore=self._store)
             reader.open()
+        except MissingExtra:
+            raise
         except Exception as exc:  # rosbags raises its own errors and plain ones
-            raise LogError(self.path, f"not a readable ROS bag: {exc}") from None
+            text = str(exc)
+            if "default_typestore" in text:  # rosbags' hint to a programmer, not a user
+                text = "the bag stores no message definitions and none could be chosen"
+            raise LogError(self.path, f"not a readable ROS bag: {text}") from None
         return reader
 
     def _imu_topics(self) -> dict[str, int]:
@@ -149,6 +281,73 @@ class RosbagReader(LogReader):
                 yield self._block(rows)
         finally:
             reader.close()
+
+    @staticmethod
+    def _stamp(msg: Any, bag_ns: int) -> float:
+        """A message's header stamp, s (the bag's receive time where it is unset)."""
+        st = msg.header.stamp
+        sec, nsec = int(st.sec), int(getattr(st, "nanosec", getattr(st, "nsec", 0)))
+        return bag_ns * 1e-9 if sec == 0 and nsec == 0 else sec + nsec * 1e-9
+
+    def gnss(self) -> GnssFixes | None:
+        """The bag's ``sensor_msgs/msg/NavSatFix`` fixes (the first topic by name) with the
+        velocity of a TwistWithCovarianceStamped / TwistStamped / Vector3Stamped topic (ENU,
+        REP 103; a topic named ``*vel*`` first) nearest each fix within half a fix period;
+        stamped in the IMU's own clock (header stamps), so no clock mapping is needed."""
+        reader = self._open_bag()
+        try:
+            fix_topics = sorted(
+                {c.topic for c in reader.connections if c.msgtype == NAVSATFIX_TYPE}
+            )
+            if not fix_topics:
+                return None
+            vel = sorted(
+                {c.topic for c in reader.connections if c.msgtype in VELOCITY_TYPES},
+                key=lambda t: ("vel" not in t.lower(), t),
+            )
+            want = {fix_topics[0], *vel[:1]}
+            fixes: list[tuple[float, ...]] = []
+            vels: list[tuple[float, ...]] = []
+            conns = [c for c in reader.connections if c.topic in want]
+            for conn, bag_ns, raw in reader.messages(connections=conns):
+                msg = reader.deserialize(raw, conn.msgtype)
+                t = self._stamp(msg, bag_ns)
+                if conn.msgtype == NAVSATFIX_TYPE:
+                    st = int(msg.status.status)
+                    mode = 1 if st < 0 else (3 if np.isfinite(msg.altitude) else 2)
+                    nan4 = (np.nan,) * 4  # velocity and its accuracy: from the velocity topic
+                    pos = (msg.latitude, msg.longitude, msg.altitude)
+                    fixes.append((t, np.nan, *pos, *nan4, mode, 2 if st > 0 else 1))
+                else:
+                    v, sd = msg, np.nan
+                    if hasattr(v, "twist"):
+                        v = v.twist
+                        if hasattr(v, "covariance"):
+                            cov = np.asarray(v.covariance, dtype=float)
+                            sd = float(np.sqrt(max(cov[0], cov[7]))) if cov[0] > 0 else np.nan
+                        v = v.twist if hasattr(v, "twist") else v
+                    lin = v.linear if hasattr(v, "linear") else v.vector
+                    vels.append((t, lin.y, lin.x, -lin.z, sd))  # ENU -> NED
+        finally:
+            reader.close()
+        if not fixes:
+            return None
+        m = np.asarray(fixes, dtype=float)
+        if vels:
+            v = np.asarray(sorted(vels), dtype=float)
+            period = float(np.median(np.diff(m[:, 0]))) if len(m) > 1 else 1.0
+            j = np.clip(np.searchsorted(v[:, 0], m[:, 0]), 1, max(1, len(v) - 1))
+            j0 = np.clip(j - 1, 0, len(v) - 1)
+            j = np.clip(j, 0, len(v) - 1)
+            k = np.where(np.abs(v[j0, 0] - m[:, 0]) <= np.abs(v[j, 0] - m[:, 0]), j0, j)
+            near = np.abs(v[k, 0] - m[:, 0]) <= 0.5 * period
+            m[near, 5:9] = v[k[near], 1:5]
+        velocity = f" + velocity {vel[0]}" if vel else " (no velocity topic)"
+        return GnssFixes.from_rows(
+            [tuple(r) for r in m],
+            f"ROS {NAVSATFIX_TYPE} {fix_topics[0]}{velocity}",
+            "same clock: the fixes' header stamps are in the IMU messages' clock",
+        )
 
     def _block(self, rows: list[tuple[float, ...]]) -> SampleBlock:
         m = np.asarray(rows, dtype=float)

@@ -23,11 +23,14 @@ import numpy as np
 
 from .base import DEFAULT_BLOCK_SIZE, ColumnsReader, LogError
 from .extras import require
+from .gnss_fixes import GnssFixes, mode_of_fix_type
 from .options import LogOptions
 
 #: First bytes of a ULog file ("ULog" then 0x01 0x12 0x35).
 ULOG_MAGIC = b"ULog\x01\x12\x35"
-_TOPICS = ["sensor_combined", "sensor_gyro", "sensor_accel"]
+_TOPICS = ["sensor_combined", "sensor_gyro", "sensor_accel", "vehicle_imu"]
+#: GNSS topics, in order of preference (the selected/blended receiver, then receiver 0).
+GPS_TOPICS = ("vehicle_gps_position", "sensor_gps")
 
 
 def is_ulog(head: bytes) -> bool:
@@ -57,13 +60,14 @@ class ULogReader(ColumnsReader):
         if not is_ulog(head):
             raise LogError(self.path, "not a ULog file (no ULog header)")
         try:
-            ulog = pyulog.ULog(self.path, message_name_filter_list=_TOPICS)
+            ulog = pyulog.ULog(self.path, message_name_filter_list=[*_TOPICS, *GPS_TOPICS])
         except Exception as exc:  # pyulog raises bare Exceptions on corrupt files
             raise LogError(self.path, f"not a readable ULog file: {exc}") from None
         topics: dict[tuple[str, int], dict[str, np.ndarray]] = {
             (d.name, int(d.multi_id)): d.data for d in ulog.data_list
         }
         self._start_us = int(ulog.start_timestamp)
+        self._gnss = self._fixes(topics)
         self._cols, source = self._choose(topics)
         self.meta.update(
             {
@@ -84,6 +88,16 @@ class ULogReader(ColumnsReader):
         )
         combined = topics.get(("sensor_combined", 0))
         wanted = self.options.instance
+        imus = sorted(i for (name, i) in topics if name == "vehicle_imu")
+        if wanted is not None and wanted not in instances and wanted in imus:
+            cols = self._vehicle_imu(topics[("vehicle_imu", wanted)])
+            return cols, f"vehicle_imu instance {wanted} (--instance), {_rate_hz(cols['t']):.3g} Hz"
+        if wanted is None and combined is None and not instances and imus:
+            cols = self._vehicle_imu(topics[("vehicle_imu", imus[0])])
+            return cols, (
+                f"vehicle_imu instance {imus[0]} (no sensor_combined nor raw topics; "
+                f"instances {', '.join(map(str, imus))}), {_rate_hz(cols['t']):.3g} Hz"
+            )
         if wanted is not None:
             if wanted not in instances:
                 have = ", ".join(map(str, instances)) or "none"
@@ -121,6 +135,57 @@ class ULogReader(ColumnsReader):
             else "no raw sensor_gyro/sensor_accel topics in the log"
         )
         return self._combined(combined), f"sensor_combined, {comb_rate:.3g} Hz ({why})"
+
+    def _vehicle_imu(self, d: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """vehicle_imu's integrated deltas over their intervals: rad/s and m/s^2."""
+        t = self._time(d.get("timestamp_sample", d["timestamp"]))
+        da = np.asarray(d["delta_angle_dt"], dtype=float) * 1e-6
+        dv = np.asarray(d["delta_velocity_dt"], dtype=float) * 1e-6
+        ok = (da > 0) & (dv > 0)
+        cols = {"t": t[ok]}
+        for k, axis in enumerate("xyz"):
+            cols[f"g{axis}"] = np.asarray(d[f"delta_angle[{k}]"], dtype=float)[ok] / da[ok]
+            cols[f"a{axis}"] = np.asarray(d[f"delta_velocity[{k}]"], dtype=float)[ok] / dv[ok]
+        return cols
+
+    def _fixes(self, topics: dict[tuple[str, int], dict[str, np.ndarray]]) -> GnssFixes | None:
+        """vehicle_gps_position (or sensor_gps 0): boot time ``timestamp`` and the receiver's
+        UTC ``time_utc_usec`` (0: unknown); lat/lon in 1e-7 deg (``latitude_deg`` in newer
+        logs), altitude mm (``altitude_ellipsoid_m`` m), NED velocity m/s, speed accuracy
+        ``s_variance_m_s`` m/s, ``fix_type``."""
+        name = next((n for n in GPS_TOPICS if (n, 0) in topics), None)
+        if name is None:
+            return None
+        d = topics[(name, 0)]
+
+        def f(*keys: str, scale: float = 1.0) -> np.ndarray:
+            for k in keys:
+                if k in d:
+                    return np.asarray(d[k], dtype=float) * (scale if k in keys[:1] else 1.0)
+            return np.full(len(d["timestamp"]), np.nan)
+
+        lat = f("lat", "latitude_deg", scale=1e-7)
+        lon = f("lon", "longitude_deg", scale=1e-7)
+        alt = f("alt_ellipsoid", "altitude_ellipsoid_m", scale=1e-3)
+        utc = f("time_utc_usec") * 1e-6
+        utc[~(utc > 0)] = np.nan
+        vel = np.column_stack([f("vel_n_m_s"), f("vel_e_m_s"), f("vel_d_m_s")])
+        if "vel_ned_valid" in d:
+            vel[np.asarray(d["vel_ned_valid"]) == 0] = np.nan
+        mode, status = mode_of_fix_type(f("fix_type"))
+        rows = np.column_stack(
+            [self._time(d["timestamp"]), utc, lat, lon, alt, vel, f("s_variance_m_s"), mode,
+             status]
+        )  # fmt: skip
+        return GnssFixes.from_rows(
+            [tuple(r) for r in rows],
+            f"ULog {name} (instance 0)",
+            "the receiver's UTC time of each fix (time_utc_usec)",
+        )
+
+    def gnss(self) -> GnssFixes | None:
+        """The log's GNSS fixes (vehicle_gps_position, else sensor_gps instance 0)."""
+        return self._gnss
 
     def _time(self, stamp_us: np.ndarray) -> np.ndarray:
         return (np.asarray(stamp_us, dtype=np.int64) - self._start_us) * 1e-6

@@ -20,9 +20,11 @@ from typing import Any, Protocol
 import numpy as np
 
 from .. import certificate as certmod
+from .. import units
 from ..certificate import Certificate, CertificateError
 from ..drivers.base import EndOfStream, SourceError
 from ..drivers.reconnect import ReconnectingSource
+from ..errors import BadInput
 from ..monitor import Monitor, MonitorConfig
 from ..noise_estimate import NoiseMeter
 from ..quasistatic import BAD_FLAGS
@@ -159,6 +161,11 @@ class Daemon:
         self._reload = False
         self._reloading: _ReloadThread | None = None
         self._reload_again = False
+        self._commands: deque[str] = deque()  # device commands to send (request_command)
+        #: (certificate and stated units, their conversion), kept while both stay the same
+        self._conversion: tuple[Certificate, str, units.Conversion] | None = None
+        self._units_note: str | None = None
+        self._command_note: str | None = None
         self._last_reason: str | None = None
         self._last_data_wall: float | None = None
         self._last_errors = 0
@@ -200,10 +207,55 @@ class Daemon:
         )
 
     def install_signal_handlers(self) -> None:
-        """SIGTERM/SIGINT stop, SIGHUP reloads the certificate (main thread only)."""
+        """SIGTERM/SIGINT stop, SIGHUP reloads the certificate, SIGUSR1 asks the device for
+        its self test (``SELFTEST``, docs/devices.md) (main thread only)."""
         signal.signal(signal.SIGTERM, lambda *_: self.request_stop())
         signal.signal(signal.SIGINT, lambda *_: self.request_stop())
         signal.signal(signal.SIGHUP, lambda *_: self.request_reload())
+        signal.signal(signal.SIGUSR1, lambda *_: self.request_command("SELFTEST"))
+
+    def request_command(self, line: str) -> None:
+        """Queue a device command (``SELFTEST``, ``INFO``, ...): sent to the source at the
+        start of the next loop turn; one the device does not take is logged and noted."""
+        self._commands.append(line)
+
+    def _conform(self, block: SampleBlock) -> SampleBlock:
+        """``block`` in the certificate's units (:func:`imudiag.units.conform_meta`: a device
+        in deg/s and g against a certificate in rad/s and m/s^2, exactly). Units that cannot
+        be converted (counts against physical units) are not guessed: the samples go on as
+        they are, as before the units were read, and the status notes say the verdicts do
+        not hold for them."""
+        stated = block.meta.get("units")
+        if stated is None:
+            return block
+        cached = self._conversion
+        if cached is None or cached[0] is not self.certificate or cached[1] != repr(stated):
+            try:
+                conv = units.conform_meta(block.meta, self.certificate, self.settings.source_url)
+            except BadInput as exc:
+                note = f"{exc}; the samples are judged as they are, the verdicts do not hold"
+                if self._units_note != note:
+                    log.warning("%s", note)
+                self._units_note = note
+                self._conversion = (self.certificate, repr(stated), units.NO_CONVERSION)
+                return block
+            self._units_note = None
+            cached = self._conversion = (self.certificate, repr(stated), conv)
+            if not conv.identity:
+                log.info("%s: %s", self.settings.source_url, conv)
+        return cached[2].apply(block)
+
+    def _send_commands(self) -> None:
+        while self._commands:
+            line = self._commands.popleft()
+            try:
+                self.source.write_command(line)
+            except ValueError as exc:
+                log.warning("%s", exc)
+                self._command_note = f"command {line!r} not sent: {exc}"
+            else:
+                log.info("command %r sent to %s", line, self.settings.source_url)
+                self._command_note = None
 
     def request_stop(self) -> None:
         """Ask the loop to finish after the current turn."""
@@ -405,6 +457,15 @@ class Daemon:
         if self.aiding is not None:
             status["aiding"] = self.aiding.status()
         notes = list(self.notes)
+        if self._command_note:
+            notes.append(self._command_note)
+        if self._units_note:
+            notes.append(self._units_note)
+        info = self.source.device_info
+        if info and "datasheet" in info:  # a device protocol's identity (docs/devices.md)
+            status["device"] = dict(info)
+        if self._conversion is not None and not self._conversion[2].identity:
+            status["unit_conversion"] = self._conversion[2].describe()
         why = self._no_data_reason(now, status["state"])
         if why:
             notes.append(why)
@@ -457,6 +518,8 @@ class Daemon:
                     self._reload = False
                     self._start_reload()
                 self._finish_reload()
+                if self._commands:
+                    self._send_commands()
                 try:
                     block = self.source.read(self.settings.read_timeout_s)
                 except EndOfStream:
@@ -465,6 +528,8 @@ class Daemon:
                     break
                 now = self.clock()
                 read_done = time.monotonic()
+                if len(block):
+                    block = self._conform(block)
                 if len(block):
                     self._last_data_wall = now
                     self.watchdog.frames_arrived(now)
