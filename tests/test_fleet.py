@@ -381,3 +381,40 @@ def test_a_drive_with_its_gnss_beside_gets_the_moving_base_diagnosis(tmp_path: P
     r = run_imudiag("diagnose", str(log), "--gnss", str(gnss), "--json", str(out))
     assert r.returncode == 0, r.stderr
     assert rec["report"]["moving_base"] == json.loads(out.read_text())["moving_base"]
+
+
+def test_simulate_fleet_writes_mixed_logs_and_the_truth(tmp_path: Path) -> None:
+    from conftest import run_imudiag
+
+    out = tmp_path / "fleet"
+    r = run_imudiag(
+        "simulate",
+        "fleet",
+        "--vehicles",
+        "2",
+        "--flights",
+        "4",
+        "--drifting",
+        "1",
+        "--corrupt",
+        "2",
+        "--flight-seconds",
+        "20:22",
+        "--seed",
+        "5",
+        "--out",
+        str(out),
+        "-q",
+    )
+    assert r.returncode == 0, r.stderr
+    truth = json.loads((out / "truth.json").read_text())
+    flights = [f for v in truth["vehicles"] for f in v["flights"]]
+    assert len(flights) == 8 and all((out / f["path"]).is_file() for f in flights)
+    assert {f["format"] for f in flights} == {".csv", ".npz", ".csv.gz", ".bin"}
+    assert {f["type"] for f in flights} == {"multiposition", "static"}
+    drifting = [v["drifting"] for v in truth["vehicles"] if v["drifting"]]
+    assert len(drifting) == 1 and len(drifting[0]["offsets"]) == 4
+    assert abs(drifting[0]["offsets"][-1]) > drifting[0]["limit"] > abs(drifting[0]["offsets"][0])
+    assert [c["how"] for c in truth["corrupt"]] == ["truncated", "garbage-row"]
+    bad = run_imudiag("simulate", "fleet", "--out", str(tmp_path / "x"))
+    assert bad.returncode == 2 and "--vehicles N and --flights M" in bad.stderr
