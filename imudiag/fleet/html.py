@@ -36,6 +36,13 @@ def _fmt(v: Any, digits: int = 4) -> str:
     return str(v)
 
 
+def _when(start: str | None) -> str:
+    """An ISO 8601 start shown to the minute, UTC (``2026-01-06 19:15Z``), or ``-``."""
+    if not start:
+        return "-"
+    return f"{start[:10]} {start[11:16]}Z" if len(start) >= 16 else start
+
+
 def trend_svg(trend: dict[str, Any], flagged: bool) -> str:
     """An inline SVG of one parameter's deviation from the certificate per log (points with
     2-std bars), its limits (dashed) and the weighted line when fitted."""
@@ -147,8 +154,8 @@ def render(summary: dict[str, Any], records: list[dict[str, Any]]) -> str:
         cls = ' class="look"' if v["look_at"] else ""
         out.append(
             f"<tr{cls}><td>{escape(v['vehicle'])}</td><td>{v['logs']}</td><td>{v['logs_ok']}"
-            f"</td><td>{v['errors']}</td><td>{escape(_fmt(v['first']))}</td>"
-            f"<td>{escape(_fmt(v['last']))}</td><td>{'yes' if v['look_at'] else 'no'}</td>"
+            f"</td><td>{v['errors']}</td><td>{escape(_when(v['first']))}</td>"
+            f"<td>{escape(_when(v['last']))}</td><td>{'yes' if v['look_at'] else 'no'}</td>"
             f"<td>{_reason_text(v['reasons'])}</td></tr>"
         )
     out.append("</tbody></table>")
@@ -157,11 +164,17 @@ def render(summary: dict[str, Any], records: list[dict[str, Any]]) -> str:
         '<table id="logs"><thead><tr><th>log</th><th>vehicle</th><th>start</th><th>status</th>'
         "<th>accel</th><th>gyro</th><th>certificate</th><th>reason</th></tr></thead><tbody>",
     ]
-    for r in records:
+    from .trends import attach_unreadable
+
+    shown = sorted(
+        attach_unreadable(records),
+        key=lambda r: (str(r.get("vehicle")), r.get("start") or "~", r["path"]),
+    )
+    for r in shown:
         verdict = (r.get("report") or {}).get("verdict") or {}
         out.append(
             f"<tr><td>{escape(r['path'])}</td><td>{escape(str(r.get('vehicle')))}</td>"
-            f"<td>{escape(_fmt(r.get('start')))}</td><td>{escape(r['status'])}</td>"
+            f"<td>{escape(_when(r.get('start')))}</td><td>{escape(r['status'])}</td>"
             f"<td>{escape(_fmt(verdict.get('accel')))}</td>"
             f"<td>{escape(_fmt(verdict.get('gyro')))}</td>"
             f"<td>{escape(_fmt(r.get('certificate_source')))}</td>"
@@ -176,7 +189,10 @@ def render(summary: dict[str, Any], records: list[dict[str, Any]]) -> str:
     for v in vehicles:
         flagged = {(r["triad"], r["sensor"], r["cause"]) for r in v["reasons"]}
         out.append(f'<h3 id="v-{escape(v["vehicle"])}">{escape(v["vehicle"])}</h3>')
-        figs = [t for t in v["trends"] if t["points"]]
+        figs = sorted(  # the parameters that name the unit first
+            (t for t in v["trends"] if t["points"]),
+            key=lambda t: (t["triad"], t["sensor"], t["cause"]) not in flagged,
+        )
         if not figs:
             out.append('<p class="small">No parameter estimated in any log.</p>')
             continue
