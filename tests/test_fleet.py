@@ -418,3 +418,22 @@ def test_simulate_fleet_writes_mixed_logs_and_the_truth(tmp_path: Path) -> None:
     assert [c["how"] for c in truth["corrupt"]] == ["truncated", "garbage-row"]
     bad = run_imudiag("simulate", "fleet", "--out", str(tmp_path / "x"))
     assert bad.returncode == 2 and "--vehicles N and --flights M" in bad.stderr
+
+
+def test_a_log_that_kills_its_worker_is_a_row_with_the_reason(
+    fleet: tuple[Path, dict], tmp_path: Path
+) -> None:
+    """Workers whose Dask memory limit (60 MB) is below what a worker needs are killed by
+    their nanny while running a log; each log is tried once more (``retries=1``), then
+    recorded with the reason, and the run itself ends normally with its summary."""
+    import imudiag.fleet
+
+    root, _ = fleet
+    logs = sorted(str(p) for p in (root / "unit-02").glob("flight-00[12].*"))
+    records = imudiag.fleet.run(logs, tmp_path, workers=1, memory_limit="60MB", retries=1)
+    assert sorted(r["path"] for r in records) == logs
+    for r in records:
+        assert r["status"] == "error"
+        assert r["reason"] == "killed its worker 2 time(s) (the worker memory limit, or a crash)"
+    summary = json.loads((tmp_path / "fleet.json").read_text())
+    assert summary["ok"] == 0 and len(summary["errors"]) == 2
