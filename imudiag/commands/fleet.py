@@ -4,8 +4,10 @@ parameters across its logs (docs/fleet.md). Needs the extra ``[fleet]``."""
 from __future__ import annotations
 
 import argparse
+import re
 
 from ..argtypes import nonnegative_int, positive_float, positive_int, writable_directory
+from ..errors import BadInput
 from ..progress import for_command
 
 
@@ -76,12 +78,35 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run, inputs=("certificate", "certificates"), outputs=())
 
 
+#: ``--scheduler``: a Dask address, SCHEME://HOST:PORT (tcp, tls, ucx, inproc, ws, wss)
+_ADDRESS = re.compile(r"^[a-z][a-z0-9+]*://[^\s:/]+:\d+$")
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """``--memory-limit`` and ``--scheduler`` before any work; BadInput naming them."""
+    from dask.utils import parse_bytes
+
+    try:
+        limit = parse_bytes(args.memory_limit)
+    except (ValueError, TypeError):
+        limit = -1
+    if not limit > 0:
+        raise BadInput(
+            f"--memory-limit {args.memory_limit!r}: expected a size such as 2GiB or 500MB"
+        )
+    if args.scheduler and not _ADDRESS.match(args.scheduler):
+        raise BadInput(
+            f"--scheduler {args.scheduler!r}: expected an address such as tcp://HOST:8786"
+        )
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the fleet and print where the results are."""
     from ..fleet.runner import REPORT, SUMMARY, require
     from ..fleet.runner import run as run_fleet
 
     require()
+    check_options(args)
     with for_command("fleet", args.quiet) as bar:
         records = run_fleet(
             args.paths,

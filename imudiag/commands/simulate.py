@@ -70,6 +70,14 @@ scenario parameters (--param key=value):
 """
 
 
+def _log_or_folder(text: str) -> str:
+    """``--out``: an existing writable folder (``simulate fleet``; any other scenario
+    refuses it when it runs), else a file path whose directory is writable."""
+    if text and Path(text).expanduser().is_dir():
+        return writable_directory(text)
+    return writable_output_path()(text)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``simulate`` subcommand."""
     p = sub.add_parser(
@@ -89,6 +97,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--out",
         required=True,
+        type=_log_or_folder,
         metavar="LOG",
         help="log to write (fleet: the folder to write the fleet into)",
     )

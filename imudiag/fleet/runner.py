@@ -189,9 +189,9 @@ def run(
 
         load(certificate)  # a bad --certificate is bad input, before any work
     cmap = load_certificate_map(certificates) if certificates else {}
+    found = expand([os.fspath(p) for p in paths])
     outdir = Path(out)
     outdir.mkdir(parents=True, exist_ok=True)
-    found = expand([os.fspath(p) for p in paths])
     roots = {}
     for text in paths:
         p = Path(text)
