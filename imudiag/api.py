@@ -16,6 +16,7 @@ from .diagnosis.config import DiagnosisConfig
 from .diagnosis.inputs import MagnitudeTable
 from .diagnosis.session import (
     DEFAULT_BLOCK_SIZE,
+    ProgressCallback,
     Recording,
     calibrate_recording,
     diagnose_recording,
@@ -62,6 +63,7 @@ def diagnose(
     windows: bool = True,
     gnss: Any = "auto",
     moving: MovingConfig | None = None,
+    progress: ProgressCallback | None = None,
 ) -> dict[str, Any]:
     """Diagnose a recording against a certificate: the report of ``imudiag diagnose --json``.
 
@@ -80,7 +82,9 @@ def diagnose(
     a :class:`~imudiag.aiding.tpv.GnssTrack` in the samples' clock; or
     :class:`~imudiag.logs.gnss_fixes.GnssFixes` of samples in memory. The moving-base
     diagnosis is then ``report["moving_base"]`` (``moving``: its
-    :class:`~imudiag.aiding.moving.MovingConfig`).
+    :class:`~imudiag.aiding.moving.MovingConfig`). ``progress(what, fraction, samples)``:
+    told how far each pass has got (an exception it raises ends the diagnosis:
+    ``imudiag fleet``'s per-log timeout).
     """
     cert = _certificate(certificate)
     report = diagnose_recording(
@@ -93,6 +97,7 @@ def diagnose(
         options=log_options,
         block_size=block_size,
         windows=windows,
+        progress=progress,
     )
     from .aiding.log_clock import gnss_section_of  # the aiding code only when it is used
 

@@ -36,6 +36,7 @@ COMMANDS = (
     "bench",
     "convert",
     "certificate",
+    "fleet",
 )
 
 __all__ = ["COMMANDS", "EXIT_BAD_INPUT", "EXIT_ERROR", "EXIT_OK", "build_parser", "main"]

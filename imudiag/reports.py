@@ -19,6 +19,7 @@ CALIBRATION_FORMAT = "imudiag-calibration/1"  #: imudiag calibrate --json
 MODEL_CHECK_FORMAT = "imudiag-model-check/1"  #: imudiag model-check --json
 ALLAN_FORMAT = "imudiag-allan/1"  #: imudiag allan --json
 BENCH_FORMAT = "imudiag-bench/1"  #: imudiag bench --json
+FLEET_FORMAT = "imudiag-fleet/1"  #: imudiag fleet's DIR/fleet.json (docs/fleet.md)
 
 #: format -> class: one entry per kind of JSON object.
 CLASSES: dict[str, str] = {
@@ -28,6 +29,7 @@ CLASSES: dict[str, str] = {
     MODEL_CHECK_FORMAT: "MODEL_CHECK",
     ALLAN_FORMAT: "ALLAN",
     BENCH_FORMAT: "BENCH",
+    FLEET_FORMAT: "FLEET",
 }
 
 
@@ -63,6 +65,7 @@ __all__ = [
     "CALIBRATION_FORMAT",
     "CLASSES",
     "DIAGNOSIS_FORMAT",
+    "FLEET_FORMAT",
     "MODEL_CHECK_FORMAT",
     "STATUS_FORMAT",
     "finite_or_null",

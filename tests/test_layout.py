@@ -74,6 +74,7 @@ FLOORS: list[tuple[str, ...]] = [
         "imudiag.__main__",
         "imudiag.commands",
         "imudiag.bench",
+        "imudiag.fleet",
     ),
 ]
 

@@ -39,6 +39,7 @@ SEEDS = ["1.5", "abc", "-1", "1e3", str(2**64)]
 BAD_OUTPUTS = ["{tmp}/no-such-dir/out.{ext}", "{tmp}/a-file/out.{ext}", "{tmp}"]
 
 NONE = "{tmp}/none.yaml"  #: an input file that does not exist
+FLEET = ["fleet", "{log}", "--out", "{tmp}/fo"]
 LOG_COMMANDS = {
     "diagnose": ["diagnose", "{log}"],
     "calibrate": ["calibrate", "{log}", "--like", "{cert}", "--out", "{tmp}/c.yaml"],
@@ -112,11 +113,41 @@ CASES: list[tuple] = [
     (LOG_COMMANDS["model-check"], "--extended-certificate", BAD_OUTPUTS),
     (LOG_COMMANDS["model-check"], "--plots", ["{tmp}/a-file/plots", "{tmp}/a-file"]),
     (["model-check", "{log}"], "--certificate", [NONE], "none.yaml"),
+    # fleet
+    (FLEET, "--workers", COUNTS),
+    (FLEET, "--timeout", POSITIVE_S),
+    (FLEET, "--retries", ["-1", "2.5", "x"]),
+    (FLEET, "--memory-limit", ["lots", "-5MB", "0"]),
+    (FLEET, "--scheduler", ["not-a-url", "tcp://", "tcp://host:port"]),
+    (FLEET, "--certificate", [NONE], "none.yaml"),
+    (FLEET, "--certificates", [NONE], "none.yaml"),
+    (["fleet", "{log}"], "--out", ["{tmp}/a-file/out", "{tmp}/a-file"]),
+    (["fleet", "--out", "{tmp}/fo"], "PATH", [NONE], "none.yaml"),
+    (["fleet", "--out", "{tmp}/fo"], "PATH", ["{tmp}/*.nothing"], "*.nothing"),
     # simulate
     (["simulate", "static", "--out", "{tmp}/s.csv"], "--duration", POSITIVE_S + ["-0.5"]),
     (["simulate", "static", "--out", "{tmp}/s.csv", "--duration", "2"], "--seed", SEEDS),
     (["simulate", "static", "--out", "{tmp}/s.csv", "--duration", "2"], "--rate", RATES),
     (["simulate", "static", "--duration", "2"], "--out", BAD_OUTPUTS),
+    # simulate fleet
+    (["simulate", "fleet", "--out", "{tmp}/sf", "--flights", "3"], "--vehicles", COUNTS),
+    (["simulate", "fleet", "--out", "{tmp}/sf", "--vehicles", "2"], "--flights", COUNTS),
+    (
+        ["simulate", "fleet", "--out", "{tmp}/sf", "--vehicles", "2", "--flights", "3"],
+        "--drifting",
+        ["-1", "x", "5"],
+    ),
+    (
+        ["simulate", "fleet", "--out", "{tmp}/sf", "--vehicles", "2", "--flights", "3"],
+        "--corrupt",
+        ["-1", "x"],
+    ),
+    (
+        ["simulate", "fleet", "--out", "{tmp}/sf", "--vehicles", "2", "--flights", "3"],
+        "--flight-seconds",
+        ["x", "0:5", "5:1", "nan:3"],
+    ),
+    (["simulate", "fleet", "--vehicles", "2", "--flights", "3"], "--out", ["{tmp}/a-file"]),
     (["simulate", "urban", "--out", "{tmp}/s.csv", "--duration", "2"], "--gnss", BAD_OUTPUTS),
     (
         ["simulate", "static", "--out", "{tmp}/s.csv", "--duration", "2"],

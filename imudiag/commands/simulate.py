@@ -15,7 +15,16 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
-from ..argtypes import positive_float, rate_problem, sample_rate, seed, writable_output_path
+from ..argtypes import (
+    nonnegative_int,
+    positive_float,
+    positive_int,
+    rate_problem,
+    sample_rate,
+    seed,
+    writable_directory,
+    writable_output_path,
+)
 from ..certificate import load, load_default
 from ..errors import BadInput
 from ..logs import log_format, lookup, open_writer
@@ -67,6 +76,14 @@ scenario parameters (--param key=value):
 """
 
 
+def _log_or_folder(text: str) -> str:
+    """``--out``: an existing writable folder (``simulate fleet``; any other scenario
+    refuses it when it runs), else a file path whose directory is writable."""
+    if text and Path(text).expanduser().is_dir():
+        return writable_directory(text)
+    return writable_output_path()(text)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``simulate`` subcommand."""
     p = sub.add_parser(
@@ -78,10 +95,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
-        "scenario", metavar="SCENARIO", help=f"one of {', '.join(SCENARIOS)} (or default = static)"
+        "scenario",
+        metavar="SCENARIO",
+        help=f"one of {', '.join(SCENARIOS)} (or default = static), or fleet: a folder of "
+        "vehicles and their flights (--vehicles, --flights) with truth.json",
     )
     p.add_argument(
-        "--out", required=True, type=writable_output_path(), metavar="LOG", help="log to write"
+        "--out",
+        required=True,
+        type=_log_or_folder,
+        metavar="LOG",
+        help="log to write (fleet: the folder to write the fleet into)",
     )
     p.add_argument(
         "--duration",
@@ -136,6 +160,27 @@ def register(sub: argparse._SubParsersAction) -> None:
         "-q",
         action="store_true",
         help="no progress bar on standard error (drawn only on a terminal anyway)",
+    )
+    g = p.add_argument_group("fleet (imudiag simulate fleet --vehicles N --flights M --out DIR)")
+    g.add_argument("--vehicles", type=positive_int("vehicles"), metavar="N", help="vehicles")
+    g.add_argument("--flights", type=positive_int("flights"), metavar="M", help="flights each")
+    g.add_argument(
+        "--drifting",
+        type=nonnegative_int("vehicles"),
+        metavar="K",
+        help="vehicles with a parameter drifting over their flights (default a third, >= 1)",
+    )
+    g.add_argument(
+        "--corrupt",
+        type=nonnegative_int("files"),
+        default=3,
+        metavar="K",
+        help="extra corrupt or truncated files (default 3)",
+    )
+    g.add_argument(
+        "--flight-seconds",
+        metavar="MIN:MAX",
+        help="flight length range, s (default 35:60)",
     )
     p.set_defaults(func=run, inputs=("certificate",), outputs=("out", "true_certificate"))
 
@@ -228,8 +273,62 @@ def _size(n: float) -> str:
     raise AssertionError("unreachable")
 
 
+def _checked_out(args: argparse.Namespace, fleet: bool) -> None:
+    """``--out``: a file to write (a folder for the fleet); BadInput otherwise."""
+    check = writable_directory if fleet else writable_output_path()
+    try:
+        check(args.out)
+    except argparse.ArgumentTypeError as exc:
+        raise BadInput(f"--out: {exc}") from None
+
+
+def run_fleet(args: argparse.Namespace) -> int:
+    """``imudiag simulate fleet``: the simulated fleet and its truth.json."""
+    from ..fleet.simulate import FLIGHT_SECONDS, simulate_fleet
+
+    if not args.vehicles or not args.flights:
+        raise BadInput("fleet: --vehicles N and --flights M are required")
+    seconds = FLIGHT_SECONDS
+    if args.flight_seconds:
+        try:
+            lo, _, hi = args.flight_seconds.partition(":")
+            seconds = (float(lo), float(hi or lo))
+        except ValueError:
+            raise BadInput(f"--flight-seconds {args.flight_seconds!r}: expected MIN:MAX") from None
+        if not (0 < seconds[0] <= seconds[1] < math.inf):
+            raise BadInput(f"--flight-seconds {args.flight_seconds!r}: need 0 < MIN <= MAX")
+    cert = load(args.certificate) if args.certificate else load_default()
+    rate = float(args.rate) if args.rate is not None else 100.0
+    with for_command("simulate", args.quiet) as bar:
+        truth = simulate_fleet(
+            args.out,
+            args.vehicles,
+            args.flights,
+            seed=args.seed,
+            drifting=args.drifting,
+            corrupt=args.corrupt,
+            seconds=seconds,
+            rate_hz=rate,
+            certificate=cert,
+            progress=bar,
+        )
+    drifting = [v for v in truth["vehicles"] if v["drifting"]]
+    print(
+        f"{args.out}: {args.vehicles} vehicles x {args.flights} flights, "
+        f"{len(drifting)} drifting, {len(truth['corrupt'])} corrupt files; truth.json"
+    )
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     """Simulate and write the log; returns the exit code."""
+    fleet = args.scenario == "fleet"
+    _checked_out(args, fleet)
+    if fleet:
+        return run_fleet(args)
+    for opt in ("vehicles", "flights", "drifting", "flight_seconds"):
+        if getattr(args, opt) is not None:
+            raise BadInput(f"--{opt.replace('_', '-')}: only for the fleet scenario")
     out_format = lookup(args.out)  # an unknown format fails before any work
     cert = load(args.certificate) if args.certificate else load_default()
     try:

@@ -1,0 +1,265 @@
+"""The fleet run on Dask's distributed scheduler: one task per log (:func:`.task.diagnose_log`)
+on a LocalCluster of this machine's cores, or on an existing cluster; each record written as
+its log completes; the summary and the report rebuilt from all records at the end."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import warnings
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+from ..atomic import write_text_atomic
+from ..errors import BadInput
+from ..logs.extras import MissingExtra
+from .discovery import describe, expand
+from .records import RecordLog, read_records, write_table
+from .task import Job, diagnose_log
+
+EXTRA = "fleet"
+#: Default per-log timeout, s of wall time.
+DEFAULT_TIMEOUT_S = 1800.0
+#: Default memory limit of each local worker (Dask's, per worker process).
+DEFAULT_MEMORY_LIMIT = "2GiB"
+#: Default times a log whose worker died is tried again on another worker.
+DEFAULT_RETRIES = 1
+SUMMARY = "fleet.json"
+REPORT = "report.html"
+#: Progress callback: (what, fraction done or None, logs done).
+Progress = Callable[[str, float | None, int], None]
+
+
+def require() -> None:
+    """:class:`MissingExtra` (exit 2) naming ``pip install 'imudiag[fleet]'`` when Dask's
+    distributed scheduler or pyarrow is missing."""
+    for module in ("dask.distributed", "pyarrow.parquet"):
+        try:
+            __import__(module)
+        except ImportError:
+            raise MissingExtra(
+                f"imudiag fleet needs the Python package {module.split('.')[0]!r}, not "
+                f"installed: pip install 'imudiag[{EXTRA}]'"
+            ) from None
+
+
+def load_certificate_map(path: str) -> dict[str, str]:
+    """``--certificates MAP.yaml``: vehicle -> certificate path (relative paths are taken
+    from the map's folder). BadInput naming the file and key otherwise."""
+    from ..yamlio import YamlError, parse, read_text
+
+    try:
+        doc = parse(read_text(path))
+    except YamlError as exc:
+        raise BadInput(f"{path}: {exc}") from None
+    except OSError as exc:
+        raise BadInput(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if not isinstance(doc, dict):
+        raise BadInput(f"{path}: expected a mapping of vehicle to certificate file")
+    base = Path(path).absolute().parent
+    out: dict[str, str] = {}
+    for vehicle, cert in doc.items():
+        if not isinstance(cert, str) or not cert:
+            raise BadInput(f"{path}: {vehicle}: expected a certificate file name, got {cert!r}")
+        p = Path(cert).expanduser()
+        p = p if p.is_absolute() else base / p
+        if not p.is_file():
+            raise BadInput(f"{path}: {vehicle}: no such certificate file: {p}")
+        out[str(vehicle)] = str(p)
+    return out
+
+
+@contextlib.contextmanager
+def _client(
+    scheduler: str | None,
+    workers: int | None,
+    memory_limit: str | float | None,
+    retries: int,
+    dashboard: bool,
+) -> Iterator[Any]:
+    import dask
+    from dask.distributed import Client, LocalCluster
+
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(name, "1")  # the workers' numpy: one BLAS thread each
+    with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
+        if scheduler:
+            try:
+                client = Client(scheduler, timeout="30s")
+            except OSError as exc:
+                raise BadInput(f"--scheduler {scheduler}: cannot connect: {exc}") from None
+            try:
+                yield client
+            finally:
+                client.close()
+            return
+        # the scheduler always serves /health on 8787 (the dashboard stays off unless asked
+        # for); another cluster on the machine moves it to a free port: not worth a warning
+        warnings.filterwarnings("ignore", message="Port 8787 is already in use")
+        cluster = LocalCluster(
+            n_workers=workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            memory_limit=memory_limit,
+            dashboard_address=":8787" if dashboard else None,
+            silence_logs=logging.ERROR,
+        )
+        client = Client(cluster)
+        if dashboard:
+            print(f"imudiag fleet: dashboard at {client.dashboard_link}", flush=True)
+        try:
+            yield client
+        finally:
+            client.close()
+            cluster.close()
+
+
+def _lost(job: Job, exc: BaseException, retries: int) -> dict[str, Any]:
+    """The record of a log whose task failed outside the diagnosis (its worker died)."""
+    from .identity import folder_vehicle
+
+    name = type(exc).__name__
+    if name == "KilledWorker":
+        reason = f"killed its worker {retries + 1} time(s) (the worker memory limit, or a crash)"
+    else:
+        reason = f"the task failed: {name}: {exc}"
+    return {
+        "path": job.path,
+        "sha256": job.sha256,
+        "size": job.size,
+        "mtime_ns": job.mtime_ns,
+        "vehicle": folder_vehicle(job.path),
+        "vehicle_source": "folder name (the log could not be read)",
+        "start": None,
+        "status": "error",
+        "reason": reason,
+    }
+
+
+def rebuild(out: str | Path) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Rebuild ``logs.parquet``, ``fleet.json`` and ``report.html`` in ``out`` from its
+    ``logs.jsonl``; returns the records and the summary."""
+    import json
+
+    from .html import write_report
+    from .trends import summarize
+
+    records = read_records(out)
+    summary = summarize(records)
+    write_table(records, out)
+    write_text_atomic(Path(out) / SUMMARY, json.dumps(summary, indent=1, allow_nan=False) + "\n")
+    write_report(summary, records, Path(out) / REPORT)
+    return records, summary
+
+
+def run(
+    paths: list[str] | str,
+    out: str | Path,
+    *,
+    certificate: str | None = None,
+    certificates: str | None = None,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    memory_limit: str | float | None = DEFAULT_MEMORY_LIMIT,
+    timeout_s: float | None = DEFAULT_TIMEOUT_S,
+    retries: int = DEFAULT_RETRIES,
+    dashboard: bool = False,
+    redo: bool = False,
+    config: dict[str, Any] | None = None,
+    progress: Progress | None = None,
+    on_record: Callable[[dict[str, Any]], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Diagnose every log of ``paths`` (files, folders, globs) on Dask and write ``out``
+    (docs/fleet.md); returns the table: one record per log, in the order of ``logs.jsonl``.
+
+    Logs already recorded in ``out/logs.jsonl`` (same content hash) are skipped unless
+    ``redo``. ``workers``: local worker processes (default: this machine's cores), ignored
+    with ``scheduler`` (``tcp://HOST:8786``, an existing cluster that sees the same paths).
+    ``memory_limit``: per local worker (bytes or text such as ``"2GiB"``); a log that kills
+    its worker is tried ``retries`` more times, then recorded with the reason.
+    ``timeout_s``: per log, s of wall time. ``config``: :class:`DiagnosisConfig` fields.
+    """
+    require()
+    if isinstance(paths, str | os.PathLike):
+        paths = [os.fspath(paths)]
+    if certificate:
+        from ..certificate import load
+
+        load(certificate)  # a bad --certificate is bad input, before any work
+    cmap = load_certificate_map(certificates) if certificates else {}
+    found = expand([os.fspath(p) for p in paths])
+    outdir = Path(out)
+    outdir.mkdir(parents=True, exist_ok=True)
+    roots = {}
+    for text in paths:
+        p = Path(text)
+        if p.is_dir():
+            roots[str(p.absolute())] = p.absolute()
+    previous = [] if redo else read_records(outdir)
+    known: dict[tuple[str, int, int], str] = {
+        (r["path"], r["size"], r["mtime_ns"]): r["sha256"]
+        for r in previous
+        if isinstance(r.get("size"), int) and isinstance(r.get("mtime_ns"), int)
+    }
+    done = {r["sha256"] for r in previous}
+    jobs: list[Job] = []
+    queued: set[str] = set()
+    for log in found:
+        info = describe(log.absolute(), known)
+        if info.sha256 in done or info.sha256 in queued:
+            continue
+        queued.add(info.sha256)
+        absolute = log.absolute()
+        root = next(
+            (r for r in roots.values() if r == absolute or r in absolute.parents),
+            absolute.parent,
+        )
+        jobs.append(
+            Job(
+                path=info.path,
+                sha256=info.sha256,
+                size=info.size,
+                mtime_ns=info.mtime_ns,
+                root=str(root),
+                certificate=str(Path(certificate).absolute()) if certificate else None,
+                certificates=cmap,
+                certificates_source=certificates,
+                timeout_s=timeout_s,
+                config=dict(config or {}),
+            )
+        )
+    if redo and (outdir / "logs.jsonl").exists():
+        (outdir / "logs.jsonl").unlink()
+    total = len(jobs)
+    if progress:
+        progress(f"0/{total} logs", 0.0 if total else 1.0, 0)
+    if jobs:
+        from dask.distributed import as_completed
+
+        with _client(scheduler, workers, memory_limit, retries, dashboard) as client:
+            futures = {}
+            for job in jobs:
+                fut = client.submit(diagnose_log, job, key=f"diagnose-{job.sha256}", pure=False)
+                futures[fut.key] = (fut, job)
+            with RecordLog(outdir) as log_file:
+                finished = 0
+                for fut in as_completed([f for f, _ in futures.values()]):
+                    job = futures[fut.key][1]
+                    try:
+                        record = fut.result()
+                    except Exception as exc:  # noqa: BLE001 - a dead worker is the log's row
+                        record = _lost(job, exc, retries)
+                    log_file.append(record)
+                    if on_record:
+                        on_record(record)
+                    finished += 1
+                    fut.release()
+                    if progress:
+                        progress(f"{finished}/{total} logs", finished / total, finished)
+    records, _ = rebuild(outdir)
+    return records
+
+
+__all__ = ["DEFAULT_MEMORY_LIMIT", "DEFAULT_TIMEOUT_S", "rebuild", "require", "run"]

@@ -1,0 +1,263 @@
+"""The per-log task: one log diagnosed by the library's :func:`imudiag.diagnose` into one
+record (docs/fleet.md). It runs in a Dask worker and never raises for a bad log: a log
+that cannot be read, whose certificate is bad, or that runs past its time is a record with
+``status: error`` and the reason."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import resource
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ImudiagError
+
+#: Certificate file names looked for in a log's folder and the folders above it (up to the
+#: folder named on the command line).
+FOLDER_CERTIFICATES = ("certificate.yaml", "certificate.yml")
+#: Triads and parameter kinds of a diagnosis report's windows, in order.
+TRIADS = ("accel", "gyro")
+#: A log's GNSS stream sits beside it as ``LOG.gnss`` or ``LOG.gnss.gz`` (a ``gpspipe -w``
+#: log in UTC Unix time, as ``imudiag simulate --gnss`` writes): the record's report then
+#: carries the moving-base diagnosis (``moving_base``), as ``imudiag diagnose --gnss
+#: FILE``; without one, the log's own GNSS where it has some (``--gnss auto``).
+GNSS_SUFFIXES = (".gnss", ".gnss.gz")
+#: Report keys left out of a record (the per-window estimates: the record keeps each
+#: parameter's best-determined window instead).
+DROPPED_REPORT_KEYS = ("windows",)
+
+
+class LogTimeout(ImudiagError):
+    """A log's diagnosis ran past the per-log timeout."""
+
+
+@dataclass
+class Job:
+    """What a worker needs to diagnose one log (all plain data: it is pickled to the worker).
+
+    ``certificate``: the one for every log (``--certificate``), else ``certificates`` maps a
+    vehicle to its certificate (``--certificates MAP.yaml``), else a ``certificate.yaml`` in
+    the log's folder or above it up to ``root``, else the bundled one. ``timeout_s``: the
+    diagnosis stops with a ``timeout`` error after this many seconds of wall time.
+    """
+
+    path: str
+    sha256: str
+    size: int
+    mtime_ns: int
+    root: str
+    certificate: str | None = None
+    certificates: dict[str, str] = field(default_factory=dict)
+    certificates_source: str | None = None
+    timeout_s: float | None = None
+    config: dict[str, Any] = field(default_factory=dict)
+
+
+def folder_certificate(path: str | Path, root: str | Path) -> Path | None:
+    """The nearest ``certificate.yaml`` in the folder of ``path`` or above it, not above
+    ``root``."""
+    top = Path(root).absolute()
+    here = Path(path).absolute().parent
+    while True:
+        for name in FOLDER_CERTIFICATES:
+            if (here / name).is_file():
+                return here / name
+        if here == top or here == here.parent or top not in here.parents:
+            return None
+        here = here.parent
+
+
+def choose_certificate(job: Job, vehicle: str, folder: str) -> tuple[str | None, str]:
+    """The certificate a log uses (a path, None for the bundled one) and where it came from."""
+    if job.certificate:
+        return job.certificate, "--certificate"
+    for name in (vehicle, folder):
+        if name in job.certificates:
+            return job.certificates[name], f"--certificates {job.certificates_source}: {name}"
+    found = folder_certificate(job.path, job.root)
+    if found is not None:
+        return str(found), "certificate.yaml in the vehicle's folder"
+    return None, "bundled (no --certificate, no map entry, no certificate.yaml)"
+
+
+def best_estimates(report: dict[str, Any], cert: Any) -> list[dict[str, Any]]:
+    """Each determined parameter's estimate in the log: the window that determined it best
+    (smallest std), with the certificate's value, the limit and the unit."""
+    from ..diagnosis.params import (
+        CAUSES,
+        PARAM_KEYS,
+        cause_unit,
+        certificate_vector,
+        limit_vector,
+        sensor_of,
+    )
+
+    out: list[dict[str, Any]] = []
+    for triad in TRIADS:
+        model = cert.triad(triad)
+        certificate, limit = certificate_vector(model), limit_vector(model)
+        best: dict[int, tuple[float, float, float, float]] = {}
+        for w in report.get("windows") or []:
+            fit = w.get(triad)
+            if not fit:
+                continue
+            for k, key in enumerate(PARAM_KEYS):
+                part = fit.get(key)
+                if not part:
+                    continue
+                for j in range(3):
+                    i = 3 * k + j
+                    est, std = part["estimate"][j], part["std"][j]
+                    if not part["determined"][j] or est is None or std is None:
+                        continue
+                    if not (np.isfinite(est) and np.isfinite(std)) or std <= 0:
+                        continue
+                    if i not in best or std < best[i][1]:
+                        best[i] = (float(est), float(std), w.get("t_start"), w.get("t_end"))
+        for i in sorted(best):
+            est, std, t0, t1 = best[i]
+            out.append(
+                {
+                    "triad": triad,
+                    "sensor": sensor_of(triad, i),
+                    "cause": CAUSES[i],
+                    "estimate": est,
+                    "std": std,
+                    "certificate": float(certificate[i]),
+                    "limit": float(limit[i]),
+                    "unit": cause_unit(model, CAUSES[i]),
+                    "window": [t0, t1],
+                }
+            )
+    return out
+
+
+def gnss_beside(path: str | Path) -> Path | None:
+    """The GNSS stream recorded beside a log (:data:`GNSS_SUFFIXES`), or None."""
+    for suffix in GNSS_SUFFIXES:
+        candidate = Path(f"{path}{suffix}")
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _peek(path: str) -> tuple[str, dict[str, Any], float | None]:
+    """The log's format name, metadata and first sample time (s), reading one block."""
+    from ..logs import log_format, open_log
+
+    fmt = log_format(path)
+    with open_log(path, block_size=1) as reader:
+        t0 = None
+        for block in reader:
+            if len(block.t):
+                t0 = float(block.t[0])
+                break
+        meta = dict(reader.meta)
+    return fmt, meta, t0
+
+
+def _cpu_s() -> float:
+    """CPU time of this thread, s (the worker's other threads are other logs)."""
+    return time.thread_time()
+
+
+def _json_safe(meta: dict[str, Any]) -> dict[str, Any]:
+    out = {}
+    for k, v in meta.items():
+        if isinstance(v, str | int | float | bool) or v is None:
+            out[str(k)] = v
+        else:
+            out[str(k)] = str(v)
+    return out
+
+
+def diagnose_log(job: Job) -> dict[str, Any]:
+    """Diagnose one log; the record of docs/fleet.md (``status`` ``ok`` or ``error``)."""
+    from ..api import diagnose, load_certificate
+    from .identity import folder_vehicle, identify
+
+    started, cpu0 = time.monotonic(), _cpu_s()
+    folder = folder_vehicle(job.path)
+    record: dict[str, Any] = {
+        "path": job.path,
+        "sha256": job.sha256,
+        "size": job.size,
+        "mtime_ns": job.mtime_ns,
+        "vehicle": folder,
+        "vehicle_source": "folder name (the log could not be read)",
+        "start": None,
+        "start_source": None,
+        "format": None,
+        "status": "error",
+        "reason": None,
+        "certificate": None,
+        "certificate_source": None,
+        "certificate_sha256": None,
+        "worker_pid": os.getpid(),
+    }
+    stage = "reading the log"
+    try:
+        fmt, meta, t0 = _peek(job.path)
+        record["format"] = fmt
+        record["meta"] = _json_safe(meta)
+        stage = "identifying the vehicle"
+        record.update(identify(job.path, fmt, meta, t0))
+        cert_path, cert_source = choose_certificate(job, record["vehicle"], folder)
+        record["certificate_source"] = cert_source
+        stage = "loading the certificate"
+        cert = load_certificate(cert_path)
+        record["certificate"] = str(cert.source) if cert.source else cert_path
+        if cert.source and Path(str(cert.source)).is_file():
+            record["certificate_sha256"] = hashlib.sha256(
+                Path(str(cert.source)).read_bytes()
+            ).hexdigest()
+        stage = "diagnosing"
+        deadline = None if job.timeout_s is None else started + job.timeout_s
+
+        def watch(what: str, fraction: float | None, done: int) -> None:
+            if deadline is not None and time.monotonic() > deadline:
+                raise LogTimeout(
+                    f"timeout: the diagnosis ran past {job.timeout_s:g} s (while {what})"
+                )
+
+        gnss = gnss_beside(job.path)
+        report = diagnose(
+            job.path,
+            cert,
+            config=job.config or None,
+            progress=watch,
+            gnss=str(gnss) if gnss else "auto",
+        )
+        record["gnss"] = (
+            str(gnss) if gnss else ("the log's own" if "moving_base" in report else None)
+        )
+        record["parameters"] = best_estimates(report, cert)
+        for key in DROPPED_REPORT_KEYS:
+            report.pop(key, None)
+        record["report"] = report
+        record["samples"] = report.get("samples")
+        record["status"] = "ok"
+    except LogTimeout as exc:
+        record["reason"] = str(exc)
+    except ImudiagError as exc:
+        record["reason"] = f"{stage}: {exc}"
+    except MemoryError:
+        record["reason"] = f"{stage}: out of memory"
+    except Exception as exc:  # noqa: BLE001 - any failure of one log is its row, never the run's
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        record["reason"] = (
+            f"{stage}: {type(exc).__name__}: {exc} ({Path(where.filename).name}:{where.lineno})"
+        )
+    record["cpu_s"] = _cpu_s() - cpu0
+    record["wall_s"] = time.monotonic() - started
+    record["max_rss_kib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return record
+
+
+__all__ = ["Job", "LogTimeout", "best_estimates", "choose_certificate", "diagnose_log"]
