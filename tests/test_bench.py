@@ -64,6 +64,7 @@ def _assert_sensor_results(report: dict) -> None:
         assert r["t_detected"] == pytest.approx(inj.t_s + r["latency_s"], abs=1e-3)
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("name", MONITOR_SCENARIOS)
 def test_bundled_sensor_scenarios_detect_every_fault_in_time(name: str) -> None:
     report = run_bench(load_bundled(name))
@@ -77,6 +78,7 @@ def test_bundled_sensor_scenarios_detect_every_fault_in_time(name: str) -> None:
     assert report["passed"] is True
 
 
+@pytest.mark.realtime
 def test_transport_scenario_counts_exactly_and_survives_unplug() -> None:
     report = run_bench(load_bundled("transport"))
     results = _by_number(report)
@@ -107,6 +109,7 @@ def test_transport_scenario_counts_exactly_and_survives_unplug() -> None:
     assert report["passed"] is True
 
 
+@pytest.mark.realtime
 def test_cli_prints_table_and_writes_json(tmp_path: Path, imudiag_cli) -> None:
     scenario = tmp_path / "short.yaml"
     scenario.write_text(
@@ -151,6 +154,7 @@ def test_cli_prints_table_and_writes_json(tmp_path: Path, imudiag_cli) -> None:
     assert "false alarms: none" in lines and lines[-1] == "verdict: PASS"
 
 
+@pytest.mark.realtime
 def test_bench_reports_a_wrong_expectation_as_missed_and_the_real_one_as_false_alarm(
     imudiag_cli, tmp_path: Path
 ) -> None:
@@ -190,6 +194,7 @@ def test_the_daemon_runs_the_window_diagnosis() -> None:
     assert HAS_DIAGNOSIS
 
 
+@pytest.mark.realtime
 def test_near_limit_faults_need_the_window_diagnosis() -> None:
     report = run_bench(load_bundled("near-limits"), diagnosis=True)
     _assert_sensor_results(report)
@@ -300,6 +305,7 @@ def test_cli_bad_scenario_and_unknown_name_exit_2(tmp_path: Path, imudiag_cli) -
     assert proc.returncode == 2 and "transport" in proc.stderr  # lists the bundled ones
 
 
+@pytest.mark.realtime
 def test_a_daemon_that_dies_is_a_bench_error_with_its_message() -> None:
     scenario = loads("name: x\nduration: 2\n", "x.yaml")
     with pytest.raises(BenchError, match="no-data-timeout"):

@@ -291,6 +291,7 @@ def pty_pair():
                 pass
 
 
+@pytest.mark.realtime
 def test_sink_over_a_pty_writes_valid_sentences(pty_pair) -> None:
     master, path = pty_pair
     with SerialStatusSink(path, rate_hz=2.0) as sink:
@@ -310,6 +311,7 @@ def test_sink_over_a_pty_writes_valid_sentences(pty_pair) -> None:
     assert sink.written == 9 and sink.dropped == 0 and sink.cycles == 3
 
 
+@pytest.mark.realtime
 def test_sink_accepts_serial_scheme_urls(pty_pair) -> None:
     master, path = pty_pair
     with SerialStatusSink(f"serial://{path}?baud=115200", rate_hz=1.0) as sink:
@@ -319,6 +321,7 @@ def test_sink_accepts_serial_scheme_urls(pty_pair) -> None:
     assert [parse_sentence(x).address for x in lines] == ["PIMDH", "PIMDC"]
 
 
+@pytest.mark.realtime
 def test_sink_over_loop_url() -> None:
     with SerialStatusSink("loop://", rate_hz=1.0) as sink:
         for k in range(5):
@@ -336,6 +339,7 @@ def test_sink_over_loop_url() -> None:
     assert all(decode_sentence(x) for x in lines)
 
 
+@pytest.mark.realtime
 def test_blocked_pty_consumer_never_blocks_publish(pty_pair) -> None:
     """Nobody reads the pty until its buffer is full: publish() stays fast and counts drops."""
     master, path = pty_pair
@@ -376,6 +380,7 @@ def test_blocked_pty_consumer_never_blocks_publish(pty_pair) -> None:
     assert sink.written > 0 and good >= sink.written - 2
 
 
+@pytest.mark.realtime
 def test_blocked_loop_consumer_counts_drops() -> None:
     """loop:// holds 4 KiB; nobody reads it: later sentences time out or are dropped."""
     sink = SerialStatusSink("loop://", rate_hz=10.0, queue_size=8, write_timeout_s=0.1)
@@ -390,6 +395,7 @@ def test_blocked_loop_consumer_counts_drops() -> None:
     assert sink.written <= 4096 // shortest + 1  # what fits in loop://'s buffer
 
 
+@pytest.mark.realtime
 def test_port_failure_is_counted_and_never_raises(pty_pair) -> None:
     """The far end goes away (master closed): writes fail, the sink drops and retries."""
     master, path = pty_pair

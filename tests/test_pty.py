@@ -14,6 +14,8 @@ from imudiag.drivers import SourceError, open_source
 from imudiag.drivers.wire import encode_samples
 from tests.helpers import read_samples
 
+pytestmark = pytest.mark.realtime  # tests/conftest.py: the two tiers
+
 
 def frames(n: int, seq_start: int = 0, seed: int = 0) -> tuple[bytes, np.ndarray]:
     rng = np.random.default_rng(seed)

@@ -21,8 +21,12 @@ import os
 import textwrap
 import time
 
+import pytest
+
 from imudiag.bench import BenchRun, loads, run_scenario
 from imudiag.bench.pty import PtyPair
+
+pytestmark = pytest.mark.realtime  # tests/conftest.py: the two tiers
 
 NO_DATA_TIMEOUT_S = 0.5  #: the bench's daemon configuration (monitor.no_data_timeout_s)
 RECONNECT_MAX_S = 0.4  #: the bench's daemon configuration (reconnect.max_s)

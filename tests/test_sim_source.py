@@ -96,6 +96,7 @@ def test_board_bytes_round_trip_in_odd_chunks(default_certificate):
     assert dec.counters.lost == 2400 - len(decoded)
 
 
+@pytest.mark.realtime
 def test_sim_source_real_time_pace():
     src = open_source("sim://")  # static scenario, real-time
     with src:
@@ -108,6 +109,7 @@ def test_sim_source_real_time_pace():
     assert src.device_info["scenario"] == "static"
 
 
+@pytest.mark.realtime
 def test_sim_source_speed_and_end_of_stream():
     src = open_source("sim://vehicle?speed=20&duration=2&seed=4")
     start = time.monotonic()
@@ -167,6 +169,7 @@ def test_sim_source_bad_urls(url, msg):
         open_source(url)
 
 
+@pytest.mark.realtime
 def test_board_through_a_pty_and_the_serial_source(default_certificate):
     """The bench path: board bytes -> BoardWriter -> pty -> serial:// -> decoder."""
     motion = scenario_motion("multiposition", 5, {"n": "3", "dwell": "0.5", "turn": "0.5"})
@@ -186,6 +189,7 @@ def test_board_through_a_pty_and_the_serial_source(default_certificate):
     assert_same_samples(SampleBlock.concat(blocks), expected.samples)
 
 
+@pytest.mark.realtime
 def test_run_reports_the_simulated_boards_cost_apart_from_the_monitors():
     """``imudiag run`` on the simulated board (here at full speed) says in its status what
     the board took to make its frames and what is left for the monitor (issue 14)."""

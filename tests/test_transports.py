@@ -59,6 +59,7 @@ def test_loop_round_trip_and_ignored_commands():
     assert (c.frames, c.lost, c.crc_errors) == (510, 0, 0)
 
 
+@pytest.mark.realtime
 def test_socket_stream_and_disconnect():
     data, raw = board_bytes(1000, seed=1)
     server = socket.create_server(("127.0.0.1", 0))
@@ -137,6 +138,7 @@ def test_replay_bin_as_fast_as_possible(tmp_path):
     assert np.all(np.diff(out.t) > 0) and out.seq[0] == 65000
 
 
+@pytest.mark.realtime
 def test_replay_paced_by_sample_time(tmp_path):
     path = tmp_path / "capture.bin"
     write_capture(path, n=400)  # 2 s of samples at 200 Hz
@@ -189,6 +191,7 @@ def test_replay_errors(tmp_path):
 # -- reconnecting -------------------------------------------------------------
 
 
+@pytest.mark.realtime
 def test_reconnect_after_unplug_and_replug(tmp_path):
     link = tmp_path / "ttyIMU"
     first = PtyPair(link=link)
@@ -239,6 +242,7 @@ def test_reconnect_after_unplug_and_replug(tmp_path):
             second.close()
 
 
+@pytest.mark.realtime
 def test_reconnect_starts_before_device_and_backs_off(tmp_path):
     link = tmp_path / "ttyLATE"
     src = ReconnectingSource(f"serial://{link}", min_backoff_s=0.01, max_backoff_s=0.04)
