@@ -341,30 +341,22 @@ def test_sink_over_loop_url() -> None:
 
 @pytest.mark.realtime
 def test_blocked_pty_consumer_never_blocks_publish(pty_pair) -> None:
-    """Nobody reads the pty until its buffer is full: publish() stays fast and counts drops."""
+    """Nobody reads the pty until its buffer is full: publish() never waits for the port,
+    it counts drops (judged on events: no wall-clock bound)."""
     master, path = pty_pair
-    # a blocked publish() would take at least the write timeout: make it long
-    sink = SerialStatusSink(path, rate_hz=10.0, queue_size=16, write_timeout_s=0.5)
+    # a write to the full pty blocks for up to the write timeout: make it far longer than
+    # the test, so no write times out and every drop below is the queue overflowing while
+    # the writer is stuck (a publish that waited for the port would never drop)
+    sink = SerialStatusSink(path, rate_hz=10.0, queue_size=16, write_timeout_s=60.0)
+    n_cycles = 3000  # ~ 3000 x 5 sentences x 60 bytes, far beyond the pty buffer
     try:
-        worst = 0.0
-        t0 = time.perf_counter()
-        n_cycles = 3000  # ~ 3000 x 5 sentences x 60 bytes, far beyond the pty buffer
         for k in range(n_cycles):
-            start = time.perf_counter()
             sink.publish(STATUS_FAULT, now_s=k * 0.125)
-            worst = max(worst, time.perf_counter() - start)
-        total = time.perf_counter() - t0
         assert sink.cycles == n_cycles
-        # each call formats five sentences and queues them; the writer is stuck. A publish
-        # that waited for the port would take at least the 0.5 s write timeout.
-        assert worst < 0.5, f"publish took {worst * 1e3:.1f} ms: it waited for the port"
-        assert total < 0.5 * n_cycles / 10  # far from one write timeout per call
         assert sink.dropped > 0
         assert sink.written < n_cycles * 5
     finally:
-        t_close = time.perf_counter()
-        sink.close(timeout_s=0.5)
-        assert time.perf_counter() - t_close < 3.0  # close gives up on a stuck receiver
+        sink.close(timeout_s=0.5)  # gives up on the stuck receiver: cancels the write
     # all sentences are accounted for: written, dropped (a partial write may hold a cut sentence)
     assert sink.written + sink.dropped == n_cycles * 5
     data = _read_all(master)
