@@ -26,6 +26,8 @@ from imudiag.bench import (
     run_bench,
     run_scenario,
 )
+from imudiag.bench.daemon_process import StatusRecord
+from imudiag.bench.evaluate import Evaluation
 from imudiag.bench.transport import (
     corrupt_sample_frames,
     count_frames,
@@ -344,3 +346,36 @@ def test_injected_bytes_give_the_counters_they_promise() -> None:
     # a duplicate is the last frame sent again
     dec.feed(last_frame(last) * 3)
     assert dec.counters.duplicates == 3
+
+
+def _line(t: float, faults: list[dict]) -> StatusRecord:
+    counters = dict.fromkeys(("bytes", "frames", "crc_errors", "skipped_bytes", "lost"), 0)
+    return StatusRecord(wall_s=t, status={"t": t, "faults": faults, "counters": counters})
+
+
+def test_latency_is_judged_on_the_sample_time_the_fault_came_in_force() -> None:
+    """Issue 30: a daemon that reads a late burst of frames shows a fault on a line whose
+    ``t`` is long after the fault came in force; the bench judges the entry's own
+    ``t_first`` (the monitor's), and the line's ``t`` where the entry has none or one from
+    before the line before it (the condition in force under another sensor)."""
+    scenario = loads(
+        "duration: 10\nspeed: 5\ninjections:\n"
+        "  - {t: 2.0, kind: bias, sensor: az, value: 800,"
+        " expect: [{triad: accel, cause: f0, within: 1.0}]}\n"
+        "  - {t: 6.0, kind: bias, sensor: gz, value: 150,"
+        " expect: [{triad: gyro, sensor: gz, cause: f0, within: 1.5}]}\n",
+        "late.yaml",
+    )
+    az = {"triad": "accel", "sensor": None, "cause": "f0", "t_first": 2.1}
+    gx = {"triad": "gyro", "sensor": "gx", "cause": "f0", "t_first": 4.2}  # unexplained
+    gz = {**gx, "sensor": "gz"}  # the same condition, its worst axis now gz
+    records = [_line(1.0, []), _line(3.4, [az]), _line(5.0, [az, gx]), _line(6.8, [az, gz])]
+    report = Evaluation(scenario, records, [], False, 200.0, sent={"bytes": 0, "frames": 0})
+    first, second = report.report()["faults"]
+    # the line came 1.4 s of samples late (past the 1 s bound); the fault was in force at 2.1
+    assert first["result"] == "pass" and first["t_detected"] == 2.1
+    assert first["latency_s"] == pytest.approx(0.1)
+    # gz's entry carries the t_first of the gx episode (before the line before it): the line
+    assert second["result"] == "pass" and second["t_detected"] == 6.8
+    (alarm,) = report.false_alarms()
+    assert (alarm["sensor"], alarm["t_first"]) == ("gx", 4.2)  # its own time, not 5.0

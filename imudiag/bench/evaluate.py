@@ -4,9 +4,11 @@ Per injection:
 
 - sensor faults: the first status line whose ``faults`` hold an expected
   entry (triad, sensor, cause); detected at the entry's ``t_first`` (the sample
-  time the daemon's monitor put the fault in force), else, for a check that
-  does not say (the window diagnosis, stuck), the line's ``t``: so a daemon
-  that reads a late burst of frames at once does not look slow; latency = that
+  time the daemon's monitor put the fault in force) when that is after the line
+  before, else (a check that does not say: the window diagnosis, stuck; or a
+  fault in force before under another sensor, as the rest-rate check's worst
+  axis) at the line's ``t``: so a daemon that reads a late burst of frames at
+  once does not look slow; latency = that
   minus the injection time, both sample time (s); a matching entry before the
   injection is *premature*; unexplained entries on the same triad within the
   bound are *wrong* attributions (first seen at their own sample time, the same
@@ -57,11 +59,16 @@ def _entry(key: tuple[str, str, str]) -> dict[str, Any]:
     return d
 
 
-def fault_time(entry: dict[str, Any], line_t: float) -> float:
-    """Sample time (s) a status ``faults`` entry stands for: its own ``t_first`` (when the
-    check put it in force) where the daemon gives one, else the status line's ``t``."""
+def fault_time(entry: dict[str, Any], line_t: float, prev_t: float | None) -> float:
+    """Sample time (s) a status ``faults`` entry first seen on a line at ``line_t`` stands
+    for: its own ``t_first`` (when the check put it in force) where the daemon gives one
+    after ``prev_t``, the ``t`` of the line before (which did not show it); else the line's
+    ``t`` (no ``t_first``, or one from before that line: the condition was in force under
+    another identity, e.g. the rest-rate check's worst axis changed)."""
     t_first = entry.get("t_first")
-    return float(t_first) if isinstance(t_first, int | float) else line_t
+    if isinstance(t_first, int | float) and (prev_t is None or t_first >= prev_t - 1e-9):
+        return float(t_first)
+    return line_t
 
 
 def _r(x: float | None, nd: int = 3) -> float | None:
@@ -112,17 +119,18 @@ class Evaluation:
     def false_alarms(self) -> list[dict[str, Any]]:
         """Fault entries no injected fault explains: first/last t and status lines."""
         seen: dict[tuple[str, str, str], dict[str, Any]] = {}
+        prev_t: float | None = None
         for rec in self.timed:
             line_t = float(rec.status["t"])
             for entry in rec.status.get("faults", []):
-                t = fault_time(entry, line_t)
+                t = fault_time(entry, line_t, prev_t)
                 key = _key(entry)
                 if self._explained(key, t):
                     continue
                 fa = seen.setdefault(key, {**_entry(key), "t_first": t, "t_last": t, "lines": 0})
-                fa["t_first"] = min(fa["t_first"], t)
                 fa["t_last"] = line_t
                 fa["lines"] += 1
+            prev_t = line_t
         return [
             {**v, "t_first": _r(v["t_first"]), "t_last": _r(v["t_last"])} for v in seen.values()
         ]
@@ -142,19 +150,21 @@ class Evaluation:
             return out
         premature: float | None = None
         found: tuple[float, dict[str, Any], Expectation] | None = None
+        prev_t: float | None = None
         for rec in self.timed:
             line_t = float(rec.status["t"])
             for entry in rec.status.get("faults", []):
                 e = next((e for e in active if e.matches(entry)), None)
                 if e is None:
                     continue
-                t = fault_time(entry, line_t)
+                t = fault_time(entry, line_t, prev_t)
                 if t < inj.t_s - 1e-9:
                     premature = t if premature is None else premature
                 elif found is None:
                     found = (t, entry, e)
             if found is not None:
                 break
+            prev_t = line_t
         bound = max(e.within_s for e in active)
         wrong = [
             fa
