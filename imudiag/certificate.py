@@ -30,14 +30,15 @@ import yaml
 from . import yamlio
 from .errors import CertificateError as _CertificateErrorBase
 from .rowwise import BIG_ROWS, rows_op
+from .units import STANDARD_GRAVITY_M_S2, TO_SI
 
 FORMAT = "imudiag-certificate/1"
 
-#: Conversion factor from each allowed input unit to SI (rad/s, m/s^2).
-STANDARD_GRAVITY_M_S2 = 9.80665
+#: Conversion factor from each input unit spec/certificate.md allows to SI (rad/s, m/s^2);
+#: the factors are imudiag.units' (the one table of exact conversions).
 INPUT_UNITS_TO_SI: dict[str, dict[str, float]] = {
-    "gyro": {"rad/s": 1.0, "deg/s": math.pi / 180.0},
-    "accel": {"m/s^2": 1.0, "g": STANDARD_GRAVITY_M_S2},
+    "gyro": {u: TO_SI["gyro"][u] for u in ("rad/s", "deg/s")},
+    "accel": {u: TO_SI["accel"][u] for u in ("m/s^2", "g")},
 }
 TRIADS = ("gyro", "accel")
 AXES = ("x", "y", "z")

@@ -9,6 +9,16 @@ null must be equal (verdicts, faults, undetermined parameters, windows, counts);
 float equal to 1e-9 relative. Regenerate only on purpose (a change meant to change the
 report):
 ``python tests/test_diagnose_frozen_reports.py``.
+
+The last digits of a float depend on the processor: numpy picks its SIMD kernels of exp,
+log, sqrt, sums and products at run time, so an AVX-512 machine (numpy's ``X86_V4``) and an
+AVX2 one (``X86_V3``) round differently, and an ill-conditioned window fit carries that
+rounding far above 1e-9 (the condition number of a singular information matrix is noise
+at any precision). Every set is therefore kept per SIMD level, written on a machine of that
+level: ``x86-v4/`` at d021e2f as above (the machine of issue 14), ``x86-v3/`` on an AMD EPYC
+with AVX2 at 8d0fb87, whose every non-float equals ``x86-v4/``'s (checked below). A machine
+is held to 1e-9 against its own level's set; a machine of a level with no set is held to
+the cross-hardware tolerance (:func:`hardware_differences`) against the nearest set.
 """
 
 from __future__ import annotations
@@ -32,8 +42,34 @@ from imudiag.sim.scenarios import scenario_motion
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "tests" / "data"
-FROZEN = DATA / "frozen-reports"
-REL_TOL = 1e-9  #: relative tolerance of every float of the report
+FROZEN_SETS = DATA / "frozen-reports"
+REL_TOL = 1e-9  #: relative tolerance of every float of the report, on the set's own hardware
+#: Across SIMD levels: floats to 1e-7 relative; the residual figures of a window that fits
+#: its points to rounding (dof and rms_residual near 0) to 1e-3; a condition number c to
+#: c x 100 machine epsilons relative (what rounding alone moves it by), and not at all once
+#: both are those of a singular matrix (above 1e15, where rounding is all they measure).
+HW_REL_TOL = 1e-7
+HW_RESIDUAL_KEYS = {"dof": 1e-3, "rms_residual": 1e-3}
+HW_SINGULAR_CONDITION = 1e15
+HW_CONDITION_EPS = 100 * float(np.finfo(float).eps)
+
+
+def simd_level() -> str:
+    """This machine's numpy SIMD level as a set directory name (``x86-v4``, ``x86-v3``, ...)."""
+    try:
+        found = set(np.__config__.CONFIG["SIMD Extensions"]["found"])  # type: ignore[attr-defined]
+    except (AttributeError, KeyError, TypeError):
+        found = set()
+    for level in ("X86_V4", "X86_V3", "X86_V2"):
+        if level in found:
+            return level.lower().replace("_", "-")
+    return "unknown"
+
+
+#: The set this machine's reports are held to, strictly when it is of this machine's level.
+LEVELS = sorted(p.name for p in FROZEN_SETS.iterdir() if p.is_dir())
+OWN_SET = simd_level() in LEVELS
+FROZEN = FROZEN_SETS / (simd_level() if OWN_SET else "x86-v3")
 #: keys that name this run's files (the log, the certificate by its path), not the diagnosis
 RUN_KEYS = ("log", "certificate")
 
@@ -134,12 +170,60 @@ def differences(got: Any, want: Any, where: str = "report") -> list[str]:
     return []
 
 
+def hardware_differences(got: Any, want: Any, where: str = "report") -> list[str]:
+    """:func:`differences` that leaves out what rounding on other hardware moves: floats
+    within :data:`HW_REL_TOL`, residual figures within :data:`HW_RESIDUAL_KEYS`, condition
+    numbers of singular matrices. Non-floats (verdicts, faults, counts) still exactly."""
+    out = []
+    for d in differences(got, want, where):
+        path, _, values = d.partition(": ")
+        a, sep, b = values.partition(" != ")
+        try:
+            x, y = float(a), float(b)
+        except ValueError:
+            out.append(d)
+            continue
+        key = path.rsplit(".", 1)[-1].split("[")[0]
+        tol = HW_RESIDUAL_KEYS.get(key, HW_REL_TOL)
+        if key == "condition":
+            if min(x, y) >= HW_SINGULAR_CONDITION:
+                continue
+            tol = max(tol, HW_CONDITION_EPS * max(x, y))
+        if math.isclose(x, y, rel_tol=tol, abs_tol=0.0):
+            continue
+        out.append(d)
+    return out
+
+
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_report_unchanged(name, tmp_path):
     want = json.loads((FROZEN / f"{name}.json").read_text())
     got = diagnose_report(name, tmp_path)
-    diff = differences(got, want)
-    assert not diff, f"{len(diff)} differences, first: " + "; ".join(diff[:8])
+    diff = differences(got, want) if OWN_SET else hardware_differences(got, want)
+    how = f"{FROZEN.name} set, " + ("1e-9" if OWN_SET else f"from a {simd_level()} machine")
+    assert not diff, f"{len(diff)} differences ({how}), first: " + "; ".join(diff[:8])
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_sets_of_every_level_tell_one_diagnosis(name):
+    """The per-level sets differ only where hardware rounding reaches: every verdict,
+    fault, count and window equal, floats within the cross-hardware tolerance."""
+    sets = [json.loads((FROZEN_SETS / lv / f"{name}.json").read_text()) for lv in LEVELS]
+    assert len(sets) >= 2
+    for level, other in zip(LEVELS[1:], sets[1:], strict=True):
+        diff = hardware_differences(other, sets[0])
+        assert not diff, f"{level} vs {LEVELS[0]}: " + "; ".join(diff[:8])
+
+
+def test_cross_hardware_tolerance_still_sees_a_change():
+    """A verdict, a window, or an estimate off by 1e-6 relative is a difference there too."""
+    want = json.loads((FROZEN / "multiposition-faults-npz.json").read_text())
+    got = json.loads(json.dumps(want))
+    got["windows"][-1]["accel"]["bias"]["estimate"][0] *= 1.0 + 1e-6
+    assert hardware_differences(got, want)
+    got = json.loads(json.dumps(want))
+    got["verdict"]["accel"] = "ok"
+    assert hardware_differences(got, want)
 
 
 def test_the_comparison_sees_a_change():
@@ -162,9 +246,10 @@ def test_the_comparison_sees_a_change():
 if __name__ == "__main__":
     import tempfile
 
-    FROZEN.mkdir(parents=True, exist_ok=True)
+    target = FROZEN_SETS / simd_level()  # only this machine's level can be written here
+    target.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         for case in sorted(CASES):
             rep = diagnose_report(case, Path(tmp))
-            (FROZEN / f"{case}.json").write_text(json.dumps(rep, indent=1) + "\n")
+            (target / f"{case}.json").write_text(json.dumps(rep, indent=1) + "\n")
             print(case, rep["verdict"]["accel"], rep["verdict"]["gyro"], rep.get("windows_run"))

@@ -31,6 +31,7 @@ FLOORS: list[tuple[str, ...]] = [
     # 0 ground: errors, the YAML loader, atomic files, bundled configuration, the Earth model
     (
         "imudiag.errors",
+        "imudiag.units",
         "imudiag.yamlio",
         "imudiag.atomic",
         "imudiag.config",

@@ -1,8 +1,8 @@
 """Checks and side inputs of the diagnosis commands: log units, sample rate, magnitudes.
 
 - :func:`check_units`: a log whose ``# units:`` metadata (``gyro=deg/s
-  accel=m/s^2``) disagrees with the certificate's ``output_unit`` is rejected,
-  naming both.
+  accel=m/s^2``) differs from the certificate's ``output_unit`` is converted exactly
+  when both are physical units, else rejected naming both.
 - :func:`log_rate_hz`: the sample rate from the log's ``sample_rate`` metadata,
   else from its time stamps, else the certificate's.
 - :class:`MagnitudeTable`: independent magnitudes for the moving-base variant,
@@ -12,7 +12,6 @@
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import Any
 
@@ -21,37 +20,14 @@ import numpy as np
 from ..certificate import Certificate
 from ..errors import BadInput
 from ..samples import SampleBlock
-
-_UNIT_ITEM = re.compile(r"(gyro|accel)\s*=\s*(\S+)")
-
-
-def parse_units(text: Any) -> dict[str, str]:
-    """``{"gyro": unit, "accel": unit}`` from a ``units`` metadata value (either may be absent)."""
-    if isinstance(text, dict):
-        return {k: str(v) for k, v in text.items() if k in ("gyro", "accel")}
-    return {m.group(1): m.group(2).strip(",;") for m in _UNIT_ITEM.finditer(str(text))}
+from ..units import Conversion, conform_meta
 
 
-def _norm_unit(u: str) -> str:
-    u = u.strip().lower().replace(" ", "")
-    return {"counts": "count", "m/s2": "m/s^2", "m/s**2": "m/s^2", "dps": "deg/s"}.get(u, u)
-
-
-def check_units(log_path: str, meta: dict[str, Any], cert: Certificate) -> None:
-    """Raise BadInput when the log's stated output units differ from the certificate's."""
-    if "units" not in meta:
-        return
-    units = parse_units(meta["units"])
-    for triad, unit in units.items():
-        cu = cert.triad(triad).output_unit
-        if _norm_unit(unit) != _norm_unit(cu):
-            src = cert.source or "the certificate"
-            raise BadInput(
-                f"{log_path}: units: the log's {triad} outputs are in {unit!r} but "
-                f"{src}: {triad}.output_unit is {cu!r}; they must match: use a certificate "
-                f"whose {triad}.output_unit is {unit!r}, or a log in {cu!r} (convert "
-                f"--quantum makes counts), or state the log's true units with --units"
-            )
+def check_units(log_path: str, meta: dict[str, Any], cert: Certificate) -> Conversion:
+    """The exact conversion from the log's stated output units (its ``units`` metadata) to
+    the certificate's (:func:`imudiag.units.conform_meta`): identity when they agree or the
+    log states none; raises BadInput naming both when they cannot be converted."""
+    return conform_meta(meta, cert, log_path)
 
 
 def log_rate_hz(meta: dict[str, Any], first: SampleBlock | None, cert: Certificate) -> float:
@@ -128,4 +104,4 @@ def write_magnitudes(path: str | Path, t: np.ndarray, accel: np.ndarray, gyro: n
     np.savetxt(path, data, delimiter=",", header="t,accel,gyro", comments="", fmt="%.9g")
 
 
-__all__ = ["check_units", "parse_units", "log_rate_hz", "MagnitudeTable", "write_magnitudes"]
+__all__ = ["check_units", "log_rate_hz", "MagnitudeTable", "write_magnitudes"]

@@ -125,7 +125,9 @@ def measure_noise(
     meter = None
     t0 = None
     with blocks(data, block_size, options, progress, "measuring noise") as (meta, stream):
+        units = check_units(recording_name(data), meta, cert)
         for block in stream:
+            block = units.apply(block)
             if meter is None:
                 meter = NoiseMeter(rate_hz or log_rate_hz(meta, block, cert))
                 t0 = float(block.t[0]) if len(block) else None
@@ -199,9 +201,10 @@ def diagnose_recording(
     monitor = None
     diag = None
     with blocks(data, block_size, options, progress, "diagnosing") as (meta, stream):
+        units = check_units(name, meta, cert)
         for block in stream:
+            block = units.apply(block)
             if diag is None:
-                check_units(name, meta, cert)
                 rate = rate_hz or log_rate_hz(meta, block, cert)
                 # one still detector for both when theirs are alike (the same settings and
                 # noise figures: with the certificate's noise, or a certificate without any)
@@ -256,6 +259,8 @@ def diagnose_recording(
         report["certificate_warning"] = str(cert.device["warning"])
     report["sample_rate"] = diag.rate_hz
     report["noise"] = noise_report
+    if not units.identity:  # what was converted, exactly (imudiag.units)
+        report["unit_conversion"] = units.describe()
     report["self_test"] = monitor.self_test  # samples excluded: deflected on purpose
     report["adc_errors"] = monitor.adc_errors
     return report
@@ -308,9 +313,10 @@ def calibrate_recording(
     moving: dict[str, tuple[NormalEquations, float]] = {}
     rate = None
     with blocks(data, block_size, options, progress, "collecting intervals") as (meta, stream):
+        units = check_units(name, meta, like)
         for block in stream:
+            block = units.apply(block)
             if collector is None:
-                check_units(name, meta, like)
                 rate = rate_hz or log_rate_hz(meta, block, like)
                 collector = IntervalCollector(
                     like,

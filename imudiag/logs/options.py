@@ -16,13 +16,15 @@ from typing import Any
 
 from ..argtypes import nonnegative_int, positive_float
 from ..errors import BadInput
+from ..units import canonical, units_of
 from .base import OPTIONAL_COLUMNS, REQUIRED_COLUMNS
 
 #: Seconds per unit of ``t``.
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
-#: Units a log's outputs may be stated in, per triad (``count`` is raw ADC output).
-GYRO_UNITS = ("rad/s", "deg/s", "count")
-ACCEL_UNITS = ("m/s^2", "g", "count")
+#: Units a log's outputs may be stated in, per triad (``count`` is raw ADC output; the
+#: physical ones convert exactly to a certificate's, imudiag.units).
+GYRO_UNITS = units_of("gyro")
+ACCEL_UNITS = units_of("accel")
 #: Column names --columns accepts, besides ``_`` (skip).
 COLUMN_NAMES = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
 GYRO_COLUMNS = ("gx", "gy", "gz")
@@ -94,8 +96,7 @@ def parse_units(text: str, where: str = "--units") -> dict[str, str]:
         allowed = {"gyro": GYRO_UNITS, "accel": ACCEL_UNITS}.get(key)
         if not sep or allowed is None:
             raise BadInput(f"{where}: expected gyro=UNIT,accel=UNIT, got {part!r}")
-        if value == "m/s2":
-            value = "m/s^2"
+        value = canonical(value) if value else value
         if value not in allowed:
             raise BadInput(f"{where}: {key} unit {value!r} unknown; expected {', '.join(allowed)}")
         units[key] = value

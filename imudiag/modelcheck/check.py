@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from ..certificate import Certificate, TriadModel
 from ..noise_estimate import METHOD as WHITE_NOISE_METHOD
 from ..reports import MODEL_CHECK_FORMAT, header
 from ..samples import SampleBlock
+from ..units import Conversion, conform_meta
 from .config import ModelCheckConfig
 from .detectors import ChannelResult, analyse_channel, k_on_rows
 from .extend import (
@@ -203,6 +205,15 @@ def _empty_metrics() -> dict[str, Any]:
     }
 
 
+def _converted(source: BlockSource, units: Conversion) -> BlockSource:
+    """``source`` whose every pass yields blocks in the certificate's units."""
+
+    def again() -> Iterator[SampleBlock]:
+        return (units.apply(block) for block in source())
+
+    return again
+
+
 def model_check(
     log: str | Path | SampleBlock | BlockSource,
     certificate: Certificate,
@@ -216,6 +227,10 @@ def model_check(
     how far each pass has got (a path or a block)."""
     cfg = config or ModelCheckConfig()
     source, meta = block_source(log, block_size, progress)
+    where = str(log) if isinstance(log, (str, Path)) else "(samples)"
+    conversion = conform_meta(meta, certificate, where)  # exact, or refused (imudiag.units)
+    if not conversion.identity:
+        source = _converted(source, conversion)
     session = collect(source, certificate, cfg, meta)
     c = session.chunks
     out_units = {"gyro": certificate.gyro.output_unit, "accel": certificate.accel.output_unit}
@@ -228,6 +243,8 @@ def model_check(
         "duration_s": session.duration_s,
         "sample_rate": session.rate_hz,
     }
+    if not conversion.identity:
+        base_report["unit_conversion"] = conversion.describe()
     if len(c) < 6:
         report = dict(base_report)
         report.update(
