@@ -1,8 +1,9 @@
 """The whole test suite in three steps (README "Quick start", what ``.ci/run`` runs):
 
 1. style: ``ruff check``, ``ruff format --check``, ``mypy -p imudiag`` (``.ci/style.py``);
-2. deterministic tier: every test not marked ``realtime``, on 2 workers
-   (``pytest -m "not realtime" -n 2``; tests/conftest.py states the rule);
+2. deterministic tier: every test not marked ``realtime``, on 2 workers, each test file on
+   one worker so its module fixtures are made once (``pytest -m "not realtime" -n 2
+   --dist loadfile``; tests/conftest.py states the rule);
 3. real-time tier: the tests marked ``realtime`` (ptys, daemon processes, signals, the
    bench, gpsd), serially, after the deterministic tier.
 
@@ -45,7 +46,19 @@ def main(argv: list[str]) -> int:
         _step("style", [py, str(ROOT / ".ci" / "style.py")]),
         _step(
             "deterministic tier",
-            [py, "-m", "pytest", "-q", "-m", "not realtime", "-n", str(workers), *argv],
+            [
+                py,
+                "-m",
+                "pytest",
+                "-q",
+                "-m",
+                "not realtime",
+                "-n",
+                str(workers),
+                "--dist",
+                "loadfile",
+                *argv,
+            ],
         ),
         _step(
             "real-time tier", [py, "-m", "pytest", "-q", "-m", "realtime", "-p", "no:xdist", *argv]
