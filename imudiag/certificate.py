@@ -51,6 +51,30 @@ MISALIGNMENT_PAIRS = {
     "accel": ("ax/ay", "ax/az", "ay/az"),
 }
 MISALIGNMENT_KEYS = ("xz", "xy", "yz", "yx", "zy", "zx")
+#: The misalignment sign table (certificate.md), its one definition: the row, column and
+#: sign of each D_jk in N = [[1 + e_x, D_xz, -D_xy], [-D_yz, 1 + e_y, D_yx],
+#: [D_zy, -D_zx, 1 + e_z]]. Every consumer (the model, the simulator, the model check,
+#: the calibration's certificate fields) reads it here (tests/test_conventions.py).
+MISALIGNMENT_N_ENTRY: dict[str, tuple[int, int, float]] = {
+    "xz": (0, 1, 1.0),
+    "xy": (0, 2, -1.0),
+    "yz": (1, 0, -1.0),
+    "yx": (1, 2, 1.0),
+    "zy": (2, 0, 1.0),
+    "zx": (2, 1, -1.0),
+}
+#: The observable differences d1, d2, d3 = D_plus - D_minus, one per pair of
+#: :data:`MISALIGNMENT_PAIRS` (x/y, x/z, y/z): (plus key, minus key).
+MISALIGNMENT_DIFFERENCES: tuple[tuple[str, str], ...] = (("xz", "yz"), ("zy", "xy"), ("yx", "zx"))
+
+
+def misalignment_of_n(n: np.ndarray) -> dict[str, float]:
+    """The misalignment keys D_jk (rad) that a 3x3 N (dimensionless) holds, read through
+    :data:`MISALIGNMENT_N_ENTRY` (the inverse of :meth:`TriadModel.n_matrix` off the
+    diagonal)."""
+    return {
+        key: float(sign * n[row, col]) for key, (row, col, sign) in MISALIGNMENT_N_ENTRY.items()
+    }
 
 
 class CertificateError(_CertificateErrorBase):
@@ -278,19 +302,14 @@ class TriadModel:
     def misalignment_differences(self) -> np.ndarray:
         """Observable differences d1 = D_xz - D_yz, d2 = D_zy - D_xy, d3 = D_yx - D_zx, rad."""
         d = self.misalignment
-        return np.array([d["xz"] - d["yz"], d["zy"] - d["xy"], d["yx"] - d["zx"]])
+        return np.array([d[plus] - d[minus] for plus, minus in MISALIGNMENT_DIFFERENCES])
 
     def n_matrix(self) -> np.ndarray:
         """The 3x3 matrix N of the spec (dimensionless)."""
-        e = self.relative_scale_error
-        d = self.misalignment
-        return np.array(
-            [
-                [1.0 + e[0], d["xz"], -d["xy"]],
-                [-d["yz"], 1.0 + e[1], d["yx"]],
-                [d["zy"], -d["zx"], 1.0 + e[2]],
-            ]
-        )
+        n = np.diag(1.0 + self.relative_scale_error)
+        for key, (row, col, sign) in MISALIGNMENT_N_ENTRY.items():
+            n[row, col] = sign * self.misalignment[key]
+        return n
 
     def _bias_at(self, temp_c: np.ndarray | float | None) -> np.ndarray:
         """Bias in output units, (3,) or (N, 3) when a temperature series is given."""

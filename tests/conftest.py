@@ -1,11 +1,26 @@
-"""Shared fixtures: the bundled certificate, the test data folders, the CLI."""
+"""Shared fixtures: the bundled certificate, the test data folders, the CLI; the two tiers.
+
+Two tiers (README "Tests"). A test is **deterministic** unless it is marked ``realtime``:
+no wall-clock bound, no real-time process, so it runs in parallel (``-n 2``) and gives the
+same verdict on a loaded machine. A test that runs real-time processes is marked
+``realtime`` (a module-level ``pytestmark = pytest.mark.realtime``, or
+``@pytest.mark.realtime`` on the test in a mixed module): ptys, daemon subprocesses
+(``imudiag run`` that runs), signals sent to processes, the bench, gpsd, paced sources
+(``speed`` > 0) and threads timed on the wall clock. Its timing is still judged on sample
+time or events; a wall-clock figure goes to ``benchmarks/`` (printed, never asserted).
+
+The rule is enforced: in a test without the marker, opening a pty, sending a signal to a
+process or starting gpsd/gpsfake fails the test with a message saying to mark it.
+"""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -74,3 +89,53 @@ def run_imudiag_without(module: str, *args: str) -> subprocess.CompletedProcess[
 def imudiag_cli():
     """The :func:`run_imudiag` helper: ``imudiag_cli("convert", a, b).returncode``."""
     return run_imudiag
+
+
+#: programs that are real-time processes whatever their arguments
+_REALTIME_PROGRAMS = ("gpsd", "gpsfake")
+
+
+def _refuse(what: str) -> None:
+    pytest.fail(
+        f"{what} in a deterministic test: a real-time process; mark the test (or its module) "
+        "with pytest.mark.realtime (tests/conftest.py states the rule)",
+        pytrace=False,
+    )
+
+
+@pytest.fixture(autouse=True)
+def _deterministic_tier_guard(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Keep the tiers honest: a test without the ``realtime`` marker may not open a pty,
+    send a signal to a process or start gpsd (the deterministic tier runs in parallel and
+    must give the same verdict however loaded the machine is)."""
+    if request.node.get_closest_marker("realtime") is not None:
+        yield
+        return
+    mp = pytest.MonkeyPatch()
+    popen_init = subprocess.Popen.__init__
+
+    def openpty() -> tuple[int, int]:
+        _refuse("os.openpty()")
+        raise AssertionError  # not reached
+
+    def kill(pid: int, sig: int) -> None:
+        _refuse(f"os.kill({pid}, {sig})")
+
+    def killpg(pgid: int, sig: int) -> None:
+        _refuse(f"os.killpg({pgid}, {sig})")
+
+    def popen(self: subprocess.Popen[Any], args: Any, *a: Any, **kw: Any) -> None:
+        argv = [args] if isinstance(args, str | bytes | os.PathLike) else list(args)
+        program = os.path.basename(os.fsdecode(argv[0])) if argv else ""
+        if program in _REALTIME_PROGRAMS:
+            _refuse(f"starting {program}")
+        popen_init(self, args, *a, **kw)
+
+    mp.setattr(os, "openpty", openpty)
+    mp.setattr(os, "kill", kill)
+    mp.setattr(os, "killpg", killpg)
+    mp.setattr(subprocess.Popen, "__init__", popen)
+    try:
+        yield
+    finally:
+        mp.undo()

@@ -24,8 +24,8 @@ from imudiag.aiding import (
     read_gpspipe_log,
     transport_rate_ned,
 )
-from imudiag.aiding.earth import OMEGA_E, coriolis_term, radii
 from imudiag.aiding.specific_force import measured_velocity_sigma
+from imudiag.earth import OMEGA_E, coriolis_term, radii
 from imudiag.errors import BadInput
 
 

@@ -30,6 +30,8 @@ from imudiag.certificate import load_default
 from imudiag.sim.drive import EPOCH_UNIX, GnssSimConfig, simulate_drive
 from imudiag.sim.faults import Fault
 
+pytestmark = pytest.mark.realtime  # tests/conftest.py: the two tiers
+
 RATE_HZ = 100.0
 STEP_S = 0.25  #: s of samples per update (the daemon's reads are shorter)
 WAIT_S = 120.0  #: a bound for a stuck worker, not a timing assertion

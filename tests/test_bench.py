@@ -26,6 +26,8 @@ from imudiag.bench import (
     run_bench,
     run_scenario,
 )
+from imudiag.bench.daemon_process import StatusRecord
+from imudiag.bench.evaluate import Evaluation
 from imudiag.bench.transport import (
     corrupt_sample_frames,
     count_frames,
@@ -64,9 +66,10 @@ def _assert_sensor_results(report: dict) -> None:
         assert r["t_detected"] == pytest.approx(inj.t_s + r["latency_s"], abs=1e-3)
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("name", MONITOR_SCENARIOS)
 def test_bundled_sensor_scenarios_detect_every_fault_in_time(name: str) -> None:
-    report = run_bench(load_bundled(name))
+    report = run_bench(load_bundled(name), wall_bounds=False)
     assert report["format"] == "imudiag-bench/1"
     assert report["daemon"]["exit_status"] == 0 and report["daemon"]["problems"] == []
     _assert_sensor_results(report)
@@ -77,8 +80,9 @@ def test_bundled_sensor_scenarios_detect_every_fault_in_time(name: str) -> None:
     assert report["passed"] is True
 
 
+@pytest.mark.realtime
 def test_transport_scenario_counts_exactly_and_survives_unplug() -> None:
-    report = run_bench(load_bundled("transport"))
+    report = run_bench(load_bundled("transport"), wall_bounds=False)
     results = _by_number(report)
     assert report["false_alarms"] == []  # transport faults never look like sensor faults
     expected = {
@@ -97,7 +101,10 @@ def test_transport_scenario_counts_exactly_and_survives_unplug() -> None:
     unplug = results[6]
     assert unplug["result"] == "pass", unplug
     assert unplug["drained"] is True and unplug["link_reconnecting_seen"] is True
-    assert unplug["wall_latency_s"] <= 1.5 and unplug["recover_wall_s"] <= 2.0
+    # judged on events (no_data while unplugged, samples again after the replug); the wall
+    # figures are reported (python -m benchmarks.realtime prints them), not bounded here
+    assert unplug["detected"] is True and unplug["state_after"] in ("ok", "degraded")
+    assert unplug["wall_latency_s"] >= 0.0 and unplug["recover_wall_s"] >= 0.0
     assert unplug["counters_continued"] is True
     assert 8.5 <= unplug["t_resumed"] <= 8.6  # the board resumed where it stopped
     c = report["counters"]
@@ -107,6 +114,7 @@ def test_transport_scenario_counts_exactly_and_survives_unplug() -> None:
     assert report["passed"] is True
 
 
+@pytest.mark.realtime
 def test_cli_prints_table_and_writes_json(tmp_path: Path, imudiag_cli) -> None:
     scenario = tmp_path / "short.yaml"
     scenario.write_text(
@@ -151,6 +159,7 @@ def test_cli_prints_table_and_writes_json(tmp_path: Path, imudiag_cli) -> None:
     assert "false alarms: none" in lines and lines[-1] == "verdict: PASS"
 
 
+@pytest.mark.realtime
 def test_bench_reports_a_wrong_expectation_as_missed_and_the_real_one_as_false_alarm(
     imudiag_cli, tmp_path: Path
 ) -> None:
@@ -180,6 +189,8 @@ def test_bench_reports_a_wrong_expectation_as_missed_and_the_real_one_as_false_a
     assert r["result"] == "missed" and r["detected"] is False
     assert [(w["triad"], w["sensor"], w["cause"]) for w in r["wrong"]] == [("gyro", "gz", "f0")]
     assert report["false_alarms"][0]["sensor"] == "gz"
+    # the sample time the daemon put the wrong-axis fault in force (its status entry's
+    # t_first), not the t of the first line showing it: the same however loaded the machine
     assert 2.0 <= report["false_alarms"][0]["t_first"] <= 3.0
     assert report["passed"] is False
     assert "verdict: FAIL" in proc.stderr  # the table goes to stderr with --json -
@@ -190,8 +201,9 @@ def test_the_daemon_runs_the_window_diagnosis() -> None:
     assert HAS_DIAGNOSIS
 
 
+@pytest.mark.realtime
 def test_near_limit_faults_need_the_window_diagnosis() -> None:
-    report = run_bench(load_bundled("near-limits"), diagnosis=True)
+    report = run_bench(load_bundled("near-limits"), diagnosis=True, wall_bounds=False)
     _assert_sensor_results(report)
     assert report["false_alarms"] == [] and report["passed"] is True
 
@@ -300,6 +312,7 @@ def test_cli_bad_scenario_and_unknown_name_exit_2(tmp_path: Path, imudiag_cli) -
     assert proc.returncode == 2 and "transport" in proc.stderr  # lists the bundled ones
 
 
+@pytest.mark.realtime
 def test_a_daemon_that_dies_is_a_bench_error_with_its_message() -> None:
     scenario = loads("name: x\nduration: 2\n", "x.yaml")
     with pytest.raises(BenchError, match="no-data-timeout"):
@@ -333,3 +346,36 @@ def test_injected_bytes_give_the_counters_they_promise() -> None:
     # a duplicate is the last frame sent again
     dec.feed(last_frame(last) * 3)
     assert dec.counters.duplicates == 3
+
+
+def _line(t: float, faults: list[dict]) -> StatusRecord:
+    counters = dict.fromkeys(("bytes", "frames", "crc_errors", "skipped_bytes", "lost"), 0)
+    return StatusRecord(wall_s=t, status={"t": t, "faults": faults, "counters": counters})
+
+
+def test_latency_is_judged_on_the_sample_time_the_fault_came_in_force() -> None:
+    """Issue 30: a daemon that reads a late burst of frames shows a fault on a line whose
+    ``t`` is long after the fault came in force; the bench judges the entry's own
+    ``t_first`` (the monitor's), and the line's ``t`` where the entry has none or one from
+    before the line before it (the condition in force under another sensor)."""
+    scenario = loads(
+        "duration: 10\nspeed: 5\ninjections:\n"
+        "  - {t: 2.0, kind: bias, sensor: az, value: 800,"
+        " expect: [{triad: accel, cause: f0, within: 1.0}]}\n"
+        "  - {t: 6.0, kind: bias, sensor: gz, value: 150,"
+        " expect: [{triad: gyro, sensor: gz, cause: f0, within: 1.5}]}\n",
+        "late.yaml",
+    )
+    az = {"triad": "accel", "sensor": None, "cause": "f0", "t_first": 2.1}
+    gx = {"triad": "gyro", "sensor": "gx", "cause": "f0", "t_first": 4.2}  # unexplained
+    gz = {**gx, "sensor": "gz"}  # the same condition, its worst axis now gz
+    records = [_line(1.0, []), _line(3.4, [az]), _line(5.0, [az, gx]), _line(6.8, [az, gz])]
+    report = Evaluation(scenario, records, [], False, 200.0, sent={"bytes": 0, "frames": 0})
+    first, second = report.report()["faults"]
+    # the line came 1.4 s of samples late (past the 1 s bound); the fault was in force at 2.1
+    assert first["result"] == "pass" and first["t_detected"] == 2.1
+    assert first["latency_s"] == pytest.approx(0.1)
+    # gz's entry carries the t_first of the gx episode (before the line before it): the line
+    assert second["result"] == "pass" and second["t_detected"] == 6.8
+    (alarm,) = report.false_alarms()
+    assert (alarm["sensor"], alarm["t_first"]) == ("gx", 4.2)  # its own time, not 5.0

@@ -27,6 +27,7 @@ WHY_NOT = missing()
 needs_gpsd = pytest.mark.skipif(WHY_NOT is not None, reason=WHY_NOT or "")
 
 
+@pytest.mark.realtime
 @needs_gpsd
 def test_drive_aided_names_the_az_fault_with_aiding_in_use(tmp_path: Path, imudiag_cli) -> None:
     out = tmp_path / "report.json"
@@ -66,6 +67,7 @@ def test_drive_aided_names_the_az_fault_with_aiding_in_use(tmp_path: Path, imudi
     assert not wait_listening(port, 0.0)
 
 
+@pytest.mark.realtime
 def test_a_gpsd_that_dies_at_start_is_a_bench_error_with_its_status(tmp_path: Path) -> None:
     if WHY_NOT is not None and "pyubx2" in WHY_NOT:
         pytest.skip(WHY_NOT)

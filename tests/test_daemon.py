@@ -22,6 +22,8 @@ from imudiag.sim.board import SimulatedBoard
 from imudiag.sim.faults import Fault
 from imudiag.sim.scenarios import scenario_motion
 
+pytestmark = pytest.mark.realtime  # tests/conftest.py: the two tiers
+
 FAULT_T_S = 4.0  #: sample time of the injected accelerometer fault, s
 FAULT_COUNTS = 800.0  #: az bias step, counts (about 1.9 m/s^2: a gross fault)
 SPEED = 4.0  #: board pace relative to real time

@@ -233,6 +233,15 @@ def test_regression_csv_lone_cr_last_line(tmp_path: Path) -> None:
 
 
 def test_saved_fuzz_crashes_replay() -> None:
-    """Every input a fuzz run saved under fuzz/crashes/ must now pass its target's contract."""
-    for path in sorted(CRASH_DIR.glob("*.bin")) if CRASH_DIR.is_dir() else []:
-        TARGETS[path.name.split("-")[0]][0](path.read_bytes())
+    """Every input a fuzz run saved under fuzz/crashes/ must now pass its target's contract.
+
+    The folder and its inputs are part of the tree (README "Fuzzing"): a missing folder, an
+    empty one or an input no target claims fails here instead of passing with nothing run.
+    """
+    assert CRASH_DIR.is_dir(), f"{CRASH_DIR}: the saved fuzz crashes are missing"
+    saved = sorted(CRASH_DIR.glob("*.bin"))
+    assert saved, f"{CRASH_DIR}: no saved crash input (*.bin)"
+    for path in saved:
+        target = path.name.split("-")[0]
+        assert target in TARGETS, f"{path.name}: no fuzz target {target!r}"
+        TARGETS[target][0](path.read_bytes())

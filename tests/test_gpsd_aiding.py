@@ -21,6 +21,8 @@ from imudiag.errors import BadInput
 from imudiag.sim.board import SimulatedBoard
 from imudiag.sim.drive import GnssSimConfig, drive_motion, gnss_reports
 
+pytestmark = pytest.mark.realtime  # tests/conftest.py: the two tiers
+
 GPSD = find_gpsd()
 GPSFAKE = shutil.which("gpsfake")
 needs_gpsd = pytest.mark.skipif(

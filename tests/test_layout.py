@@ -9,6 +9,8 @@ arrow running up a floor, and on a module that no floor claims.
 from __future__ import annotations
 
 import ast
+import os
+import re
 from pathlib import Path
 
 import pytest
@@ -22,9 +24,11 @@ PACKAGE_DIRS = {
 }
 
 #: Floors, bottom up: a module imports only from its own floor or below. Each entry is a
-#: module or a package prefix; the longest matching prefix decides.
+#: module or a package prefix; the longest matching prefix decides. These are the rows of
+#: the README's stage table ("What it does"), in order, entry for entry (tested below): a
+#: new module gets its floor here and its place in that table.
 FLOORS: list[tuple[str, ...]] = [
-    # 0 ground: errors, the YAML loader, atomic files, bundled configuration
+    # 0 ground: errors, the YAML loader, atomic files, bundled configuration, the Earth model
     (
         "imudiag.errors",
         "imudiag.units",
@@ -34,6 +38,7 @@ FLOORS: list[tuple[str, ...]] = [
         "imudiag.reports",
         "imudiag.progress",
         "imudiag.argtypes",
+        "imudiag.earth",
     ),
     # 1 data: samples with units, the certificate model, rotations, arithmetic on rows
     ("imudiag.samples", "imudiag.certificate", "imudiag.rotations", "imudiag.rowwise"),
@@ -43,30 +48,33 @@ FLOORS: list[tuple[str, ...]] = [
     ("imudiag.drivers",),
     # 4 logs
     ("imudiag.logs",),
-    # 5 checks and analysis
+    # 5 monitor: the per-sample checks and what they stand on
     (
-        "imudiag.scalar",
-        "imudiag.stats",
+        "imudiag.monitor",
+        "imudiag.quasistatic",
+        "imudiag.persistence",
         "imudiag.ringbuffer",
         "imudiag.trailing",
-        "imudiag.persistence",
-        "imudiag.quasistatic",
         "imudiag.noise_estimate",
-        "imudiag.noise_stats",
         "imudiag.vibration",
-        "imudiag.monitor",
-        "imudiag.sim",
+        "imudiag.scalar",
+        "imudiag.stats",
+    ),
+    # 6 verdicts: window diagnosis, aiding, model check, simulator, Allan, other tools
+    (
         "imudiag.diagnosis",
-        "imudiag.modelcheck",
         "imudiag.aiding",
+        "imudiag.modelcheck",
+        "imudiag.sim",
+        "imudiag.noise_stats",
         "imudiag.interop",
         "imudiag.plots",
     ),
-    # 6 sources above the transports: sim://, replay://
+    # 7 sources above the transports: sim://, replay://
     ("imudiag.sources",),
-    # 7 service: the daemon
+    # 8 service: the daemon
     ("imudiag.service",),
-    # 8 faces: the library API, the command line, the bench
+    # 9 faces: the library API, the command line, the bench
     (
         "imudiag",
         "imudiag.api",
@@ -76,6 +84,19 @@ FLOORS: list[tuple[str, ...]] = [
         "imudiag.bench",
         "imudiag.fleet",
     ),
+]
+#: The README table's stage names, one per floor.
+STAGES = [
+    "ground",
+    "data",
+    "bytes -> frames",
+    "transports",
+    "samples",
+    "monitor",
+    "verdicts",
+    "sources above",
+    "status",
+    "faces",
 ]
 
 
@@ -158,6 +179,76 @@ def test_the_walk_sees_the_package():
 
 def test_every_module_has_a_floor():
     assert [m for m in MODULES if floor(m) < 0] == []
+
+
+def _readme_stages() -> list[tuple[str, tuple[str, ...]]]:
+    """The README's stage table: (stage, module entries) per row, in order. ``.name`` is
+    short for a sibling of the entry before it (``imudiag.errors``, ``.yamlio``); a path in
+    backticks (``config/``) is the directory, not an entry."""
+    text = (ROOT / "README.md").read_text()
+    table = text[text.index("| stage | module | what |") :].split("\n\n")[0]
+    rows = []
+    for line in table.splitlines()[2:]:
+        stage, modules = (cell.strip() for cell in line.strip("|").split("|")[:2])
+        entries: list[str] = []
+        for name in re.findall(r"`([^`]+)`", modules):
+            if "/" in name:
+                continue
+            if name.startswith("."):
+                name = entries[-1].rpartition(".")[0] + name
+            entries.append(name)
+        rows.append((stage, tuple(entries)))
+    return rows
+
+
+def test_the_readme_stage_table_is_the_floors():
+    """Issue 30 item 3: the floors the README names are the floors enforced here, entry for
+    entry, so "monitor -> verdicts" and "verdicts -> status" are checked, not only said."""
+    readme = [(stage, sorted(entries)) for stage, entries in _readme_stages()]
+    assert readme == [(stage, sorted(e)) for stage, e in zip(STAGES, FLOORS, strict=True)]
+
+
+def test_every_floor_entry_names_a_module():
+    """No entry of the table (and so of the floors) names a module that does not exist."""
+    stale = [e for entries in FLOORS for e in entries if e not in MODULES]
+    assert stale == []
+
+
+def test_the_monitor_stands_below_the_verdicts():
+    """The per-sample checks import nothing of the window diagnosis, aiding, model check or
+    simulator; the simulator imports no analysis (the Earth model is on the ground floor)."""
+    verdicts = FLOORS[STAGES.index("verdicts")]
+    assert all(floor(d) <= floor("imudiag.monitor") for m, deps in GRAPH.items()
+               if floor(m) == floor("imudiag.monitor") for d in deps)  # fmt: skip
+    analyses = tuple(v for v in verdicts if v != "imudiag.sim")
+    from_sim = sorted(
+        f"{m} imports {d}"
+        for m, deps in GRAPH.items()
+        if m.startswith("imudiag.sim")
+        for d in deps
+        if d.startswith(analyses)
+    )
+    assert from_sim == []
+
+
+def test_plain_mypy_finds_the_installed_layout():
+    """``mypy -p imudiag`` from the root (.ci/style.py) reaches imudiag.drivers and
+    imudiag.config through links to the top-level drivers/ and config/ (pyproject's
+    package-dir), so an editable install type-checks without staging."""
+    for name in ("drivers", "config"):
+        link = ROOT / "imudiag" / name
+        assert link.is_symlink() and os.readlink(link) == f"../{name}", link
+        assert (ROOT / name).is_dir() and not (ROOT / name).is_symlink()
+
+
+def test_ci_runs_the_readme_suite_command():
+    """.ci/run runs exactly the README's second quick-start command (the whole suite)."""
+    readme = (ROOT / "README.md").read_text()
+    block = readme[readme.index("## Quick start") :].split("```sh\n")[1].split("```")[0]
+    command = block.splitlines()[1]
+    assert ".ci/suite.py" in command
+    ci = (ROOT / ".ci" / "run").read_text().rstrip().splitlines()
+    assert ci[-1] == command
 
 
 def test_no_import_runs_up_a_floor():

@@ -4,6 +4,7 @@ faults in force; what was ever raised is a counter."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from imudiag.certificate import load_default
 from imudiag.logs import open_writer
@@ -55,6 +56,7 @@ def test_a_cleared_diagnosis_fault_leaves_the_live_verdict(tmp_path):
     assert np.isfinite(last["t"])
 
 
+@pytest.mark.realtime
 def test_no_data_says_why_in_notes_and_the_log(tmp_path):
     """Issue 12 item 4: a missing device is named with the OS error, not only no_data."""
     import subprocess

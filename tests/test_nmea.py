@@ -291,6 +291,7 @@ def pty_pair():
                 pass
 
 
+@pytest.mark.realtime
 def test_sink_over_a_pty_writes_valid_sentences(pty_pair) -> None:
     master, path = pty_pair
     with SerialStatusSink(path, rate_hz=2.0) as sink:
@@ -310,6 +311,7 @@ def test_sink_over_a_pty_writes_valid_sentences(pty_pair) -> None:
     assert sink.written == 9 and sink.dropped == 0 and sink.cycles == 3
 
 
+@pytest.mark.realtime
 def test_sink_accepts_serial_scheme_urls(pty_pair) -> None:
     master, path = pty_pair
     with SerialStatusSink(f"serial://{path}?baud=115200", rate_hz=1.0) as sink:
@@ -319,6 +321,7 @@ def test_sink_accepts_serial_scheme_urls(pty_pair) -> None:
     assert [parse_sentence(x).address for x in lines] == ["PIMDH", "PIMDC"]
 
 
+@pytest.mark.realtime
 def test_sink_over_loop_url() -> None:
     with SerialStatusSink("loop://", rate_hz=1.0) as sink:
         for k in range(5):
@@ -336,31 +339,24 @@ def test_sink_over_loop_url() -> None:
     assert all(decode_sentence(x) for x in lines)
 
 
+@pytest.mark.realtime
 def test_blocked_pty_consumer_never_blocks_publish(pty_pair) -> None:
-    """Nobody reads the pty until its buffer is full: publish() stays fast and counts drops."""
+    """Nobody reads the pty until its buffer is full: publish() never waits for the port,
+    it counts drops (judged on events: no wall-clock bound)."""
     master, path = pty_pair
-    # a blocked publish() would take at least the write timeout: make it long
-    sink = SerialStatusSink(path, rate_hz=10.0, queue_size=16, write_timeout_s=0.5)
+    # a write to the full pty blocks for up to the write timeout: make it far longer than
+    # the test, so no write times out and every drop below is the queue overflowing while
+    # the writer is stuck (a publish that waited for the port would never drop)
+    sink = SerialStatusSink(path, rate_hz=10.0, queue_size=16, write_timeout_s=60.0)
+    n_cycles = 3000  # ~ 3000 x 5 sentences x 60 bytes, far beyond the pty buffer
     try:
-        worst = 0.0
-        t0 = time.perf_counter()
-        n_cycles = 3000  # ~ 3000 x 5 sentences x 60 bytes, far beyond the pty buffer
         for k in range(n_cycles):
-            start = time.perf_counter()
             sink.publish(STATUS_FAULT, now_s=k * 0.125)
-            worst = max(worst, time.perf_counter() - start)
-        total = time.perf_counter() - t0
         assert sink.cycles == n_cycles
-        # each call formats five sentences and queues them; the writer is stuck. A publish
-        # that waited for the port would take at least the 0.5 s write timeout.
-        assert worst < 0.5, f"publish took {worst * 1e3:.1f} ms: it waited for the port"
-        assert total < 0.5 * n_cycles / 10  # far from one write timeout per call
         assert sink.dropped > 0
         assert sink.written < n_cycles * 5
     finally:
-        t_close = time.perf_counter()
-        sink.close(timeout_s=0.5)
-        assert time.perf_counter() - t_close < 3.0  # close gives up on a stuck receiver
+        sink.close(timeout_s=0.5)  # gives up on the stuck receiver: cancels the write
     # all sentences are accounted for: written, dropped (a partial write may hold a cut sentence)
     assert sink.written + sink.dropped == n_cycles * 5
     data = _read_all(master)
@@ -376,6 +372,7 @@ def test_blocked_pty_consumer_never_blocks_publish(pty_pair) -> None:
     assert sink.written > 0 and good >= sink.written - 2
 
 
+@pytest.mark.realtime
 def test_blocked_loop_consumer_counts_drops() -> None:
     """loop:// holds 4 KiB; nobody reads it: later sentences time out or are dropped."""
     sink = SerialStatusSink("loop://", rate_hz=10.0, queue_size=8, write_timeout_s=0.1)
@@ -390,6 +387,7 @@ def test_blocked_loop_consumer_counts_drops() -> None:
     assert sink.written <= 4096 // shortest + 1  # what fits in loop://'s buffer
 
 
+@pytest.mark.realtime
 def test_port_failure_is_counted_and_never_raises(pty_pair) -> None:
     """The far end goes away (master closed): writes fail, the sink drops and retries."""
     master, path = pty_pair

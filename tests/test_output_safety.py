@@ -71,6 +71,7 @@ def _wait_for_part(d: Path, proc: subprocess.Popen[str]) -> None:
         time.sleep(0.01)
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_a_signal_ends_a_command_with_its_code_and_no_partial_file(tmp_path, sig, code):
     out = tmp_path / "long.csv"
@@ -276,6 +277,7 @@ def _wait_for(proc: subprocess.Popen[str], cond, what: str, timeout_s: float = 6
 SIGNALS = [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")]
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize(("sig", "code", "word"), SIGNALS)
 def test_simulate_stopped_leaves_old_output_and_no_temporary(tmp_path: Path, sig, code, word):
     out = tmp_path / "long.csv"
@@ -309,6 +311,7 @@ def _has_open(proc: subprocess.Popen[str], path: Path) -> bool:
     return str(path.resolve()) in links
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize(("sig", "code", "word"), SIGNALS)
 def test_convert_stopped_mid_stream(long_log: Path, tmp_path: Path, sig, code, word):
     out = tmp_path / "out.csv"
@@ -322,6 +325,7 @@ def test_convert_stopped_mid_stream(long_log: Path, tmp_path: Path, sig, code, w
     assert not out.exists()
 
 
+@pytest.mark.realtime
 @pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="needs Linux /proc")
 @pytest.mark.parametrize(("sig", "code", "word"), SIGNALS)
 def test_diagnose_stopped_writes_no_report(long_log: Path, tmp_path: Path, sig, code, word):

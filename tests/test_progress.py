@@ -77,6 +77,7 @@ def assert_bar(term: bytes, command: str) -> None:
     assert "%" not in "\r".join(parts[2:]), repr(text[-200:])
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize(
     "command",
     ["simulate", "convert", "diagnose", "calibrate", "model-check"],
@@ -121,6 +122,7 @@ def test_bar_on_a_terminal(command, session, tmp_path):
     assert "\r" not in out and "[#" not in out  # standard output carries none of it
 
 
+@pytest.mark.realtime
 def test_phases_of_the_diagnosis_are_named(session):
     code, term, _ = run_on_pty("diagnose", str(session), "-c", CERT, "--block-size", "1000")
     assert code == 0
@@ -129,6 +131,7 @@ def test_phases_of_the_diagnosis_are_named(session):
     assert text.index("measuring noise [") < text.index("diagnosing [")
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("command", ["diagnose", "simulate", "convert"])
 def test_quiet_on_a_terminal_draws_nothing(command, session, tmp_path):
     args = {
@@ -158,6 +161,7 @@ def test_nothing_into_a_pipe(session, tmp_path):
         assert "\r" not in res.stderr and "%" not in res.stderr and "[#" not in res.stderr
 
 
+@pytest.mark.realtime
 def test_error_clears_the_bar_then_one_line(session, tmp_path):
     """A bad sample half-way: the bar is cleared and the error starts its own line."""
     lines = session.read_text().splitlines()

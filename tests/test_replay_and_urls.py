@@ -47,6 +47,7 @@ def test_run_refuses_a_misspelt_key_with_exit_2(imudiag_cli):
     assert "'sped'" in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.realtime
 def test_full_speed_replay_writes_a_line_per_second_of_sample_time(imudiag_cli):
     log = REAL / "imucal-ferraris" / "session.csv.gz"
     # its certificate (deg/s and m/s^2): the bundled one is in counts, which the daemon

@@ -27,6 +27,7 @@ def test_one_class_per_format():
         header("imudiag-nothing/1")
 
 
+@pytest.mark.realtime
 def test_status_lines(tmp_path):
     """`imudiag run` on a finite simulated session: every line a STATUS object."""
     r = subprocess.run(

@@ -214,6 +214,7 @@ n.stopping()
 """
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("pid_mode", ["unset", "parent"])
 def test_real_process_reads_its_environment(notify_socket: NotifySocket, pid_mode: str) -> None:
     """A child process gets NOTIFY_SOCKET etc. as systemd would pass them."""

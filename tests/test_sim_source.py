@@ -96,25 +96,33 @@ def test_board_bytes_round_trip_in_odd_chunks(default_certificate):
     assert dec.counters.lost == 2400 - len(decoded)
 
 
+@pytest.mark.realtime
 def test_sim_source_real_time_pace():
+    start = time.monotonic()
     src = open_source("sim://")  # static scenario, real-time
+    ahead = []  # sample time delivered beyond the wall time since the source opened, s
     with src:
-        start = time.monotonic()
         n = 0
-        while time.monotonic() - start < 0.6:
-            n += len(src.read(0.05))
-    # 0.6 s at 200 Hz = 120 samples (+1 due at t = 0), give the scheduler some slack
-    assert 80 <= n <= 125
+        while n < 121:  # 0.6 s at 200 Hz (+1 due at t = 0): an event, not a wall-time window
+            block = src.read(0.05)
+            n += len(block)
+            if len(block):
+                ahead.append(float(block.t[-1]) - (time.monotonic() - start))
+    # paced: never a sample before its time (a loaded machine only makes them later)
+    assert max(ahead) <= 0.005, max(ahead)  # one sample period of slack
     assert src.device_info["scenario"] == "static"
 
 
+@pytest.mark.realtime
 def test_sim_source_speed_and_end_of_stream():
-    src = open_source("sim://vehicle?speed=20&duration=2&seed=4")
     start = time.monotonic()
-    block = read_all(src, limit_s=5.0)
+    src = open_source("sim://vehicle?speed=20&duration=2&seed=4")
+    block = read_all(src, limit_s=60.0)
     elapsed = time.monotonic() - start
     assert len(block) == 400
-    assert 0.05 <= elapsed < 1.5  # 2 s of data at 20x real time, about 0.1 s
+    # 2 s of data at 20x real time: not sooner than 0.1 s (less one sample period); how much
+    # later depends on the machine's load and is not bounded here
+    assert elapsed >= (1.995 - 0.005) / 20.0
     np.testing.assert_allclose(block.t[[0, -1]], [0.0, 1.995])
     with pytest.raises(EndOfStream), src:
         src.read(0.1)
@@ -167,6 +175,7 @@ def test_sim_source_bad_urls(url, msg):
         open_source(url)
 
 
+@pytest.mark.realtime
 def test_board_through_a_pty_and_the_serial_source(default_certificate):
     """The bench path: board bytes -> BoardWriter -> pty -> serial:// -> decoder."""
     motion = scenario_motion("multiposition", 5, {"n": "3", "dwell": "0.5", "turn": "0.5"})
@@ -186,6 +195,7 @@ def test_board_through_a_pty_and_the_serial_source(default_certificate):
     assert_same_samples(SampleBlock.concat(blocks), expected.samples)
 
 
+@pytest.mark.realtime
 def test_run_reports_the_simulated_boards_cost_apart_from_the_monitors():
     """``imudiag run`` on the simulated board (here at full speed) says in its status what
     the board took to make its frames and what is left for the monitor (issue 14)."""

@@ -7,7 +7,11 @@ import socket
 import threading
 import time
 
+import pytest
+
 from imudiag.service.nmea import SerialStatusSink
+
+pytestmark = pytest.mark.realtime  # tests/conftest.py: the two tiers
 
 
 def test_stuck_socket_status_link_closes_cleanly():

@@ -59,6 +59,7 @@ def test_loop_round_trip_and_ignored_commands():
     assert (c.frames, c.lost, c.crc_errors) == (510, 0, 0)
 
 
+@pytest.mark.realtime
 def test_socket_stream_and_disconnect():
     data, raw = board_bytes(1000, seed=1)
     server = socket.create_server(("127.0.0.1", 0))
@@ -137,19 +138,28 @@ def test_replay_bin_as_fast_as_possible(tmp_path):
     assert np.all(np.diff(out.t) > 0) and out.seq[0] == 65000
 
 
+@pytest.mark.realtime
 def test_replay_paced_by_sample_time(tmp_path):
     path = tmp_path / "capture.bin"
     write_capture(path, n=400)  # 2 s of samples at 200 Hz
     src = open_source(f"replay://{path}?speed=8")
     sizes = []
+    ahead = []  # sample time delivered beyond what 8x the elapsed wall time allows, s
+    first_t = None
     t0 = time.monotonic()
     with src:
         with pytest.raises(EndOfStream):
-            for _ in range(10000):
-                sizes.append(len(src.read(0.02)))
-    elapsed = time.monotonic() - t0
+            while True:
+                block = src.read(0.02)
+                sizes.append(len(block))
+                if len(block):
+                    first_t = float(block.t[0]) if first_t is None else first_t
+                    span = float(block.t[-1]) - first_t
+                    ahead.append(span - 8.0 * (time.monotonic() - t0))
     assert sum(sizes) == 399
-    assert 0.2 <= elapsed < 1.5  # 2 s of log at 8x: about 0.25 s
+    # paced by sample time: never ahead of 8x the wall time since the first read;
+    # a loaded machine only delivers later, so this cannot fail for being slow
+    assert max(ahead) <= 0.005, max(ahead)  # (one sample period of slack)
     assert sum(1 for s in sizes if s) >= 5  # delivered progressively, not in one go
 
 
@@ -189,6 +199,7 @@ def test_replay_errors(tmp_path):
 # -- reconnecting -------------------------------------------------------------
 
 
+@pytest.mark.realtime
 def test_reconnect_after_unplug_and_replug(tmp_path):
     link = tmp_path / "ttyIMU"
     first = PtyPair(link=link)
@@ -239,6 +250,7 @@ def test_reconnect_after_unplug_and_replug(tmp_path):
             second.close()
 
 
+@pytest.mark.realtime
 def test_reconnect_starts_before_device_and_backs_off(tmp_path):
     link = tmp_path / "ttyLATE"
     src = ReconnectingSource(f"serial://{link}", min_backoff_s=0.01, max_backoff_s=0.04)

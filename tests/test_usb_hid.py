@@ -191,6 +191,7 @@ def test_usb_device_selection_errors():
         open_source("usb://0483:5740?endpoint=0x82", backend=board).open()
 
 
+@pytest.mark.realtime
 def test_usb_unplug_and_replug_with_reconnect():
     board = EmulatedBoardBackend()
     data1, raw1 = board_bytes(300, seq_start=0, seed=1)
@@ -277,6 +278,7 @@ REPORT_DESCRIPTOR = bytes.fromhex(
 )
 
 
+@pytest.mark.realtime
 @pytest.mark.skipif(
     not os.access("/dev/uhid", os.W_OK),
     reason="/dev/uhid is not available here (no uhid kernel module or no permission): "

@@ -18,8 +18,8 @@ and |f_n| = |f_b| because a rotation keeps lengths. Modules:
   (land vehicles, under the no-slip assumption).
 """
 
+from ..earth import earth_rate_ned, normal_gravity, transport_rate_ned
 from .align import LatencyEstimate, estimate_latency
-from .earth import earth_rate_ned, normal_gravity, transport_rate_ned
 from .specific_force import (
     GateConfig,
     GnssEpochs,

@@ -62,7 +62,7 @@ import numpy as np
 
 from ..certificate import TriadModel
 from ..diagnosis.params import cause_unit, sensor_of
-from .earth import earth_rate_ned, transport_rate_ned
+from ..earth import earth_rate_ned, transport_rate_ned
 from .specific_force import REASONS, GateConfig, GnssEpochs, ImuEpochs, velocity_sigma
 from .tpv import GnssTrack
 

@@ -35,6 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..rotations import skew
+
 
 @dataclass
 class LeverArmEstimate:
@@ -69,19 +71,6 @@ class LeverArmEstimate:
         }
 
 
-def _skew(w: np.ndarray) -> np.ndarray:
-    """[w]x for rows of w (N, 3): (N, 3, 3)."""
-    z = np.zeros(w.shape[0])
-    return np.stack(
-        [
-            np.stack([z, -w[:, 2], w[:, 1]], 1),
-            np.stack([w[:, 2], z, -w[:, 0]], 1),
-            np.stack([-w[:, 1], w[:, 0], z], 1),
-        ],
-        1,
-    )
-
-
 def lever_arm_rows(
     t: np.ndarray,
     gyro_si: np.ndarray,
@@ -107,7 +96,7 @@ def lever_arm_rows(
     inside[inside] &= t[inside] < b[j[inside]]
     idx = np.where(inside, j, kk)
     count = np.bincount(idx, minlength=kk + 1)[:kk]
-    sw = _skew(w)
+    sw = skew(w)
     cen = (sw @ sw).reshape(-1, 9)
     sums = np.stack([np.bincount(idx, cen[:, c], minlength=kk + 1)[:kk] for c in range(9)], 1)
     wsum = np.stack([np.bincount(idx, w[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
@@ -121,7 +110,7 @@ def lever_arm_rows(
         contiguous = (np.abs(a[2:] - b[1:-1]) < 1e-6) & (np.abs(a[1:-1] - b[:-2]) < 1e-6)
         d = (w_mean[2:] - w_mean[:-2]) / (mid[2:] - mid[:-2])[:, None]
         wdot[1:-1] = np.where(contiguous[:, None], d, np.nan)
-    mat = _skew(wdot) + mean_c
+    mat = skew(wdot) + mean_c
     return np.einsum("ki,kij->kj", u, mat)
 
 

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .earth import coriolis_term, normal_gravity
+from ..earth import coriolis_term, normal_gravity
 from .tpv import GnssTrack
 
 #: Reasons an epoch is not used, in the order they are tested.

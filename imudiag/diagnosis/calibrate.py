@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from ..certificate import Certificate, Noise, TriadModel, Uncertainty
+from ..certificate import Certificate, Noise, TriadModel, Uncertainty, misalignment_of_n
 from ..reports import CALIBRATION_FORMAT, header
 from .config import DiagnosisConfig
 from .gauge import n_symmetric, p_matrix, shape_of_triad, small_rotation
@@ -257,15 +257,7 @@ class CalibrationResult:
 def fields_from_n(n: np.ndarray, scale_factor: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
     """Certificate fields (E (3,) output per input unit, misalignment dict rad) of a general N."""
     e = (np.diag(n) - 1.0) * scale_factor
-    mis = {
-        "xz": float(n[0, 1]),
-        "xy": float(-n[0, 2]),
-        "yz": float(-n[1, 0]),
-        "yx": float(n[1, 2]),
-        "zy": float(n[2, 0]),
-        "zx": float(-n[2, 1]),
-    }
-    return e, mis
+    return e, misalignment_of_n(n)
 
 
 def _set_from_fit(out: TriadModel, like: TriadModel, fit: TriadFit) -> None:

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..certificate import MISALIGNMENT_KEYS, TriadModel
+from ..certificate import MISALIGNMENT_DIFFERENCES, MISALIGNMENT_KEYS, TriadModel
 
 #: Names of the 6 shape parameters, in order.
 SHAPE_NAMES = ("e_x", "e_y", "e_z", "d1", "d2", "d3")
@@ -96,8 +96,9 @@ def n_symmetric(triad: TriadModel, shape: np.ndarray) -> tuple[np.ndarray, dict[
     """
     s = np.asarray(shape, dtype=float)
     e = s[:3] * triad.scale_factor
-    d1, d2, d3 = s[3:]
-    mis = {"xz": d1 / 2, "yz": -d1 / 2, "zy": d2 / 2, "xy": -d2 / 2, "yx": d3 / 2, "zx": -d3 / 2}
+    mis: dict[str, float] = {}
+    for d, (plus, minus) in zip(s[3:], MISALIGNMENT_DIFFERENCES, strict=True):
+        mis[plus], mis[minus] = d / 2, -d / 2
     return e, {k: float(mis[k]) for k in MISALIGNMENT_KEYS}
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..certificate import Certificate, TriadModel
+from ..certificate import Certificate, TriadModel, misalignment_of_n
 from .changepoint import window_exact_fit
 from .config import DiagnosisConfig
 from .gauge import p_matrix, shape_of_triad
@@ -123,14 +123,7 @@ def model_with(triad: TriadModel, estimate: np.ndarray) -> TriadModel:
     out = copy.deepcopy(triad)
     out.bias = np.asarray(estimate[:3], dtype=float).copy()
     out.scale_factor_error = (np.diag(n) - 1.0) * triad.scale_factor
-    out.misalignment = {
-        "xz": float(n[0, 1]),
-        "xy": float(-n[0, 2]),
-        "yz": float(-n[1, 0]),
-        "yx": float(n[1, 2]),
-        "zy": float(n[2, 0]),
-        "zx": float(-n[2, 1]),
-    }
+    out.misalignment = misalignment_of_n(n)
     return out
 
 

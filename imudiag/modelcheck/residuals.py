@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..certificate import Certificate, Temperature, TriadModel
+from ..certificate import MISALIGNMENT_N_ENTRY, Certificate, Temperature, TriadModel
 from ..stats import chi2_ratio_quantile
 from .config import ModelCheckConfig
 from .summaries import SUB_BLOCKS, Session
@@ -39,15 +39,6 @@ from .summaries import SUB_BLOCKS, Session
 SENSORS = {"gyro": ("gx", "gy", "gz"), "accel": ("ax", "ay", "az")}
 #: symmetric misalignment pairs of the accelerometer nuisance
 _PAIRS = ((0, 1), (0, 2), (1, 2))
-#: position of each misalignment key in N and its sign there (certificate.md)
-_N_ENTRY = {
-    "xz": (0, 1, 1.0),
-    "xy": (0, 2, -1.0),
-    "yz": (1, 0, -1.0),
-    "yx": (1, 2, 1.0),
-    "zy": (2, 0, 1.0),
-    "zx": (2, 1, -1.0),
-}
 
 
 @dataclass
@@ -296,7 +287,7 @@ def refit_accel(
         tri.scale_factor_error = tri.scale_factor_error + step[3:6]
         # a symmetric change delta of N_jk and N_kj, mapped to the D keys (certificate.md)
         for p, (j, k) in enumerate(_PAIRS):
-            for key, (row, col, sign) in _N_ENTRY.items():
+            for key, (row, col, sign) in MISALIGNMENT_N_ENTRY.items():
                 if (row, col) in ((j, k), (k, j)):
                     tri.misalignment[key] += sign * step[6 + p]
         values = values + step[9:]

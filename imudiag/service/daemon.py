@@ -518,7 +518,9 @@ class Daemon:
         ):
             # the checkers hand back the same lists until something changed
             merged = merge_faults(
-                [{k: v for k, v in f.items() if k != "t_first"} for f in monitor_faults],
+                # the monitor's faults keep t_first: the sample time (s) each came in force
+                # (the bench judges latency on it, not on how fast the loop keeps up)
+                monitor_faults,
                 [{k: f[k] for k in ("triad", "sensor", "cause") if k in f} for f in diag_faults],
                 aiding,
             )

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..aiding.earth import coriolis_term, earth_rate_ned, normal_gravity, radii, transport_rate_ned
+from ..earth import coriolis_term, earth_rate_ned, normal_gravity, radii, transport_rate_ned
 from .trajectories import Motion, Trajectory, smooth_step
 
 DRIVE_SCENARIOS = ("urban", "highway", "hilly", "aircraft")

@@ -22,13 +22,17 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from imudiag.certificate import Certificate
+from imudiag.certificate import MISALIGNMENT_DIFFERENCES, Certificate
 
 from .effects import sensor_index
 
 KINDS = ("bias", "scale_factor", "misalignment", "stuck", "noise", "dead")
-#: misalignment pair (axes) -> (difference index, the D key the fault changes)
-PAIR_KEYS = {("x", "y"): (0, "xz"), ("x", "z"): (1, "zy"), ("y", "z"): (2, "yx")}
+#: misalignment pair (axes) -> (difference index, the D key the fault changes: the
+#: difference's plus key, so the fault adds its value to d)
+PAIR_KEYS = {
+    axes: (k, MISALIGNMENT_DIFFERENCES[k][0])
+    for k, axes in enumerate((("x", "y"), ("x", "z"), ("y", "z")))
+}
 _NEEDS_VALUE = ("bias", "scale_factor", "misalignment", "noise")
 
 

@@ -10,18 +10,7 @@ import math
 
 import numpy as np
 
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrices [v x] of (..., 3) vectors, shape (..., 3, 3)."""
-    v = np.asarray(v, dtype=float)
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1] = -v[..., 2]
-    out[..., 0, 2] = v[..., 1]
-    out[..., 1, 0] = v[..., 2]
-    out[..., 1, 2] = -v[..., 0]
-    out[..., 2, 0] = -v[..., 1]
-    out[..., 2, 1] = v[..., 0]
-    return out
+from ..rotations import skew
 
 
 def axis_angle_matrix(axis: np.ndarray, angle: np.ndarray | float) -> np.ndarray:
@@ -95,9 +84,3 @@ def attitude_with_up(up_body: np.ndarray, yaw_rad: float = 0.0) -> np.ndarray:
     cy, sy = math.cos(yaw_rad), math.sin(yaw_rad)
     rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
     return rz @ c
-
-
-def earth_rate_ned(latitude_deg: float, earth_rate: float) -> np.ndarray:
-    """Earth rotation rate in NED axes, rad/s: Omega (cos lat, 0, -sin lat)."""
-    lat = math.radians(latitude_deg)
-    return earth_rate * np.array([math.cos(lat), 0.0, -math.sin(lat)])

@@ -24,7 +24,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imudiag.certificate import FLICKER_FACTOR, SENSOR_NAMES, Certificate, Noise, Temperature
+from imudiag.certificate import (
+    FLICKER_FACTOR,
+    MISALIGNMENT_N_ENTRY,
+    SENSOR_NAMES,
+    Certificate,
+    Noise,
+    Temperature,
+)
 from imudiag.samples import (
     FLAG_ACCEL_SATURATED,
     FLAG_ADC_ERROR,
@@ -37,15 +44,6 @@ from .faults import Fault, apply_faults
 from .processes import flicker_components, gauss_markov, random_walk
 from .trajectories import Trajectory
 
-#: position in N of each misalignment key, and its sign (certificate.md)
-_D_ENTRY = {
-    "xz": (0, 1, 1.0),
-    "xy": (0, 2, -1.0),
-    "yz": (1, 0, -1.0),
-    "yx": (1, 2, 1.0),
-    "zy": (2, 0, 1.0),
-    "zx": (2, 1, -1.0),
-}
 #: (a new stream goes at the end: the earlier ones keep their numbers)
 _STREAMS = ("white", "walk", "markov", "adc", "drop", "jitter", "flicker")
 _DEFAULT_ADC_RANGE = (0.0, 65535.0)
@@ -161,7 +159,7 @@ class Simulator:
                     j = f.columns[0] % 3
                     dn[j, j] = f.amount / tri.scale_factor[j]
                 else:
-                    r, c, sign = _D_ENTRY[f.pair_key[1]]
+                    r, c, sign = MISALIGNMENT_N_ENTRY[f.pair_key[1]]
                     dn[r, c] = sign * f.amount
                 active = t >= f.t_s
                 if np.any(active):

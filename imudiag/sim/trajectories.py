@@ -22,16 +22,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..earth import OMEGA_E, earth_rate_ned
 from .rotations import (
     attitude_with_up,
     axis_angle_matrix,
-    earth_rate_ned,
     rotation_vector,
     rpy_matrix,
 )
 
 STANDARD_GRAVITY = 9.80665  #: m/s^2
-EARTH_RATE = 7.2921150e-5  #: rad/s
+EARTH_RATE = OMEGA_E  #: rad/s (the WGS-84 value of imudiag.earth)
 
 
 @dataclass

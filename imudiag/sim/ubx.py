@@ -11,8 +11,6 @@ from __future__ import annotations
 from datetime import datetime
 from pathlib import Path
 
-from ..aiding.tpv import parse_time
-
 GPS_EPOCH_UNIX = 315964800.0  #: 1980-01-06T00:00:00Z
 LEAP_S = 18.0  #: GPS - UTC, s (since 2017)
 
@@ -21,7 +19,7 @@ def ubx_epoch(report: dict) -> bytes:
     """NAV-PVT then NAV-VELNED bytes of one TPV report (from :func:`.drive.gnss_reports`)."""
     import pyubx2
 
-    t = parse_time(report["time"])
+    t = datetime.fromisoformat(report["time"]).timestamp()  # drive.py writes ISO 8601, UTC
     ms_total = int(round(t * 1000.0))
     dt = datetime.utcfromtimestamp(ms_total // 1000)
     gps_ms = int(round((t + LEAP_S - GPS_EPOCH_UNIX) * 1000.0))

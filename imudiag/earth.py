@@ -42,10 +42,11 @@ def radii(lat_deg: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
     return A * (1.0 - E2) / w**3, A / w
 
 
-def earth_rate_ned(lat_deg: np.ndarray | float) -> np.ndarray:
-    """Earth rate Omega_ie in NED (..., 3), rad/s: (Omega cos phi, 0, -Omega sin phi)."""
+def earth_rate_ned(lat_deg: np.ndarray | float, rate_rad_s: float = OMEGA_E) -> np.ndarray:
+    """Earth rate Omega_ie in NED (..., 3), rad/s: (Omega cos phi, 0, -Omega sin phi), Omega
+    = ``rate_rad_s`` (WGS-84's by default; the simulator's trajectories may set another)."""
     phi = np.radians(np.asarray(lat_deg, dtype=float))
-    return np.stack([OMEGA_E * np.cos(phi), np.zeros_like(phi), -OMEGA_E * np.sin(phi)], -1)
+    return np.stack([rate_rad_s * np.cos(phi), np.zeros_like(phi), -rate_rad_s * np.sin(phi)], -1)
 
 
 def transport_rate_ned(

@@ -1,0 +1,75 @@
+"""The whole test suite in three steps (README "Quick start", what ``.ci/run`` runs):
+
+1. style: ``ruff check``, ``ruff format --check``, ``mypy -p imudiag`` (``.ci/style.py``);
+2. deterministic tier: every test not marked ``realtime``, on 2 workers, each test file on
+   one worker so its module fixtures are made once (``pytest -m "not realtime" -n 2
+   --dist loadfile``; tests/conftest.py states the rule);
+3. real-time tier: the tests marked ``realtime`` (ptys, daemon processes, signals, the
+   bench, gpsd), serially, after the deterministic tier.
+
+Every step runs, whatever the one before gave; the exit status is 0 only when all three
+passed. Each step's wall time is printed (a figure, not a bound). Extra arguments are
+passed to both pytest runs (e.g. ``-x``, ``-k bench``).
+
+Usage: ``python .ci/suite.py [PYTEST ARGS]`` with the interpreter of the venv that has the
+[test] extra; ``--workers N`` changes the deterministic tier's 2 workers.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+WORKERS = 2  #: pytest-xdist workers of the deterministic tier (the CI machine has 2 cores)
+
+
+def _step(name: str, argv: list[str]) -> tuple[str, int, float]:
+    print(f"== {name}: {' '.join(argv[1:])}", flush=True)
+    start = time.monotonic()
+    code = subprocess.run(argv, cwd=ROOT).returncode
+    took = time.monotonic() - start
+    print(f"== {name}: {'passed' if code == 0 else f'FAILED (exit {code})'} in {took:.0f} s")
+    return name, code, took
+
+
+def main(argv: list[str]) -> int:
+    workers = WORKERS
+    if "--workers" in argv:
+        i = argv.index("--workers")
+        workers = int(argv[i + 1])
+        del argv[i : i + 2]
+    py = sys.executable
+    steps = [
+        _step("style", [py, str(ROOT / ".ci" / "style.py")]),
+        _step(
+            "deterministic tier",
+            [
+                py,
+                "-m",
+                "pytest",
+                "-q",
+                "-m",
+                "not realtime",
+                "-n",
+                str(workers),
+                "--dist",
+                "loadfile",
+                *argv,
+            ],
+        ),
+        _step(
+            "real-time tier", [py, "-m", "pytest", "-q", "-m", "realtime", "-p", "no:xdist", *argv]
+        ),
+    ]
+    print(
+        "== suite: "
+        + ", ".join(f"{n} {'ok' if c == 0 else 'FAILED'} ({t:.0f} s)" for n, c, t in steps)
+    )
+    return 0 if all(c == 0 for _, c, _ in steps) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
