@@ -12,6 +12,11 @@ protocol's (the target of issue 26: at most 1.3x).
 A source is one line in :data:`SOURCES`: its URL for a pty path, the fake device
 (:data:`imudiag.bench.devices.ENCODERS`) and the rate it is judged at.
 
+A device with a set-up dialogue (the iSensor SPI Buffer board) is answered by its fake's
+command line until its daemon reports the link connected, then streams like the others.
+The IIO source reads a character device, not a port: its CPU is not measured here (see
+docs/benchmarks.md).
+
 Run: ``.venv/bin/python -m benchmarks.sources [--duration 30] [--runs 3] [--only mavlink]``.
 """
 
@@ -29,8 +34,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from imudiag.bench.devices import make_encoder
-from imudiag.bench.pty import BoardWriter, PtyPair
+from imudiag.bench.devices import DeviceEncoder, make_encoder
+from imudiag.bench.pty import BoardWriter, PtyPair, read_available, write_all
 from imudiag.certificate import load_default
 from imudiag.samples import SampleBlock
 from imudiag.sim.board import SimulatedBoard
@@ -44,7 +49,30 @@ NATIVE = "native"
 SOURCES: dict[str, tuple[str, str, float]] = {
     NATIVE: ("serial://{path}", "native", 0.0),  # at every rate below: the reference
     "mavlink": ("mavlink://{path}?rate=1000", "mavlink", 1000.0),
+    "isensor": ("isensor://{path}", "isensor", 1000.0),
+    "witmotion": ("witmotion://{path}?rate=200", "witmotion", 200.0),
 }
+
+
+#: the host's last set-up lines: start the capture (the iSensor board's CLI; others ignore it)
+START_CAPTURE = b"stream 1\r\nwrite 0 FF\r\n"
+
+
+def answer_until_connected(
+    pair: PtyPair, encoder: DeviceEncoder, reader: StatusReader, timeout_s: float = 30.0
+) -> None:
+    """Answer the host's set-up dialogue (:attr:`DeviceEncoder.dialogue`) until its daemon
+    reports the link connected."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        data = read_available(pair.master_fd)
+        reply = encoder.answer(data) if data else b""
+        if reply:
+            write_all(pair.master_fd, reply)
+        if (reader.last or {}).get("link") == "connected":
+            return
+        time.sleep(0.01)
+    raise RuntimeError(f"{encoder.name}: the daemon did not configure the device in {timeout_s} s")
 
 
 def device_writes(device: str, rate_hz: float, duration_s: float, seed: int = 0) -> list[bytes]:
@@ -54,6 +82,7 @@ def device_writes(device: str, rate_hz: float, duration_s: float, seed: int = 0)
     motion = scenario_motion("static", seed)
     board = SimulatedBoard(cert, motion, rate_hz, seed, duration_s=duration_s)
     encoder = make_encoder(device, cert)
+    encoder.answer(START_CAPTURE)  # a board with a set-up dialogue: as the host leaves it
     writes: list[bytes] = []
     while not board.exhausted:
         _, block = board.generate(int(rate_hz * 5))
@@ -94,6 +123,9 @@ def measure(names: Sequence[str], rate_hz: float, duration_s: float, seed: int =
                     reader.wait_first(30.0)
                 except queue.Empty:
                     raise RuntimeError(f"{name}: no status: {''.join(err)[-2000:]}") from None
+                device = make_encoder(SOURCES[name][1], load_default())
+                if device.dialogue:
+                    answer_until_connected(pairs[name], device, reader)
             for name in names:
                 writes = device_writes(SOURCES[name][1], rate_hz, duration_s + 2.0, seed)
                 writers[name] = BoardWriter(pairs[name], writes, rate_hz=rate_hz)

@@ -506,7 +506,7 @@ class ISensorSource(DeviceSerialSource):
         if not (timeout > 0 and math.isfinite(timeout)):
             raise SourceError(f"{url.url}: bad value for 'timeout': {timeout}")
         self.answer_timeout_s = timeout
-        self.decoder = ISensorDecoder(self.counters)  # type: ignore[assignment]
+        self.decoder = ISensorDecoder(self.counters)
         self.device_info = self.decoder.device_info
         self._lines: list[bytes] = []
         self._partial = b""
