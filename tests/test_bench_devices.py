@@ -69,3 +69,16 @@ def test_isensor_board_streams_only_while_its_capture_runs():
     lines = enc.split(enc.encode(second))
     assert len(lines) == 5 and all(is_sample for _, is_sample in lines)
     assert lines[0][0].split(b",")[14] == b"0006"  # DATA_CNTR: 5 samples before it
+
+
+def test_a_device_vibration_report_in_the_device_convention_is_judged():
+    """MAVLink's VIBRATION as the source reports it (docs/devices.md item 5) goes into the
+    status's vibration object: levels in m/s^2, the accelerometers' clipping summed."""
+    from imudiag.vibration import VibrationFigures, vibration_object
+
+    device = {"accel_rms": [0.1, 0.2, 0.3], "unit": "m/s^2", "clipping": [1, 2, 0], "t": 3.0}
+    figs = VibrationFigures.from_dict(device)
+    assert figs.accel == [0.1, 0.2, 0.3] and figs.gyro is None
+    assert figs.clipping == {"accel": 3, "gyro": 0} and figs.source == "device"
+    obj = vibration_object(None, device)
+    assert obj["accel"]["level"] == [0.1, 0.2, 0.3] and obj["accel"]["unit"] == "m/s^2"
