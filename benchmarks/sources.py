@@ -12,6 +12,12 @@ protocol's (the target of issue 26: at most 1.3x).
 A source is one line in :data:`SOURCES`: its URL for a pty path, the fake device
 (:data:`imudiag.bench.devices.ENCODERS`) and the rate it is judged at.
 
+A device with a set-up dialogue (the iSensor SPI Buffer board) is answered by its fake's
+command line until its daemon reports the link connected, then streams like the others.
+The IIO source reads a character device, not a port: it gets a fake sysfs tree and FIFO
+(:class:`imudiag.bench.fake_iio.FakeIIODevice`) with one packed record per sample of the
+calibrated session (ADIS16475-2's 32-bit LSB sizes, SI scales).
+
 Run: ``.venv/bin/python -m benchmarks.sources [--duration 30] [--runs 3] [--only mavlink]``.
 """
 
@@ -19,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import queue
 import signal
 import subprocess
@@ -29,8 +36,16 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from imudiag.bench.devices import make_encoder
-from imudiag.bench.pty import BoardWriter, PtyPair
+import numpy as np
+
+from imudiag.bench.devices import (
+    DeviceEncoder,
+    calibrate,
+    calibrated_certificate,
+    make_encoder,
+)
+from imudiag.bench.fake_iio import Channel, FakeIIODevice, pack_records
+from imudiag.bench.pty import BoardWriter, PtyPair, read_available, write_all
 from imudiag.certificate import load_default
 from imudiag.samples import SampleBlock
 from imudiag.sim.board import SimulatedBoard
@@ -44,7 +59,52 @@ NATIVE = "native"
 SOURCES: dict[str, tuple[str, str, float]] = {
     NATIVE: ("serial://{path}", "native", 0.0),  # at every rate below: the reference
     "mavlink": ("mavlink://{path}?rate=1000", "mavlink", 1000.0),
+    "isensor": ("isensor://{path}", "isensor", 1000.0),
+    "witmotion": ("witmotion://{path}?rate=200", "witmotion", 200.0),
+    "iio": ("iio://adis16475?root={path}/root&devdir={path}/dev&rate=1000", "iio", 1000.0),
 }
+IIO = "iio"  #: not a port: a fake sysfs tree and FIFO (:mod:`imudiag.bench.fake_iio`)
+#: the fake IIO part's 32-bit outputs: ADIS16475-2's LSB sizes / 65536, in SI units
+IIO_GYRO_LSB = math.radians(1 / 40) / 65536  #: rad/s per LSB
+IIO_ACCEL_LSB = 0.25e-3 * 9.80665 / 65536  #: m/s^2 per LSB
+IIO_CHANNELS = [
+    *(Channel(f"anglvel_{a}", i, "le:s32/32>>0", scale=IIO_GYRO_LSB) for i, a in enumerate("xyz")),
+    *(
+        Channel(f"accel_{a}", 3 + i, "le:s32/32>>0", scale=IIO_ACCEL_LSB)
+        for i, a in enumerate("xyz")
+    ),
+    Channel("timestamp", 6, "le:s64/64>>0"),
+]
+
+
+#: the host's last set-up lines: start the capture (the iSensor board's CLI; others ignore it)
+START_CAPTURE = b"stream 1\r\nwrite 0 FF\r\n"
+
+
+def answer_until_connected(
+    pair: PtyPair, encoder: DeviceEncoder, reader: StatusReader, timeout_s: float = 30.0
+) -> None:
+    """Answer the host's set-up dialogue (:attr:`DeviceEncoder.dialogue`) until its daemon
+    reports the link connected."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        data = read_available(pair.master_fd) if encoder.dialogue else b""
+        reply = encoder.answer(data) if data else b""
+        if reply:
+            write_all(pair.master_fd, reply)
+        if (reader.last or {}).get("link") == "connected":
+            return
+        time.sleep(0.01)
+    raise RuntimeError(f"{encoder.name}: the daemon did not configure the device in {timeout_s} s")
+
+
+def wait_connected(reader: StatusReader, timeout_s: float = 30.0) -> None:
+    """Wait until a daemon reports its link connected (a source without a dialogue)."""
+    end = time.monotonic() + timeout_s
+    while (reader.last or {}).get("link") != "connected":
+        if time.monotonic() > end:
+            raise RuntimeError(f"the daemon did not open its source in {timeout_s} s")
+        time.sleep(0.01)
 
 
 def device_writes(device: str, rate_hz: float, duration_s: float, seed: int = 0) -> list[bytes]:
@@ -53,8 +113,22 @@ def device_writes(device: str, rate_hz: float, duration_s: float, seed: int = 0)
     cert.sample_rate = rate_hz
     motion = scenario_motion("static", seed)
     board = SimulatedBoard(cert, motion, rate_hz, seed, duration_s=duration_s)
-    encoder = make_encoder(device, cert)
     writes: list[bytes] = []
+    if device == IIO:  # packed records of the calibrated samples, one per sample
+        while not board.exhausted:
+            _, block = board.generate(int(rate_hz * 5))
+            gyro, accel = calibrate(block, cert)
+            cols = {f"anglvel_{a}": np.rint(gyro[:, i] / IIO_GYRO_LSB) for i, a in enumerate("xyz")}
+            cols.update(
+                {f"accel_{a}": np.rint(accel[:, i] / IIO_ACCEL_LSB) for i, a in enumerate("xyz")}
+            )
+            cols["timestamp"] = np.rint(block.t * 1e9).astype(np.int64)
+            data = pack_records(IIO_CHANNELS, cols)
+            size = len(data) // len(block)
+            writes.extend(data[i : i + size] for i in range(0, len(data), size))
+        return writes
+    encoder = make_encoder(device, cert)
+    encoder.answer(START_CAPTURE)  # a board with a set-up dialogue: as the host leaves it
     while not board.exhausted:
         _, block = board.generate(int(rate_hz * 5))
         for i in range(len(block)):
@@ -68,8 +142,9 @@ def measure(names: Sequence[str], rate_hz: float, duration_s: float, seed: int =
     at once; each one's CPU share (% of one core) and ratio to the native one's."""
     warm = min(5.0, duration_s / 4)
     procs: dict[str, tuple[subprocess.Popen[str], StatusReader, list[str]]] = {}
-    pairs = {name: PtyPair() for name in names}
+    pairs = {name: PtyPair() for name in names if SOURCES[name][1] != IIO}
     writers: dict[str, BoardWriter] = {}
+    fakes: list[FakeIIODevice] = []
     with tempfile.TemporaryDirectory() as tmp:
         try:
             for name in names:
@@ -77,8 +152,18 @@ def measure(names: Sequence[str], rate_hz: float, duration_s: float, seed: int =
                 cert = load_default()
                 cert.sample_rate = rate_hz
                 cert_path = Path(tmp) / f"{name}.yaml"
-                make_encoder(device, cert).certificate.save(cert_path)
-                cmd = daemon_command(url.format(path=pairs[name].slave_path), cert_path, True)
+                if device == IIO:
+                    path = str(Path(tmp) / name)
+                    fakes.append(
+                        FakeIIODevice(
+                            f"{path}/root", f"{path}/dev", "adis16475-2", IIO_CHANNELS, 0, rate_hz
+                        )
+                    )
+                    calibrated_certificate(cert).save(cert_path)
+                else:
+                    path = pairs[name].slave_path
+                    make_encoder(device, cert).certificate.save(cert_path)
+                cmd = daemon_command(url.format(path=path), cert_path, True)
                 proc = subprocess.Popen(
                     cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
                 )
@@ -94,9 +179,17 @@ def measure(names: Sequence[str], rate_hz: float, duration_s: float, seed: int =
                     reader.wait_first(30.0)
                 except queue.Empty:
                     raise RuntimeError(f"{name}: no status: {''.join(err)[-2000:]}") from None
+                if SOURCES[name][1] == IIO:
+                    wait_connected(reader)
+                    continue
+                device = make_encoder(SOURCES[name][1], load_default())
+                answer_until_connected(pairs[name], device, reader)
             for name in names:
                 writes = device_writes(SOURCES[name][1], rate_hz, duration_s + 2.0, seed)
-                writers[name] = BoardWriter(pairs[name], writes, rate_hz=rate_hz)
+                target: PtyPair | int = (
+                    pairs[name] if name in pairs else fakes[0].fd  # one IIO source per run
+                )
+                writers[name] = BoardWriter(target, writes, rate_hz=rate_hz)
             for w in writers.values():
                 w.start()
             start = time.monotonic()
@@ -117,6 +210,8 @@ def measure(names: Sequence[str], rate_hz: float, duration_s: float, seed: int =
                 proc.wait(15.0)
             for pair in pairs.values():
                 pair.close()
+            for fake in fakes:
+                fake.close()
     out: dict[str, Any] = {"rate_hz": rate_hz, "cpu_window_s": round(wall1 - wall0, 2)}
     share = {n: 100.0 * (cpu1[n] - cpu0[n]) / (wall1 - wall0) for n in names}
     for name in names:

@@ -235,6 +235,8 @@ def saturation_flags(
     """``flags`` with the saturation bits set where a raw output sits at ``lo`` or ``hi``."""
     from imudiag.samples import FLAG_ACCEL_SATURATED, FLAG_GYRO_SATURATED
 
+    if gyro_raw.shape[0] == 0:  # every sample of the read dropped (repeats)
+        return flags.astype(np.uint16)
     inside = lo < gyro_raw.min() and gyro_raw.max() < hi
     if inside and lo < accel_raw.min() and accel_raw.max() < hi:
         return flags.astype(np.uint16)  # the common case: nothing at full scale

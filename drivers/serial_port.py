@@ -66,9 +66,10 @@ class SerialSource(ByteSource):
             raise SourceError(f"{self.url.url}: cannot open {self.port_url}: {e}") from e
         self._timeout = 0.1
         self._fd = None
-        if self.url.scheme == "serial" and hasattr(self._port, "fd"):
-            # a POSIX port: wait with select, read non-blocking, so the port is
-            # never reconfigured (tcsetattr) for a new timeout
+        if hasattr(self._port, "fd"):
+            # a POSIX port (``serial://`` or a device protocol's port, not a pyserial URL
+            # handler such as socket://): wait with select, read non-blocking, so the
+            # port is never reconfigured (tcsetattr) for a new timeout
             self._port.timeout = 0
             self._timeout = 0
             self._fd = self._port.fileno()

@@ -274,7 +274,5 @@ class WitmotionSource(DeviceSerialSource):
         rate = float(url.get("rate", DEFAULT_RATE_HZ, float))
         if not (rate > 0 and math.isfinite(rate)):
             raise SourceError(f"{url.url}: bad value for 'rate': {rate}")
-        self.decoder = WitmotionDecoder(  # the StreamDecoder interface
-            self.counters, rate, str(url.get("model", "WT901"))
-        )
+        self.decoder = WitmotionDecoder(self.counters, rate, str(url.get("model", "WT901")))
         self.device_info = self.decoder.device_info

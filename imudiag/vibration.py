@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from . import units
 from .certificate import Certificate, VibrationLimits
 from .samples import FLAG_ACCEL_SATURATED, FLAG_GYRO_SATURATED, SampleBlock
 
@@ -60,7 +61,20 @@ class VibrationFigures:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> VibrationFigures:
-        """Back from :meth:`as_dict` (a source's ``device_info["vibration"]``)."""
+        """Back from :meth:`as_dict`, or from a device source's ``device_info["vibration"]``
+        in the device convention (docs/devices.md, item 5: ``accel_rms`` per axis in
+        ``unit``, ``clipping`` a list of clipping counts per accelerometer, summed here)."""
+        if "accel_rms" in d:
+            unit = str(d.get("unit", "m/s^2"))
+            k = units.factor("accel", unit, "m/s^2")
+            clip = d.get("clipping") or []
+            return cls(
+                accel=[float(v) * k for v in d["accel_rms"]],
+                gyro=None,
+                clipping={"accel": int(sum(int(c) for c in clip)), "gyro": 0},
+                window_s=float(d.get("window_s", 1.0)),
+                source="device",
+            )
 
         def levels(part: Any) -> list[float] | None:
             return None if not part else [float(v) for v in part["level"]]

@@ -21,11 +21,8 @@ Adding a device is one entry in :data:`ENCODERS` (docs/devices.md, "Fake devices
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import errno
-import os
-import select
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -41,7 +38,8 @@ from imudiag.errors import BenchError
 from imudiag.samples import SampleBlock
 from imudiag.sim.board import SimulatedBoard
 
-from .pty import PtyPair, write_all
+from . import fake_isensor, fake_witmotion
+from .pty import PtyPair, read_available, write_all
 from .transport import corrupt_sample_frames, frame_spans
 
 #: the SI units of a calibrated physical output per triad
@@ -56,6 +54,9 @@ class DeviceEncoder(Protocol):
     certificate: Certificate
     #: bytes a transport fault may insert as garbage without making a frame start
     garbage_alphabet: bytes
+    #: the host configures the device before it streams: whoever serves the device
+    #: answers the host (:meth:`answer`) while it waits for the host to connect
+    dialogue: bool
 
     def encode(self, block: SampleBlock) -> bytes:
         """The device's bytes for ``block`` (raw outputs in the scenario certificate's
@@ -131,6 +132,7 @@ class NativeEncoder:
 
     name = "native"
     garbage_alphabet = bytes(b for b in range(256) if b != 0xAA)
+    dialogue = False
 
     def __init__(self, cert: Certificate, **_: Any) -> None:
         self.certificate = cert
@@ -182,6 +184,7 @@ class MavlinkEncoder:
 
     name = "mavlink"
     garbage_alphabet = bytes(b for b in range(256) if b not in (0xFD, 0xFE))
+    dialogue = False  # the source asks for rates and identity but streams without answers
 
     def __init__(
         self,
@@ -336,15 +339,159 @@ class MavlinkEncoder:
         return b"".join(out)
 
 
+def device_units(block: SampleBlock, cert: Certificate, out: dict[str, str]) -> SampleBlock:
+    """``block``'s raw outputs calibrated with ``cert``'s nominal bias and scale factor
+    (:func:`calibrate`) in a device's physical units ``out`` (e.g. deg/s and g)."""
+    gyro, accel = calibrate(block, cert)
+    return SampleBlock(
+        t=block.t,
+        gyro=gyro * units.factor("gyro", "rad/s", out["gyro"]),
+        accel=accel * units.factor("accel", "m/s^2", out["accel"]),
+        temp=block.temp,
+        flags=block.flags,
+    )
+
+
+class WitmotionEncoder:
+    """A fake WitMotion WT901 (the frames of :func:`.fake_witmotion.encode_frames`): per
+    sample a time frame, an acceleration frame (g) and an angular-rate frame (deg/s), the
+    certificate's nominal calibration applied (the device's output is calibrated).
+
+    One sample's three frames are one unit of :meth:`split` (the device's lost and
+    repeated samples are seen by its clock, not by a frame counter); :meth:`corrupt` turns
+    a sample into its angular-rate frame alone with a payload byte changed, so a corrupted
+    sample is one checksum error of 11 skipped bytes and one lost sample."""
+
+    name = "witmotion"
+    garbage_alphabet = bytes(b for b in range(256) if b != fake_witmotion.HEAD)
+    dialogue = False
+    units = {"gyro": "deg/s", "accel": "g"}
+
+    def __init__(self, cert: Certificate, with_time: bool = True) -> None:
+        self.scenario_certificate = cert
+        self.certificate = calibrated_certificate(cert)
+        self.with_time = with_time
+        self._size = 11 * (3 if with_time else 2)
+
+    def encode(self, block: SampleBlock) -> bytes:
+        """The frames of ``block``, sample by sample."""
+        if not len(block):
+            return b""
+        dev = device_units(block, self.scenario_certificate, self.units)
+        return fake_witmotion.encode_frames(dev, self.with_time)
+
+    def answer(self, data: bytes) -> bytes:
+        """The WT901 streams whatever the host sends (its set-up is done beforehand)."""
+        return b""
+
+    def idle(self) -> bytes:
+        """Nothing: the fake streams only samples."""
+        return b""
+
+    def split(self, data: bytes) -> list[tuple[bytes, bool]]:
+        """One unit per sample: its time, acceleration and angular-rate frames."""
+        size = self._size
+        return [(data[p : p + size], True) for p in range(0, len(data), size)]
+
+    def corrupt(self, frame: bytes) -> bytes | None:
+        """The sample's angular-rate frame with a payload byte inverted (None when a frame
+        start byte 0x55 would appear after the first byte)."""
+        rate = frame[-11:]
+        head = fake_witmotion.HEAD
+        if head in rate[1:]:
+            return None
+        for i in range(2, 10):
+            flipped = rate[i] ^ 0xFF
+            if flipped != head:
+                return rate[:i] + bytes([flipped]) + rate[i + 1 :]
+        return None
+
+
+class ISensorEncoder:
+    """A fake iSensor SPI Buffer board with an ADIS1647x behind it: the board's command
+    line (:class:`.fake_isensor.ISensorBoardCLI`) answers the host's set-up, and while its
+    buffered capture runs each sample is one entry line
+    (:func:`.fake_isensor.entry_lines`: 16-bit burst, the part's LSB sizes), the
+    certificate's nominal calibration applied. Samples taken while the capture is off are
+    not sent (the IMU's data counter runs on: the host counts them lost).
+
+    Garbage is blank lines (``\\n``): a line protocol can skip nothing else byte for byte
+    without the entry that follows it."""
+
+    name = "isensor"
+    garbage_alphabet = b"\n"
+    dialogue = True
+
+    def __init__(
+        self, cert: Certificate, model: str = "adis16475-2", self_test_fails: bool = False
+    ) -> None:
+        if model not in fake_isensor.ISENSOR_LSB:
+            known = ", ".join(fake_isensor.ISENSOR_LSB)
+            raise BenchError(f"fake iSensor board: model {model!r} not one of {known}")
+        part, _, dash = model.removeprefix("adis").partition("-")
+        self.board = fake_isensor.ISensorBoardCLI(
+            prod_id=int(part), range_model=int(dash or 3), self_test_fails=self_test_fails
+        )
+        self.model = model
+        self.gyro_lsb, self.accel_lsb = fake_isensor.ISENSOR_LSB[model]
+        self.units = {"gyro": "deg/s", "accel": "g"}
+        self.scenario_certificate = cert
+        self.certificate = calibrated_certificate(cert)
+        self._count = 1  # the IMU's DATA_CNTR of the next sample
+
+    def encode(self, block: SampleBlock) -> bytes:
+        """Entry lines of ``block`` while the capture runs (b"" otherwise)."""
+        n = len(block)
+        if not n:
+            return b""
+        first = self._count
+        self._count += n
+        if not self.board.capturing:
+            return b""
+        dev = device_units(block, self.scenario_certificate, self.units)
+        lines = fake_isensor.entry_lines(dev, self.gyro_lsb, self.accel_lsb, first_count=first)
+        return b"".join(self.board.entries(lines))
+
+    def answer(self, data: bytes) -> bytes:
+        """The board's answers (echo, register reads) to the host's command lines."""
+        return self.board.receive(data)
+
+    def idle(self) -> bytes:
+        """Nothing: the board speaks when spoken to."""
+        return b""
+
+    def split(self, data: bytes) -> list[tuple[bytes, bool]]:
+        """The entry lines (each a sample)."""
+        lines = data.split(b"\n")
+        out = [(ln + b"\n", True) for ln in lines[:-1]]
+        if lines[-1]:
+            out.append((lines[-1], False))
+        return out
+
+    def corrupt(self, frame: bytes) -> bytes | None:
+        """The line with one hex digit of its gyro x word changed: the signature and the
+        burst checksum fail."""
+        i = 7 * 5  # word 7 (DATA_2: X_GYRO_OUT), 4 digits and a comma per word
+        if len(frame) < i + 4:
+            return None
+        digit = b"1" if frame[i : i + 1] == b"0" else b"0"
+        return frame[:i] + digit + frame[i + 1 :]
+
+
 #: the fake devices by name: ``device:`` of a bench scenario, ``make_encoder(name)``
 ENCODERS: dict[str, Callable[..., DeviceEncoder]] = {
     "native": NativeEncoder,
     "mavlink": MavlinkEncoder,
+    "witmotion": WitmotionEncoder,
+    "isensor": ISensorEncoder,
 }
-#: the source URL of each device for a port path
+#: the source URL of each device for a port ``path`` and the sample ``rate`` (Hz); the IIO
+#: source reads a character device, not a port: its fake is :mod:`.fake_iio` (a sysfs tree)
 SOURCE_URLS: dict[str, str] = {
     "native": "serial://{path}",
     "mavlink": "mavlink://{path}",
+    "witmotion": "witmotion://{path}?rate={rate:g}",
+    "isensor": "isensor://{path}",
 }
 
 
@@ -442,18 +589,7 @@ class DeviceWriter(threading.Thread):
 
     def _answer(self) -> None:
         """Read what the host sent and write the device's answers."""
-        data = b""
-        while True:
-            ready, _, _ = select.select([self.fd], [], [], 0.0)
-            if not ready:
-                break
-            with contextlib.suppress(BlockingIOError):
-                chunk = os.read(self.fd, 65536)
-                if not chunk:
-                    break
-                data += chunk
-                continue
-            break
+        data = read_available(self.fd)
         if data:
             self.host_spoke = True
             reply = self.encoder.answer(data)
@@ -473,10 +609,13 @@ __all__ = [
     "SOURCE_URLS",
     "DeviceEncoder",
     "DeviceWriter",
+    "ISensorEncoder",
     "MavlinkEncoder",
     "NativeEncoder",
+    "WitmotionEncoder",
     "blocks_of",
     "calibrate",
     "calibrated_certificate",
+    "device_units",
     "make_encoder",
 ]

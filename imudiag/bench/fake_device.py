@@ -32,20 +32,12 @@ from imudiag.sim import Fault
 from imudiag.sim.scenarios import scenario_motion
 
 from .fake_iio import Channel, FakeIIODevice, pack_records
-from .fake_isensor import FakeISensorBoard, entry_lines
+from .fake_isensor import ISENSOR_LSB, FakeISensorBoard, entry_lines
 from .fake_witmotion import encode_frames
 from .pty import BoardWriter, PtyPair
 from .scenario import BenchScenario, load, load_bundled
 from .simulated import simulated_blocks
 
-#: 16-bit output LSB (gyro deg/s, accel in the certificate's unit) of the fake ADIS parts:
-#: the data sheets' figures (docs/devices.md); the fake needs its own copy, it never
-#: imports the driver it stands in for
-ISENSOR_LSB = {
-    "adis16470": (0.1, 1 / 800),
-    **{f"adis16475-{d}": (g, 1 / 4000) for d, g in ((1, 1 / 160), (2, 1 / 40), (3, 0.1))},
-    **{f"adis16477-{d}": (g, 1 / 800) for d, g in ((1, 1 / 160), (2, 1 / 40), (3, 0.1))},
-}
 _SCALED = ("bias", "scale_factor", "misalignment")
 
 

@@ -96,6 +96,12 @@ class FakeIIODevice:
         # read-write: never blocks, and the reader sees no end of file while it is open
         self._fd = os.open(self.node, os.O_RDWR | os.O_NONBLOCK)
 
+    @property
+    def fd(self) -> int:
+        """The FIFO's writing end (for a writer thread of packed records)."""
+        assert self._fd is not None, "the device is unplugged"
+        return self._fd
+
     def enabled(self) -> dict[str, bool]:
         """Each channel's ``_en`` as a reader left it."""
         scan = self.dir / "scan_elements"

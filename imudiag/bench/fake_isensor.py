@@ -31,12 +31,22 @@ from .pty import PtyPair
 _REGS_1647X = {"prod_id": 0x72, "rang_mdl": 0x5E, "serial": 0x74, "firm_rev": 0x6C}
 
 
-class FakeISensorBoard(threading.Thread):
-    """The board's CLI and stream on ``pair``'s master side (a background thread)."""
+#: 16-bit output LSB (gyro deg/s, accel in the certificate's unit) of the fake ADIS parts:
+#: the data sheets' figures (docs/devices.md); the fake needs its own copy, it never
+#: imports the driver it stands in for
+ISENSOR_LSB = {
+    "adis16470": (0.1, 1 / 800),
+    **{f"adis16475-{d}": (g, 1 / 4000) for d, g in ((1, 1 / 160), (2, 1 / 40), (3, 0.1))},
+    **{f"adis16477-{d}": (g, 1 / 800) for d, g in ((1, 1 / 160), (2, 1 / 40), (3, 0.1))},
+}
+
+
+class ISensorBoardCLI:
+    """The board's registers and command line (no I/O): :meth:`receive` takes the bytes
+    the host sent and returns what the board answers (echo, ``read`` replies)."""
 
     def __init__(
         self,
-        pair: PtyPair,
         prod_id: int = 16475,
         range_model: int = 2,
         serial: int = 0x0A1B,
@@ -44,8 +54,6 @@ class FakeISensorBoard(threading.Thread):
         board_firmware: int = 0x0118,
         self_test_fails: bool = False,
     ) -> None:
-        super().__init__(daemon=True, name="FakeISensorBoard")
-        self.pair = pair
         self.pages: dict[int, dict[int, int]] = {253: {}, 254: {}, 255: {}, 0: {}, 3: {}, 4: {}}
         dash_bits = {1: 0b00, 2: 0b01, 3: 0b11}[range_model] << 2
         self.pages[253].update({0x6E: board_firmware})
@@ -69,10 +77,104 @@ class FakeISensorBoard(threading.Thread):
         self.self_test_fails = self_test_fails
         self.self_tests = 0
         self.commands: list[str] = []  #: every command line received, in order
+        self.diag_or = 0  #: DIAG_STAT bits set in the entries (a failed self test)
+        self._buf = b""
+
+    @property
+    def capturing(self) -> bool:
+        """A stream runs on page 255: entry lines go out."""
+        return self.streaming and self.page == 255
+
+    def receive(self, data: bytes) -> bytes:
+        """The board's answer to the bytes the host sent (whole lines; a partial line waits)."""
+        *lines, self._buf = (self._buf + data).split(b"\n")
+        return b"".join(self.command(ln.decode("ascii", "replace")) for ln in lines)
+
+    def command(self, line: str) -> bytes:
+        """The answer to one command line (without its line end)."""
+        line = line.strip("\r").strip()
+        if not line:
+            return b""
+        self.commands.append(line)
+        out = (line + "\r\n").encode("ascii") if self.echo else b""  # echo until "echo 0"
+        parts = line.split()
+        cmd, args = parts[0], parts[1:]
+        try:
+            values = [int(a, 16) for a in args] if cmd != "delim" else []
+        except ValueError:
+            return out
+        if cmd == "stream" and values:
+            self.streaming = values[0] == 1
+        elif cmd == "echo" and values:
+            self.echo = values[0] == 1
+        elif cmd == "delim" and args:
+            self.delim = args[0][0]
+        elif cmd == "write" and len(values) == 2:
+            self._write(values[0], values[1] & 0xFF)
+        elif cmd == "read" and values:
+            end = values[1] if len(values) > 1 else values[0]
+            regs = self.pages.setdefault(self.page, {})
+            words = [regs.get(a, 0) for a in range(values[0], end + 1, 2)]
+            out += (self.delim.join(f"{w:04X}" for w in words) + "\r\n").encode("ascii")
+        # "cmd" (USER_COMMAND: clear buffer, flash update, ...) changes nothing here
+        return out
+
+    def entries(self, lines: list[bytes]) -> list[bytes]:
+        """Entry lines as the board sends them now (DIAG_STAT bits of a failed self test)."""
+        return [_or_diag(b, self.diag_or) for b in lines] if self.diag_or else lines
+
+    def _write(self, addr: int, byte: int) -> None:
+        if addr == 0:  # PAGE_ID
+            self.page = byte
+            return
+        regs = self.pages.setdefault(self.page, {})
+        word = regs.get(addr & ~1, 0)
+        if addr & 1:
+            word = (word & 0x00FF) | (byte << 8)
+        else:
+            word = (word & 0xFF00) | byte
+        regs[addr & ~1] = word
+        self_test = (self.page == 0 and addr == 0x68 and byte & 0x04) or (
+            self.page == 3 and addr == 0x02 and byte & 0x02
+        )
+        if self_test:
+            self.self_tests += 1
+            if self.self_test_fails:
+                self.diag_or = 0x0020
+
+
+class FakeISensorBoard(threading.Thread):
+    """The board's CLI (:class:`ISensorBoardCLI`) and stream on ``pair``'s master side (a
+    background thread)."""
+
+    def __init__(
+        self,
+        pair: PtyPair,
+        prod_id: int = 16475,
+        range_model: int = 2,
+        serial: int = 0x0A1B,
+        firmware: int = 0x0107,
+        board_firmware: int = 0x0118,
+        self_test_fails: bool = False,
+    ) -> None:
+        super().__init__(daemon=True, name="FakeISensorBoard")
+        self.pair = pair
+        self.cli = ISensorBoardCLI(
+            prod_id, range_model, serial, firmware, board_firmware, self_test_fails
+        )
         self.lines_sent = 0
         self._queue: deque[bytes] = deque()
         self._halt = threading.Event()
-        self._diag_or = 0
+
+    @property
+    def commands(self) -> list[str]:
+        """Every command line received, in order."""
+        return self.cli.commands
+
+    @property
+    def self_tests(self) -> int:
+        """Self tests the host commanded (GLOB_CMD writes)."""
+        return self.cli.self_tests
 
     # -- the caller's side -------------------------------------------------
 
@@ -98,71 +200,22 @@ class FakeISensorBoard(threading.Thread):
         while not self._halt.is_set() and pair.master_open:
             try:
                 lines = pair.read_commands(0.0 if self._sending() else 0.02)
+                for line in lines:
+                    reply = self.cli.command(line)
+                    if reply:
+                        pair.write(reply)
             except OSError:
                 return
-            for line in lines:
-                self._command(line.strip("\r").strip())
             if self._sending():
                 batch = [self._queue.popleft() for _ in range(min(50, len(self._queue)))]
-                if self._diag_or:
-                    batch = [_or_diag(b, self._diag_or) for b in batch]
                 try:
-                    pair.write(b"".join(batch))
+                    pair.write(b"".join(self.cli.entries(batch)))
                 except OSError:
                     return
                 self.lines_sent += len(batch)
 
     def _sending(self) -> bool:
-        return self.streaming and self.page == 255 and bool(self._queue)
-
-    def _answer(self, words: list[int]) -> None:
-        text = self.delim.join(f"{w:04X}" for w in words) + "\r\n"
-        self.pair.write(text.encode("ascii"))
-
-    def _command(self, line: str) -> None:
-        if not line:
-            return
-        self.commands.append(line)
-        if self.echo:  # the board echoes what it is sent until "echo 0"
-            self.pair.write((line + "\r\n").encode("ascii"))
-        parts = line.split()
-        cmd, args = parts[0], parts[1:]
-        try:
-            values = [int(a, 16) for a in args] if cmd != "delim" else []
-        except ValueError:
-            return
-        if cmd == "stream" and values:
-            self.streaming = values[0] == 1
-        elif cmd == "echo" and values:
-            self.echo = values[0] == 1
-        elif cmd == "delim" and args:
-            self.delim = args[0][0]
-        elif cmd == "write" and len(values) == 2:
-            self._write(values[0], values[1] & 0xFF)
-        elif cmd == "read" and values:
-            end = values[1] if len(values) > 1 else values[0]
-            regs = self.pages.setdefault(self.page, {})
-            self._answer([regs.get(a, 0) for a in range(values[0], end + 1, 2)])
-        # "cmd" (USER_COMMAND: clear buffer, flash update, ...) changes nothing here
-
-    def _write(self, addr: int, byte: int) -> None:
-        if addr == 0:  # PAGE_ID
-            self.page = byte
-            return
-        regs = self.pages.setdefault(self.page, {})
-        word = regs.get(addr & ~1, 0)
-        if addr & 1:
-            word = (word & 0x00FF) | (byte << 8)
-        else:
-            word = (word & 0xFF00) | byte
-        regs[addr & ~1] = word
-        self_test = (self.page == 0 and addr == 0x68 and byte & 0x04) or (
-            self.page == 3 and addr == 0x02 and byte & 0x02
-        )
-        if self_test:
-            self.self_tests += 1
-            if self.self_test_fails:
-                self._diag_or = 0x0020
+        return self.cli.capturing and bool(self._queue)
 
 
 def _or_diag(line: bytes, bits: int) -> bytes:

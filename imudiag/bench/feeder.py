@@ -37,7 +37,7 @@ from typing import Protocol
 
 import numpy as np
 
-from imudiag.bench.pty import PtyPair
+from imudiag.bench.pty import PtyPair, read_available
 from imudiag.errors import BenchError
 from imudiag.sim.board import SimulatedBoard
 
@@ -186,9 +186,34 @@ class BoardFeeder:
         except BaseException as exc:  # reported to the caller through .error
             self.error = exc
 
+    def _answer_host(self) -> None:
+        """A device with a set-up dialogue (:attr:`.DeviceEncoder.dialogue`): read what the
+        host sent and write the device's answers (not counted in :attr:`bytes_sent`: the
+        host reads them while it configures the device, not as its stream)."""
+        enc, pair = self.encoder, self.pair
+        if enc is None or not enc.dialogue or pair is None or not pair.master_open:
+            return
+        try:
+            data = read_available(pair.master_fd)
+        except OSError:
+            return
+        reply = enc.answer(data) if data else b""
+        if reply:
+            sent = self.bytes_sent
+            self._write(reply)
+            self.bytes_sent = sent
+
     def _wait_connected(self, after: float) -> float:
         assert self.host is not None
-        wall = self.host.wait_connected(after, self.connect_timeout_s)
+        if self.encoder is not None and self.encoder.dialogue:  # answer while it configures
+            end = time.monotonic() + self.connect_timeout_s
+            wall = None
+            while wall is None and time.monotonic() < end and not self._stop.is_set():
+                self._answer_host()
+                wall = self.host.wait_connected(after, 0.02)
+            self._answer_host()  # the last set-up commands, sent before it said connected
+        else:
+            wall = self.host.wait_connected(after, self.connect_timeout_s)
         if wall is None:
             raise FeederError(
                 f"the reader did not open {self.link} within {self.connect_timeout_s:g} s"
@@ -208,6 +233,7 @@ class BoardFeeder:
             end = min(index + self.chunk_n, total)
             parts: list[bytes] = []
             outage: Injection | None = None
+            self._answer_host()
             while self.pending and self._index_of(self.pending[0]) < end:
                 inj = self.pending.pop(0)
                 k = max(self._index_of(inj), index)

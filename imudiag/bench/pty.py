@@ -134,6 +134,23 @@ def chunked(data: bytes, size: int) -> Iterator[bytes]:
         yield data[i : i + size]
 
 
+def read_available(fd: int) -> bytes:
+    """Every byte that can be read from ``fd`` now, without waiting (b"" if none)."""
+    data = b""
+    while True:
+        ready, _, _ = select.select([fd], [], [], 0.0)
+        if not ready:
+            break
+        with contextlib.suppress(BlockingIOError):
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                break
+            data += chunk
+            continue
+        break
+    return data
+
+
 class BoardWriter(threading.Thread):
     """Background thread writing byte chunks to a pty master at a real-time pace.
 

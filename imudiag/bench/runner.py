@@ -89,10 +89,11 @@ def daemon_args(
     diagnosis: bool,
     aiding_url: str | None = None,
     device: str = "native",
+    rate_hz: float = 0.0,
 ) -> list[str]:
     """Command-line arguments of ``imudiag run`` for a bench run (the source URL of
-    ``device`` on ``link``)."""
-    source = SOURCE_URLS[device].format(path=link)
+    ``device`` on ``link``, samples at ``rate_hz``)."""
+    source = SOURCE_URLS[device].format(path=link, rate=rate_hz)
     args = ["--config", str(config_path), "--source", source, "--status", "-"]
     if aiding_url:
         args += ["--aiding", aiding_url]
@@ -202,6 +203,7 @@ def run_scenario(
                 use_diagnosis,
                 None if feed is None else feed.url,
                 scenario.device,
+                board.rate_hz,
             )
             daemon = DaemonProcess([*args, *extra_args], python=python)
             try:

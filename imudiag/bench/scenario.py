@@ -9,7 +9,7 @@ A scenario file (docs/bench.md has the full reference)::
     duration: 12.0                 # s of sample time
     seed: 3
     speed: 5.0                     # board pace relative to real time
-    device: native                 # the fake device (imudiag.bench.devices): native, mavlink
+    device: native                 # the fake device (imudiag.bench.devices.ENCODERS)
     effects: [board]               # imudiag.sim text effects
     daemon:                        # daemon configuration keys (config/imudiag.yaml layout)
       monitor: {stuck_samples: 50}
