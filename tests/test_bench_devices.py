@@ -14,6 +14,9 @@ from imudiag.bench import loads, run_scenario
 from imudiag.bench.devices import ENCODERS, SOURCE_URLS, make_encoder
 from imudiag.certificate import load_default
 
+#: the real-time tier (tests/conftest.py): the bench against fake devices on ptys
+pytestmark = pytest.mark.realtime
+
 SCENARIO = """
 format: imudiag-bench-scenario/1
 name: {device}-smoke

@@ -23,6 +23,10 @@ from imudiag.fleet.simulate import simulate_fleet
 from imudiag.fleet.task import Job, diagnose_log
 from imudiag.reports import FLEET_FORMAT
 
+#: the real-time tier (tests/conftest.py):
+#: a real Dask LocalCluster, killed fleet processes and a headless browser
+pytestmark = pytest.mark.realtime
+
 pytest.importorskip("dask.distributed", reason="the fleet extra (dask[distributed]) is needed")
 pytest.importorskip("pyarrow", reason="the fleet extra (pyarrow) is needed")
 

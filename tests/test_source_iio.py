@@ -27,6 +27,10 @@ from imudiag.samples import SampleBlock
 from tests.device_sessions import DaemonThread, judge_session, session_samples
 from tests.helpers import read_samples, read_until_state
 
+#: the real-time tier (tests/conftest.py):
+#: a FIFO written by a fake kernel and a daemon thread, timed on the wall clock
+pytestmark = pytest.mark.realtime
+
 G = 9.80665
 GYRO_SCALE = math.radians(1 / 40) / 65536  #: rad/s per LSB (ADIS16475-2, 32-bit output)
 ACCEL_SCALE = 0.25e-3 * G  #: m/s^2 per LSB (ADIS16475, 16-bit output)

@@ -23,6 +23,9 @@ from imudiag.samples import FLAG_ADC_ERROR, FLAG_SELF_TEST, SampleBlock
 from tests.device_sessions import RATE_HZ, DaemonThread, judge_session, session_samples
 from tests.helpers import read_samples, read_until_state
 
+#: the real-time tier (tests/conftest.py): ptys and a daemon thread against a fake iSensor board
+pytestmark = pytest.mark.realtime
+
 GYRO_LSB = 1 / 40  #: ADIS16475-2: deg/s per LSB of the 16-bit output (data sheet Table 1)
 ACCEL_LSB = 1 / 4000  #: ADIS16475: g per LSB (0.25 mg)
 TEMP_LSB = 0.1  #: degC per LSB

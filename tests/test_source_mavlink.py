@@ -29,6 +29,10 @@ from imudiag.service.daemon import Daemon, DaemonSettings
 from imudiag.sim import Fault, multi_position, simulate
 from tests.helpers import CollectSink, read_samples
 
+#: the real-time tier (tests/conftest.py):
+#: ptys and a daemon against a fake autopilot, paced in real time
+pytestmark = pytest.mark.realtime
+
 dialect = pytest.importorskip("pymavlink.dialects.v20.ardupilotmega")
 
 RATE_HZ = 100.0  #: sample rate of the simulated sessions, Hz

@@ -19,6 +19,9 @@ from imudiag.samples import FLAG_ACCEL_SATURATED, SampleBlock
 from tests.device_sessions import DaemonThread, judge_session, session_samples
 from tests.helpers import read_samples, read_until_state
 
+#: the real-time tier (tests/conftest.py): ptys and a daemon thread against a fake WitMotion
+pytestmark = pytest.mark.realtime
+
 START = dt.datetime(2026, 11, 28, 12, 0, 0)
 
 
