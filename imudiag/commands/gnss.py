@@ -70,10 +70,12 @@ def check_latency(latency_s: float | None) -> None:
     latency estimate searches (docs/moving-base.md: receivers report 0.02-0.2 s late): a
     value in ms given as seconds (2, -3, 120) would shift every GNSS epoch by seconds and
     raise false accelerometer faults. Names the reading in ms when that one fits."""
+    if latency_s is None:
+        return  # the aiding code is not imported for a log without GNSS options
     from ..aiding.moving import MovingConfig
 
     bound = MovingConfig.max_latency_s
-    if latency_s is None or abs(latency_s) <= bound:
+    if abs(latency_s) <= bound:
         return
     hint = (
         f"; if {latency_s:g} is in ms, give --gnss-latency {latency_s / 1000:g}"

@@ -85,6 +85,9 @@ def _log_or_folder(text: str) -> str:
     return writable_output_path()(text)
 
 
+_log_or_folder.writes_file = True  # type: ignore[attr-defined]  # argtypes.output_dests
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``simulate`` subcommand."""
     p = sub.add_parser(
