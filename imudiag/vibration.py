@@ -141,6 +141,14 @@ class VibrationMeter:
         full[: self._tail.shape[0]] = self._tail
         full[self._tail.shape[0] :, :3] = block.gyro
         full[self._tail.shape[0] :, 3:] = block.accel
+        bad = ~np.isfinite(full)
+        if bad.any():  # a non-finite output (the monitor counts it) adds no vibration and
+            # must not reach the prefix sums: it stands at its axis's finite mean here
+            count = np.count_nonzero(~bad, axis=0)
+            fill = np.divide(
+                np.where(bad, 0.0, full).sum(axis=0), count, out=np.zeros(6), where=count > 0
+            )
+            full = np.where(bad, fill, full)
         x = full[self._tail.shape[0] :]
         # each sample minus the mean of the h samples ending at it (fewer at the stream's
         # start), from prefix sums of the samples centred on the first
