@@ -171,7 +171,7 @@ class Daemon:
         #: when the source is open and at every certificate reload
         self.units: Conversion = NO_CONVERSION
         self._units_checked = False
-        self._units_stated = ""  #: repr of the source's stated units when last checked
+        self._units_stated: Any = None  #: the source's stated units when last checked
         self.monitor = Monitor(self.certificate, settings.monitor)
         #: the unit's white noise measured live, as every command measures it
         #: (:mod:`imudiag.noise_estimate`), over the last NOISE_WINDOW_S of samples
@@ -391,11 +391,12 @@ class Daemon:
         """At start (the source open, or its first block), and again whenever the source
         states other units (a MAVLink autopilot that switched messages after a replug):
         conform the units or refuse."""
-        stated = repr(self.source.device_info.get("units"))
+        stated = self.source.device_info.get("units")
         if not self._units_checked or stated != self._units_stated:
             self.units = self._conform_units(self.certificate)
             self._units_checked = True
-            self._units_stated = stated
+            # a copy: a source may update its device_info's units in place
+            self._units_stated = dict(stated) if isinstance(stated, dict) else stated
             if not self.units.identity:
                 log.info("units: %s", self.units)
             self._adopt_rate()
