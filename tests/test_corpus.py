@@ -48,6 +48,7 @@ def _independent(folder: Path, path: Path) -> dict:
         while (m := log.recv_match(type="IMU")) is not None:
             if int(getattr(m, "I", 0)) == 0:
                 rows.append((m.TimeUS * 1e-6, m.GyrX, m.GyrY, m.GyrZ, m.AccX, m.AccY, m.AccZ))
+        log.close()
         r = np.asarray(rows)
         return _summary(r[:, 0], r[:, 1:4], r[:, 4:7])
     u = pyulog.ULog(str(path), message_name_filter_list=["sensor_combined"])

@@ -10,7 +10,9 @@ rad/s and m/s^2; every file is first checked with pymavlink's own reader.
 
 from __future__ import annotations
 
+import gc
 import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +60,7 @@ def write_dataflash(path: Path, s, instances=(0, 1), old_names=False) -> Path:
     # the reference reader agrees the file is a DataFlash log
     log = DFReader.DFReader_binary(str(path), zero_time_base=True)
     assert log.recv_match(type=["IMU", "IMU2", "IMU3"]) is not None
+    log.close()
     return path
 
 
@@ -139,6 +142,7 @@ def test_a_real_ardupilot_log_reads_as_pymavlink_reads_it(instance: int) -> None
         # current logs tag the instance (field I); this 2019 one names it IMU, IMU2
         if getattr(m, "I", {"IMU": 0, "IMU2": 1}[m.get_type()]) == instance:
             want.append([m.TimeUS / 1e6, m.GyrX, m.GyrY, m.GyrZ, m.AccX, m.AccY, m.AccZ])
+    reader.close()
     expected = np.array(want)
     assert len(expected) > 40  # about a second at 50 Hz
     with open_log(REAL, options=LogOptions(instance=instance)) as reader:
@@ -158,3 +162,14 @@ def test_a_real_ardupilot_log_through_allan() -> None:
     r = run_imudiag("allan", str(REAL))
     assert r.returncode == 0, r.stderr
     assert "samples at 49.9" in r.stdout and "gaps" in r.stdout
+
+
+def test_reading_a_log_leaves_no_file_open() -> None:
+    """The reader closes pymavlink's map and file once it has read the log (they were left
+    to the garbage collector, which warned of an unclosed file)."""
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always", ResourceWarning)
+        block = read_log(REAL)
+        gc.collect()
+    assert len(block) > 40
+    assert [w for w in seen if issubclass(w.category, ResourceWarning)] == []

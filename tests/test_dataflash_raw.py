@@ -78,6 +78,7 @@ def test_acc_gyr_are_read_in_preference_to_slower_imu_messages(tmp_path, session
     while (m := ref.recv_match(type=["ACC", "GYR"])) is not None:
         row = [m.SampleUS * 1e-6, *(getattr(m, m.get_type().title()[:3] + a) for a in "XYZ")]
         (acc if m.get_type() == "ACC" else gyr).append(row)
+    ref.close()
     acc, gyr = np.asarray(acc), np.asarray(gyr)
     with open_log(log) as r:
         got = read_log(log)
@@ -103,6 +104,8 @@ def test_batch_sampler_bursts_are_read_as_dfreader_decodes_them(tmp_path, sessio
         t = h.SampleUS * 1e-6 + np.arange(len(xyz)) / h.smp_rate
         want[h.type].append(np.column_stack([t, xyz]))
     acc, gyr = np.concatenate(want[0]), np.concatenate(want[1])
+    heads.clear(), data.clear()
+    ref.close()
     with open_log(log) as r:
         got = read_log(log)
         assert r.meta["source"].startswith("DataFlash ISBH/ISBD batch sampler instance 0")

@@ -23,6 +23,7 @@ by message in Python), then handed out in blocks.
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +60,17 @@ def _rate(t: np.ndarray) -> float:
     return float(1.0 / np.median(np.diff(t))) if t.shape[0] > 1 else 0.0
 
 
+def _close(log: Any) -> None:
+    """Close a DFReader's map and file; a map still exported (a message's view) is left to
+    the garbage collector, the file is closed all the same."""
+    if log is None:
+        return
+    with contextlib.suppress(BufferError, AttributeError, ValueError):
+        log.data_map.close()
+    with contextlib.suppress(AttributeError, OSError):
+        log.filehandle.close()
+
+
 class DataFlashReader(ColumnsReader):
     """Reader of the IMU samples of one instance of an ArduPilot DataFlash log."""
 
@@ -82,6 +94,7 @@ class DataFlashReader(ColumnsReader):
         gps: list[tuple[float, ...]] = []
         gpa: dict[float, float] = {}
         self.gps_unread = 0  #: GPS messages of a layout without boot time, speed or course
+        log = None
         try:
             log = dfreader.DFReader_binary(self.path, zero_time_base=True)
             while True:
@@ -119,6 +132,8 @@ class DataFlashReader(ColumnsReader):
             raise
         except Exception as exc:  # pymavlink raises plain errors on corrupt logs
             raise LogError(self.path, f"not a readable DataFlash log: {exc}") from None
+        finally:
+            _close(log)
         self._gnss = self._fixes(gps, gpa)
         sources = self._sources(imu, raw, batches)
         if not sources:
