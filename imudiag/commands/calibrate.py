@@ -223,8 +223,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {what} ({r['triad']} fit): {r['reason']}", file=out)
     for u in result.undetermined:
         print(
-            f"  undetermined (kept from --like) {u['triad']} {u['sensor']} {u['cause']}: "
-            f"{u['reason']}",
+            f"  undetermined {u['triad']} {u['sensor']} {u['cause']}: {u['reason']}",
             file=out,
         )
     for line in plot_lines(plots):
