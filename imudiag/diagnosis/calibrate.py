@@ -789,6 +789,10 @@ def calibrate_known_rate(
     if set_aside:
         gyr_fit.extra["plateaus_set_aside"] = set_aside
     kept = gyr_fit.kept if gyr_fit.kept is not None else np.ones(len(plateaus), dtype=bool)
+    # the turntable's "attitude" is the mounting: plateaus whose rate points the same way in
+    # the body share its errors, and another session of the unit is a new set of mountings
+    axes = gyr_like.inverse(gmeans[kept])
+    axes = axes / np.maximum(np.linalg.norm(axes, axis=1, keepdims=True), 1e-300)
     generalisation = _leave_one_out(
         gyr_like,
         gmeans[kept],
@@ -798,6 +802,7 @@ def calibrate_known_rate(
         gprior,
         ratio,
         quantity="|w|/rate - 1",
+        groups=attitude_groups(axes, cfg.attitude_separation_deg),
     )
     new = like.copy()
     new.sample_rate = rate
