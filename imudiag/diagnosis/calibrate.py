@@ -223,9 +223,10 @@ def _regularised_fit(
     carries it, and its posterior std (the calibration's std) includes it. A fit still
     short of ``min_dof`` degrees of freedom pins its worst shape parameter as
     :func:`_pinned_fit` does. The fit's ``extra["prior"]`` lists the widths (certificate
-    units), where they come from, the inflation, and each parameter's prior share (the
-    prior's weight in its estimate, posterior / prior variance; ratio to the data's
-    information share / (1 - share)); parameters the prior decides (share above
+    units), where they come from, the inflation, the parameter names and each one's prior
+    share (the prior's weight in its estimate, posterior / prior variance) and
+    ``prior_to_data`` (share / (1 - share): the prior's weight against the data's
+    information); parameters the prior decides (share above
     :data:`PRIOR_DECIDES`) are named in ``decided_by_prior`` and their reason says so.
     Returns the fit and the prior widths (9,) in limits it was made with.
     """
@@ -275,7 +276,10 @@ def _regularised_fit(
         "std": [float(x) for x in sigma],
         "source": source,
         "inflation": {c: float(t) for c, t in zip(PRIOR_CLASSES, tau, strict=True)},
+        "parameters": names,
         "share": [float(x) for x in share],
+        # the prior's weight against the data's information (null: the data add none)
+        "prior_to_data": [float(x / (1.0 - x)) if x < 1.0 else None for x in share],
         "decided_by_prior": decided,
     }
     return fit, np.where(pinned, PINNED_PRIOR, width)
