@@ -13,12 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from imudiag.certificate import load_default
-from imudiag.diagnosis.calibrate import (
-    CALIBRATION_PRIOR,
-    PINNED_PRIOR,
-    _leave_one_out,
-    calibrate,
-)
+from imudiag.diagnosis.calibrate import _leave_one_out, calibrate
 from imudiag.diagnosis.config import DiagnosisConfig
 from imudiag.diagnosis.session import collect_intervals
 from imudiag.sim import multi_position, simulate
@@ -78,11 +73,12 @@ def test_attitude_check_predicts_a_second_session():
         res = calibrate(a, like, "exact", rate)
         gen = res.generalisation
         assert gen is not None and gen["by"] == "attitude", gen
-        # the old check: leave one interval out, same fit and pinned parameters
+        # the old check: leave one interval out, same fit and the same prior (its widths in
+        # limits, as the calibration used them)
         means = np.array([iv.accel_mean for iv in a])
         mvar = np.array([iv.mean_var("accel") for iv in a])
         kept = res.accel.kept if res.accel.kept is not None else np.ones(len(a), dtype=bool)
-        prior = np.where(res.accel.determined, CALIBRATION_PRIOR, PINNED_PRIOR)
+        prior = np.asarray(res.accel.extra["prior"]["std"]) / res.accel.limit
         old = _leave_one_out(
             like.accel,
             means[kept],

@@ -129,6 +129,10 @@ def test_turntable_calibration_within_a_tenth_of_a_percent(tmp_path):
     assert spread["after"]["rms"] < spread["before"]["rms"] / 5
     assert summary["generalisation"]["generalises"] is True
     assert summary["generalisation"]["quantity"] == "|w|/rate - 1"
+    # held out by mounting (plateaus whose rate points the same way in the body), as another
+    # session of the unit asks: 12 mountings, each left out in turn
+    assert summary["generalisation"]["by"] == "attitude"
+    assert summary["generalisation"]["attitudes_held_out"] == 12
     # the accelerometers are kept from --like and said to be
     assert np.allclose(load(out).accel.bias, load_default().accel.bias)
     assert any(

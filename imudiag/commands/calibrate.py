@@ -223,10 +223,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {what} ({r['triad']} fit): {r['reason']}", file=out)
     for u in result.undetermined:
         print(
-            f"  undetermined (kept from --like) {u['triad']} {u['sensor']} {u['cause']}: "
-            f"{u['reason']}",
+            f"  undetermined {u['triad']} {u['sensor']} {u['cause']}: {u['reason']}",
             file=out,
         )
+    for fit in (result.accel, result.gyro):
+        prior = fit.extra.get("prior") or {}
+        if prior.get("decided_by_prior"):
+            shares = ", ".join(
+                f"{n} {100 * sh:.0f} %"
+                for n, sh in zip(prior["parameters"], prior["share"], strict=True)
+                if n in prior["decided_by_prior"]
+            )
+            print(f"  decided by the prior toward --like ({fit.triad}): {shares}", file=out)
     for line in plot_lines(plots):
         print(line, file=out)
     return 0

@@ -153,13 +153,149 @@ def _pinned_fit(
     return fit, prior(pinned)
 
 
+#: 99th percentiles of chi^2 with 1, 2 and 3 degrees of freedom: the stated width of the
+#: certificate is widened only when its determined parameters deviate beyond them.
+CHI2_99 = (6.635, 9.210, 11.345)
+#: The parameter classes whose prior width is widened together (:func:`prior_inflation`).
+PRIOR_CLASSES = ("bias", "scale_factor", "misalignment")
+#: A parameter is "decided by the prior" when the prior carries more than this share of its
+#: estimate (posterior variance / prior variance; the prior weight / data information ratio
+#: is share / (1 - share)).
+PRIOR_DECIDES = 0.5
+
+
+def certificate_prior(like: TriadModel) -> tuple[np.ndarray, list[str]]:
+    """The ``--like`` certificate's own stated uncertainty as a Gaussian prior: its std (9,)
+    in units of the limits and where each comes from (``uncertainty``: the certificate's
+    ``uncertainty`` block, a calibration's; ``limit``: none stated, the limit taken as 1
+    sigma, the widest deviation the certificate calls healthy)."""
+    lim = limit_vector(like)
+    stated = like.uncertainty.vector() if like.uncertainty is not None else np.full(9, np.nan)
+    ok = np.isfinite(stated) & (stated > 0) & (lim > 0)
+    width = np.where(ok, stated / np.where(lim > 0, lim, 1.0), 1.0)
+    return width, ["uncertainty" if o else "limit" for o in ok.tolist()]
+
+
+def prior_inflation(fit: TriadFit, width: np.ndarray) -> np.ndarray:
+    """Factor (3,) >= 1 per parameter class (bias, scale factor, misalignment) by which the
+    data show the certificate's stated width ``width`` (9,) in limits too narrow.
+
+    The parameters of one class are exchangeable under the certificate (each deviates from
+    ``--like`` by about its stated width); those the session determines measure that
+    width: tau^2 = mean over them of (deviation^2 - std^2) / width^2 (a moment estimate of
+    the hierarchical model's scale), never below 1 (the certificate is not trusted beyond
+    what it states), and only where the deviations contradict the stated width: their
+    chi^2 (deviation^2 / (width^2 + std^2), summed) beyond its 99th percentile
+    (:data:`CHI2_99`; a session whose bias wanders can put one conditional estimate 5
+    sigma off by itself). A class with no determined parameter keeps 1. A nominal certificate
+    whose biases are 10 limits off (imucal's example unit: 0.5 m/s^2 against 0.05) would
+    otherwise pull an unseen bias back to 0 with the weight of a calibration.
+    """
+    dev = (fit.estimate - fit.certificate) / fit.limit
+    var = (fit.std / fit.limit) ** 2
+    ok = np.asarray(fit.determined, dtype=bool) & np.isfinite(dev) & np.isfinite(var)
+    out = np.ones(3)
+    for c in range(3):
+        sl = slice(3 * c, 3 * c + 3)
+        m = ok[sl]
+        n = int(m.sum())
+        if not n:
+            continue
+        d2, v, w2 = dev[sl][m] ** 2, var[sl][m], width[sl][m] ** 2
+        if float(np.sum(d2 / (w2 + v))) <= CHI2_99[n - 1]:
+            continue  # the certificate's width explains the deviations: kept
+        out[c] = math.sqrt(max(1.0, float(np.mean((d2 - v) / w2))))
+    return out
+
+
+def _regularised_fit(
+    fit_once: Callable[[np.ndarray, bool], TriadFit],
+    like: TriadModel,
+    min_dof: float = 0.0,
+) -> tuple[TriadFit, np.ndarray]:
+    """Fit with a Gaussian prior at the ``--like`` certificate (issue 29), so parameters the
+    session determines weakly are decided by data and certificate in proportion to what
+    each knows, instead of being pinned at ``--like``.
+
+    The prior's std is the certificate's stated uncertainty, else its limit
+    (:func:`certificate_prior`), widened per class by what the determined parameters show
+    (:func:`prior_inflation`, measured on the fit of :func:`_pinned_fit`). Every parameter
+    carries it, and its posterior std (the calibration's std) includes it. A fit still
+    short of ``min_dof`` degrees of freedom pins its worst shape parameter as
+    :func:`_pinned_fit` does. The fit's ``extra["prior"]`` lists the widths (certificate
+    units), where they come from, the inflation, the parameter names and each one's prior
+    share (the prior's weight in its estimate, posterior / prior variance) and
+    ``prior_to_data`` (share / (1 - share): the prior's weight against the data's
+    information); parameters the prior decides (share above
+    :data:`PRIOR_DECIDES`) are named in ``decided_by_prior`` and their reason says so.
+    Returns the fit and the prior widths (9,) in limits it was made with.
+    """
+    first, _ = _pinned_fit(fit_once, min_dof)
+    base, source = certificate_prior(like)
+    tau = prior_inflation(first, base)
+    width = base * np.repeat(tau, 3)
+    pinned = np.zeros(9, dtype=bool)
+    fit = fit_once(np.where(pinned, PINNED_PRIOR, width), False)
+    while np.isfinite(fit.dof) and fit.dof < min_dof - 1e-6:
+        cand = ~pinned & (np.arange(9) >= 3)
+        if not cand.any():
+            cand = ~pinned
+        if not cand.any():
+            break
+        pinned[int(np.argmax(np.where(cand, fit.std / fit.limit, -np.inf)))] = True
+        fit = fit_once(np.where(pinned, PINNED_PRIOR, width), False)
+    sigma = width * fit.limit
+    # posterior over prior variance, before the covariance was scaled for the residual
+    # scatter (that scaling widens the std, not the prior's weight)
+    var = fit.std**2 / max(fit.cov_scale, 1.0)
+    share = np.where(
+        np.isfinite(fit.std), np.minimum(1.0, var / np.where(sigma > 0, sigma, 1.0) ** 2), 1.0
+    )
+    names = [f"{sensor_of(like.name, i)} {PRIOR_CLASSES[i // 3]}" for i in range(9)]
+    decided = []
+    for i in range(9):
+        if pinned[i]:
+            fit.determined[i] = False
+            fit.std[i] = np.inf
+            fit.estimate[i] = fit.certificate[i]  # literally the --like value
+            fit.reasons[i] = (
+                f"not determined by the session ({fit.dof:.1f} degrees of freedom left, "
+                f"{min_dof:g} needed to check the fit): kept from --like"
+            )
+            share[i] = 1.0
+        elif not fit.determined[i]:
+            why = fit.reasons[i] or "correlated with parameters it cannot see"
+            fit.reasons[i] = (
+                f"not determined by the session ({why}): regularised toward --like, the prior "
+                f"{share[i]:.0%} of the estimate"
+            )
+        if share[i] > PRIOR_DECIDES:
+            decided.append(names[i])
+    fit.extra["pinned"] = int(pinned.sum())
+    fit.extra["prior"] = {
+        "std": [float(x) for x in sigma],
+        "source": source,
+        "inflation": {c: float(t) for c, t in zip(PRIOR_CLASSES, tau, strict=True)},
+        "parameters": names,
+        "share": [float(x) for x in share],
+        # the prior's weight against the data's information (null: the data add none)
+        "prior_to_data": [float(x / (1.0 - x)) if x < 1.0 else None for x in share],
+        "decided_by_prior": decided,
+    }
+    return fit, np.where(pinned, PINNED_PRIOR, width)
+
+
 def state_uncertainty(triad: TriadModel, fit: TriadFit) -> None:
     """Write the calibration's own std into ``triad.uncertainty`` (the certificate it
-    writes): the fit's std for each parameter it determined, the ``--like`` value's stated
-    std (NaN: none) for each it kept; a diagnosis against this certificate adds it to the
+    writes): the fit's std for each parameter it determined or regularised toward
+    ``--like`` (the posterior std), the ``--like`` value's stated std (NaN: none) for each
+    it kept; a diagnosis against this certificate adds it to the
     std of each deviation (:mod:`.predicates`)."""
     kept = triad.uncertainty.vector() if triad.uncertainty is not None else np.full(9, np.nan)
-    std = np.where(np.asarray(fit.determined, dtype=bool) & np.isfinite(fit.std), fit.std, kept)
+    # a fit regularised toward --like (:func:`_regularised_fit`) states the posterior std of
+    # every parameter, the prior's included; a fit without a prior only those it determined
+    own = np.asarray(fit.determined, dtype=bool) | ("prior" in fit.extra)
+    std = np.where(own & np.isfinite(fit.std), fit.std, kept)
     triad.uncertainty = (
         Uncertainty(std[:3].copy(), std[3:6].copy(), std[6:9].copy())
         if np.any(np.isfinite(std))
@@ -384,7 +520,7 @@ def calibrate(
     elif method == "linear":
         acc_fit = linear_fit(acc_like, means, covs, counts, g_in, ratio, CALIBRATION_PRIOR)
     else:
-        acc_fit, acc_prior = _pinned_fit(
+        acc_fit, acc_prior = _regularised_fit(
             lambda pf, probe: (
                 exact_fit(
                     acc_like,
@@ -410,6 +546,7 @@ def calibrate(
                     max_iter=100,
                 )
             ),
+            acc_like,
             CALIBRATION_MIN_DOF,
         )
     generalisation = None
@@ -462,7 +599,7 @@ def calibrate(
         if method == "linear":
             gyr_fit = linear_fit(gyr_like, gmeans, gcovs, counts, w_in, ratio, CALIBRATION_PRIOR)
         else:
-            gyr_fit, _ = _pinned_fit(
+            gyr_fit, _ = _regularised_fit(
                 lambda pf, probe: (
                     exact_fit(
                         gyr_like,
@@ -490,6 +627,7 @@ def calibrate(
                         method="exact-earth-rate",
                     )
                 ),
+                gyr_like,
                 CALIBRATION_MIN_DOF,
             )
         _set_from_fit(gyr, gyr_like, gyr_fit)
@@ -505,6 +643,9 @@ def calibrate(
                 rot_holder["rot"] = rot
             return fit
 
+        # pinned, not regularised: the rotation fit's shape is fitted with the frame rotation
+        # free, and the frame is dropped where the rotations do not determine it, so a
+        # regularised shape would carry what the frame took (30-60 mrad on 6 rotations)
         gyr_fit, gprior = _pinned_fit(once, CALIBRATION_MIN_DOF)
         n_g = n_holder["n"]
         used_pairs = [p for p, k in zip(pairs, n_holder["kept"], strict=True) if k]
@@ -526,6 +667,7 @@ def calibrate(
                 bool(gyr_fit.extra["frame_applied"]),
                 ratio,
                 np.linalg.inv(n_g),
+                determined=np.asarray(gyr_fit.determined, dtype=bool),
             )
     gyr.noise = _with_density(
         gyr_like.noise, _noise_density(gyr_like, intervals, rate, noise_density)
@@ -617,7 +759,7 @@ def calibrate_known_rate(
     gmeans = np.array([iv.gyro_mean for iv in plateaus])
     gmvar = np.array([iv.mean_var("gyro") for iv in plateaus])
     labels = interval_labels(plateaus)
-    gyr_fit, gprior = _pinned_fit(
+    gyr_fit, gprior = _regularised_fit(
         lambda pf, probe: (
             exact_fit(
                 gyr_like,
@@ -645,11 +787,16 @@ def calibrate_known_rate(
                 method="exact-known-rate",
             )
         ),
+        gyr_like,
         CALIBRATION_MIN_DOF,
     )
     if set_aside:
         gyr_fit.extra["plateaus_set_aside"] = set_aside
     kept = gyr_fit.kept if gyr_fit.kept is not None else np.ones(len(plateaus), dtype=bool)
+    # the turntable's "attitude" is the mounting: plateaus whose rate points the same way in
+    # the body share its errors, and another session of the unit is a new set of mountings
+    axes = gyr_like.inverse(gmeans[kept])
+    axes = axes / np.maximum(np.linalg.norm(axes, axis=1, keepdims=True), 1e-300)
     generalisation = _leave_one_out(
         gyr_like,
         gmeans[kept],
@@ -659,6 +806,7 @@ def calibrate_known_rate(
         gprior,
         ratio,
         quantity="|w|/rate - 1",
+        groups=attitude_groups(axes, cfg.attitude_separation_deg),
     )
     new = like.copy()
     new.sample_rate = rate
@@ -734,7 +882,9 @@ def _leave_one_out(
 
     With ``groups`` (K,) (each interval's attitude, :func:`.window.attitude_groups`) the
     check leaves one attitude out at a time: all its intervals are predicted by the fit to
-    the other attitudes (same pinned parameters), which is what another session of the unit
+    the other attitudes (same prior ``prior``, in limits, and the same pinned parameters;
+    a fold that leaves a parameter the whole session determines to the prior alone is
+    essential and not held out), which is what another session of the unit
     asks of the calibration (intervals of one attitude share its errors, and an interval
     left out beside its siblings is predicted far too well). Where fewer than 3 attitudes
     can be left out (each is essential: without it a free parameter is unseen), the check
@@ -760,7 +910,9 @@ def _leave_one_out(
 
     inside = norm_err(model_of(fit), means)
     before = norm_err(like, means)
-    free = prior != PINNED_PRIOR
+    # a fold is essential when it leaves a parameter the whole session determines undetermined
+    # (decided by the prior alone it predicts nothing about the session)
+    free = np.asarray(fit.determined, dtype=bool) & (prior != PINNED_PRIOR)
 
     def held_out(labels: np.ndarray) -> tuple[np.ndarray, int, int]:
         held = np.full(k, np.nan)

@@ -136,6 +136,7 @@ def rotation_leave_one_out(
     frame_applied: bool,
     ratio: float,
     ninv: np.ndarray,
+    determined: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Leave-one-motion-out check of a MEMS gyro calibration from rotations.
 
@@ -148,7 +149,9 @@ def rotation_leave_one_out(
     applied it: the gravity direction after the motion, integrated from the gyros,
     against the one the accelerometers measured (rad). A motion without which a
     free shape parameter is undetermined (std above ``ratio`` limits) is essential
-    and not held out. Verdict by :func:`judge` on 2 observations per motion.
+    and not held out (``determined`` (9,): the parameters the calibration determined, when
+    a prior decides the others; default ``free``). Verdict by :func:`judge` on 2
+    observations per motion.
     """
     gyro = like.gyro
     k = len(pairs)
@@ -158,6 +161,7 @@ def rotation_leave_one_out(
     shape_c, q_c = shape_of_triad(gyro)
     scale = np.concatenate([gyro.scale_factor, np.ones(3)])
     free_shape = np.asarray(free, dtype=bool)[3:]
+    seen_shape = free_shape if determined is None else np.asarray(determined, dtype=bool)[3:]
     lim = limit_vector(gyro)[3:]
     held = np.full(k, np.nan)
     essential = 0
@@ -165,7 +169,7 @@ def rotation_leave_one_out(
         for i in range(k):
             params, var = rot.loo_params[i], rot.loo_var[i]
             std = np.sqrt(np.maximum(var[:6], 0.0)) * scale
-            if not np.all(np.isfinite(params)) or np.any(free_shape & ~(std <= ratio * lim)):
+            if not np.all(np.isfinite(params)) or np.any(seen_shape & ~(std <= ratio * lim)):
                 essential += 1  # without it a free parameter is unseen: nothing to predict
                 continue
             dev = np.where(free_shape, params[:6], 0.0)

@@ -111,6 +111,9 @@ class TriadFit:
     extra: dict = field(default_factory=dict)
     judged: np.ndarray = field(default_factory=lambda: np.ones(9, dtype=bool))
     dof: float = float("nan")  #: effective degrees of freedom of the fit (observations - params)
+    #: factor (>= 1, dimensionless) the fit scaled its covariance by for a residual scatter
+    #: beyond its noise (chi^2 / dof, the Birge ratio); 1 where it did not
+    cov_scale: float = 1.0
     #: (G, 9) estimate minus certificate with each point (interval or motion) of the fit left
     #: out, certificate units (NaN where that point alone carries the parameter); None when the
     #: fit does not compute it (:mod:`.robust`)

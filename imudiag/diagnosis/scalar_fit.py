@@ -274,9 +274,11 @@ def exact_fit(
             break
         extra = _excess_variance(r, sig2 - extra, dof)
     theta = theta_fit
+    cov_scale = 1.0
     if dof > 0.5 and scale_by_residual:
         # what the excess variance did not absorb: Birge ratio
-        cov = cov * max(1.0, chi2 / dof)
+        cov_scale = max(1.0, chi2 / dof)
+        cov = cov * cov_scale
     null = ~np.isfinite(np.diag(cov))
     if not np.all(np.isfinite(pf)):
         # without a prior, directions with no information have no meaningful estimate
@@ -297,6 +299,7 @@ def exact_fit(
         rms,
     )
     fit.dof = dof
+    fit.cov_scale = cov_scale
     fit.excess_var = float(extra_used)
     if k and max_iter > 0:
         diag = point_diagnostics(jac, r, sig2 - extra_used, cov_unscaled, weights=wgt)
