@@ -1,14 +1,6 @@
-"""WHY THIS FILE STAYS (issue 30 item 6): one of the three files (``old_monitor.py``,
-``old_quasistatic.py``, ``old_trailing.py``) of the reference of
-``tests/test_monitor_equivalence.py``: the monitor as it was before its per-read
-cost work (issue 14), whose fault lists, counters and raises the shipped monitor must give
-after every read. The shipped monitor's own fast paths are checked against plain ones
-(reads gathered against every read checked, big blocks against daemon reads, the noise
-medians settled by counts against medians taken, ``tests/test_median_side.py``; stuck runs
-against their definition, ``tests/test_monitor_parts.py``); a plain monitor written anew
-would agree with the shipped one only to the rounding of its running sums, where the
-F0 and rest-rate verdicts at their limits can differ, so the code that fixed today's
-verdicts is kept. Do not edit.
+"""WHY THIS FILE STAYS (issue 30 item 6): a part of the reference of
+``tests/test_monitor_equivalence.py``; the note at the top of ``old_monitor.py`` says why
+it is kept. Do not edit.
 
 Quasi-static detection: which samples were taken while the IMU was still.
 
