@@ -7,7 +7,8 @@ blocks (:class:`~imudiag.quasistatic.WindowStage`) and the drift tests' trailing
 random streams (ADC errors, non-finite samples, restarts) and of the real recordings in
 ``tests/data/real``, and must give what the plain definition gives, computed here window
 by window: the spreads exactly (max and min are exact), the window means, variances and
-rates to the rounding of a prefix sum, the bad-window flags exactly.
+rates to the rounding of a prefix sum, the bad-window flags exactly; and the whole
+detector decides the same, sample for sample, on plain window sums as on prefix sums.
 
 The whole detector's flags are still compared with the frozen code in
 ``tests/reference/drift_quasistatic.py`` (``tests/test_detector_equivalence.py``; the note
@@ -21,10 +22,16 @@ import pytest
 from numpy.lib.stride_tricks import sliding_window_view
 
 from imudiag.certificate import Certificate, load_default
-from imudiag.quasistatic import BAD_FLAGS, TrailingSpread, WindowStage
+from imudiag.quasistatic import (
+    BAD_FLAGS,
+    QuasiStaticDetector,
+    TrailingSpread,
+    WindowStage,
+    WindowStats,
+)
 from imudiag.quasistatic.spread import plain_spread
 from imudiag.samples import FLAG_ACCEL_SATURATED, FLAG_ADC_ERROR, SampleBlock
-from imudiag.sim import multi_position, simulate
+from imudiag.sim import Effects, Fault, multi_position, simulate
 from tests.test_detector_equivalence import REAL_NAMES, _real
 
 CERT = load_default()
@@ -179,3 +186,70 @@ def test_fast_paths_are_their_definitions_on_the_real_recordings(name):
         np.maximum.accumulate(np.where(moving, idx + window, -(1 << 62))), idx - span
     )
     _check_spread(means[:10_000], start[:10_000], step, span, seed)
+
+
+class PlainWindowStage:
+    """The window statistics by their definition: every window's sums added up from the
+    stream's rows kept whole (centred on its first sample, as the detector's are), not
+    from prefix sums. :class:`~imudiag.quasistatic.WindowStats` is built from them (the
+    previous window's sums given as ``back_w``, zeros as ``back_2w``)."""
+
+    def __init__(self, fast: WindowStage) -> None:
+        self.certificate, self.n_inv_t, self.cols = fast.certificate, fast.n_inv_t, fast.cols
+        self.window, self.rate_window = fast.window, fast.rate_window
+        self.ref: np.ndarray | None = None
+        self.rows = np.zeros((0, 13))
+
+    def run(self, block: SampleBlock) -> WindowStats:
+        n = len(block)
+        x = np.concatenate([block.gyro, block.accel], axis=1)
+        finite = np.isfinite(x)
+        bad = ~np.all(finite[:, self.cols], axis=1)
+        if block.flags is not None:
+            bad |= (np.asarray(block.flags).astype(np.int64) & BAD_FLAGS) != 0
+        x = np.where(finite, x, 0.0)
+        if self.ref is None:
+            self.ref = np.array(x[0], dtype=float)
+        xc = x - self.ref
+        self.rows = np.concatenate([self.rows, np.column_stack([xc, xc * xc, bad])])
+        first = self.rows.shape[0] - n
+        idx = np.arange(first, first + n)
+
+        def window_sums(ends: np.ndarray, length: int) -> np.ndarray:
+            return np.array([self.rows[max(0, e - length + 1) : e + 1].sum(axis=0) for e in ends])
+
+        w = self.window
+        sums = window_sums(idx, w)
+        long_sums = window_sums(idx, self.rate_window)
+        prev = np.array(
+            [self.rows[max(0, e - 2 * w + 1) : max(0, e - w + 1)].sum(axis=0) for e in idx]
+        ).reshape(n, 13)
+        return WindowStats(self, n, idx, sums, long_sums, prev, np.zeros((n, 13)))  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("case", ["multiposition", "faults", "real mpu6050", "real xsens"])
+def test_the_detector_on_plain_window_sums_gives_the_same_flags(case):
+    """The whole detector (its variance, rate band, drift, restart and step tests, and the
+    noise estimate from the data) decides the same on plain window sums as on prefix sums,
+    fed the same random blocks."""
+    if case.startswith("real"):
+        name = {"real mpu6050": "mpu6050/calibration.csv.gz",
+                "real xsens": "xsens-mti-multiposition/session.csv.gz"}[case]  # fmt: skip
+        block, cert = _real(name)
+        block = block.slice(0, min(len(block), 30_000))
+    else:
+        cert = CERT
+        traj = multi_position(n_attitudes=8, dwell_s=4.0, turn_s=1.5, rate_hz=200, seed=7)
+        faults = [Fault("bias", "gz", 12.0, 300.0)] if case == "faults" else []
+        effects = Effects(quantize=True, adc_error_rate=0.001 if case == "faults" else 0.0)
+        block = simulate(CERT, traj, seed=8, faults=faults, effects=effects).samples
+    rng = np.random.default_rng(len(block))
+    for noise in (True, False):  # the certificate's noise, and the estimate from the data
+        fast = QuasiStaticDetector(cert, certificate_noise=noise)
+        plain = QuasiStaticDetector(cert, certificate_noise=noise)
+        assert isinstance(plain._stage, WindowStage)
+        plain._stage = PlainWindowStage(plain._stage)  # type: ignore[assignment]
+        for a, b in _cuts(rng, len(block), False):
+            part = block.slice(a, b)
+            assert np.array_equal(fast.update(part), plain.update(part)), f"samples {a}..{b}"
+        assert fast.explain["static"] > 0
