@@ -1,6 +1,6 @@
 """The monitor's excess-noise check: per channel, the white-noise sigma from the median of
 the squared second differences over a trailing window, against the certificate's
-(``Monitor`` module doc). The median is taken only where counting the values beyond each
+(:mod:`.checks` module doc). The median is taken only where counting the values beyond each
 threshold cannot settle the comparison (:func:`imudiag.trailing.median_side`; the same
 decisions)."""
 

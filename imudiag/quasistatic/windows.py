@@ -29,7 +29,7 @@ BAD_FLAGS = FLAG_GYRO_SATURATED | FLAG_ACCEL_SATURATED | FLAG_ADC_ERROR | FLAG_S
 
 class WindowStats:
     """What a block's trailing windows hold, whatever the noise figures: the part of the
-    still detector two detectors of one stream with different noise share (module doc).
+    still detector two detectors of one stream with different noise share (:mod:`.pool`).
 
     Rows are the block's samples from ``skip`` on (the first ``W - 1`` of a stream have no
     whole window), stream rows from ``first``; prefix-sum differences and back values
