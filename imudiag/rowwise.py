@@ -53,3 +53,16 @@ def rows_op(
     if m < n:
         op(src[m:], row, out=out[m:])
     return out
+
+
+def rows_where(x: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """``x[keep]``, or ``x`` itself when ``keep`` (N,) holds every row (no copy)."""
+    return x if keep.all() else x[keep]
+
+
+def rows_over(x: np.ndarray, keep: np.ndarray, divisor: float) -> np.ndarray:
+    """``x[keep] / divisor``, divided in place (``x`` itself when ``keep`` (N,) holds every
+    row: the caller's array of its own is changed)."""
+    out = rows_where(x, keep)
+    out /= divisor
+    return out

@@ -344,3 +344,25 @@ def test_quaternion_helpers_live_in_one_module():
     assert "imudiag.rotations" in GRAPH["imudiag.diagnosis.gyro_fit"]
     assert "imudiag.rotations" in GRAPH["imudiag.modelcheck.rotations"]
     assert "imudiag.diagnosis.gyro_fit" not in GRAPH["imudiag.modelcheck.rotations"]
+
+
+def test_the_split_packages_keep_each_algorithm_apart_from_its_machinery():
+    """Issue 30 item 6: ``imudiag.quasistatic`` and ``imudiag.monitor`` are packages whose
+    algorithm module (``detector``, ``checks``) stands on its machinery through named
+    interfaces; the machinery imports nothing of the algorithm, and nothing inside a
+    package imports its own ``__init__`` (the public re-exports, kept for the old paths)."""
+    inside = {
+        "imudiag.quasistatic": ("detector", {"windows", "spread", "sharing"}, {"pool"}),
+        "imudiag.monitor": ("checks", {"state", "noise", "stuck", "batching", "trace"}, set()),
+    }
+    for package, (algorithm, machinery, above) in inside.items():
+        for part in machinery:
+            deps = GRAPH[f"{package}.{part}"]
+            assert f"{package}.{algorithm}" not in deps, (package, part)
+            assert not any(d.startswith(f"{package}.") and d.rpartition(".")[2] in above
+                           for d in deps), (package, part)  # fmt: skip
+        for name in [m for m in MODULES if m.startswith(package + ".")]:
+            assert package not in GRAPH[name], name
+        own = {d.rpartition(".")[2] for d in GRAPH[f"{package}.{algorithm}"]
+               if d.startswith(package + ".")}  # fmt: skip
+        assert own <= machinery, (package, own)

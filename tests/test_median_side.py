@@ -78,6 +78,7 @@ def _noise_trace(monkeypatch, settle: bool) -> list:
     faults sit below, near and beyond the 2x and 3x ratios; ``settle=False`` makes every
     check take its median (the check as it was before the counts)."""
     import imudiag.monitor as monitor_module
+    import imudiag.monitor.noise as noise_module
     from imudiag.certificate import load_default
     from imudiag.sim import Fault, multi_position, simulate
 
@@ -87,7 +88,7 @@ def _noise_trace(monkeypatch, settle: bool) -> list:
             shape = (len(ends), thresholds.shape[0], x.shape[1])
             return np.zeros(shape, dtype=bool), np.zeros(shape, dtype=bool)
 
-        monkeypatch.setattr(monitor_module, "median_side", nothing_settled)
+        monkeypatch.setattr(noise_module, "median_side", nothing_settled)
     cert = load_default()
     traj = multi_position(n_attitudes=12, dwell_s=4.0, turn_s=1.5, rate_hz=200, seed=41)
     faults = [

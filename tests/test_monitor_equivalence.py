@@ -1,7 +1,9 @@
 """The monitor's cheaper per-read path gives the verdicts and counters of the previous one.
 
-``tests/reference/old_*.py`` are the monitor, trailing sums and still detector as they
-were before the per-read cost work (issue 14), kept as the reference. Both run on the same
+``tests/reference/old_monitor.py`` and ``old_trailing.py`` are the monitor and its trailing
+sums as they were before the per-read cost work (issue 14), kept as the reference (with
+today's still detector, which ``tests/test_detector_equivalence.py`` holds to its own
+reference, so the monitors alone are compared). Both run on the same
 seeded streams, cut into the same blocks (daemon-sized reads and odd sizes), and after
 every block their fault lists, F0 counters, persistence raises and static flags must be
 identical; the F0 sums and noise ratios agree to rounding (running sums round differently).

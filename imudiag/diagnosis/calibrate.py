@@ -494,12 +494,69 @@ def calibrate(
     ``method``: exact | linear | moving-base (``moving`` then holds each triad's
     normal equations and reference magnitude m0 in input units). ``noise_density``:
     the white noise measured from the log per triad (output units/sqrt(Hz)), written
-    to the certificate.
+    to the certificate. The steps: the accelerometer fit (and its held-out check), the
+    gyro fit on the calibrated accelerometers (Earth rate, or the rest biases and the
+    rotations between holds), the note of how, the residuals before and after.
     """
     cfg = config or DiagnosisConfig()
     rate = float(rate_hz or like.sample_rate)
     if not intervals:
         raise ValueError("no quasi-static interval in the session: nothing to calibrate from")
+    acc_fit, generalisation = _accel_calibration(intervals, like, method, moving, cfg)
+    new = like.copy()
+    new.sample_rate = rate
+    acc = new.accel
+    acc_like = like.accel
+    shape_c, _ = shape_of_triad(acc_like)
+    dev = acc_fit.estimate - certificate_vector(acc_like)
+    acc_shape = shape_c + np.concatenate([dev[3:6] / acc_like.scale_factor, dev[6:9]])
+    acc.bias = acc_fit.estimate[:3].copy()
+    acc.scale_factor_error, acc.misalignment = n_symmetric(acc_like, acc_shape)
+    acc.noise = _with_density(
+        acc_like.noise, _noise_density(acc_like, intervals, rate, noise_density)
+    )
+    gyr = new.gyro
+    gyr_fit, pairs, used_pairs, gyro_generalisation = _gyro_calibration(
+        intervals, like, acc, gyr, method, moving, cfg
+    )
+    gyr_like = like.gyro
+    gyr.noise = _with_density(
+        gyr_like.noise, _noise_density(gyr_like, intervals, rate, noise_density)
+    )
+    rotations = count_rotations(pairs, cfg.attitude_separation_deg)
+    new.device = _calibration_note(like, method, source, intervals, cfg, rotations)
+    new.source = None
+    residuals = _calibration_residuals(like, acc, gyr, intervals, used_pairs)
+    return CalibrationResult(
+        certificate=new,
+        method=method,
+        intervals=len(intervals),
+        attitudes=distinct_attitudes(
+            np.array([iv.up for iv in intervals]), cfg.attitude_separation_deg
+        ),
+        rotations=rotations,
+        accel=acc_fit,
+        gyro=gyr_fit,
+        accel_spread_before=spread(residuals["accel_norm"]["before"]),
+        accel_spread_after=spread(residuals["accel_norm"]["after"]),
+        rotation_rms_before_deg=_rotation_rms_deg(gyr_like, used_pairs),
+        rotation_rms_after_deg=_rotation_rms_deg(gyr, used_pairs),
+        undetermined=_undetermined(acc_fit) + _undetermined(gyr_fit),
+        generalisation=generalisation,
+        residuals=residuals,
+        gyro_generalisation=gyro_generalisation,
+    )
+
+
+def _accel_calibration(
+    intervals: list[QuasiStaticInterval],
+    like: Certificate,
+    method: str,
+    moving: dict[str, tuple[NormalEquations, float]] | None,
+    cfg: DiagnosisConfig,
+) -> tuple[TriadFit, dict[str, Any] | None]:
+    """The accelerometers' fit (``method``, as :func:`calibrate`'s) and, for the exact
+    fit, its held-out check by attitude groups (else None)."""
     ratio = cfg.determined_std_ratio
     acc_like = like.accel
     g_in = like.gravity / acc_like.unit_to_si
@@ -508,8 +565,6 @@ def calibrate(
     covs = np.array([iv.accel_cov for iv in intervals])
     counts = np.array([iv.n for iv in intervals], dtype=float)
     labels = interval_labels(intervals)
-
-    # -- accelerometers
     if method == "moving-base":
         if not moving or "accel" not in moving:
             raise ValueError("the moving-base calibration needs independent accel magnitudes")
@@ -563,27 +618,31 @@ def calibrate(
             ratio,
             groups=attitude_groups(ups, cfg.attitude_separation_deg),
         )
-    new = like.copy()
-    new.sample_rate = rate
-    acc = new.accel
-    shape_c, _ = shape_of_triad(acc_like)
-    dev = acc_fit.estimate - certificate_vector(acc_like)
-    acc_shape = shape_c + np.concatenate([dev[3:6] / acc_like.scale_factor, dev[6:9]])
-    acc.bias = acc_fit.estimate[:3].copy()
-    acc.scale_factor_error, acc.misalignment = n_symmetric(acc_like, acc_shape)
-    acc.noise = _with_density(
-        acc_like.noise, _noise_density(acc_like, intervals, rate, noise_density)
-    )
+    return acc_fit, generalisation
 
-    # -- gyros
+
+def _gyro_calibration(
+    intervals: list[QuasiStaticInterval],
+    like: Certificate,
+    acc: TriadModel,
+    gyr: TriadModel,
+    method: str,
+    moving: dict[str, tuple[NormalEquations, float]] | None,
+    cfg: DiagnosisConfig,
+) -> tuple[TriadFit, list[RotationPair], list[RotationPair], dict[str, Any] | None]:
+    """The gyros' fit, written into ``gyr`` (the new certificate's gyro), the accelerometers
+    ``acc`` already calibrated: moving-base, Earth rate (navigation grade), or the rest
+    biases and the rotations between holds (MEMS). Returns the fit, the rotation pairs,
+    those the fit kept, and the rotations' held-out check (None where not run)."""
+    ratio = cfg.determined_std_ratio
+    counts = np.array([iv.n for iv in intervals], dtype=float)
+    labels = interval_labels(intervals)
     gyr_like = like.gyro
     gmeans = np.array([iv.gyro_mean for iv in intervals])
     gmvar = np.array([iv.mean_var("gyro") for iv in intervals])
     gcovs = np.array([iv.gyro_cov for iv in intervals])
     w_in = like.earth_rate / gyr_like.unit_to_si
     pairs = rotation_pairs(like, acc, intervals)
-    rotations = count_rotations(pairs, cfg.attitude_separation_deg)
-    gyr = new.gyro
     used_pairs = pairs
     gyro_generalisation = None
     mode = cfg.gyro_mode
@@ -632,47 +691,75 @@ def calibrate(
             )
         _set_from_fit(gyr, gyr_like, gyr_fit)
     else:
-        n_holder: dict[str, np.ndarray] = {}
-        rot_holder: dict[str, RotationFitResult] = {}
+        gyr_fit, used_pairs, gyro_generalisation = _rest_rotation_calibration(
+            like, gyr, intervals, pairs, cfg
+        )
+    return gyr_fit, pairs, used_pairs, gyro_generalisation
 
-        def once(pf: np.ndarray, probe: bool) -> TriadFit:
-            fit, n_holder["n"], n_holder["kept"], rot = _gyro_rest_rotation(
-                like, gyr_like, intervals, pairs, cfg, pf, probe
-            )
-            if rot is not None:
-                rot_holder["rot"] = rot
-            return fit
 
-        # pinned, not regularised: the rotation fit's shape is fitted with the frame rotation
-        # free, and the frame is dropped where the rotations do not determine it, so a
-        # regularised shape would carry what the frame took (30-60 mrad on 6 rotations)
-        gyr_fit, gprior = _pinned_fit(once, CALIBRATION_MIN_DOF)
-        n_g = n_holder["n"]
-        used_pairs = [p for p, k in zip(pairs, n_holder["kept"], strict=True) if k]
-        if gyr_fit.extra.get("frame_rad") is not None:
-            # N from the final estimates, so pinned parameters are literally the --like values
-            shape_c, q_c = shape_of_triad(gyr_like)
-            scale = np.concatenate([gyr_like.scale_factor, np.ones(3)])
-            dev = (gyr_fit.estimate[3:] - gyr_fit.certificate[3:]) / scale
-            frame = np.asarray(gyr_fit.extra["frame_rad"]) if gyr_fit.extra["frame_applied"] else 0
-            n_g = p_matrix(shape_c + dev) @ small_rotation(np.zeros(3) + frame) @ q_c
-        gyr.bias = gyr_fit.estimate[:3].copy()
-        gyr.scale_factor_error, gyr.misalignment = fields_from_n(n_g, gyr_like.scale_factor)
-        if gyr_fit.extra.get("frame_rad") is not None and "rot" in rot_holder:
-            gyro_generalisation = rotation_leave_one_out(
-                like,
-                used_pairs,
-                rot_holder["rot"],
-                gprior != PINNED_PRIOR,
-                bool(gyr_fit.extra["frame_applied"]),
-                ratio,
-                np.linalg.inv(n_g),
-                determined=np.asarray(gyr_fit.determined, dtype=bool),
-            )
-    gyr.noise = _with_density(
-        gyr_like.noise, _noise_density(gyr_like, intervals, rate, noise_density)
-    )
+def _rest_rotation_calibration(
+    like: Certificate,
+    gyr: TriadModel,
+    intervals: list[QuasiStaticInterval],
+    pairs: list[RotationPair],
+    cfg: DiagnosisConfig,
+) -> tuple[TriadFit, list[RotationPair], dict[str, Any] | None]:
+    """The MEMS gyros' route, written into ``gyr``: the rest biases and the rotations
+    between holds (:func:`_gyro_rest_rotation`, pinned where the session cannot tell).
+    Returns the fit, the rotation pairs it kept and their held-out check (None where not
+    run)."""
+    ratio = cfg.determined_std_ratio
+    gyr_like = like.gyro
+    gyro_generalisation = None
+    n_holder: dict[str, np.ndarray] = {}
+    rot_holder: dict[str, RotationFitResult] = {}
 
+    def once(pf: np.ndarray, probe: bool) -> TriadFit:
+        fit, n_holder["n"], n_holder["kept"], rot = _gyro_rest_rotation(
+            like, gyr_like, intervals, pairs, cfg, pf, probe
+        )
+        if rot is not None:
+            rot_holder["rot"] = rot
+        return fit
+
+    # pinned, not regularised: the rotation fit's shape is fitted with the frame rotation
+    # free, and the frame is dropped where the rotations do not determine it, so a
+    # regularised shape would carry what the frame took (30-60 mrad on 6 rotations)
+    gyr_fit, gprior = _pinned_fit(once, CALIBRATION_MIN_DOF)
+    n_g = n_holder["n"]
+    used_pairs = [p for p, k in zip(pairs, n_holder["kept"], strict=True) if k]
+    if gyr_fit.extra.get("frame_rad") is not None:
+        # N from the final estimates, so pinned parameters are literally the --like values
+        shape_c, q_c = shape_of_triad(gyr_like)
+        scale = np.concatenate([gyr_like.scale_factor, np.ones(3)])
+        dev = (gyr_fit.estimate[3:] - gyr_fit.certificate[3:]) / scale
+        frame = np.asarray(gyr_fit.extra["frame_rad"]) if gyr_fit.extra["frame_applied"] else 0
+        n_g = p_matrix(shape_c + dev) @ small_rotation(np.zeros(3) + frame) @ q_c
+    gyr.bias = gyr_fit.estimate[:3].copy()
+    gyr.scale_factor_error, gyr.misalignment = fields_from_n(n_g, gyr_like.scale_factor)
+    if gyr_fit.extra.get("frame_rad") is not None and "rot" in rot_holder:
+        gyro_generalisation = rotation_leave_one_out(
+            like,
+            used_pairs,
+            rot_holder["rot"],
+            gprior != PINNED_PRIOR,
+            bool(gyr_fit.extra["frame_applied"]),
+            ratio,
+            np.linalg.inv(n_g),
+            determined=np.asarray(gyr_fit.determined, dtype=bool),
+        )
+    return gyr_fit, used_pairs, gyro_generalisation
+
+
+def _calibration_note(
+    like: Certificate,
+    method: str,
+    source: str,
+    intervals: list[QuasiStaticInterval],
+    cfg: DiagnosisConfig,
+    rotations: int,
+) -> dict[str, Any]:
+    """The new certificate's ``device``: ``like``'s, with the date and how it was made."""
     device = dict(like.device)
     device["calibrated"] = _dt.date.today().isoformat()
     device["calibration"] = (
@@ -682,43 +769,33 @@ def calibrate(
         f"{distinct_attitudes(np.array([iv.up for iv in intervals]), cfg.attitude_separation_deg)}"
         f" attitudes, {rotations} rotations"
     )
-    new.device = device
-    new.source = None
-    rot_before = _rotation_rms_deg(gyr_like, used_pairs)
-    rot_after = _rotation_rms_deg(gyr, used_pairs)
+    return device
+
+
+def _calibration_residuals(
+    like: Certificate,
+    acc: TriadModel,
+    gyr: TriadModel,
+    intervals: list[QuasiStaticInterval],
+    used_pairs: list[RotationPair],
+) -> dict[str, dict[str, np.ndarray]]:
+    """Per-point residuals before (``like``) and after (``acc``, ``gyr``): each interval's
+    |f|/g - 1, and the gravity direction after each rotation kept (deg)."""
     mid_t = np.array([0.5 * (iv.t_start + iv.t_end) for iv in intervals])
     residuals: dict[str, dict[str, np.ndarray]] = {
         "accel_norm": {
             "t": mid_t,
-            "before": accel_norm_residuals(acc_like, intervals, like.gravity),
+            "before": accel_norm_residuals(like.accel, intervals, like.gravity),
             "after": accel_norm_residuals(acc, intervals, like.gravity),
         }
     }
     if used_pairs:  # the motions the calibration kept (rejected ones are listed apart)
         residuals["rotation"] = {
             "t": np.array([float(p.t[-1]) for p in used_pairs]),
-            "before": rotation_residuals_deg(gyr_like, used_pairs),
+            "before": rotation_residuals_deg(like.gyro, used_pairs),
             "after": rotation_residuals_deg(gyr, used_pairs),
         }
-    return CalibrationResult(
-        certificate=new,
-        method=method,
-        intervals=len(intervals),
-        attitudes=distinct_attitudes(
-            np.array([iv.up for iv in intervals]), cfg.attitude_separation_deg
-        ),
-        rotations=rotations,
-        accel=acc_fit,
-        gyro=gyr_fit,
-        accel_spread_before=spread(residuals["accel_norm"]["before"]),
-        accel_spread_after=spread(residuals["accel_norm"]["after"]),
-        rotation_rms_before_deg=rot_before,
-        rotation_rms_after_deg=rot_after,
-        undetermined=_undetermined(acc_fit) + _undetermined(gyr_fit),
-        generalisation=generalisation,
-        residuals=residuals,
-        gyro_generalisation=gyro_generalisation,
-    )
+    return residuals
 
 
 def _norm_residuals(triad: TriadModel, means: np.ndarray, magnitude_in: float) -> np.ndarray:

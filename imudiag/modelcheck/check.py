@@ -224,7 +224,7 @@ def model_check(
 ) -> ModelCheckResult:
     """Run the model check of ``log`` (a path, a block, or a re-startable block source);
     a log is read ``block_size`` samples at a time (three passes); ``progress`` is told
-    how far each pass has got (a path or a block)."""
+    how far each pass has got (a path or a block). The steps of the module doc, in order."""
     cfg = config or ModelCheckConfig()
     source, meta = block_source(log, block_size, progress)
     where = str(log) if isinstance(log, (str, Path)) else "(samples)"
@@ -232,9 +232,130 @@ def model_check(
     if not conversion.identity:
         source = _converted(source, conversion)
     session = collect(source, certificate, cfg, meta)
-    c = session.chunks
+    base_report = _base_report(log, certificate, session, conversion)
+    if len(session.chunks) < 6:
+        return _too_little_data(base_report, certificate, session)
     out_units = {"gyro": certificate.gyro.output_unit, "accel": certificate.accel.output_unit}
-    in_units = {"gyro": certificate.gyro.input_unit, "accel": certificate.accel.input_unit}
+    chunk = _chunk_tests(certificate, session, cfg, out_units)
+    models = _models(certificate, session, cfg, chunk)
+    c = session.chunks
+
+    # -- second pass over the measurement; gyro scale effects from the turns between runs ---
+    measured, pairs, rot_ch, rot_res = _second_pass(
+        source, certificate, session, cfg, chunk, models
+    )
+    results, det_effects = chunk.results, chunk.det_effects  # with the gyro scale's found
+    density_meas, cert_density, density_model = _densities(certificate, session, measured)
+
+    # -- spectral lines: fitted on the first half, confirmed on the second -----------------------
+    lines, line_tests, psd_untestable = _spectral_lines(measured, session, cfg)
+    effects = det_effects + collect_effects(
+        [], lines, c.t_start, c.t_end, c.run, chunk.half_y, out_units
+    )
+
+    # -- the noise model the longest still run supports (Allan, whole run, held-out choice) ----
+    noise_section, noise_fits = _noise_model(source, c, session.rate_hz, cfg, out_units)
+    effects = _noise_effects(effects, noise_fits, out_units)
+
+    # -- noise models: certificate's, and extended (walk and lines fitted on the first half) ---
+    noise_base, noise_ext = _noise_models(
+        certificate, session, results, effects, noise_fits, density_model, lines, models
+    )
+
+    # -- simulations (common random numbers: the same seeds for both models) ------------------
+    sims = _simulations(
+        certificate, session, cfg, models, chunk.accel_w, noise_base, noise_ext, effects, seed
+    )
+
+    base_m, ext_m, gain, units = _metrics(
+        certificate, results, rot_res, models, measured, sims, effects
+    )
+
+    extended = _extended(
+        certificate, effects, cert_density, density_meas, models, noise_fits, noise_section
+    )
+
+    # -- comparison: measurement against the simulation of the certificate's model -------------
+    comparison = _comparison(
+        certificate,
+        chunk.accel_w,
+        session,
+        measured,
+        sims,
+        chunk.a_in,
+        chunk.temp,
+        density_meas,
+        cert_density,
+    )
+    tested = _tested(results, line_tests)
+    report = dict(base_report)
+    report.update(
+        {
+            "quasi_static": _quasi_static_section(session, models, pairs, rot_ch),
+            "effects": [e.as_dict() for e in sorted(effects, key=lambda e: -e.significance)],
+            "baseline": base_m,
+            "extended": ext_m,
+            "gain": gain,
+            "units": units,
+            "evaluation": _evaluation(session, cfg, models),
+            "comparison": comparison,
+            "noise_model": noise_section,
+            "tested": sorted(tested, key=lambda d: -float(d.get("significance", 0.0))),
+            "untestable": _untestable(results, rot_ch, pairs, cfg, psd_untestable),
+        }
+    )
+    return ModelCheckResult(
+        report=_round(report),
+        effects=effects,
+        extended=extended,
+        session=session,
+        channels=results,
+        measured=measured,
+        simulated=sims,
+        lines=lines,
+    )
+
+
+def _densities(
+    certificate: Certificate, session: Session, measured: SegmentStats
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """White-noise densities (6,), output units / sqrt(Hz): measured on the quasi-static
+    samples, the certificate's (NaN where it has none), and the model's (the certificate's,
+    else the measured)."""
+    sigma_meas = measured.sample_sigma()
+    density_meas = sigma_meas / math.sqrt(session.rate_hz / 2.0)
+    cert_density = np.concatenate([_density(certificate.triad(n)) for n in ("gyro", "accel")])
+    density_model = np.where(np.isfinite(cert_density), cert_density, density_meas)
+    return density_meas, cert_density, density_model
+
+
+def _extended(
+    certificate: Certificate,
+    effects: list[Effect],
+    cert_density: np.ndarray,
+    density_meas: np.ndarray,
+    models: _Models,
+    noise_fits: dict[str, SensorNoise],
+    noise_section: dict[str, Any] | None,
+) -> Certificate:
+    """Step 5: the certificate extended with the effects found (the measured noise density
+    where the certificate has none) and the named noise models; ``noise_section`` is told
+    what the extended certificate predicts."""
+    missing = None if np.all(np.isfinite(cert_density)) else density_meas
+    extended = extended_certificate(certificate, effects, missing, models.refs)
+    _write_noise_model(extended, noise_fits)
+    if noise_section is not None:
+        _predicted_by_extended(noise_section, extended)
+    return extended
+
+
+def _base_report(
+    log: str | Path | SampleBlock | BlockSource,
+    certificate: Certificate,
+    session: Session,
+    conversion: Conversion,
+) -> dict[str, Any]:
+    """The report's head: format, log, certificate, samples, duration (s), rate (Hz)."""
     base_report: dict[str, Any] = {
         **header(FORMAT),
         "log": str(log) if isinstance(log, (str, Path)) else None,
@@ -245,39 +366,67 @@ def model_check(
     }
     if not conversion.identity:
         base_report["unit_conversion"] = conversion.describe()
-    if len(c) < 6:
-        report = dict(base_report)
-        report.update(
-            {
-                "quasi_static": {
-                    "samples": session.static_samples,
-                    "chunks": len(c),
-                    "runs": int(len(session.runs)),
-                    "s": round(session.static_samples / session.rate_hz, 3),
-                },
-                "effects": [],
-                "baseline": _empty_metrics(),
-                "extended": _empty_metrics(),
-                "gain": _empty_metrics(),
-                "untestable": [
-                    {
-                        "name": n,
-                        "triad": t,
-                        "sensor": s,
-                        "reason": "too little quasi-static data (needs a few seconds still)",
-                    }
-                    for n in CATALOGUE
-                    for t in ("gyro", "accel")
-                    for s in SENSORS[t]
-                    if not (n == "g_sensitivity" and t == "accel")
-                ],
-            }
-        )
-        return ModelCheckResult(
-            report=_round(report), effects=[], extended=certificate, session=session
-        )
+    return base_report
 
-    # -- residuals and chunk-level tests ----------------------------------------------------
+
+def _too_little_data(
+    base_report: dict[str, Any], certificate: Certificate, session: Session
+) -> ModelCheckResult:
+    """The result of a session with fewer than 6 quasi-static chunks: every effect
+    untestable."""
+    c = session.chunks
+    report = dict(base_report)
+    report.update(
+        {
+            "quasi_static": {
+                "samples": session.static_samples,
+                "chunks": len(c),
+                "runs": int(len(session.runs)),
+                "s": round(session.static_samples / session.rate_hz, 3),
+            },
+            "effects": [],
+            "baseline": _empty_metrics(),
+            "extended": _empty_metrics(),
+            "gain": _empty_metrics(),
+            "untestable": [
+                {
+                    "name": n,
+                    "triad": t,
+                    "sensor": s,
+                    "reason": "too little quasi-static data (needs a few seconds still)",
+                }
+                for n in CATALOGUE
+                for t in ("gyro", "accel")
+                for s in SENSORS[t]
+                if not (n == "g_sensitivity" and t == "accel")
+            ],
+        }
+    )
+    return ModelCheckResult(
+        report=_round(report), effects=[], extended=certificate, session=session
+    )
+
+
+@dataclass
+class _ChunkTests:
+    """Step 2 of the module doc: the chunk residuals' tests and what they rest on."""
+
+    results: list[ChannelResult]  #: each channel's tests
+    accel_w: TriadModel  #: the accelerometer model re-fitted with its effects
+    sigma2: np.ndarray  #: white-noise variance of the chunk means
+    a_in: np.ndarray  #: each chunk's accelerometer input (input units)
+    half_y: dict[str, np.ndarray]  #: residuals of each chunk's two halves, per sensor
+    det_effects: list[Effect]  #: the effects the chunk tests found
+    temp: np.ndarray | None  #: each chunk's temperature (deg C), None without
+    out_units: dict[str, str]  #: each triad's output unit
+
+
+def _chunk_tests(
+    certificate: Certificate, session: Session, cfg: ModelCheckConfig, out_units: dict[str, str]
+) -> _ChunkTests:
+    """Residuals of the chunk means against the certificate's model and a test per
+    catalogue effect."""
+    c = session.chunks
     sigma2 = white_variance(session)
     accel_w, _v = refit_accel(certificate, session, sigma2)
     channels = build_channels(certificate, session, cfg, accel_w, sigma2)
@@ -294,30 +443,54 @@ def model_check(
         half_y[s] = np.stack([halves[0][:, j], halves[1][:, j]], axis=1)
     half_y["accel"] = np.stack([halves[0][:, 3], halves[1][:, 3]], axis=1)
     det_effects = collect_effects(results, [], c.t_start, c.t_end, c.run, half_y, out_units)
+    return _ChunkTests(results, accel_w, sigma2, a_in, half_y, det_effects, temp, out_units)
 
-    # -- models ------------------------------------------------------------------------------------
+
+@dataclass
+class _Models:
+    """The baseline and extended models the measurement and the simulations are scored on."""
+
+    refs: dict[str, float]  #: each triad's temperature reference (deg C)
+    ups: dict[int, np.ndarray]  #: each still run's up direction
+    chunk_input: np.ndarray  #: each chunk's accelerometer input (input units)
+    steps: list[tuple[str, float, float]]  #: bias steps found: sensor, t (s), value
+    ext_det: Certificate  #: the certificate extended with the effects found
+    ext_accel_w: TriadModel  #: its accelerometer, from the re-fitted one
+    predictors: dict[str, Any]  #: the chunk predictors of each model
+    folds: dict[str, Any]  #: the accelerometer's two folds per model
+    checks: list[F0Check]  #: the F0 checks scored on the measurement
+    t_half: float  #: the session's middle (s): noise fitted before, scored after
+    segments: Segments  #: the quasi-static segments of the second pass
+
+
+def _models(
+    certificate: Certificate, session: Session, cfg: ModelCheckConfig, chunk: _ChunkTests
+) -> _Models:
+    """The baseline (the certificate's) and the extended model (with the effects found)."""
+    c = session.chunks
+    accel_w = chunk.accel_w
     refs = {n: temperature_reference(certificate.triad(n), cfg) for n in ("gyro", "accel")}
     ups = run_up(accel_w, session)
     g_in = certificate.gravity / certificate.accel.unit_to_si
     chunk_input = np.array([ups[int(r)] for r in c.run]) * g_in
     steps = [
         (e.sensor, float(e.extra["t"]), float(e.value))  # type: ignore[arg-type]
-        for e in det_effects
+        for e in chunk.det_effects
         if e.name == "bias_step"
     ]
-    ext_det = extended_certificate(certificate, det_effects, None, refs)
+    ext_det = extended_certificate(certificate, chunk.det_effects, None, refs)
     ext_accel_w = extended_certificate(
-        _with_accel(certificate, accel_w), det_effects, None, refs
+        _with_accel(certificate, accel_w), chunk.det_effects, None, refs
     ).accel
     predictors = {
         "baseline": predictor(certificate.gyro, accel_w, chunk_input, []),
         "extended": predictor(ext_det.gyro, ext_accel_w, chunk_input, steps),
     }
-    accel_res = next((r for r in results if r.channel.triad == "accel"), None)
+    accel_res = next((r for r in chunk.results if r.channel.triad == "accel"), None)
     folds = {}
     if accel_res is not None and len(accel_res.channel) >= 4:
         folds = {
-            name: accel_folds(certificate, session, sigma2, accel_res, refs["accel"], ext)
+            name: accel_folds(certificate, session, chunk.sigma2, accel_res, refs["accel"], ext)
             for name, ext in (("baseline", False), ("extended", True))
         }
     checks = f0_checks(folds)
@@ -325,32 +498,59 @@ def model_check(
     t_half = float(np.median(c.t_mid))
     max_seg = int(cfg.max_segment_s * session.rate_hz)
     segments = make_segments(c, t_half, max_seg)
+    return _Models(
+        refs, ups, chunk_input, steps, ext_det, ext_accel_w, predictors, folds, checks, t_half,
+        segments,
+    )  # fmt: skip
 
-    # -- second pass over the measurement --------------------------------------------------------
-    measured = _stats(session, cfg, segments, predictors, checks, certificate)
-    g_named = ext_det.gyro.g_sensitivity  # the certificate's and the named, or None
+
+def _second_pass(
+    source: BlockSource,
+    certificate: Certificate,
+    session: Session,
+    cfg: ModelCheckConfig,
+    chunk: _ChunkTests,
+    models: _Models,
+) -> tuple[SegmentStats, list[Any], Channel | None, ChannelResult | None]:
+    """Step 3: the measurement's full-rate statistics on the quasi-static segments, and
+    the turns between still runs with the gyro scale channel they make (None: too few),
+    whose tests and effects join ``chunk``'s."""
+    c = session.chunks
+    measured = _stats(session, cfg, models.segments, models.predictors, models.checks, certificate)
+    g_named = models.ext_det.gyro.g_sensitivity  # the certificate's and the named, or None
     motion = MotionCollector(
         motion_windows(c, cfg.max_motion_s),
         reduce=lambda w: reduce_motion(
-            w, certificate, accel_w, c, g_named, sigma2, refs["gyro"], 3.0 / session.rate_hz
+            w,
+            certificate,
+            chunk.accel_w,
+            c,
+            g_named,
+            chunk.sigma2,
+            models.refs["gyro"],
+            3.0 / session.rate_hz,
         ),
     )
-    stream_measured(source(), c, segments, measured, motion)
-
-    # -- gyro scale effects from the rotations between still runs ---------------------------
+    stream_measured(source(), c, models.segments, measured, motion)
     t_span = float(np.nanmax(c.temp) - np.nanmin(c.temp)) if session.has_temp else 0.0
     pairs = motion.pairs
-    rot_ch = rotation_channel(pairs, certificate, cfg, session.has_temp, t_span, refs["gyro"])
+    rot_ch = rotation_channel(
+        pairs, certificate, cfg, session.has_temp, t_span, models.refs["gyro"]
+    )
     rot_res = analyse_channel(rot_ch, cfg) if rot_ch is not None else None
     if rot_res is not None:
-        results.append(rot_res)
-        det_effects += collect_effects([rot_res], [], c.t_start, c.t_end, c.run, half_y, out_units)
-    sigma_meas = measured.sample_sigma()
-    density_meas = sigma_meas / math.sqrt(session.rate_hz / 2.0)
-    cert_density = np.concatenate([_density(certificate.triad(n)) for n in ("gyro", "accel")])
-    density_model = np.where(np.isfinite(cert_density), cert_density, density_meas)
+        chunk.results.append(rot_res)
+        chunk.det_effects += collect_effects(
+            [rot_res], [], c.t_start, c.t_end, c.run, chunk.half_y, chunk.out_units
+        )
+    return measured, pairs, rot_ch, rot_res
 
-    # -- spectral lines: fitted on the first half, confirmed on the second -----------------------
+
+def _spectral_lines(
+    measured: SegmentStats, session: Session, cfg: ModelCheckConfig
+) -> tuple[list[Line], list[dict[str, Any]], str]:
+    """Spectral lines fitted on the first half and confirmed on the second, their tests,
+    and why they could not be tested ("" where they could)."""
     lines, line_tests = find_lines(
         measured.psd("baseline", 0),
         measured.psd("baseline", 1),
@@ -364,16 +564,60 @@ def model_check(
         psd_untestable = "still stretches too short or too few for a spectrum on both halves"
     else:
         psd_untestable = ""
-    effects = det_effects + collect_effects([], lines, c.t_start, c.t_end, c.run, half_y, out_units)
+    return lines, line_tests, psd_untestable
 
-    # -- the noise model the longest still run supports (Allan, whole run, held-out choice) ----
-    noise_section, noise_fits = _noise_model(source, c, session.rate_hz, cfg, out_units)
-    effects = _noise_effects(effects, noise_fits, out_units)
 
-    # -- noise models: certificate's, and extended (walk and lines fitted on the first half) ---
+def _quasi_static_section(
+    session: Session, models: _Models, pairs: list[Any], rot_ch: Channel | None
+) -> dict[str, Any]:
+    """The report's ``quasi_static``: samples, chunks, runs, attitudes, temperature range
+    (deg C), turns."""
+    c = session.chunks
+    return {
+        "samples": session.static_samples,
+        "chunks": len(c),
+        "runs": int(len(session.runs)),
+        "attitudes": distinct_attitudes(np.array(list(models.ups.values()))),
+        "temperature": (
+            [float(np.nanmin(c.temp)), float(np.nanmax(c.temp))] if session.has_temp else None
+        ),
+        "turns": {
+            "between_runs": len(pairs),
+            "used": (len(rot_ch) // 2) if rot_ch is not None else 0,
+        },
+    }
+
+
+def _evaluation(session: Session, cfg: ModelCheckConfig, models: _Models) -> dict[str, Any]:
+    """The report's ``evaluation``: how the models were fitted and scored."""
+    return {
+        "chunk_s": session.chunk_s,
+        "deterministic": "two folds of alternate quasi-static chunks: fit on one, score "
+        "the other; both models re-fit the certificate's own biases "
+        "(and accelerometer scale and misalignment) on the fitting fold",
+        "noise": f"fitted on quasi-static data before t = {models.t_half:.3f} s, scored after",
+        "z_min": cfg.z_min,
+        "significance": "one-sided standard-normal equivalent of the p-value",
+        "gain": GAIN_DEFINITION,
+    }
+
+
+def _noise_models(
+    certificate: Certificate,
+    session: Session,
+    results: list[ChannelResult],
+    effects: list[Effect],
+    noise_fits: dict[str, SensorNoise],
+    density_model: np.ndarray,
+    lines: list[Line],
+    models: _Models,
+) -> tuple[NoiseModel, NoiseModel]:
+    """The certificate's noise model and the extended one (walk and lines fitted on the
+    first half)."""
+    c = session.chunks
     walk_cert = np.concatenate([_walk(certificate.triad(n)) for n in ("gyro", "accel")])
     walk_first = walk_cert.copy()
-    first = c.t_mid < t_half
+    first = c.t_mid < models.t_half
     for res in results:
         for d in res.drift:
             e = next((x for x in effects if x.name == "bias_drift" and x.sensor == d.sensor), None)
@@ -390,17 +634,32 @@ def model_check(
         s: dict((f.first_half or f.model).terms) for s, f in noise_fits.items() if f.terms_named
     }
     noise_ext = NoiseModel(
-        density=density_model, walk=walk_first, lines=lines, steps=steps, terms=noise_terms
+        density=density_model, walk=walk_first, lines=lines, steps=models.steps, terms=noise_terms
     )
+    return noise_base, noise_ext
 
-    # -- simulations (common random numbers: the same seeds for both models) ------------------
+
+def _simulations(
+    certificate: Certificate,
+    session: Session,
+    cfg: ModelCheckConfig,
+    models: _Models,
+    accel_w: TriadModel,
+    noise_base: NoiseModel,
+    noise_ext: NoiseModel,
+    effects: list[Effect],
+    seed: int,
+) -> dict[str, list[SegmentStats]]:
+    """``cfg.replicas`` simulations of the session with each model (common random
+    numbers: the same seeds for both)."""
+    segments, chunk_input = models.segments, models.chunk_input
     sims: dict[str, list[SegmentStats]] = {"baseline": [], "extended": []}
     for r in range(max(cfg.replicas, 1)):
         s_base = _stats(
             session,
             cfg,
             segments,
-            {"baseline": predictors["baseline"]},
+            {"baseline": models.predictors["baseline"]},
             [F0Check(name="certificate", model=certificate.accel, parity=None)],
             certificate,
         )
@@ -411,10 +670,10 @@ def model_check(
         if not effects:  # the extended model is the certificate's
             continue
         s_ext = _stats(
-            session, cfg, segments, {"extended": predictors["extended"]}, [], certificate
+            session, cfg, segments, {"extended": models.predictors["extended"]}, [], certificate
         )
         simulate_session(
-            _with_accel(ext_det, ext_accel_w),
+            _with_accel(models.ext_det, models.ext_accel_w),
             noise_ext,
             session,
             segments,
@@ -423,8 +682,21 @@ def model_check(
             seed=seed * 1000 + r,
         )
         sims["extended"].append(s_ext)
+    return sims
 
-    # -- metrics -----------------------------------------------------------------------------------
+
+def _metrics(
+    certificate: Certificate,
+    results: list[ChannelResult],
+    rot_res: ChannelResult | None,
+    models: _Models,
+    measured: SegmentStats,
+    sims: dict[str, list[SegmentStats]],
+    effects: list[Effect],
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """The held-out metrics of each model, their gains and units."""
+    folds, checks = models.folds, models.checks
+    in_units = {"gyro": certificate.gyro.input_unit, "accel": certificate.accel.input_unit}
     base_m = {
         "residual_rms": residual_rms(results, False, folds.get("baseline")),
         "rotation_rms": {"gyro": rotation_rms(rot_res, extended=False), "accel": None},
@@ -448,20 +720,17 @@ def model_check(
         "rotation_rms": "rad: gravity direction after a turn, predicted from the gyros "
         "against measured, held out",
     }
+    return base_m, ext_m, gain, units
 
-    # -- extended certificate -------------------------------------------------------------------
-    extended = extended_certificate(
-        certificate, effects, None if np.all(np.isfinite(cert_density)) else density_meas, refs
-    )
-    _write_noise_model(extended, noise_fits)
-    if noise_section is not None:
-        _predicted_by_extended(noise_section, extended)
 
-    # -- comparison: measurement against the simulation of the certificate's model -------------
-    comparison = _comparison(
-        certificate, accel_w, session, measured, sims, a_in, temp, density_meas, cert_density
-    )
-
+def _untestable(
+    results: list[ChannelResult],
+    rot_ch: Channel | None,
+    pairs: list[Any],
+    cfg: ModelCheckConfig,
+    psd_untestable: str,
+) -> list[dict[str, Any]]:
+    """The effects that could not be tested, each with its reason."""
     untestable = [u for res in results for u in res.channel.untestable]
     if rot_ch is None:
         n_big = sum(p.angle_deg >= cfg.min_rotation_deg for p in pairs)
@@ -488,6 +757,11 @@ def model_check(
             for t in ("gyro", "accel")
             for s in SENSORS[t]
         ]
+    return untestable
+
+
+def _tested(results: list[ChannelResult], line_tests: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Every test run, with its triad (the held-out likelihood under its own name)."""
     tested = [dict(t, triad=res.channel.triad) for res in results for t in res.tested]
     tested += [
         {
@@ -508,55 +782,7 @@ def model_check(
     for t in tested:  # the likelihood improvement under its own name (not a gain)
         if "heldout" in t:
             t[HELDOUT_LOGLIK_KEY] = t.pop("heldout")
-    report = dict(base_report)
-    report.update(
-        {
-            "quasi_static": {
-                "samples": session.static_samples,
-                "chunks": len(c),
-                "runs": int(len(session.runs)),
-                "attitudes": distinct_attitudes(np.array(list(ups.values()))),
-                "temperature": (
-                    [float(np.nanmin(c.temp)), float(np.nanmax(c.temp))]
-                    if session.has_temp
-                    else None
-                ),
-                "turns": {
-                    "between_runs": len(pairs),
-                    "used": (len(rot_ch) // 2) if rot_ch is not None else 0,
-                },
-            },
-            "effects": [e.as_dict() for e in sorted(effects, key=lambda e: -e.significance)],
-            "baseline": base_m,
-            "extended": ext_m,
-            "gain": gain,
-            "units": units,
-            "evaluation": {
-                "chunk_s": session.chunk_s,
-                "deterministic": "two folds of alternate quasi-static chunks: fit on one, score "
-                "the other; both models re-fit the certificate's own biases "
-                "(and accelerometer scale and misalignment) on the fitting fold",
-                "noise": f"fitted on quasi-static data before t = {t_half:.3f} s, scored after",
-                "z_min": cfg.z_min,
-                "significance": "one-sided standard-normal equivalent of the p-value",
-                "gain": GAIN_DEFINITION,
-            },
-            "comparison": comparison,
-            "noise_model": noise_section,
-            "tested": sorted(tested, key=lambda d: -float(d.get("significance", 0.0))),
-            "untestable": untestable,
-        }
-    )
-    return ModelCheckResult(
-        report=_round(report),
-        effects=effects,
-        extended=extended,
-        session=session,
-        channels=results,
-        measured=measured,
-        simulated=sims,
-        lines=lines,
-    )
+    return tested
 
 
 def _refine_accel(

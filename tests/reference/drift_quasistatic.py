@@ -1,4 +1,15 @@
-"""FROZEN REFERENCE (tests only): the quasi-static detector with the moving-base drift
+"""WHY THIS FILE STAYS (issue 30 item 6): the shipped detector's speed machinery is
+checked against plain definitions in ``tests/test_quasistatic_paths.py``: the window
+statistics from prefix sums against sums added up window by window, the drift tests'
+trailing spreads against their definition, and the whole detector on plain window sums
+gives the same flags as on prefix sums (the shared detectors against separate ones:
+``tests/test_shared_detector.py``). Those checks share the detector's decisions (the
+variance and rate-band tests, the restarts, the drift, curve and step tests, the noise
+estimate), which the per-call cost work (issue 14) rewrote too and which have no second,
+plain implementation in the package: this frozen code is that second implementation,
+and ``tests/test_detector_equivalence.py`` holds the shipped flags to it sample for sample.
+
+FROZEN REFERENCE (tests only): the quasi-static detector with the moving-base drift
 tests (issue 15) as it was at commit ff7f524, before its per-call cost was cut (issue 14),
 with the ``PrefixSums`` of ``imudiag/trailing.py`` of that commit. Kept verbatim (imports
 made absolute) so ``tests/test_detector_equivalence.py`` can check that the shipped

@@ -1,4 +1,8 @@
-"""Trailing-window sums over a stream of rows, carried across blocks (vectorised)."""
+"""WHY THIS FILE STAYS (issue 30 item 6): a part of the reference of
+``tests/test_monitor_equivalence.py``; the note at the top of ``old_monitor.py`` says why
+it is kept. Do not edit.
+
+Trailing-window sums over a stream of rows, carried across blocks (vectorised)."""
 
 from __future__ import annotations
 

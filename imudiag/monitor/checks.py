@@ -24,184 +24,39 @@ Every sample of both triads is corrected with the certificate. The checks
   more into second differences than the noise does; a steady rate does not;
   vibration and translation are still judged).
 
-All of it is vectorised per block; state carries across blocks.
+All of it is vectorised per block; state carries across blocks. The checks of their own
+sit beside this module (:mod:`.noise`, :mod:`.stuck`), with the F0 screen that lets reads
+be gathered into batches (:mod:`.batching`), the settings and per-triad state
+(:mod:`.state`) and the plot trace (:mod:`.trace`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
-from .certificate import SENSOR_NAMES, TRIADS, Certificate, TriadModel
-from .noise_estimate import medians
-from .persistence import Persistence
-from .quasistatic import DetectorPool, QuasiStaticDetector, SharedDetectorReader
-from .ringbuffer import SampleRing
-from .rowwise import rows_op
-from .samples import (
+from ..certificate import SENSOR_NAMES, TRIADS, Certificate, TriadModel
+from ..persistence import Persistence
+from ..quasistatic import DetectorPool, QuasiStaticDetector, SharedDetectorReader
+from ..ringbuffer import SampleRing
+from ..rowwise import rows_op, rows_over, rows_where
+from ..samples import (
     FLAG_ACCEL_SATURATED,
     FLAG_ADC_ERROR,
     FLAG_GYRO_SATURATED,
     FLAG_SELF_TEST,
     SampleBlock,
 )
-from .scalar import f0
-from .trailing import PrefixSums, median_side
-from .vibration import VibrationMeter
-
-#: triads in the ring's column order (raw gyro columns 1-3, accel 4-6)
-TRIADS_RING = ("gyro", "accel")
-
-
-@dataclass
-class MonitorConfig:
-    """Settings of the per-sample checks."""
-
-    persistence_k: int = 20  #: failed checks among the last n checked samples to declare a fault
-    persistence_n: int = 50  #: checked samples in the persistence window
-    stuck_samples: int = 50  #: identical consecutive raw outputs that mean a stuck channel
-    stuck_min_sigma: float = 1.0  #: output units; stuck check only where noise is at least this
-    static_window_s: float = 0.5  #: window of the quasi-static detector, s
-    gyro_window_s: float = 1.0  #: averaging window of the MEMS rest-rate check, s
-    k_sigma: float = 5.0  #: standard deviations of margin in the gyro rest-rate check
-    ring_capacity: int = 4096  #: samples kept in the ring buffer of recent samples
-    noise_window_s: float = 1.0  #: window of the white-noise estimate, s
-    noise_ratio: float = 2.0  #: estimated / certificate noise sigma that counts as excess noise
-    #: the noise check judges only windows where the angular acceleration (rad/s^2, from the
-    #: change of the 0.1 s mean rate) stayed below this: a hand turn puts far more into
-    #: second differences than the noise; a steady rate (a gross bias, a turntable) does not
-    noise_motion_gate: float = 0.5
-    noise_check_s: float = 0.1  #: the noise check runs every this many seconds of samples
-    #: excess-noise checks among the last n that raise the fault: 3 s of excess within 4 s, so
-    #: a burst of a second or two (a hand on the unit, a knock) is not a noise fault
-    noise_persistence_k: int = 30
-    noise_persistence_n: int = 40
-    #: noise beyond ``noise_gross_ratio`` times the certificate's is gross: 3 of 5 checks raise it
-    noise_gross_ratio: float = 3.0
-    earth_rate_noise_ratio: float = 0.2  #: per-sample Earth-rate F0 needs sigma_f0 < ratio*limit
-    #: F0 is judged on the mean of m consecutive checked samples, m the least that makes the
-    #: noise of the mean at most limit / f0_noise_ratio (from the certificate's noise at the
-    #: sample rate): 1 where one sample's noise is that small already (the bundled
-    #: certificate at 200 Hz), 13 at 4 kHz, where single samples fail a healthy unit's F0
-    #: about one time in four; 0 judges every sample alone
-    f0_noise_ratio: float = 4.0
-    #: s of samples gathered before the checks run on them, when a read can change no F0
-    #: verdict (every sample passes its F0 limit and none failed in the persistence window):
-    #: one call per batch instead of one per read (issue 14). A read with a sample beyond
-    #: the limit runs the quasi-static detector and the F0 checks at once; 0: every read
-    #: runs everything
-    batch_s: float = 0.25
-
-
-@dataclass
-class TriadState:
-    """Running counters and last values of one triad's checks."""
-
-    checked: int = 0  #: samples on which the F0 check applied
-    failed: int = 0  #: of those, samples in checks beyond the limit
-    #: last check's value: F0 (the mean of its samples), or the rest-rate ratio (gyro)
-    last_f0: float = float("nan")
-    sum_f0_sq: float = 0.0  #: sum of the squared checked values (their RMS is the estimate)
-    worst_axis: int | None = None  #: axis of the last gyro rest-rate failure
-    #: checked F0 values (dimensionless) and their sample times (s) not yet in a mean
-    carry: tuple[np.ndarray, np.ndarray] = field(default_factory=lambda: (np.zeros(0), np.zeros(0)))
-    persistence: Persistence | None = None
-    saturation: Persistence | None = None
-    stuck_active: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=bool))
-    noise: list[Persistence] = field(default_factory=list)  #: per axis, excess noise
-    noise_gross: list[Persistence] = field(default_factory=list)  #: per axis, gross noise
-    noise_ratio_last: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
-    #: noise checks judged (the other triad at its own noise) and set aside (it was not:
-    #: the unit vibrating or moving, issue 25)
-    noise_judged: int = 0
-    noise_not_at_rest: int = 0
-    #: measured / certificate white-noise sigma (3 axes) of the judged checks with an axis
-    #: beyond ``noise_ratio`` (at most 100 000 kept): the noise fault's figure
-    noise_excess: list[np.ndarray] = field(default_factory=list)
-
-
-class _Thinned:
-    """(t, value) pairs kept for a plot: every ``stride``-th, the stride doubling whenever
-    more than ``max_points`` are held (so a day-long log costs a bounded memory)."""
-
-    def __init__(self, max_points: int) -> None:
-        self.max_points = max_points
-        self.stride = 1
-        self.seen = 0  #: pairs given, kept or not
-        self._t: list[np.ndarray] = []
-        self._v: list[np.ndarray] = []
-        self._held = 0
-
-    def add(self, t: np.ndarray, v: np.ndarray) -> None:
-        keep = (self.seen + np.arange(t.size)) % self.stride == 0
-        self.seen += int(t.size)
-        if not np.any(keep):
-            return
-        self._t.append(np.asarray(t, dtype=float)[keep])
-        self._v.append(np.asarray(v, dtype=float)[keep])
-        self._held += int(np.count_nonzero(keep))
-        while self._held > self.max_points:
-            t_all, v_all = self.arrays()
-            self._t, self._v = [t_all[::2]], [v_all[::2]]
-            self._held = int(self._t[0].size)
-            self.stride *= 2
-
-    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        """Times (s) and values kept, in the order given."""
-        if not self._t:
-            return np.zeros(0), np.zeros(0)
-        return np.concatenate(self._t), np.concatenate(self._v)
-
-
-class F0Trace:
-    """Every F0 check of one triad for plots: its time (s, the last sample's), its value
-    (F0, dimensionless; for the MEMS gyro rest-rate check the ratio of the worst axis' mean
-    rate to its threshold) and whether it failed. Passing and failing checks are each
-    thinned to at most ``max_points`` (every k-th kept, k a power of 2)."""
-
-    def __init__(self, check: str, limit: float, max_points: int = 50_000) -> None:
-        self.check = check  #: ``f0`` or ``rest_rate``
-        self.limit = limit  #: a check fails beyond this (dimensionless)
-        self.passed = _Thinned(max_points)
-        self.failed = _Thinned(max_points)
-
-    def add(self, t: np.ndarray, values: np.ndarray, failed: np.ndarray) -> None:
-        """Checks at times ``t`` (s) with ``values`` and their failed flags."""
-        self.passed.add(t[~failed], values[~failed])
-        self.failed.add(t[failed], values[failed])
-
-    @property
-    def checks(self) -> int:
-        """Checks given (kept or thinned away)."""
-        return self.passed.seen + self.failed.seen
-
-
-def _beyond(x: np.ndarray, scale: float, limit: float) -> int:
-    """How many rows of ``x`` (N, 3) times ``scale`` have |F0| = |(|row|^2 - 1) / 2| beyond
-    ``limit`` (NaN rows never do, as in the F0 check)."""
-    q = np.einsum("ij,ij->i", x, x)
-    q *= 0.5 * scale * scale
-    q -= 0.5
-    # a hair inside the limit: rounding here (not the F0 check's order of operations) must
-    # never let a sample the check fails pass as harmless
-    return int(np.count_nonzero(np.abs(q) > limit * (1.0 - 1e-9)))
-
-
-def _rows(x: np.ndarray, keep: np.ndarray) -> np.ndarray:
-    """``x[keep]``, or ``x`` itself when ``keep`` (N,) holds every row (no copy)."""
-    return x if keep.all() else x[keep]
-
-
-def _rows_over(x: np.ndarray, keep: np.ndarray, divisor: float) -> np.ndarray:
-    """``x[keep] / divisor``, divided in place (``x`` itself when ``keep`` (N,) holds every
-    row: the caller's array of its own is changed)."""
-    out = _rows(x, keep)
-    out /= divisor
-    return out
+from ..scalar import f0
+from ..trailing import PrefixSums
+from ..vibration import VibrationMeter
+from .batching import F0Screen
+from .noise import NoiseCheck
+from .state import MonitorConfig, TriadState
+from .stuck import StuckCheck
+from .trace import F0Trace
 
 
 class Monitor:
@@ -298,23 +153,12 @@ class Monitor:
             name: 1 if name == "gyro" and self.gyro_mode == "rest_rate" else self._f0_group(name)
             for name in TRIADS
         }
-        #: accelerometer input units -> fractions of gravity
-        self._accel_scale = certificate.accel.unit_to_si / certificate.gravity
-        # a linear accelerometer model (no temperature or nonlinearity block): the F0
-        # screen of every read as the bias and one matrix to fractions of g
-        acc = certificate.accel
-        self._accel_linear: tuple[np.ndarray, np.ndarray] | None = None
-        if acc.temperature is None and acc.nonlinearity is None:
-            to_g = self._n_inv_t["accel"] / np.asarray(acc.scale_factor, float)[:, None]
-            self._accel_linear = (np.asarray(acc.bias, float), to_g * self._accel_scale)
+        #: the F0 screen of the reads gathered (:mod:`.batching`)
+        self._screen = F0Screen(certificate, self._n_inv_t, self._limit)
         # stuck outputs: both triads as one (6,) row, gyro then accel (the ring's column order)
-        enabled = [
-            np.zeros(3, dtype=bool) if sig is None else sig >= cfg.stuck_min_sigma
-            for sig in (self._sigma["gyro"], self._sigma["accel"])
-        ]
-        self._stuck_enabled = np.concatenate(enabled)
-        self._stuck_run = np.zeros(6, dtype=np.int64)
-        self._stuck_last = np.full(6, np.nan)
+        self._stuck = StuckCheck(
+            (self._sigma["gyro"], self._sigma["accel"]), cfg.stuck_min_sigma, cfg.stuck_samples
+        )
         self._gyro_window = max(1, int(round(cfg.gyro_window_s * rate)))
         # the MEMS rest-rate check's threshold per axis (rad/s): Earth rate, the bias limit
         # and k_sigma standard deviations of the window's mean
@@ -334,18 +178,12 @@ class Monitor:
         self._gyro_lag = max(1, int(round(cfg.static_window_s * rate)))
         span = self._gyro_window + self._gyro_lag
         self._span = span
-        self._noise_w = max(4, int(round(cfg.noise_window_s * rate)))
-        self._noise_step = max(1, int(round(cfg.noise_check_s * rate)))
+        #: the excess-noise check (:mod:`.noise`)
+        self._noise = NoiseCheck(certificate, cfg, rate)
         # the noise check reads its raw samples back from the ring of recent samples
-        if self.ring.capacity < self._noise_w + 2:
-            self.ring = SampleRing(self._noise_w + 2)
+        if self.ring.capacity < self._noise.window + 2:
+            self.ring = SampleRing(self._noise.window + 2)
         self._noise_from = self._checked_samples  # the noise history restarts with it
-        self._noise_sigma: dict[str, np.ndarray | None] = {}
-        for name in TRIADS:
-            sigma = self._sigma[name]
-            if sigma is not None and certificate.triad(name).output_unit == "count":
-                sigma = np.sqrt(sigma**2 + 1.0 / 12.0)  # whole counts add q^2/12
-            self._noise_sigma[name] = sigma
         self._accel_m = max(1, int(round(0.1 * rate)))  # angular acceleration: 0.1 s means
         # every trailing window of the checks from prefix sums of the stream, one gather per
         # block: columns gx, gy, gz (corrected, rad/s), static (0/1), non-finite gyro (0/1);
@@ -355,8 +193,8 @@ class Monitor:
         self._offsets = np.array([self._gyro_lag, span, m, 2 * m])
         self._prefix = PrefixSums(5, max(span, 2 * m))
         # turning samples among the inputs of the noise window's second differences
-        self._turn_offsets = np.array([self._noise_w + 2])
-        self._turn_prefix = PrefixSums(1, self._noise_w + 2)
+        self._turn_offsets = np.array([self._noise.window + 2])
+        self._turn_prefix = PrefixSums(1, self._noise.window + 2)
 
     def _f0_group(self, name: str) -> int:
         """Checked samples averaged per F0 check of ``name`` (see ``f0_noise_ratio``)."""
@@ -567,7 +405,7 @@ class Monitor:
         out: list[dict[str, Any]] = []
         for name in TRIADS:
             st = self.state[name]
-            sigma = self._noise_sigma.get(name)
+            sigma = self._noise.sigma.get(name)
             if sigma is None:
                 continue
             unit = self.certificate.triad(name).output_unit
@@ -652,23 +490,8 @@ class Monitor:
         parts = self._unscreened
         self._unscreened = []
         self._unscreened_n = 0
-        cert = self.certificate
-        if self._accel_linear is not None and not gyro_f0:
-            # bias and (scale factor, N^-1, units, gravity) folded into one matrix
-            bias, to_g = self._accel_linear
-            accel = parts[0].accel if len(parts) == 1 else np.concatenate([b.accel for b in parts])
-            self._beyond["accel"] += _beyond((accel - bias) @ to_g, 1.0, self._limit["accel"])
-        else:
-            block = parts[0] if len(parts) == 1 else SampleBlock.concat(parts)
-            accel_in = cert.accel.inverse(block.accel, temp_c=block.temp,
-                                          n_inv_t=self._n_inv_t["accel"])  # fmt: skip
-            self._beyond["accel"] += _beyond(accel_in, self._accel_scale, self._limit["accel"])
-            if gyro_f0:
-                gyro_si = cert.gyro.inverse_si(
-                    block.gyro, temp_c=block.temp, n_inv_t=self._n_inv_t["gyro"],
-                    accel_input=accel_in if cert.gyro.g_sensitivity is not None else None,
-                )  # fmt: skip
-                self._beyond["gyro"] += _beyond(gyro_si, 1.0 / cert.earth_rate, self._limit["gyro"])
+        for name, count in self._screen.count(parts, gyro_f0).items():
+            self._beyond[name] += count
         for name in names:
             p = self._state[name].persistence
             assert p is not None
@@ -711,10 +534,12 @@ class Monitor:
         ok &= static
         ok_a = ok & ((flags & FLAG_ACCEL_SATURATED) == 0)
         accel_si = np.multiply(accel_in, cert.accel.unit_to_si, out=accel_in)
-        self._record("accel", f0(_rows_over(accel_si, ok_a, cert.gravity)), _rows(block.t, ok_a))
+        self._record(
+            "accel", f0(rows_over(accel_si, ok_a, cert.gravity)), rows_where(block.t, ok_a)
+        )
         if self.gyro_mode == "earth_rate":
             ok &= (flags & FLAG_GYRO_SATURATED) == 0
-            self._record("gyro", f0(gyro_si[ok] / cert.earth_rate), _rows(block.t, ok))
+            self._record("gyro", f0(gyro_si[ok] / cert.earth_rate), rows_where(block.t, ok))
         self._staged.append((block, static, gyro_si))
         self._staged_n += n
 
@@ -778,19 +603,22 @@ class Monitor:
         turning = ~(alpha <= self.config.noise_motion_gate)  # NaN (ADC error): turning
         turns = turning[:, None].astype(float)
         tnow, tback, _ = self._turn_prefix.update(turns, self._turn_offsets)
-        pos = self._noise_checks(n, tnow[:, 0] == tback[:, 0, 0])
+        first = self._checked_samples - n
+        pos = self._noise.positions(first, self._noise_seen(n), tnow[:, 0] == tback[:, 0, 0])
         # both triads' raw outputs channel by channel (6, h + n), gyro then accel (the
         # ring's column order), after the h samples before the block that the noise
         # check's windows reach back to (from the ring, pushed after this)
-        h = min(self._noise_w + 1, self._noise_seen(n), len(self.ring)) if pos.size else 0
+        h = min(self._noise.window + 1, self._noise_seen(n), len(self.ring)) if pos.size else 0
         chan = np.empty((6, h + n))
         if h:
             chan[:, :h] = self.ring.latest(h)[:, 1:7].T
         chan[:3, h:] = block.gyro.T
         chan[3:, h:] = block.accel.T
-        self._stuck(chan[:, h:])
+        active = self._stuck.update(chan[:, h:])
+        self._state["gyro"].stuck_active = active[:3]
+        self._state["accel"].stuck_active = active[3:]
         if pos.size:
-            self._noise(block.t, chan, pos)
+            self._noise.judge(block.t, chan, pos, self._state)
         self.ring.push(block)
 
     def _record(self, name: str, values: np.ndarray, t: np.ndarray) -> None:
@@ -840,10 +668,10 @@ class Monitor:
         # costs 20 times more; NaN stays NaN either way)
         worst = np.maximum(excess[:, 0], excess[:, 1])
         np.maximum(worst, excess[:, 2], out=worst)
-        values = _rows(worst, usable)  # ratio of the worst axis' mean rate to its threshold
+        values = rows_where(worst, usable)  # ratio of the worst axis' mean rate to its threshold
         failed = values > 1.0
         st = self._state["gyro"]
-        t_used = _rows(t, usable)
+        t_used = rows_where(t, usable)
         if self.f0_trace is not None:
             self.f0_trace["gyro"].add(t_used, values, failed)
         st.checked += int(values.size)
@@ -857,125 +685,7 @@ class Monitor:
         assert st.persistence is not None
         st.persistence.update(failed, t_used)
 
-    def _stuck(self, raw: np.ndarray) -> None:
-        """Run length of identical raw outputs per channel, carried across blocks; ``raw``
-        (6, N): the block's raw outputs (output units), gyro then accel, channel by channel."""
-        n = raw.shape[1]
-        same_prev = np.empty(raw.shape, dtype=bool)
-        np.equal(raw[:, 0], self._stuck_last, out=same_prev[:, 0])
-        np.equal(raw[:, 1:], raw[:, :-1], out=same_prev[:, 1:])
-        if same_prev.all():  # no change in the block: every run grows by n
-            run = self._stuck_run + n
-        else:
-            # index of the last change in this block per channel (-1: none)
-            changed = ~same_prev
-            last_change = n - 1 - np.argmax(changed[:, ::-1], axis=1)
-            last_change[~changed.any(axis=1)] = -1
-            run = np.where(last_change < 0, self._stuck_run + n, n - 1 - last_change)
-        # samples in the current run of equal values, excluding its first
-        self._stuck_run = run.astype(np.int64)
-        self._stuck_last = raw[:, -1].astype(float)
-        active = self._stuck_enabled & (self._stuck_run >= self.config.stuck_samples - 1)
-        self._state["gyro"].stuck_active = active[:3]
-        self._state["accel"].stuck_active = active[3:]
-
     def _noise_seen(self, n: int) -> int:
         """Samples before the block of ``n`` just counted, since the certificate was set
         (the noise history restarts with it)."""
         return self._checked_samples - n - self._noise_from
-
-    def _noise_checks(self, n: int, calm: np.ndarray) -> np.ndarray:
-        """Indexes into the block of ``n`` samples just counted where the noise check runs:
-        every ``noise_check_s`` of the stream, once a window's ``w`` second differences
-        (``w + 2`` samples since the certificate was set) are there, where ``calm`` (N,)."""
-        w, step = self._noise_w, self._noise_step
-        # check positions: samples whose index in the stream is a multiple of the step
-        first = self._checked_samples - n
-        pos = np.arange((-first) % step, n, step)
-        return pos[(self._noise_seen(n) + pos + 1 >= w + 2) & calm[pos]]
-
-    def _noise(self, t: np.ndarray, chan: np.ndarray, pos: np.ndarray) -> None:
-        """Excess white noise per channel from second differences, carried across blocks.
-
-        Every ``noise_check_s`` of samples, per channel, sigma from the median of
-        the squared second differences over the trailing ``noise_window_s``
-        (median of chi^2_1 = 0.4549; var(d2) = 6 sigma^2 for white noise): a
-        burst over less than half the window (a hand grabbing the unit, a knock,
-        a step) leaves the median alone, where a mean would call it noise. The median
-        is taken only where counting the values beyond each threshold cannot settle
-        the comparison (:func:`.trailing.median_side`; the same decisions).
-        ``t`` (N,): the block's sample times (s); ``chan`` (6, h + N): raw outputs
-        (output units) channel by channel, the ``h`` samples before the block first;
-        ``pos``: the checks (:meth:`_noise_checks`: only windows that saw no turn, angular
-        acceleration below ``noise_motion_gate``, are judged). Excess noise (beyond
-        ``noise_ratio``) must persist 3 s; gross noise (beyond ``noise_gross_ratio``) is
-        raised after 3 of 5 checks.
-        """
-        w = self._noise_w
-        back = chan.shape[1] - t.shape[0]
-        # channel by channel, each channel's values contiguous: column c, row r ends at
-        # chan column r + 2
-        d2sq = np.diff(chan, n=2, axis=1)
-        np.square(d2sq, out=d2sq)
-        ends = pos + back - 2 + 1  # d2sq rows end (exclusive) at each check sample
-        # a check fails when sqrt(median / (0.4549 * 6)) / sigma exceeds a ratio: where the
-        # counts of values beyond that median settle it (nearly everywhere), no median is
-        # taken; the others, and the last check (its ratio is kept), get theirs
-        limits = self.config.noise_ratio, self.config.noise_gross_ratio
-        thr = np.full((2, 6), np.inf)
-        for k, name in enumerate(TRIADS_RING):
-            sigma = self._noise_sigma[name]
-            if sigma is not None:
-                for j, r in enumerate(limits):
-                    thr[j, 3 * k : 3 * k + 3] = (r * sigma) ** 2 * (0.4549 * 6.0)
-        fails, settled = median_side(d2sq.T, ends, w, thr)
-        settled |= fails
-        exact = ~np.all(settled, axis=(1, 2))
-        exact[-1] = True
-        rows = np.flatnonzero(exact)
-        # the medians of those windows in one call per group of checks (the group bounded
-        # to about 2^20 values copied)
-        windows = sliding_window_view(d2sq, w, axis=1)  # (6, rows, w), row i = d2sq[:, i:i+w]
-        ratio6 = np.empty((rows.size, 6))
-        group = max(1, (1 << 20) // (6 * w))
-        for g in range(0, rows.size, group):
-            # the gathered windows are a copy of our own: partitioned in place
-            ratio6[g : g + group] = medians(windows[:, ends[rows[g : g + group]] - w]).T
-        t = t[pos]
-        ratios: dict[str, np.ndarray] = {}
-        for k, name in enumerate(TRIADS_RING):
-            sigma = self._noise_sigma[name]
-            if sigma is None:
-                continue
-            st = self._state[name]
-            ratio = np.sqrt(ratio6[:, 3 * k : 3 * k + 3] / (0.4549 * 6.0)) / sigma
-            st.noise_ratio_last = ratio[-1]
-            ratios[name] = ratio
-            for j, r in enumerate(limits):
-                fails[rows, j, 3 * k : 3 * k + 3] = ratio > r
-        # vibration is not noise (issue 25): a triad's noise is judged only while the other
-        # triad is at its own noise (no axis beyond ``noise_ratio``): a vehicle's vibration
-        # shakes both triads, a sensor's own noise is its alone. Both beyond: the unit is not
-        # at rest, and the excess is reported as vibration, never as a noise fault
-        excess: np.ndarray = np.any(fails[:, 0, :].reshape(-1, 2, 3), axis=2)  # (checks, 2)
-        for k, name in enumerate(TRIADS_RING):
-            if name not in ratios:
-                continue
-            st = self._state[name]
-            other = self._noise_sigma[TRIADS_RING[1 - k]]
-            judged = ~excess[:, 1 - k] if other is not None else np.ones(excess.shape[0], bool)
-            st.noise_judged += int(np.count_nonzero(judged))
-            st.noise_not_at_rest += int(judged.size - np.count_nonzero(judged))
-            ex = judged[rows]
-            if ex.any():
-                kept = ratios[name][ex]
-                beyond = kept[(kept > self.config.noise_ratio).any(axis=1)]
-                if beyond.size and sum(a.shape[0] for a in st.noise_excess) < 100_000:
-                    st.noise_excess.append(beyond)
-            if not judged.any():
-                continue
-            tj = t if judged.all() else t[judged]
-            for axis in range(3):
-                col = 3 * k + axis
-                st.noise[axis].update(_rows(fails[:, 0, col], judged), tj)
-                st.noise_gross[axis].update(_rows(fails[:, 1, col], judged), tj)
