@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from . import yamlio
+from . import validate, yamlio
 from .argtypes import rate_problem
 from .errors import CertificateError as _CertificateErrorBase
 from .rowwise import BIG_ROWS, rows_op
@@ -93,15 +93,7 @@ class CertificateError(_CertificateErrorBase):
 
 
 def _finite(value: Any, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise CertificateError(key, f"expected a number, got {value!r}")
-    try:
-        value = float(value)
-    except OverflowError:  # an integer beyond the float range (found by fuzz/)
-        raise CertificateError(key, "not a finite number: integer beyond the float range") from None
-    if not math.isfinite(value):
-        raise CertificateError(key, f"not a finite number: {value!r}")
-    return value
+    return validate.number(value, lambda reason: CertificateError(key, reason))
 
 
 def _vector(value: Any, key: str, length: int = 3) -> np.ndarray:
