@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 from .certificate import Certificate, load, load_default
 from .diagnosis.calibrate import CalibrationResult
-from .diagnosis.config import DiagnosisConfig
+from .diagnosis.config import CERTIFICATE_NOISE, DiagnosisConfig
 from .diagnosis.inputs import MagnitudeTable
 from .diagnosis.session import (
     DEFAULT_BLOCK_SIZE,
@@ -57,7 +57,7 @@ def diagnose(
     config: DiagnosisConfig | dict[str, Any] | None = None,
     rate_hz: float | None = None,
     magnitude: MagnitudeTable | str | Path | None = None,
-    certificate_noise: bool = False,
+    certificate_noise: bool = CERTIFICATE_NOISE,
     log_options: LogOptions | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
     windows: bool = True,
@@ -116,7 +116,7 @@ def calibrate(
     config: DiagnosisConfig | dict[str, Any] | None = None,
     rate_hz: float | None = None,
     magnitude: MagnitudeTable | str | Path | None = None,
-    certificate_noise: bool = False,
+    certificate_noise: bool = CERTIFICATE_NOISE,
     log_options: LogOptions | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
 ) -> CalibrationResult:

@@ -464,10 +464,9 @@ def _parse_vibration(node: Any) -> VibrationLimits:
     if out.accel_severe < out.accel_high:
         raise CertificateError("vibration.accel_severe", "must be >= vibration.accel_high")
     if "clipping" in v:
-        c = v["clipping"]
-        if isinstance(c, bool) or not isinstance(c, int) or c < 0:
-            raise CertificateError("vibration.clipping", f"expected an integer >= 0, got {c!r}")
-        out.clipping = int(c)
+        out.clipping = validate.integer(
+            v["clipping"], lambda reason: CertificateError("vibration.clipping", reason), 0
+        )
     return out
 
 

@@ -10,6 +10,11 @@ from .. import validate
 from ..errors import BadInput
 
 METHODS = ("exact", "linear", "moving-base")
+#: Whether the window diagnosis's still detector trusts the certificate's noise density
+#: (True) or measures the noise from the data (False, the default): the one default of
+#: ``imudiag diagnose``, ``imudiag calibrate``, the library's :func:`imudiag.diagnose` and
+#: :class:`~imudiag.diagnosis.StreamingDiagnoser`, and the daemon (docs/service.md).
+CERTIFICATE_NOISE = False
 GYRO_MODES = ("auto", "earth-rate", "rotation")
 SHORT_HOLDS = ("auto", "always", "never")
 
@@ -130,4 +135,4 @@ _CHECKS: dict[str, Callable[[Any, str], Any]] = {
 }
 
 
-__all__ = ["DiagnosisConfig", "METHODS", "GYRO_MODES", "SHORT_HOLDS"]
+__all__ = ["CERTIFICATE_NOISE", "DiagnosisConfig", "METHODS", "GYRO_MODES", "SHORT_HOLDS"]
