@@ -43,6 +43,7 @@ _API: dict[str, str] = {
     # whole recordings: the code path of `imudiag diagnose` and `imudiag calibrate`
     "diagnose": "imudiag.api",
     "calibrate": "imudiag.api",
+    "moving_base": "imudiag.api",
     "CalibrationResult": "imudiag.diagnosis.calibrate",
     # the one exception family
     "ImudiagError": "imudiag.errors",
@@ -72,6 +73,7 @@ __all__ = [
     "calibrate",
     "diagnose",
     "load_certificate",
+    "moving_base",
     "open_log",
     "open_source",
     "read_log",
@@ -79,7 +81,7 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:  # the names as mypy and editors see them
-    from .api import calibrate, diagnose, load_certificate
+    from .api import calibrate, diagnose, load_certificate, moving_base
     from .certificate import Certificate
     from .diagnosis import DiagnosisConfig, StreamingDiagnoser
     from .diagnosis.calibrate import CalibrationResult

@@ -10,7 +10,8 @@ names the file and line, e.g. ``ConfigError``).
 Numbers accept any real (``int``, ``float``, numpy scalars), never ``bool``;
 integers any integral value, never ``bool`` nor ``2.0``.
 
-This module imports nothing from imudiag but :mod:`imudiag.errors` (ground floor).
+This module imports nothing from imudiag but :mod:`imudiag.errors` and
+:mod:`imudiag.argtypes` (ground floor).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numbers
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from .argtypes import rate_problem
 from .errors import BadInput
 
 #: Turns a reason into the exception to raise.
@@ -70,6 +72,15 @@ def number(
     return v
 
 
+def sample_rate(value: Any, where: str | Fail) -> float:
+    """``value`` as an IMU's sample rate, Hz (:func:`imudiag.argtypes.rate_problem`)."""
+    rate = number(value, where)
+    problem = rate_problem(rate)
+    if problem:
+        raise failing(where)(problem)
+    return rate
+
+
 def integer(value: Any, where: str | Fail, lo: int = 0, hi: int | None = None) -> int:
     """``value`` as an int within ``lo`` .. ``hi`` (no upper end when ``hi`` is None)."""
     fail = failing(where)
@@ -115,6 +126,7 @@ __all__ = [
     "is_number",
     "number",
     "range_text",
+    "sample_rate",
     "text",
     "unknown_keys",
 ]

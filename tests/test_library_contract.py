@@ -6,11 +6,14 @@
 - one noise default for streaming and offline (diagnosis.config.CERTIFICATE_NOISE): a
   StreamingDiagnoser left at its defaults gives the windows and verdict of imudiag.diagnose;
 - the sample flags are honoured by the GNSS aiding: a flagged burst in a moving-base
-  drive does not move its estimates (the flagged samples count as absent).
+  drive does not move its estimates (the flagged samples count as absent);
+- GNSS aiding is callable from the library on samples and a GNSS stream
+  (imudiag.moving_base), giving the section ``imudiag diagnose --gnss`` gives.
 """
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -28,7 +31,7 @@ from imudiag.errors import EXIT_BAD_INPUT, BadInput, exit_code
 from imudiag.samples import FLAG_ACCEL_SATURATED, FLAG_GYRO_SATURATED, SampleBlock
 from imudiag.service.config import DaemonConfig
 from imudiag.sim import Fault, multi_position, simulate
-from imudiag.sim.drive import simulate_drive
+from imudiag.sim.drive import simulate_drive, write_gpspipe_log
 
 CERT = load_default()
 
@@ -173,8 +176,14 @@ def _strip(report: dict) -> dict:
     return out
 
 
-def test_a_flagged_burst_does_not_move_the_moving_base_estimates():
-    res, reports, _ = simulate_drive("urban", 300.0, CERT, seed=11)
+@pytest.fixture(scope="module")
+def drive():
+    """300 s of the urban drive (100 Hz IMU, t in UTC Unix time) and its gpsd TPV reports."""
+    return simulate_drive("urban", 300.0, CERT, seed=11)
+
+
+def test_a_flagged_burst_does_not_move_the_moving_base_estimates(drive):
+    res, reports, _ = drive
     track = track_from_reports([parse_tpv(r) for r in reports])
     clean = res.samples
     n = len(clean)
@@ -205,3 +214,51 @@ def test_a_flagged_burst_does_not_move_the_moving_base_estimates():
             want = np.array(w_base["accel"][part]["estimate"])
             std = np.array(w_base["accel"][part]["std"])
             assert np.all(np.abs(got - want) <= 0.1 * std), (part, got, want, std)
+
+
+# ---------------------------------------------------------------------------
+# item 4d: GNSS aiding from the library
+
+
+def _without_source(section: dict) -> dict:
+    out = {k: v for k, v in section.items() if k != "log"}
+    out["gnss"] = {k: v for k, v in section["gnss"].items() if k != "source"}
+    return out
+
+
+def test_gnss_aiding_from_the_library_on_samples_and_a_gnss_stream(drive, tmp_path):
+    """The samples in memory and gpsd's stream (its objects, or its lines) give the section
+    of ``imudiag diagnose --gnss LOG``; no log is read."""
+    res, reports, _ = drive
+    log = tmp_path / "gnss.json"
+    write_gpspipe_log(log, reports)
+    from_log = imudiag.moving_base(res.samples, log, CERT)
+    from_objects = imudiag.moving_base(res.samples, iter(reports), CERT)
+    from_lines = imudiag.moving_base(res.samples, log.read_text().splitlines(), CERT)
+    assert from_log["gnss"]["source"] == from_log["log"] == str(log)
+    assert from_objects["gnss"]["source"] == from_lines["log"] == "gpsd stream"
+    # the log's lines are the log (the log writer rounds: time to 1 ms, velocity to 0.1 mm/s)
+    assert _without_source(from_lines) == _without_source(from_log)
+    as_text = imudiag.moving_base(res.samples, [json.dumps(r) for r in reports], CERT)
+    assert as_text == from_objects and from_objects["verdict"] == "ok"
+    assert from_log["verdict"] == "ok" and from_log["gnss"]["used"] > 200
+    # imudiag diagnose --gnss gives the section of the rate it measured on the samples
+    report = imudiag.diagnose(res.samples, CERT, gnss=str(log), windows=False)
+    rate = report["sample_rate"]
+    assert report["moving_base"] == imudiag.moving_base(res.samples, log, CERT, rate_hz=rate)
+
+
+def test_gnss_aiding_from_the_library_refuses_what_it_cannot_use(drive):
+    res, reports, _ = drive
+    with pytest.raises(BadInput, match="^gnss:2: not a gpsd JSON object"):
+        imudiag.moving_base(res.samples, [reports[0], {"time": "x"}], CERT)
+    with pytest.raises(BadInput, match="^gnss: no TPV report with a time"):
+        imudiag.moving_base(res.samples, [{"class": "SKY"}], CERT)
+    with pytest.raises(BadInput, match="^gnss: 'auto' names a log's own GNSS"):
+        imudiag.moving_base(res.samples, "auto", CERT)
+    with pytest.raises(BadInput, match="^gnss: expected gpsd objects"):
+        imudiag.moving_base(res.samples, 5, CERT)
+    with pytest.raises(BadInput, match="^samples: expected a SampleBlock"):
+        imudiag.moving_base(res.samples.t, reports, CERT)
+    with pytest.raises(BadInput, match="^rate_hz: "):
+        imudiag.moving_base(res.samples, reports, CERT, rate_hz=-100.0)

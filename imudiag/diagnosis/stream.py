@@ -18,9 +18,7 @@ from typing import Any
 import numpy as np
 
 from .. import validate
-from ..argtypes import rate_problem
 from ..certificate import Certificate
-from ..errors import BadInput
 from ..quasistatic import DetectorPool
 from ..reports import DIAGNOSIS_FORMAT, header
 from ..samples import SampleBlock
@@ -73,9 +71,7 @@ class StreamingDiagnoser:
             config = DiagnosisConfig.from_dict(config)
         self.config = config
         if rate_hz is not None:
-            problem = rate_problem(validate.number(rate_hz, "rate_hz"))
-            if problem:
-                raise BadInput(f"rate_hz: {problem}")
+            validate.sample_rate(rate_hz, "rate_hz")
         self.rate_hz = float(rate_hz or certificate.sample_rate)
         self.certificate = certificate
         #: whether the quasi-static detector trusts the certificate's noise density
