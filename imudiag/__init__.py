@@ -44,6 +44,7 @@ _API: dict[str, str] = {
     "diagnose": "imudiag.api",
     "calibrate": "imudiag.api",
     "moving_base": "imudiag.api",
+    "DiagnosisReport": "imudiag.diagnosis.report",
     "CalibrationResult": "imudiag.diagnosis.calibrate",
     # the one exception family
     "ImudiagError": "imudiag.errors",
@@ -60,6 +61,7 @@ __all__ = [
     "Certificate",
     "CertificateError",
     "DiagnosisConfig",
+    "DiagnosisReport",
     "EndOfStream",
     "ImudiagError",
     "LogError",
@@ -85,6 +87,7 @@ if TYPE_CHECKING:  # the names as mypy and editors see them
     from .certificate import Certificate
     from .diagnosis import DiagnosisConfig, StreamingDiagnoser
     from .diagnosis.calibrate import CalibrationResult
+    from .diagnosis.report import DiagnosisReport
     from .drivers import EndOfStream, Source, open_source
     from .errors import BadInput, CertificateError, ImudiagError, SourceError
     from .logs import LogError, LogOptions, open_log, read_log, write_log

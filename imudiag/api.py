@@ -8,13 +8,14 @@ without the printing and the file writing.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from . import validate
 from .certificate import Certificate, load, load_default
 from .diagnosis.calibrate import CalibrationResult
 from .diagnosis.config import CERTIFICATE_NOISE, DiagnosisConfig
 from .diagnosis.inputs import MagnitudeTable
+from .diagnosis.report import DiagnosisReport
 from .diagnosis.session import (
     DEFAULT_BLOCK_SIZE,
     ProgressCallback,
@@ -66,8 +67,9 @@ def diagnose(
     gnss: Any = "auto",
     moving: MovingConfig | None = None,
     progress: ProgressCallback | None = None,
-) -> dict[str, Any]:
-    """Diagnose a recording against a certificate: the report of ``imudiag diagnose --json``.
+) -> DiagnosisReport:
+    """Diagnose a recording against a certificate: the report of ``imudiag diagnose --json``
+    (a dict; :data:`~imudiag.diagnosis.report.DiagnosisReport` types its keys).
 
     ``data``: a log file's path (any format ``imudiag diagnose`` reads; ``log_options``
     say how to read a text table) or a :class:`~imudiag.samples.SampleBlock` (t in s,
@@ -89,17 +91,20 @@ def diagnose(
     ``imudiag fleet``'s per-log timeout).
     """
     cert = _certificate(certificate)
-    report = diagnose_recording(
-        data,
-        cert,
-        _config(config),
-        rate_hz=rate_hz,
-        magnitude=magnitude,
-        certificate_noise=certificate_noise,
-        options=log_options,
-        block_size=block_size,
-        windows=windows,
-        progress=progress,
+    report: DiagnosisReport = cast(
+        DiagnosisReport,
+        diagnose_recording(
+            data,
+            cert,
+            _config(config),
+            rate_hz=rate_hz,
+            magnitude=magnitude,
+            certificate_noise=certificate_noise,
+            options=log_options,
+            block_size=block_size,
+            windows=windows,
+            progress=progress,
+        ),
     )
     from .aiding.log_clock import gnss_section_of  # the aiding code only when it is used
 
@@ -205,4 +210,11 @@ def moving_base(
     return section
 
 
-__all__ = ["CertificateLike", "calibrate", "diagnose", "load_certificate", "moving_base"]
+__all__ = [
+    "CertificateLike",
+    "DiagnosisReport",
+    "calibrate",
+    "diagnose",
+    "load_certificate",
+    "moving_base",
+]

@@ -8,13 +8,16 @@
 - the sample flags are honoured by the GNSS aiding: a flagged burst in a moving-base
   drive does not move its estimates (the flagged samples count as absent);
 - GNSS aiding is callable from the library on samples and a GNSS stream
-  (imudiag.moving_base), giving the section ``imudiag diagnose --gnss`` gives.
+  (imudiag.moving_base), giving the section ``imudiag diagnose --gnss`` gives;
+- the report is typed (imudiag.DiagnosisReport): every key of every report, the frozen
+  ones included, is a documented key, and the JSON is the plain dict it always was.
 """
 
 from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -262,3 +265,40 @@ def test_gnss_aiding_from_the_library_refuses_what_it_cannot_use(drive):
         imudiag.moving_base(res.samples.t, reports, CERT)
     with pytest.raises(BadInput, match="^rate_hz: "):
         imudiag.moving_base(res.samples, reports, CERT, rate_hz=-100.0)
+
+
+# ---------------------------------------------------------------------------
+# item 4e: a typed report with the documented keys
+
+FROZEN = Path(__file__).parent / "data" / "frozen-reports"
+
+
+def test_the_report_type_has_the_documented_keys(session, drive, tmp_path):
+    from imudiag.diagnosis.report import DiagnosisReport, Verdict, check_keys
+
+    assert imudiag.DiagnosisReport is DiagnosisReport
+    assert imudiag.diagnose.__annotations__["return"] == "DiagnosisReport"
+    # the documented keys of docs/spec/reports.md are the required ones
+    assert {"class", "format", "samples", "f0", "verdict", "windows"} <= (
+        DiagnosisReport.__required_keys__
+    )
+    assert set(Verdict.__required_keys__) == {"accel", "gyro", "faults", "undetermined"}
+    # reports of every kind hold only documented keys: in memory, with GNSS, the frozen
+    # ones (a raw .bin capture's wire counters, an npz log, a real Xsens log)
+    report = imudiag.diagnose(session, CERT, rate_hz=100.0, gnss="none")
+    check_keys(dict(report))
+    assert type(report) is dict and json.loads(json.dumps(report)) == report
+    res, reports, _ = drive
+    log = tmp_path / "gnss.json"
+    write_gpspipe_log(log, reports)
+    aided = imudiag.diagnose(res.samples, CERT, gnss=str(log), windows=False)
+    assert "moving_base" in aided
+    check_keys(dict(aided))
+    frozen = sorted(FROZEN.glob("*/*.json"))
+    assert len(frozen) >= 6
+    for path in frozen:
+        check_keys(json.loads(path.read_text()))
+    with pytest.raises(ValueError, match=r"undocumented keys \['extra'\]"):
+        check_keys({**report, "extra": 1})
+    with pytest.raises(ValueError, match=r"missing keys \['verdict'\]"):
+        check_keys({k: v for k, v in report.items() if k != "verdict"})
