@@ -876,29 +876,30 @@ def _gyro_rest_rotation(
         rejected: list[dict] = []
         note = ""
         if probe:
-            rot = once(kept, None)[0]
+            rfit = once(kept, None)[0]
         else:
-            rot, kept, rejected, note = reject_outliers(
+            rfit, kept, rejected, note = reject_outliers(
                 once, len(pairs), motion_labels(pairs), CALIBRATION_MIN_DOF
             )
-        assert rot.frame_cov is not None  # fit_frame=True: the frame rotation was fitted
-        frame_std = np.sqrt(np.maximum(np.diag(rot.frame_cov), 0.0))
+        assert rfit.frame_cov is not None  # fit_frame=True: the frame rotation was fitted
+        frame_std = np.sqrt(np.maximum(np.diag(rfit.frame_cov), 0.0))
         # the frame rotation goes into N only where the rotations determine it as well as a
         # misalignment must be (a rotation fitted from 2 turns would be written as 0.3 rad)
         frame_ok = bool(np.all(frame_std <= ratio * gyr_like.limits.misalignment))
-        frame = rot.frame if frame_ok else np.zeros(3)
-        n_g = p_matrix(shape_c + rot.deviation) @ small_rotation(frame) @ q_c
+        frame = rfit.frame if frame_ok else np.zeros(3)
+        n_g = p_matrix(shape_c + rfit.deviation) @ small_rotation(frame) @ q_c
         extra = {
-            "frame_rad": [float(v) for v in rot.frame],
+            "frame_rad": [float(v) for v in rfit.frame],
             "frame_std_rad": [float(v) for v in frame_std],
             "frame_applied": frame_ok,
-            "rotation_rms_rad": rot.rms,
+            "rotation_rms_rad": rfit.rms,
             "motions": int(kept.sum()),
         }
         if rejected:
             extra["rejected"] = rejected
         if note:
             extra["outliers"] = note
+        rot = rfit
     fit = rest_rotation_fit(
         gyr_like,
         np.array([iv.gyro_mean for iv in intervals]),

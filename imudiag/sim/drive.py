@@ -207,7 +207,7 @@ class DriveMotion(Motion):
 
     def navigation_frame(
         self, t: np.ndarray, acc_n: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | float]:
         """The rotating WGS-84 Earth along the drive (module doc): w_in = Omega_ie + omega_en,
         the Coriolis and transport term (2 Omega_ie + omega_en) x v_n, normal gravity."""
         lat, _, h = self.position(t)

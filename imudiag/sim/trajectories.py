@@ -100,7 +100,7 @@ class Motion(ABC):
 
     def navigation_frame(
         self, t: np.ndarray, acc_n: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | float]:
         """The navigation frame the motion moves in, at times ``t`` (s): its rate against
         inertial space w_in (NED, rad/s, (3,) or (N, 3)), the Coriolis and transport term
         added to the acceleration (NED, m/s^2, broadcastable to (N, 3)) and gravity down
