@@ -43,6 +43,8 @@ _API: dict[str, str] = {
     # whole recordings: the code path of `imudiag diagnose` and `imudiag calibrate`
     "diagnose": "imudiag.api",
     "calibrate": "imudiag.api",
+    "moving_base": "imudiag.api",
+    "DiagnosisReport": "imudiag.diagnosis.report",
     "CalibrationResult": "imudiag.diagnosis.calibrate",
     # the one exception family
     "ImudiagError": "imudiag.errors",
@@ -59,6 +61,7 @@ __all__ = [
     "Certificate",
     "CertificateError",
     "DiagnosisConfig",
+    "DiagnosisReport",
     "EndOfStream",
     "ImudiagError",
     "LogError",
@@ -72,6 +75,7 @@ __all__ = [
     "calibrate",
     "diagnose",
     "load_certificate",
+    "moving_base",
     "open_log",
     "open_source",
     "read_log",
@@ -79,10 +83,11 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:  # the names as mypy and editors see them
-    from .api import calibrate, diagnose, load_certificate
+    from .api import calibrate, diagnose, load_certificate, moving_base
     from .certificate import Certificate
     from .diagnosis import DiagnosisConfig, StreamingDiagnoser
     from .diagnosis.calibrate import CalibrationResult
+    from .diagnosis.report import DiagnosisReport
     from .drivers import EndOfStream, Source, open_source
     from .errors import BadInput, CertificateError, ImudiagError, SourceError
     from .logs import LogError, LogOptions, open_log, read_log, write_log

@@ -8,12 +8,14 @@ without the printing and the file writing.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
+from . import validate
 from .certificate import Certificate, load, load_default
 from .diagnosis.calibrate import CalibrationResult
-from .diagnosis.config import DiagnosisConfig
+from .diagnosis.config import CERTIFICATE_NOISE, DiagnosisConfig
 from .diagnosis.inputs import MagnitudeTable
+from .diagnosis.report import DiagnosisReport
 from .diagnosis.session import (
     DEFAULT_BLOCK_SIZE,
     ProgressCallback,
@@ -23,6 +25,7 @@ from .diagnosis.session import (
 )
 from .errors import BadInput
 from .logs.options import LogOptions
+from .samples import SampleBlock
 
 if TYPE_CHECKING:
     from .aiding.moving import MovingConfig
@@ -57,15 +60,16 @@ def diagnose(
     config: DiagnosisConfig | dict[str, Any] | None = None,
     rate_hz: float | None = None,
     magnitude: MagnitudeTable | str | Path | None = None,
-    certificate_noise: bool = False,
+    certificate_noise: bool = CERTIFICATE_NOISE,
     log_options: LogOptions | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
     windows: bool = True,
     gnss: Any = "auto",
     moving: MovingConfig | None = None,
     progress: ProgressCallback | None = None,
-) -> dict[str, Any]:
-    """Diagnose a recording against a certificate: the report of ``imudiag diagnose --json``.
+) -> DiagnosisReport:
+    """Diagnose a recording against a certificate: the report of ``imudiag diagnose --json``
+    (a dict; :data:`~imudiag.diagnosis.report.DiagnosisReport` types its keys).
 
     ``data``: a log file's path (any format ``imudiag diagnose`` reads; ``log_options``
     say how to read a text table) or a :class:`~imudiag.samples.SampleBlock` (t in s,
@@ -87,17 +91,20 @@ def diagnose(
     ``imudiag fleet``'s per-log timeout).
     """
     cert = _certificate(certificate)
-    report = diagnose_recording(
-        data,
-        cert,
-        _config(config),
-        rate_hz=rate_hz,
-        magnitude=magnitude,
-        certificate_noise=certificate_noise,
-        options=log_options,
-        block_size=block_size,
-        windows=windows,
-        progress=progress,
+    report: DiagnosisReport = cast(
+        DiagnosisReport,
+        diagnose_recording(
+            data,
+            cert,
+            _config(config),
+            rate_hz=rate_hz,
+            magnitude=magnitude,
+            certificate_noise=certificate_noise,
+            options=log_options,
+            block_size=block_size,
+            windows=windows,
+            progress=progress,
+        ),
     )
     from .aiding.log_clock import gnss_section_of  # the aiding code only when it is used
 
@@ -116,7 +123,7 @@ def calibrate(
     config: DiagnosisConfig | dict[str, Any] | None = None,
     rate_hz: float | None = None,
     magnitude: MagnitudeTable | str | Path | None = None,
-    certificate_noise: bool = False,
+    certificate_noise: bool = CERTIFICATE_NOISE,
     log_options: LogOptions | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
 ) -> CalibrationResult:
@@ -142,4 +149,72 @@ def calibrate(
     )
 
 
-__all__ = ["CertificateLike", "calibrate", "diagnose", "load_certificate"]
+def moving_base(
+    samples: SampleBlock,
+    gnss: Any,
+    certificate: CertificateLike = None,
+    *,
+    moving: MovingConfig | None = None,
+    rate_hz: float | None = None,
+) -> dict[str, Any]:
+    """GNSS-aided moving-base diagnosis of samples in memory against a GNSS stream: the
+    ``moving_base`` section of ``imudiag diagnose --gnss`` (docs/diagnosis.md), without
+    reading any log.
+
+    ``samples``: a :class:`~imudiag.samples.SampleBlock` (t in s, outputs in the
+    certificate's units; flagged samples are left out). ``gnss``: gpsd's stream as it
+    comes (an iterable of its JSON objects, parsed dicts or lines of text: ``gpspipe -w``
+    or a gpsd socket; SKY and the other classes are ignored), a
+    :class:`~imudiag.aiding.tpv.GnssTrack`, a gpsd log's path (all in UTC Unix time, as
+    the samples' ``t``), or the :class:`~imudiag.logs.gnss_fixes.GnssFixes` of the
+    samples' own clock (tied to GNSS time by a fitted offset and rate). ``moving``: a
+    :class:`~imudiag.aiding.moving.MovingConfig`. ``rate_hz``: the samples' rate, Hz
+    (default from ``t``). Raises :class:`~imudiag.errors.BadInput` naming the argument.
+    """
+    from .aiding.log_clock import moving_base_for_recording
+    from .aiding.tpv import GnssTrack, track_from_stream
+    from .logs.gnss_fixes import GnssFixes
+
+    cert = _certificate(certificate)
+    if not isinstance(samples, SampleBlock) or len(samples) < 2:
+        raise BadInput(f"samples: expected a SampleBlock of 2 or more samples, got {samples!r}")
+    if rate_hz is not None:
+        validate.sample_rate(rate_hz, "rate_hz")
+    fixes: GnssFixes | None = None
+    source: Any
+    if isinstance(gnss, GnssFixes):
+        fixes, source = gnss, "log"
+    elif isinstance(gnss, GnssTrack):
+        source = gnss
+    elif isinstance(gnss, (str, Path)):
+        if str(gnss) in ("auto", "log", "none"):
+            raise BadInput(
+                f"gnss: {gnss!r} names a log's own GNSS: give the stream, a GnssTrack, a "
+                "gpsd log's path or the samples' GnssFixes"
+            )
+        source = str(gnss)
+    else:
+        try:
+            items = iter(gnss)
+        except TypeError:
+            raise BadInput(
+                f"gnss: expected gpsd objects, a GnssTrack or a path, got {gnss!r}"
+            ) from None
+        source = track_from_stream(items)
+    section = moving_base_for_recording(
+        samples, cert, source, fixes, moving, rate_hz, where="samples"
+    )
+    assert section is not None  # a GNSS source was given
+    if not isinstance(gnss, (GnssFixes, GnssTrack, str, Path)):
+        section["gnss"]["source"] = section["log"] = "gpsd stream"
+    return section
+
+
+__all__ = [
+    "CertificateLike",
+    "DiagnosisReport",
+    "calibrate",
+    "diagnose",
+    "load_certificate",
+    "moving_base",
+]

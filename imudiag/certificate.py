@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from . import yamlio
+from . import validate, yamlio
 from .argtypes import rate_problem
 from .errors import CertificateError as _CertificateErrorBase
 from .rowwise import BIG_ROWS, rows_op
@@ -93,15 +93,7 @@ class CertificateError(_CertificateErrorBase):
 
 
 def _finite(value: Any, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise CertificateError(key, f"expected a number, got {value!r}")
-    try:
-        value = float(value)
-    except OverflowError:  # an integer beyond the float range (found by fuzz/)
-        raise CertificateError(key, "not a finite number: integer beyond the float range") from None
-    if not math.isfinite(value):
-        raise CertificateError(key, f"not a finite number: {value!r}")
-    return value
+    return validate.number(value, lambda reason: CertificateError(key, reason))
 
 
 def _vector(value: Any, key: str, length: int = 3) -> np.ndarray:
@@ -472,10 +464,9 @@ def _parse_vibration(node: Any) -> VibrationLimits:
     if out.accel_severe < out.accel_high:
         raise CertificateError("vibration.accel_severe", "must be >= vibration.accel_high")
     if "clipping" in v:
-        c = v["clipping"]
-        if isinstance(c, bool) or not isinstance(c, int) or c < 0:
-            raise CertificateError("vibration.clipping", f"expected an integer >= 0, got {c!r}")
-        out.clipping = int(c)
+        out.clipping = validate.integer(
+            v["clipping"], lambda reason: CertificateError("vibration.clipping", reason), 0
+        )
     return out
 
 

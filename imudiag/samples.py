@@ -79,6 +79,24 @@ class SampleBlock:
             meta=self.meta,
         )
 
+    def without_flags(self, bits: int) -> SampleBlock:
+        """The samples whose flags carry none of ``bits`` (this block itself when no sample
+        does, or without flags): how a consumer leaves flagged samples out."""
+        if self.flags is None or not len(self):
+            return self
+        keep = (np.asarray(self.flags).astype(np.int64) & bits) == 0
+        if keep.all():
+            return self
+        return SampleBlock(
+            t=self.t[keep],
+            gyro=self.gyro[keep],
+            accel=self.accel[keep],
+            temp=None if self.temp is None else self.temp[keep],
+            flags=self.flags[keep],
+            seq=None if self.seq is None else self.seq[keep],
+            meta=self.meta,
+        )
+
     @classmethod
     def empty(cls) -> SampleBlock:
         """A block of no samples."""

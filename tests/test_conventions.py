@@ -1,6 +1,9 @@
-"""Issue 30 item 2 (its small parts): each convention defined once, and every consumer of
-it agreeing: the misalignment sign table (imudiag.certificate), the cross-product matrix
-(imudiag.rotations.skew), the Earth model (imudiag.earth, on the ground floor)."""
+"""Issue 30 item 2: each convention and each fit defined once, and every consumer of it
+agreeing: the misalignment sign table (imudiag.certificate), the cross-product matrix
+(imudiag.rotations.skew), the Earth model (imudiag.earth, on the ground floor), the gyro
+rest-bias plus rotation fit (imudiag.diagnosis.gyro_fit.rest_rotation_fit), the simulator's
+kinematics (imudiag.sim.trajectories.Motion.evaluate) and the validator of configuration
+values (imudiag.validate)."""
 
 from __future__ import annotations
 
@@ -36,19 +39,55 @@ SOURCES = sorted(
 )
 
 
+#: Words of a hand-written value check's reason: only imudiag.validate writes them.
+VALIDATOR_WORDS = (
+    "is out of range",
+    "expected a number, got",
+    "expected an integer",
+    "expected true or false",
+    "expected a non-empty string",
+    "not a finite number",
+)
+
+
+def _strings(node: ast.AST) -> list[str]:
+    """The literal text of a string constant or f-string."""
+    if isinstance(node, ast.Constant) and isinstance(node.value, str):
+        return [node.value]
+    if isinstance(node, ast.JoinedStr):
+        return ["".join(v.value for v in node.values if isinstance(v, ast.Constant))]
+    return []
+
+
 def _definitions() -> dict[str, list[str]]:
-    """Where each function name is defined, and where a literal dict keyed by the six
-    misalignment keys (a sign table written out again) appears."""
+    """Where each function name is defined (a method as ``Class.name`` too), where a literal
+    dict keyed by the six misalignment keys (a sign table written out again) appears, where
+    a TriadFit of method ``rest+rotation`` is built, where a value check's reason is written
+    and where a specific force is formed from a navigation-frame acceleration and gravity."""
     found: dict[str, list[str]] = {}
     for path in SOURCES:
         rel = str(path.relative_to(ROOT))
-        for node in ast.walk(ast.parse(path.read_text(), rel)):
+        tree = ast.parse(path.read_text(), rel)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ClassDef):
+                for item in node.body:
+                    if isinstance(item, ast.FunctionDef):
+                        found.setdefault(f"{node.name}.{item.name}", []).append(rel)
             if isinstance(node, ast.FunctionDef):
                 found.setdefault(node.name, []).append(rel)
             elif isinstance(node, ast.Dict):
                 keys = {k.value for k in node.keys if isinstance(k, ast.Constant)}
                 if keys == set(MISALIGNMENT_KEYS):
                     found.setdefault("<misalignment table>", []).append(rel)
+            elif isinstance(node, ast.keyword) and node.arg == "method":
+                if "rest+rotation" in _strings(node.value):
+                    found.setdefault("<rest+rotation fit>", []).append(rel)
+            elif isinstance(node, (ast.Constant, ast.JoinedStr)):
+                if any(w in text for text in _strings(node) for w in VALIDATOR_WORDS):
+                    found.setdefault("<value check reason>", []).append(rel)
+        for call in ast.walk(tree):
+            if isinstance(call, ast.Call) and getattr(call.func, "id", "") == "Trajectory":
+                found.setdefault("<Trajectory built>", []).append(rel)
     return found
 
 
@@ -58,6 +97,41 @@ def test_each_convention_is_defined_once():
     assert defs["earth_rate_ned"] == ["imudiag/earth.py"]
     assert defs["normal_gravity"] == ["imudiag/earth.py"]
     assert defs["<misalignment table>"] == ["imudiag/certificate.py"]
+
+
+def test_each_fit_kinematics_and_validator_is_defined_once():
+    """A second copy of the rest-bias plus rotation fit, of the simulator's kinematics or
+    of a hand-written value check fails here (issue 30 item 2)."""
+    defs = _definitions()
+    # the gyro rest-bias plus rotation fit: assembled in one function, used by both callers
+    assert defs["rest_rotation_fit"] == ["imudiag/diagnosis/gyro_fit.py"]
+    assert defs["<rest+rotation fit>"] == ["imudiag/diagnosis/gyro_fit.py"]
+    assert defs["rest_bias"] == ["imudiag/diagnosis/gyro_fit.py"]
+    for caller in ("window.py", "calibrate.py"):
+        text = (ROOT / "imudiag" / "diagnosis" / caller).read_text()
+        assert "rest_rotation_fit(" in text and "rest_bias(" not in text
+    # the simulator's kinematics: one evaluate (body rate and specific force from the
+    # motion), every motion giving only its kinematics and its navigation frame
+    assert [d for d in defs if d.endswith(".evaluate")] == ["Motion.evaluate"]
+    assert defs["Motion.evaluate"] == ["imudiag/sim/trajectories.py"]
+    # (the model check replays measured specific forces at rest: no kinematics of its own)
+    built = set(defs["<Trajectory built>"])
+    assert built == {"imudiag/sim/trajectories.py", "imudiag/modelcheck/simulate.py"}
+    assert defs["DriveMotion.navigation_frame"] == ["imudiag/sim/drive.py"]
+    # the validator: the reasons of a value check are written in imudiag.validate alone
+    # (argtypes parses option text for argparse; logs/base names a column's integer range)
+    allowed = {"imudiag/validate.py", "imudiag/argtypes.py", "imudiag/logs/base.py"}
+    assert set(defs["<value check reason>"]) <= allowed, defs["<value check reason>"]
+    # the readers that had their own checks: each goes through it
+    for reader in (
+        "imudiag/diagnosis/config.py",
+        "imudiag/service/config.py",
+        "imudiag/bench/scenario.py",
+        "imudiag/sim/scenarios.py",
+        "imudiag/certificate.py",
+        "imudiag/interop/model.py",
+    ):
+        assert "validate." in (ROOT / reader).read_text(), reader
 
 
 def test_the_sign_table_is_the_models_n_and_its_inverse():

@@ -213,12 +213,12 @@ def test_a_gnss_latency_in_ms_is_refused(log200, tmp_path, capsys, latency):
 @pytest.mark.parametrize(
     ("scenario", "option", "value", "words"),
     [
-        ("static", "--param", "latitude=200", "latitude must be -90 to 90 deg"),
-        ("urban", "--param", "length=-100", "length must be > 0 s"),
+        ("static", "--param", "latitude=200", "latitude: 200.0 is out of range [-90, 90] deg"),
+        ("urban", "--param", "length=-100", "length: -100.0 is out of range (0, inf] s"),
         ("multiposition", "--param", "dwell=-3", "dwell"),
-        ("multiposition", "--param", "n=2.5", "n must be a whole number"),
-        ("vehicle", "--param", "speed=-1", "speed must be >= 0 m/s"),
-        ("turntable", "--param", "ramp=-2", "ramp must be >= 0 s"),
+        ("multiposition", "--param", "n=2.5", "n: expected an integer, got 2.5"),
+        ("vehicle", "--param", "speed=-1", "speed: -1.0 is out of range [0, inf] m/s"),
+        ("turntable", "--param", "ramp=-2", "ramp: -2.0 is out of range [0, inf] s"),
         ("static", "--fault", "bias:ax:-5:100", "the time must be >= 0 s"),
     ],
 )

@@ -28,7 +28,8 @@ PACKAGE_DIRS = {
 #: the README's stage table ("What it does"), in order, entry for entry (tested below): a
 #: new module gets its floor here and its place in that table.
 FLOORS: list[tuple[str, ...]] = [
-    # 0 ground: errors, the YAML loader, atomic files, bundled configuration, the Earth model
+    # 0 ground: errors, the YAML loader, atomic files, bundled configuration, value checks,
+    # the Earth model
     (
         "imudiag.errors",
         "imudiag.units",
@@ -38,6 +39,7 @@ FLOORS: list[tuple[str, ...]] = [
         "imudiag.reports",
         "imudiag.progress",
         "imudiag.argtypes",
+        "imudiag.validate",
         "imudiag.earth",
     ),
     # 1 data: samples with units, the certificate model, rotations, arithmetic on rows

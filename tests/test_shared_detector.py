@@ -237,7 +237,9 @@ def test_streaming_diagnoser_and_monitor_share(monkeypatch):
     pool, every block to both) the two read one run of the detector."""
     pool = DetectorPool()
     mon = Monitor(CERT, rate_hz=200.0, detectors=pool)
-    diag = StreamingDiagnoser(CERT, DiagnosisConfig(), rate_hz=200.0, detectors=pool)
+    diag = StreamingDiagnoser(
+        CERT, DiagnosisConfig(), rate_hz=200.0, certificate_noise=True, detectors=pool
+    )
     assert isinstance(mon.detector, SharedDetectorReader)
     assert mon.detector.shared is diag.collector.detector.shared  # type: ignore[union-attr]
     block = simulate(CERT, still(20.0, rate_hz=200), seed=5).samples

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..certificate import Certificate
+from ..quasistatic import BAD_FLAGS
 from ..samples import SampleBlock
 from .align import estimate_latency, latency_sigma, unknown_latency_std, used_latency
 from .course_rate import turn_check
@@ -417,7 +418,10 @@ class LiveAiding:
     # -- input -------------------------------------------------------------
 
     def update(self, block: SampleBlock | None) -> None:
-        """Take new IMU samples (or None), read gpsd, hand a batch over when one is due."""
+        """Take new IMU samples (or None), read gpsd, hand a batch over when one is due.
+        Flagged samples (:data:`~imudiag.quasistatic.BAD_FLAGS`) are left out."""
+        if block is not None:
+            block = block.without_flags(BAD_FLAGS)
         if block is not None and len(block):
             self._pending.append((block.t, block.accel, block.gyro))
             self._t_last = float(block.t[-1])

@@ -142,7 +142,7 @@ def block_in_gnss_time(block: SampleBlock, clock: ClockMap) -> SampleBlock:
     """The samples with ``t`` mapped to GNSS time (the outputs unchanged)."""
     return SampleBlock(
         t=clock.to_gnss(block.t), gyro=block.gyro, accel=block.accel, temp=block.temp,
-        meta=block.meta,
+        flags=block.flags, seq=block.seq, meta=block.meta,
     )  # fmt: skip
 
 
@@ -248,11 +248,7 @@ def gnss_section_of(
                 return None  # a log without GNSS of its own: read once only
             to_cert = conform_meta(r.meta, cert, where)  # type: ignore[arg-type]
             blocks = [to_cert.apply(b) for b in r]  # in the certificate's units
-        block = SampleBlock(
-            t=np.concatenate([b.t for b in blocks]),
-            gyro=np.concatenate([b.gyro for b in blocks]),
-            accel=np.concatenate([b.accel for b in blocks]),
-        )
+        block = SampleBlock.concat(blocks)  # the flags kept: the aiding leaves flagged out
     return moving_base_for_recording(block, cert, gnss, fixes, cfg, rate_hz, where=where)
 
 

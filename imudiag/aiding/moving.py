@@ -43,6 +43,7 @@ import numpy as np
 from ..certificate import Certificate, TriadModel
 from ..diagnosis.params import CAUSES, cause_unit, parameter_units, sensor_of
 from ..diagnosis.scalar_fit import exact_fit
+from ..quasistatic import BAD_FLAGS
 from ..samples import SampleBlock
 from .align import (
     LATENCY_TOLERANCE_S,
@@ -146,8 +147,13 @@ def moving_base_diagnosis(
     gate: GateConfig | None = None,
     rate_hz: float | None = None,
 ) -> dict:
-    """The ``moving_base`` section of the diagnosis report (module doc)."""
+    """The ``moving_base`` section of the diagnosis report (module doc). Samples flagged
+    unusable (:data:`~imudiag.quasistatic.BAD_FLAGS`: saturation, ADC error, self-test)
+    are left out of every step, as the monitor and the window diagnosis leave them out;
+    how many is ``gnss.flagged_samples`` (only when there are any)."""
     cfg = cfg or MovingConfig()
+    all_samples = len(block)
+    block = block.without_flags(BAD_FLAGS)
     acc, gyr = cert.accel, cert.gyro
     t = block.t
     rate = rate_hz or (1.0 / float(np.median(np.diff(t))) if len(t) > 1 else 100.0)
@@ -176,6 +182,8 @@ def moving_base_diagnosis(
             "the static path checks the gyros at stops",
         },
     }
+    if len(block) < all_samples:
+        report["gnss"]["flagged_samples"] = all_samples - len(block)
     if not np.any(ep.valid):
         report["verdict"] = "unknown"
         report["reason"] = "no valid GNSS epoch over the IMU record"

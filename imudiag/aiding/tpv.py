@@ -18,6 +18,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -149,8 +150,40 @@ def track_from_reports(reports: Iterable[dict], device: str | None = None) -> Gn
     )
 
 
+def track_from_stream(
+    objects: Iterable[dict | str | bytes], device: str | None = None, source: str = "gnss"
+) -> GnssTrack:
+    """A track from gpsd's JSON stream (``gpspipe -w``, a gpsd socket's lines): each item
+    one object, parsed (a dict) or its line of text; objects of other classes (SKY,
+    VERSION...) are ignored. :class:`BadInput` naming ``source`` and the item's number for
+    an item that is not a gpsd object, and when no TPV report has a time."""
+    reports: list[dict] = []
+    for i, item in enumerate(objects, start=1):
+        obj: Any = item
+        if isinstance(item, (str, bytes)):
+            text = item.strip()
+            if not text:
+                continue
+            try:
+                obj = json.loads(text)
+            except json.JSONDecodeError as exc:
+                raise BadInput(f"{source}:{i}: not a gpsd JSON object: {exc.msg}") from exc
+        if not isinstance(obj, dict) or "class" not in obj:
+            raise BadInput(f'{source}:{i}: not a gpsd JSON object (no "class" key)')
+        try:
+            r = parse_tpv(obj)
+        except ValueError as exc:
+            raise BadInput(f"{source}:{i}: bad TPV: {exc}") from exc
+        if r is not None:
+            reports.append(r)
+    track = track_from_reports(reports, device)
+    if len(track) == 0:
+        raise BadInput(f"{source}: no TPV report with a time in the GNSS stream")
+    return track
+
+
 def read_gpspipe_log(path: str | Path, device: str | None = None) -> GnssTrack:
-    """Read a ``gpspipe -w`` log (plain or .gz) into a track.
+    """Read a ``gpspipe -w`` log (plain or .gz) into a track (:func:`track_from_stream`).
 
     Lines that are not JSON objects stop the read with :class:`BadInput`
     naming the file and line (a truncated last line is skipped: a recording
@@ -163,29 +196,19 @@ def read_gpspipe_log(path: str | Path, device: str | None = None) -> GnssTrack:
             lines = fh.read().splitlines()
     except (OSError, UnicodeDecodeError, EOFError) as exc:
         raise BadInput(f"{p}: cannot read the GNSS log: {exc}") from exc
-    reports: list[dict] = []
-    for i, line in enumerate(lines, start=1):
-        s = line.strip()
-        if not s:
-            continue
+    if lines:
         try:
-            obj = json.loads(s)
-        except json.JSONDecodeError as exc:
-            if i == len(lines):
-                continue  # cut off mid-write
-            raise BadInput(f"{p}:{i}: not a gpsd JSON object: {exc.msg}") from exc
-        if not isinstance(obj, dict) or "class" not in obj:
-            raise BadInput(f'{p}:{i}: not a gpsd JSON object (no "class" key)')
-        try:
-            r = parse_tpv(obj)
-        except ValueError as exc:
-            raise BadInput(f"{p}:{i}: bad TPV: {exc}") from exc
-        if r is not None:
-            reports.append(r)
-    track = track_from_reports(reports, device)
-    if len(track) == 0:
-        raise BadInput(f"{p}: no TPV report with a time in the GNSS log")
-    return track
+            json.loads(lines[-1]) if lines[-1].strip() else None
+        except json.JSONDecodeError:
+            lines[-1] = ""  # cut off mid-write
+    return track_from_stream(lines, device, str(p))
 
 
-__all__ = ["GnssTrack", "parse_time", "parse_tpv", "read_gpspipe_log", "track_from_reports"]
+__all__ = [
+    "GnssTrack",
+    "parse_time",
+    "parse_tpv",
+    "read_gpspipe_log",
+    "track_from_reports",
+    "track_from_stream",
+]

@@ -43,7 +43,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from imudiag import yamlio
+from imudiag import validate, yamlio
 from imudiag.errors import BadInput
 from imudiag.sim.drive import GnssSimConfig
 from imudiag.sim.faults import KINDS as SENSOR_KINDS
@@ -316,10 +316,11 @@ class _Reader:
             reason,
         )
 
+    def _fail(self, key: str | None) -> validate.Fail:
+        return lambda reason: self.fail(key, reason)
+
     def check_keys(self, known: tuple[str, ...]) -> None:
-        for k in self.doc:
-            if k not in known:
-                raise self.fail(str(k), f"unknown key; known: {', '.join(known)}")
+        validate.unknown_keys(self.doc, known, self._fail)
 
     def get(self, key: str, default: Any = None) -> Any:
         return self.doc.get(key, default)
@@ -337,42 +338,23 @@ class _Reader:
             if required or default is None:
                 raise self.fail(key, "required number missing")
             return default
-        v = self.doc[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise self.fail(key, f"expected a finite number, got {v!r}")
-        if v < lo or v > hi or (lo_open and v == lo):
-            left = "(" if lo_open else "["
-            raise self.fail(key, f"{v!r} is out of range {left}{lo:g}, {hi:g}]")
-        return float(v)
+        return validate.number(self.doc[key], self._fail(key), lo, hi, lo_open=lo_open)
 
     def integer(self, key: str, default: int | None = None, lo: int = 0, hi: int = 10**9) -> int:
         if key not in self.doc or self.doc[key] is None:
             if default is None:
                 raise self.fail(key, "required integer missing")
             return default
-        v = self.doc[key]
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.fail(key, f"expected an integer, got {v!r}")
-        if not lo <= v <= hi:
-            raise self.fail(key, f"{v!r} is out of range [{lo}, {hi}]")
-        return int(v)
+        return validate.integer(self.doc[key], self._fail(key), lo, hi)
 
     def text(self, key: str, default: str | None = None, choices: tuple[str, ...] = ()) -> str:
         v = self.doc.get(key, default)
         if v is None:
             raise self.fail(key, "required text missing")
-        if not isinstance(v, str) or not v.strip():
-            raise self.fail(key, f"expected a non-empty string, got {v!r}")
-        v = v.strip()
-        if choices and v not in choices:
-            raise self.fail(key, f"expected one of {', '.join(choices)}, got {v!r}")
-        return v
+        return validate.text(v, self._fail(key), choices)
 
     def boolean(self, key: str, default: bool) -> bool:
-        v = self.doc.get(key, default)
-        if not isinstance(v, bool):
-            raise self.fail(key, f"expected true or false, got {v!r}")
-        return v
+        return validate.boolean(self.doc.get(key, default), self._fail(key))
 
     def mapping(self, key: str) -> _Reader | None:
         v = self.doc.get(key)

@@ -43,7 +43,7 @@ from .gyro_fit import (
     RotationPair,
     earth_rate_observable,
     gyro_sample_var,
-    rest_bias,
+    rest_rotation_fit,
     rotation_fit,
     stack_pairs,
 )
@@ -52,12 +52,8 @@ from .intervals import QuasiStaticInterval
 from .known_rate import classify_plateaus
 from .params import (
     TriadFit,
-    certificate_std_vector,
     certificate_vector,
-    limit_vector,
-    parameter_units,
     sensor_of,
-    std_above_limit,
     undetermined_fit,
 )
 from .robust import reject_outliers
@@ -1082,25 +1078,12 @@ def _gyro_rest_rotation(
     the motions it kept and the rotation fit to them (None without rotations).
     """
     ratio = cfg.determined_std_ratio
-    gmeans = np.array([iv.gyro_mean for iv in intervals])
-    gmvar = np.array([iv.mean_var("gyro") for iv in intervals])
-    counts = np.array([iv.n for iv in intervals], dtype=float)
-    bias, bias_std = rest_bias(gyr_like, gmeans, gmvar, counts, like.earth_rate)
-    cert = certificate_vector(gyr_like)
-    limit = limit_vector(gyr_like)
-    units = parameter_units(gyr_like)
-    est = cert.copy()
-    std = np.full(9, np.inf)
-    est[:3], std[:3] = bias, bias_std
     shape_c, q_c = shape_of_triad(gyr_like)
     n_g = gyr_like.n_matrix()
-    reasons = [""] * 9
     extra: dict = {}
-    moving = count_rotations(pairs, cfg.attitude_separation_deg) > 0
-    dof = float("nan")
     kept = np.ones(len(pairs), dtype=bool)
     rot: RotationFitResult | None = None
-    if moving:
+    if count_rotations(pairs, cfg.attitude_separation_deg) > 0:
         sample_var = gyro_sample_var(intervals)
 
         def once(
@@ -1127,9 +1110,6 @@ def _gyro_rest_rotation(
             rfit, kept, rejected, note = reject_outliers(
                 once, len(pairs), motion_labels(pairs), CALIBRATION_MIN_DOF
             )
-        scale = np.concatenate([gyr_like.scale_factor, np.ones(3)])
-        est[3:] = cert[3:] + rfit.deviation * scale
-        std[3:] = np.sqrt(np.maximum(np.diag(rfit.cov), 0.0)) * scale
         assert rfit.frame_cov is not None  # fit_frame=True: the frame rotation was fitted
         frame_std = np.sqrt(np.maximum(np.diag(rfit.frame_cov), 0.0))
         # the frame rotation goes into N only where the rotations determine it as well as a
@@ -1148,30 +1128,17 @@ def _gyro_rest_rotation(
             extra["rejected"] = rejected
         if note:
             extra["outliers"] = note
-        dof = rfit.dof
         rot = rfit
-    determined = std <= ratio * limit
-    for i in range(9):
-        if not determined[i]:
-            reasons[i] = (
-                "no rotation between static poses"
-                if i >= 3 and not moving
-                else std_above_limit(std[i], ratio, limit[i], units[i])
-            )
-    fit = TriadFit(
-        triad="gyro",
-        method="rest+rotation",
-        estimate=est,
-        std=std,
-        certificate=cert,
-        limit=limit,
-        determined=determined,
-        reasons=reasons,
-        points=len(intervals),
-        extra=extra,
-        dof=dof,
-        certificate_std=certificate_std_vector(gyr_like),
+    fit = rest_rotation_fit(
+        gyr_like,
+        np.array([iv.gyro_mean for iv in intervals]),
+        np.array([iv.mean_var("gyro") for iv in intervals]),
+        np.array([iv.n for iv in intervals], dtype=float),
+        like.earth_rate,
+        rot,
+        ratio,
     )
+    fit.extra = extra
     return fit, n_g, kept, rot
 
 

@@ -2,11 +2,19 @@
 
 from __future__ import annotations
 
-import math
+from collections.abc import Callable
 from dataclasses import dataclass, fields
 from typing import Any
 
+from .. import validate
+from ..errors import BadInput
+
 METHODS = ("exact", "linear", "moving-base")
+#: Whether the window diagnosis's still detector trusts the certificate's noise density
+#: (True) or measures the noise from the data (False, the default): the one default of
+#: ``imudiag diagnose``, ``imudiag calibrate``, the library's :func:`imudiag.diagnose` and
+#: :class:`~imudiag.diagnosis.StreamingDiagnoser`, and the daemon (docs/service.md).
+CERTIFICATE_NOISE = False
 GYRO_MODES = ("auto", "earth-rate", "rotation")
 SHORT_HOLDS = ("auto", "always", "never")
 
@@ -61,38 +69,70 @@ class DiagnosisConfig:
     known_rate_rad_s: float | None = None
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        if self.gyro_mode not in GYRO_MODES:
-            raise ValueError(
-                f"gyro_mode must be one of {', '.join(GYRO_MODES)}, got {self.gyro_mode!r}"
-            )
-        if self.short_holds not in SHORT_HOLDS:
-            raise ValueError(
-                f"short_holds must be one of {', '.join(SHORT_HOLDS)}, got {self.short_holds!r}"
-            )
-        if self.short_hold_window < 4:
-            raise ValueError(
-                f"short_hold_window must be >= 4 samples, got {self.short_hold_window}"
-            )
-        if self.known_rate_rad_s is not None and not (
-            math.isfinite(self.known_rate_rad_s) and self.known_rate_rad_s > 0
-        ):
-            raise ValueError(f"known_rate_rad_s must be > 0, got {float(self.known_rate_rad_s)!r}")
+        """Check every field (:mod:`imudiag.validate`): BadInput naming ``diagnosis.<key>``."""
+        for name, check in _CHECKS.items():
+            value = getattr(self, name)
+            if value is not None or name != "known_rate_rad_s":
+                check(value, f"diagnosis.{name}")
         if self.known_rate_rad_s is not None and self.method != "exact":
-            raise ValueError("a known rate is used by the exact method only")
-        if self.persist < 1 or self.window_intervals < 1 or self.min_intervals < 1:
-            raise ValueError("persist, window_intervals and min_intervals must be >= 1")
+            raise BadInput(
+                "diagnosis.known_rate_rad_s: a known rate is used by the exact method only"
+            )
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> DiagnosisConfig:
-        """Build from a mapping; unknown keys raise ValueError naming the key."""
+        """Build from a mapping; an unknown key or a bad value raises BadInput naming the key."""
         d = dict(d or {})
         names = {f.name for f in fields(cls)}
         for k in d:
             if k not in names:
-                raise ValueError(f"diagnosis.{k}: unknown key")
+                raise BadInput(f"diagnosis.{k}: unknown key")
         return cls(**d)
 
 
-__all__ = ["DiagnosisConfig", "METHODS", "GYRO_MODES", "SHORT_HOLDS"]
+def _positive(value: Any, where: str) -> float:
+    return validate.number(value, where, 0.0, lo_open=True)
+
+
+def _at_least_zero(value: Any, where: str) -> float:
+    return validate.number(value, where, 0.0)
+
+
+def _count(lo: int) -> Callable[[Any, str], int]:
+    return lambda value, where: validate.integer(value, where, lo)
+
+
+def _one_of(choices: tuple[str, ...]) -> Callable[[Any, str], str]:
+    return lambda value, where: validate.text(value, where, choices)
+
+
+#: The check of each field, value and key -> the value (BadInput naming the key).
+_CHECKS: dict[str, Callable[[Any, str], Any]] = {
+    "method": _one_of(METHODS),
+    "gyro_mode": _one_of(GYRO_MODES),
+    "detector_window_s": _positive,
+    "min_interval_s": _positive,
+    "max_interval_s": _positive,
+    "short_holds": _one_of(SHORT_HOLDS),
+    "short_hold_window": _count(4),
+    "short_hold_min_intervals": _count(1),
+    "trim_s": _at_least_zero,
+    "motion_margin_s": _at_least_zero,
+    "max_motion_s": _positive,
+    "window_intervals": _count(1),
+    "window_max_s": _positive,
+    "min_intervals": _count(1),
+    "attitude_separation_deg": lambda v, w: validate.number(v, w, 0.0, 180.0, lo_open=True),
+    "moving_window_s": _positive,
+    "moving_step_s": _positive,
+    "prior_factor": _positive,
+    "determined_std_ratio": _positive,
+    "k_sigma": _positive,
+    "min_dof": _at_least_zero,
+    "persist": _count(1),
+    "max_windows_kept": _count(1),
+    "known_rate_rad_s": _positive,
+}
+
+
+__all__ = ["CERTIFICATE_NOISE", "DiagnosisConfig", "METHODS", "GYRO_MODES", "SHORT_HOLDS"]

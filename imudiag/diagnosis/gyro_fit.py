@@ -38,7 +38,14 @@ from ..rotations import (
 )
 from .gauge import p_matrix, shape_of_triad
 from .intervals import QuasiStaticInterval
-from .params import limit_vector
+from .params import (
+    TriadFit,
+    certificate_std_vector,
+    certificate_vector,
+    limit_vector,
+    parameter_units,
+    std_above_limit,
+)
 from .robust import MAX_LEVERAGE, group_leverages, point_diagnostics
 
 #: Floor of the direction residual (rad): integration and modelling resolution.
@@ -105,6 +112,61 @@ def rest_bias(
         noise_var = np.maximum(noise_var, scatter)
     earth = gyro.scale_factor * earth_rate_si / gyro.unit_to_si
     return est, np.sqrt(noise_var + earth**2 / 3.0)
+
+
+def rest_rotation_fit(
+    gyro: TriadModel,
+    means: np.ndarray,
+    mean_var: np.ndarray,
+    counts: np.ndarray,
+    earth_rate_si: float,
+    rotation: RotationFitResult | None,
+    determined_std_ratio: float,
+    rotation_note: str = "",
+) -> TriadFit:
+    """The MEMS gyro fit, the one place it is assembled: the bias at rest (:func:`rest_bias`
+    of the interval means (K, 3), output units) and the shape from ``rotation`` (the
+    :func:`rotation_fit` of the motions between the intervals, None without rotations).
+
+    Estimates and std in certificate units; a parameter is determined where its std is at
+    most ``determined_std_ratio`` of its limit. ``rotation_note`` is added to the reason of
+    an undetermined shape parameter when there were rotations. The caller adds what its
+    use wants (``extra``, condition, leave-one-out rows).
+    """
+    cert = certificate_vector(gyro)
+    limit = limit_vector(gyro)
+    units = parameter_units(gyro)
+    est = cert.copy()
+    std = np.full(9, np.inf)
+    est[:3], std[:3] = rest_bias(gyro, means, mean_var, counts, earth_rate_si)
+    if rotation is not None:
+        scale = np.concatenate([gyro.scale_factor, np.ones(3)])
+        est[3:] = cert[3:] + rotation.deviation * scale
+        std[3:] = np.sqrt(np.maximum(np.diag(rotation.cov), 0.0)) * scale
+    determined = std <= determined_std_ratio * limit
+    reasons = [""] * 9
+    for i in range(9):
+        if determined[i]:
+            continue
+        if i >= 3 and rotation is None:
+            reasons[i] = "no rotation between static poses"
+        else:
+            reasons[i] = std_above_limit(std[i], determined_std_ratio, limit[i], units[i])
+            if i >= 3:
+                reasons[i] += rotation_note
+    return TriadFit(
+        triad="gyro",
+        method="rest+rotation",
+        estimate=est,
+        std=std,
+        certificate=cert,
+        limit=limit,
+        determined=determined,
+        reasons=reasons,
+        points=len(np.asarray(means).reshape(-1, 3)),
+        dof=rotation.dof if rotation is not None else float("nan"),
+        certificate_std=certificate_std_vector(gyro),
+    )
 
 
 def gyro_sample_var(intervals: list[QuasiStaticInterval]) -> np.ndarray:

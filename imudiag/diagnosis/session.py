@@ -27,7 +27,7 @@ from ..noise_estimate import NOISE_MISMATCH_FACTOR, NoiseMeter, compare
 from ..quasistatic import BAD_FLAGS, DetectorPool
 from ..samples import FLAG_SELF_TEST, SampleBlock
 from ..vibration import vibration_object
-from .config import DiagnosisConfig
+from .config import CERTIFICATE_NOISE, DiagnosisConfig
 from .inputs import MagnitudeTable, check_units, session_rate_hz
 from .intervals import IntervalCollector, QuasiStaticInterval
 from .known_rate import PLATEAU_DETECTOR
@@ -119,7 +119,7 @@ def measure_noise(
     rate_hz: float | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
     options: LogOptions | None = None,
-    certificate_noise: bool = False,
+    certificate_noise: bool = CERTIFICATE_NOISE,
     progress: ProgressCallback | None = None,
 ) -> dict[str, Any]:
     """The report's ``noise`` part: the unit's white noise beside the certificate's.
@@ -180,7 +180,7 @@ def diagnose_recording(
     *,
     rate_hz: float | None = None,
     magnitude: MagnitudeTable | str | Path | None = None,
-    certificate_noise: bool = False,
+    certificate_noise: bool = CERTIFICATE_NOISE,
     options: LogOptions | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
     windows: bool = True,
@@ -312,7 +312,7 @@ def _collect_pass(
     config: DiagnosisConfig,
     rate_hz: float | None = None,
     table: MagnitudeTable | None = None,
-    certificate_noise: bool = False,
+    certificate_noise: bool = CERTIFICATE_NOISE,
     options: LogOptions | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
     progress: ProgressCallback | None = None,
@@ -399,7 +399,7 @@ def collect_intervals(
     config: DiagnosisConfig,
     rate_hz: float | None = None,
     table: MagnitudeTable | None = None,
-    certificate_noise: bool = False,
+    certificate_noise: bool = CERTIFICATE_NOISE,
     options: LogOptions | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
     progress: ProgressCallback | None = None,
@@ -488,7 +488,7 @@ def calibrate_recording(
     *,
     rate_hz: float | None = None,
     magnitude: MagnitudeTable | str | Path | None = None,
-    certificate_noise: bool = False,
+    certificate_noise: bool = CERTIFICATE_NOISE,
     options: LogOptions | None = None,
     block_size: int = DEFAULT_BLOCK_SIZE,
     progress: ProgressCallback | None = None,

@@ -17,11 +17,12 @@ from typing import Any
 
 import numpy as np
 
+from .. import validate
 from ..certificate import Certificate
 from ..quasistatic import DetectorPool
 from ..reports import DIAGNOSIS_FORMAT, header
 from ..samples import SampleBlock
-from .config import DiagnosisConfig
+from .config import CERTIFICATE_NOISE, DiagnosisConfig
 from .intervals import IntervalCollector, QuasiStaticInterval
 from .known_rate import PLATEAU_DETECTOR, classify_plateaus
 from .params import CAUSES, TriadFit, sensor_of
@@ -49,11 +50,13 @@ class StreamingDiagnoser:
 
     ``certificate``: what the estimates are compared with. ``config``: a
     :class:`DiagnosisConfig` or a mapping of its fields. ``rate_hz``: sample
-    rate (Hz), defaults to the certificate's. ``certificate_noise``: False makes
-    the quasi-static detector estimate the noise from the data instead of
-    trusting the certificate's figure. ``detectors``: where the interval collector's still
-    detector comes from (a :class:`~imudiag.quasistatic.DetectorPool` shares it with the
-    monitor's of ``imudiag diagnose`` when they are alike); None: its own.
+    rate (Hz), defaults to the certificate's. ``certificate_noise``: True makes
+    the quasi-static detector trust the certificate's noise figure instead of
+    measuring the noise from the data (default :data:`.config.CERTIFICATE_NOISE`, as
+    :func:`imudiag.diagnose`). A bad setting or rate raises BadInput naming it.
+    ``detectors``: where the interval collector's still detector comes from (a
+    :class:`~imudiag.quasistatic.DetectorPool` shares it with the monitor's of ``imudiag
+    diagnose`` when they are alike); None: its own.
     """
 
     def __init__(
@@ -61,12 +64,14 @@ class StreamingDiagnoser:
         certificate: Certificate,
         config: DiagnosisConfig | dict[str, Any] | None = None,
         rate_hz: float | None = None,
-        certificate_noise: bool = True,
+        certificate_noise: bool = CERTIFICATE_NOISE,
         detectors: DetectorPool | None = None,
     ) -> None:
         if not isinstance(config, DiagnosisConfig):
             config = DiagnosisConfig.from_dict(config)
         self.config = config
+        if rate_hz is not None:
+            validate.sample_rate(rate_hz, "rate_hz")
         self.rate_hz = float(rate_hz or certificate.sample_rate)
         self.certificate = certificate
         #: whether the quasi-static detector trusts the certificate's noise density

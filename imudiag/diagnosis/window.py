@@ -25,7 +25,7 @@ from .gyro_fit import (
     MAX_STEP_DEG,
     RotationPair,
     earth_rate_observable,
-    rest_bias,
+    rest_rotation_fit,
     rotation_fit,
     scale_key,
 )
@@ -33,11 +33,7 @@ from .intervals import MotionSegment, QuasiStaticInterval, stacked_mean_var
 from .known_rate import classify_plateaus
 from .params import (
     TriadFit,
-    certificate_std_vector,
     certificate_vector,
-    limit_vector,
-    parameter_units,
-    std_above_limit,
     undetermined_fit,
 )
 from .predicates import held_back
@@ -361,21 +357,9 @@ def gyro_window_fit(
         )
         return fit, 0
 
-    cert_vec = certificate_vector(tri)
-    limit = limit_vector(tri)
-    units = parameter_units(tri)
-    bias, bias_std = rest_bias(tri, means, mvar, counts, cert.earth_rate)
-    est = cert_vec.copy()
-    std = np.full(9, np.inf)
-    est[:3] = bias
-    std[:3] = bias_std
     pairs = rotation_pairs(cert, accel_model, intervals)
     rotations = count_rotations(pairs, config.attitude_separation_deg)
-    cond = float("inf")
-    rms = float("nan")
-    extra: dict = {}
-    rot_dof = float("nan")
-    loo_rows = None
+    rot = None
     if rotations:
         sample_var = np.mean([np.diag(iv.gyro_cov) for iv in intervals], axis=0)
         rot = rotation_fit(
@@ -386,56 +370,34 @@ def gyro_window_fit(
             prior_factor=config.prior_factor,
             fit_frame=True,
         )
+    fit = rest_rotation_fit(
+        tri,
+        means,
+        mvar,
+        counts,
+        cert.earth_rate,
+        rot,
+        config.determined_std_ratio,
+        f"; {rotations} rotation(s) between static poses in the window",
+    )
+    rot_dof = fit.dof
+    if rot is not None:
         scale = np.concatenate([tri.scale_factor, np.ones(3)])
-        est[3:] = cert_vec[3:] + rot.deviation * scale
-        std[3:] = np.sqrt(np.maximum(np.diag(rot.cov), 0.0)) * scale
-        lim_int = limit[3:] / scale
+        lim_int = fit.limit[3:] / scale
         m = rot.info * np.outer(lim_int, lim_int)
         ev = np.linalg.eigvalsh(m)
         # beyond CONDITION_RESOLUTION the smallest eigenvalue is rounding noise (a window
         # whose motions leave a direction unseen): singular, reported as null
         resolved = ev[0] > ev[-1] / CONDITION_RESOLUTION
-        cond = float(ev[-1] / ev[0]) if resolved else float("inf")
-        rms = rot.rms
-        rot_dof = rot.dof
-        extra = {"rotation_rms_rad": rot.rms, "frame_rad": [float(v) for v in rot.frame]}
+        fit.condition = float(ev[-1] / ev[0]) if resolved else float("inf")
+        fit.rms_residual = rot.rms
+        fit.extra = {"rotation_rms_rad": rot.rms, "frame_rad": [float(v) for v in rot.frame]}
         if rot.loo_deviation is not None:
             # each motion left out: the shape moves, the rest biases do not
-            loo = np.tile(est - cert_vec, (len(pairs), 1))
+            loo = np.tile(fit.estimate - fit.certificate, (len(pairs), 1))
             loo[:, 3:] = rot.loo_deviation * scale
-            loo_rows = loo
-    determined = std <= config.determined_std_ratio * limit
-    reasons = []
-    for i in range(9):
-        if determined[i]:
-            reasons.append("")
-        elif i < 3:
-            reasons.append(std_above_limit(std[i], config.determined_std_ratio, limit[i], units[i]))
-        elif not rotations:
-            reasons.append("no rotation between static poses")
-        else:
-            reasons.append(
-                std_above_limit(std[i], config.determined_std_ratio, limit[i], units[i])
-                + f"; {rotations} rotation(s) between static poses in the window"
-            )
-    fit = TriadFit(
-        triad="gyro",
-        method="rest+rotation",
-        estimate=est,
-        std=std,
-        certificate=cert_vec,
-        limit=limit,
-        determined=determined,
-        reasons=reasons,
-        condition=cond,
-        points=len(intervals),
-        rms_residual=rms,
-        extra=extra,
-        dof=rot_dof,
-        loo_deviation=loo_rows,
-        point_labels=motion_labels(pairs) if loo_rows is not None else None,
-        certificate_std=certificate_std_vector(tri),
-    )
+            fit.loo_deviation = loo
+            fit.point_labels = motion_labels(pairs)
     if rotations:
         fit.require_redundancy(rot_dof, config.min_dof, range(3, 9), f"{len(pairs)} motions")
     return fit, rotations

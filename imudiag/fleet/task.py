@@ -12,7 +12,7 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -227,12 +227,15 @@ def diagnose_log(job: Job) -> dict[str, Any]:
                 )
 
         gnss = gnss_beside(job.path)
-        report = diagnose(
-            job.path,
-            cert,
-            config=job.config or None,
-            progress=watch,
-            gnss=str(gnss) if gnss else "auto",
+        report: dict[str, Any] = cast(
+            "dict[str, Any]",
+            diagnose(
+                job.path,
+                cert,
+                config=job.config or None,
+                progress=watch,
+                gnss=str(gnss) if gnss else "auto",
+            ),
         )
         record["gnss"] = (
             str(gnss) if gnss else ("the log's own" if "moving_base" in report else None)

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import yamlio
+from .. import validate, yamlio
 from ..certificate import INPUT_UNITS_TO_SI, NOISE_FIELDS, TRIADS, Certificate, Noise, TriadModel
 from ..diagnosis.calibrate import fields_from_n
 from ..diagnosis.gauge import polar
@@ -98,12 +98,8 @@ def as_matrix(value: Any, source: str, key: str, shape: tuple[int, ...] = (3, 3)
 
 def as_number(value: Any, source: str, key: str, positive: bool = False) -> float:
     """``value`` as a finite float (> 0 with ``positive``), or BadInput naming file and key."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise BadInput(f"{source}: {key}: expected a number, got {value!r}")
-    out = float(value)
-    if not math.isfinite(out) or (positive and out <= 0):
-        raise BadInput(f"{source}: {key}: expected a {'positive ' if positive else ''}number")
-    return out
+    lo = 0.0 if positive else -math.inf
+    return validate.number(value, f"{source}: {key}", lo, lo_open=positive)
 
 
 def require_key(node: Any, key: str, source: str, path: str = "") -> Any:

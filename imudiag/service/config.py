@@ -10,14 +10,13 @@ path (``status.rate_hz``) and the reason. docs/service.md describes each key.
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from imudiag import yamlio
+from imudiag import validate, yamlio
 from imudiag.certificate import AUTO
 from imudiag.errors import BadInput
 
@@ -65,8 +64,16 @@ class DaemonConfig:
     aiding: str | None = None  #: GNSS aiding gpsd://HOST:PORT; None = none
     origin: str | None = dataclasses.field(default=None, compare=False)  #: file read from
 
+    def __post_init__(self) -> None:
+        """Each value checked as the file's (:data:`SCHEMA`): BadInput naming its YAML key
+        (``status.rate_hz: ...``), so a configuration built in code is held to the file's
+        rules. The rules linking keys are :func:`from_dict`'s and :func:`merge_cli`'s."""
+        for name, check in _FIELD_CHECK.items():
+            value = getattr(self, name)
+            check(value, validate.failing(_FIELD_KEY[name]))
+
     def replace(self, **changes: Any) -> DaemonConfig:
-        """A copy with ``changes`` applied (not validated: use :func:`merge_cli` for input)."""
+        """A copy with ``changes`` applied, each value checked (:meth:`__post_init__`)."""
         return dataclasses.replace(self, **changes)
 
 
@@ -79,41 +86,20 @@ Check = Callable[[Any, Callable[[str], Exception]], Any]
 
 def _number(lo: float, hi: float, lo_open: bool = True) -> Check:
     def check(value: Any, fail: Callable[[str], Exception]) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise fail(f"expected a number, got {value!r}")
-        value = float(value)
-        if not math.isfinite(value):
-            raise fail(f"expected a finite number, got {value!r}")
-        too_low = value <= lo if lo_open else value < lo
-        if too_low or value > hi:
-            left = "(" if lo_open else "["
-            raise fail(f"{value!r} is out of range {left}{lo:g}, {hi:g}]")
-        return value
+        return validate.number(value, fail, lo, hi, lo_open=lo_open)
 
     return check
 
 
 def _integer(lo: int, hi: int) -> Check:
     def check(value: Any, fail: Callable[[str], Exception]) -> int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise fail(f"expected an integer, got {value!r}")
-        if not lo <= value <= hi:
-            raise fail(f"{value!r} is out of range [{lo}, {hi}]")
-        return int(value)
+        return validate.integer(value, fail, lo, hi)
 
     return check
 
 
-def _boolean(value: Any, fail: Callable[[str], Exception]) -> bool:
-    if not isinstance(value, bool):
-        raise fail(f"expected true or false, got {value!r}")
-    return value
-
-
-def _text(value: Any, fail: Callable[[str], Exception]) -> str:
-    if not isinstance(value, str) or not value.strip():
-        raise fail(f"expected a non-empty string, got {value!r}")
-    return value.strip()
+_boolean: Check = validate.boolean
+_text: Check = validate.text
 
 
 def _optional(check: Check) -> Check:

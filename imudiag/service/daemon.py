@@ -258,10 +258,10 @@ class Daemon:
         # the daemon never reports past windows: keeping the diagnoser's default 10000
         # made its memory grow about 2 MB per hour of data (soak/)
         options = {"max_windows_kept": DAEMON_WINDOWS_KEPT, **self.settings.diagnosis_options}
-        # the still detector measures the unit's noise from the data, as ``imudiag diagnose``
-        # does by default (one decision path, issue 25): a data-sheet figure too low leaves
-        # no window still
-        return StreamingDiagnoser(cert, options, rate_hz=rate_hz, certificate_noise=False)
+        # the still detector measures the unit's noise from the data, the one default
+        # (diagnosis.config.CERTIFICATE_NOISE) of ``imudiag diagnose`` and the library (one
+        # decision path, issue 25): a data-sheet figure too low leaves no window still
+        return StreamingDiagnoser(cert, options, rate_hz=rate_hz)
 
     def _make_aiding(self, cert: Certificate) -> Any:
         if not self.settings.aiding_url:

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..earth import coriolis_term, earth_rate_ned, normal_gravity, radii, transport_rate_ned
-from .trajectories import Motion, Trajectory, smooth_step
+from .trajectories import Motion, smooth_step
 
 DRIVE_SCENARIOS = ("urban", "highway", "hilly", "aircraft")
 #: Unix time of the simulated drives' t = 0 (2026-01-01T00:00:00Z).
@@ -205,28 +205,15 @@ class DriveMotion(Motion):
         acc = dv[:, None] * _dir(psi, th) + v[:, None] * d_dir
         return c, w_nb, acc, v == 0.0
 
-    def evaluate(self, t: np.ndarray, rate_hz: float) -> Trajectory:
-        """The trajectory on the rotating Earth (module doc)."""
-        t = np.asarray(t, dtype=float)
-        c, w_nb, acc, static = self.kinematics(t)
+    def navigation_frame(
+        self, t: np.ndarray, acc_n: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | float]:
+        """The rotating WGS-84 Earth along the drive (module doc): w_in = Omega_ie + omega_en,
+        the Coriolis and transport term (2 Omega_ie + omega_en) x v_n, normal gravity."""
         lat, _, h = self.position(t)
         vel = self.velocity_ned(t)
-        ct = np.swapaxes(c, -1, -2)
         w_in = earth_rate_ned(lat) + transport_rate_ned(lat, h, vel)
-        omega = w_nb + np.einsum("nij,nj->ni", ct, w_in)
-        f_n = acc + coriolis_term(lat, h, vel)
-        f_n[:, 2] -= normal_gravity(lat, h)
-        f_b = np.einsum("nij,nj->ni", ct, f_n)
-        return Trajectory(
-            t=t,
-            omega=omega,
-            specific_force=f_b,
-            attitude=c,
-            static=static,
-            rate_hz=float(rate_hz),
-            latitude_deg=self.latitude_deg,
-            gravity=self.gravity,
-        )
+        return w_in, coriolis_term(lat, h, vel), normal_gravity(lat, h)
 
 
 def _dir(psi: np.ndarray, th: np.ndarray) -> np.ndarray:

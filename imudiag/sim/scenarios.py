@@ -55,6 +55,7 @@ from collections.abc import Callable, Iterable, Mapping
 
 import numpy as np
 
+from .. import validate
 from .effects import BiasStep, Effects, PeriodicDisturbance, TemperatureProfile, sensor_index
 from .faults import Fault, parse_fault
 from .trajectories import (
@@ -109,21 +110,16 @@ _BOUNDS: dict[str, tuple[float, float, bool, str]] = {
 _INTEGERS: dict[str, tuple[int, int]] = {"n": (1, 10**6), "loop": (0, 1)}
 
 
-def _check_bounds(sc: str, key: str, v: float) -> None:
-    """ValueError when the value ``v`` of parameter ``key`` is outside its bounds."""
+def _check_bounds(sc: str, key: str, v: float) -> float:
+    """``v`` when the value of parameter ``key`` is within its bounds (BadInput if not)."""
+    where = f"scenario {sc}: {key}"
     if key in _INTEGERS:
         lo_i, hi_i = _INTEGERS[key]
-        if v != int(v) or not lo_i <= v <= hi_i:
-            raise ValueError(
-                f"scenario {sc}: {key} must be a whole number {lo_i}..{hi_i}, got {v:g}"
-            )
-    elif key in _BOUNDS:
+        return validate.integer(int(v) if v == int(v) else v, where, lo_i, hi_i)
+    if key in _BOUNDS:
         lo, hi, closed, unit = _BOUNDS[key]
-        if not (lo <= v if closed else lo < v) or v > hi:
-            what = f">= {lo:g}" if closed else f"> {lo:g}"
-            if math.isfinite(hi):
-                what = f"{lo:g} to {hi:g}"
-            raise ValueError(f"scenario {sc}: {key} must be {what} {unit}, got {v:g} {unit}")
+        return validate.number(v, where, lo, hi, lo_open=not closed, unit=unit)
+    return v
 
 
 def scenario_names() -> tuple[str, ...]:

@@ -98,14 +98,27 @@ class Motion(ABC):
     def kinematics(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(attitude (N,3,3), omega_nb body rad/s (N,3), acceleration NED m/s^2 (N,3), static)."""
 
+    def navigation_frame(
+        self, t: np.ndarray, acc_n: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | float]:
+        """The navigation frame the motion moves in, at times ``t`` (s): its rate against
+        inertial space w_in (NED, rad/s, (3,) or (N, 3)), the Coriolis and transport term
+        added to the acceleration (NED, m/s^2, broadcastable to (N, 3)) and gravity down
+        (m/s^2, scalar or (N,)). Here the level frame fixed to the Earth at
+        ``latitude_deg``: Earth rate, no Coriolis term, constant ``gravity``."""
+        return earth_rate_ned(self.latitude_deg, self.earth_rate), np.zeros(3), self.gravity
+
     def evaluate(self, t: np.ndarray, rate_hz: float) -> Trajectory:
-        """The trajectory at times ``t`` (s)."""
+        """The trajectory at times ``t`` (s): the one kinematics model of the simulator,
+        ``omega = omega_nb + C^T w_in`` and ``f_b = C^T (a_n + coriolis - (0, 0, g))``
+        with the terms of :meth:`navigation_frame`."""
         t = np.asarray(t, dtype=float)
         c, w_nb, acc_n, static = self.kinematics(t)
-        w_ie = earth_rate_ned(self.latitude_deg, self.earth_rate)
+        w_in, coriolis, gravity = self.navigation_frame(t, acc_n)
         ct = np.swapaxes(c, -1, -2)
-        omega = w_nb + ct @ w_ie
-        f_n = acc_n - np.array([0.0, 0.0, self.gravity])
+        omega = w_nb + np.einsum("nij,nj->ni", ct, np.broadcast_to(w_in, w_nb.shape))
+        f_n = acc_n + coriolis
+        f_n[:, 2] -= gravity
         f_b = np.einsum("nij,nj->ni", ct, f_n)
         return Trajectory(
             t=t,
