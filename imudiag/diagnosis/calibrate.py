@@ -53,6 +53,7 @@ from .known_rate import classify_plateaus
 from .params import (
     TriadFit,
     certificate_vector,
+    limit_vector,
     sensor_of,
     undetermined_fit,
 )
