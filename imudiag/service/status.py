@@ -158,11 +158,16 @@ def noise_object(
 
 
 def diagnosis_verdict(
-    faults: Iterable[Mapping[str, Any]], undetermined: Iterable[str], raised: int
+    faults: Iterable[Mapping[str, Any]],
+    undetermined: Iterable[str],
+    raised: int,
+    since: Mapping[str, float | None] | None = None,
 ) -> dict[str, Any]:
     """The ``diagnosis`` object: per triad ``fault`` while a fault of it is in force, else
-    ``undetermined`` or ``ok``; ``raised`` counts what was ever raised. The live verdict
-    comes from the faults in force, never a latch that contradicts ``faults`` and ``state``."""
+    ``undetermined`` or ``ok``; ``raised`` counts what was ever raised; ``since`` per triad
+    the sample time, s, at which that verdict came in force (the end of the window that
+    brought it; None before any window). The live verdict comes from the faults in force,
+    never a latch that contradicts ``faults`` and ``state``."""
     in_force = {f["triad"] for f in faults}
     unseen = set(undetermined)
     view: dict[str, Any] = {
@@ -170,6 +175,9 @@ def diagnosis_verdict(
         for name in TRIADS
     }
     view["raised"] = raised
+    if since is not None:
+        at = {name: since.get(name) for name in TRIADS}
+        view["since"] = {name: None if t is None else round(float(t), 6) for name, t in at.items()}
     return view
 
 
