@@ -14,7 +14,11 @@ Every sample of both triads is corrected with the certificate. The checks
   limit plus ``k_sigma`` standard deviations of that mean, per axis;
 - k-of-n persistence before a triad is declared failed;
 - stuck outputs (a channel repeating the same raw value for ``stuck_samples``
-  samples where its noise makes that impossible) and saturation flags;
+  samples where its noise makes that impossible: the certificate's noise sigma is at
+  least ``stuck_min_sigma`` quantisation steps of the output, the step being 1 for
+  counts and otherwise the smallest nonzero change between consecutive outputs seen,
+  which is the LSB of a quantised physical output and next to nothing for a float one;
+  any unit) and saturation flags;
 - excess noise: per channel, the white-noise sigma estimated from second
   differences over ``noise_window_s`` (var(d2 U) = 6 sigma^2 for white noise;
   smooth motion contributes almost nothing at the sample rate; squares are
@@ -51,6 +55,7 @@ from .samples import (
 )
 from .scalar import f0
 from .trailing import PrefixSums, median_side
+from .units import COUNT, canonical
 from .vibration import VibrationMeter
 
 #: triads in the ring's column order (raw gyro columns 1-3, accel 4-6)
@@ -64,7 +69,9 @@ class MonitorConfig:
     persistence_k: int = 20  #: failed checks among the last n checked samples to declare a fault
     persistence_n: int = 50  #: checked samples in the persistence window
     stuck_samples: int = 50  #: identical consecutive raw outputs that mean a stuck channel
-    stuck_min_sigma: float = 1.0  #: output units; stuck check only where noise is at least this
+    #: quantisation steps of the output: the stuck check runs only on channels whose
+    #: certificate noise sigma is at least this many steps (a finer noise repeats at rest)
+    stuck_min_sigma: float = 1.0
     static_window_s: float = 0.5  #: window of the quasi-static detector, s
     gyro_window_s: float = 1.0  #: averaging window of the MEMS rest-rate check, s
     k_sigma: float = 5.0  #: standard deviations of margin in the gyro rest-rate check
@@ -308,13 +315,26 @@ class Monitor:
             to_g = self._n_inv_t["accel"] / np.asarray(acc.scale_factor, float)[:, None]
             self._accel_linear = (np.asarray(acc.bias, float), to_g * self._accel_scale)
         # stuck outputs: both triads as one (6,) row, gyro then accel (the ring's column order)
-        enabled = [
-            np.zeros(3, dtype=bool) if sig is None else sig >= cfg.stuck_min_sigma
-            for sig in (self._sigma["gyro"], self._sigma["accel"])
-        ]
-        self._stuck_enabled = np.concatenate(enabled)
+        #: per channel the certificate's noise sigma (output units; NaN: none stated)
+        self._stuck_sigma = np.concatenate(
+            [
+                np.full(3, np.nan) if sig is None else np.broadcast_to(sig, (3,)).astype(float)
+                for sig in (self._sigma["gyro"], self._sigma["accel"])
+            ]
+        )
+        #: per channel the output's quantisation step (output units): 1 for counts, else
+        #: the smallest nonzero change between consecutive outputs seen (inf: none yet)
+        self._quantum = np.array(
+            [
+                1.0 if canonical(certificate.triad(name).output_unit) == COUNT else np.inf
+                for name in TRIADS_RING
+                for _ in range(3)
+            ]
+        )
+        self._stuck_enabled = self._stuck_sigma >= cfg.stuck_min_sigma * self._quantum
         self._stuck_run = np.zeros(6, dtype=np.int64)
         self._stuck_last = np.full(6, np.nan)
+        self._stuck_t_first = np.full(6, np.nan)  #: s, when each stuck came in force
         self._gyro_window = max(1, int(round(cfg.gyro_window_s * rate)))
         # the MEMS rest-rate check's threshold per axis (rad/s): Earth rate, the bias limit
         # and k_sigma standard deviations of the window's mean
@@ -465,8 +485,17 @@ class Monitor:
                     fault["sensor"] = SENSOR_NAMES[name][st.worst_axis]
                 fault["t_first"] = st.persistence.t_first
                 out.append(fault)
+            base = 0 if name == TRIADS_RING[0] else 3
             for stuck in np.flatnonzero(st.stuck_active):
-                out.append({"triad": name, "sensor": SENSOR_NAMES[name][stuck], "cause": "stuck"})
+                t_in = float(self._stuck_t_first[base + stuck])
+                out.append(
+                    {
+                        "triad": name,
+                        "sensor": SENSOR_NAMES[name][stuck],
+                        "cause": "stuck",
+                        "t_first": t_in if math.isfinite(t_in) else None,
+                    }
+                )
             for axis, (p, gross) in enumerate(zip(st.noise, st.noise_gross, strict=True)):
                 firsts = [q.t_first for q in (p, gross) if q.active and q.t_first is not None]
                 if p.active or gross.active:
@@ -788,7 +817,7 @@ class Monitor:
             chan[:, :h] = self.ring.latest(h)[:, 1:7].T
         chan[:3, h:] = block.gyro.T
         chan[3:, h:] = block.accel.T
-        self._stuck(chan[:, h:])
+        self._stuck(chan[:, h:], block.t)
         if pos.size:
             self._noise(block.t, chan, pos)
         self.ring.push(block)
@@ -857,13 +886,23 @@ class Monitor:
         assert st.persistence is not None
         st.persistence.update(failed, t_used)
 
-    def _stuck(self, raw: np.ndarray) -> None:
+    def _stuck(self, raw: np.ndarray, t: np.ndarray) -> None:
         """Run length of identical raw outputs per channel, carried across blocks; ``raw``
-        (6, N): the block's raw outputs (output units), gyro then accel, channel by channel."""
+        (6, N): the block's raw outputs (output units), gyro then accel, channel by channel,
+        at sample times ``t`` (s)."""
         n = raw.shape[1]
-        same_prev = np.empty(raw.shape, dtype=bool)
-        np.equal(raw[:, 0], self._stuck_last, out=same_prev[:, 0])
-        np.equal(raw[:, 1:], raw[:, :-1], out=same_prev[:, 1:])
+        step = np.empty(raw.shape)
+        np.subtract(raw[:, 0], self._stuck_last, out=step[:, 0])
+        np.subtract(raw[:, 1:], raw[:, :-1], out=step[:, 1:])
+        same_prev = step == 0.0
+        # the quantisation step: the smallest nonzero change seen (never below the true
+        # step, so a channel whose noise is finer than its step stays unchecked)
+        np.abs(step, out=step)
+        step[same_prev | ~np.isfinite(step)] = np.inf
+        smallest = step.min(axis=1)
+        if (smallest < self._quantum).any():
+            np.minimum(self._quantum, smallest, out=self._quantum)
+            self._stuck_enabled = self._stuck_sigma >= self.config.stuck_min_sigma * self._quantum
         if same_prev.all():  # no change in the block: every run grows by n
             run = self._stuck_run + n
         else:
@@ -875,7 +914,15 @@ class Monitor:
         # samples in the current run of equal values, excluding its first
         self._stuck_run = run.astype(np.int64)
         self._stuck_last = raw[:, -1].astype(float)
-        active = self._stuck_enabled & (self._stuck_run >= self.config.stuck_samples - 1)
+        need = self.config.stuck_samples - 1
+        active = self._stuck_enabled & (self._stuck_run >= need)
+        # the sample time each came in force: the sample whose run reached the count (or
+        # the block's first, for a run long enough before the check was enabled)
+        rising = active & np.isnan(self._stuck_t_first)
+        if rising.any():
+            at = np.clip(n - 1 - (self._stuck_run[rising] - need), 0, n - 1)
+            self._stuck_t_first[rising] = np.asarray(t, dtype=float)[at]
+        self._stuck_t_first[~active] = np.nan
         self._state["gyro"].stuck_active = active[:3]
         self._state["accel"].stuck_active = active[3:]
 

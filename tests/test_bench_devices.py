@@ -44,6 +44,38 @@ def test_bench_scenario_runs_on_the_fake_device(tmp_path: Path, device: str):
     assert report["passed"], report
 
 
+STUCK_DEAD = """
+format: imudiag-bench-scenario/1
+name: {device}-stuck-dead
+motion: static
+duration: 7.0
+seed: 5
+speed: 4.0
+device: {device}
+injections:
+  - {{t: 2.0, kind: stuck, sensor: gx,
+     expect: [{{triad: gyro, sensor: gx, cause: stuck, within: 0.5}}],
+     also: [{{triad: gyro, sensor: gx, cause: f0}}]}}
+  - {{t: 4.5, kind: dead, sensor: ay,
+     expect: [{{triad: accel, sensor: ay, cause: stuck, within: 0.5}}],
+     also: [{{triad: accel, cause: f0}}]}}
+"""
+
+
+@pytest.mark.parametrize("device", sorted(ENCODERS))
+def test_stuck_and_dead_channels_are_named_on_every_device(tmp_path: Path, device: str):
+    """The stuck check in the device's own units (docs/service.md): counts (native), float
+    SI (MAVLink HIGHRES_IMU), 16-bit words of the part's LSB (iSensor, in deg/s and g),
+    the WT901's 16 g and 2000 deg/s over 32768: a frozen gyro and a dead accelerometer
+    channel are named within 0.5 s of sample time (the fault's ``t_first``), and nothing
+    is stuck before (a false alarm fails the report)."""
+    scenario = loads(STUCK_DEAD.format(device=device), f"{device}-stuck-dead.yaml")
+    report = run_scenario(scenario, diagnosis=False, workdir=tmp_path).report
+    assert report["device"] == device
+    assert report["passed"], report
+    assert not report["false_alarms"], report["false_alarms"]
+
+
 def test_every_device_has_a_source_url():
     assert set(SOURCE_URLS) == set(ENCODERS)
     for name in ENCODERS:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from imudiag.bench.devices import calibrate, calibrated_certificate
 from imudiag.certificate import load_default
 from imudiag.monitor import Monitor, MonitorConfig
 from imudiag.samples import FLAG_ACCEL_SATURATED, SampleBlock
@@ -80,7 +81,70 @@ def test_stuck_channel_is_named():
     m = Monitor(CERT, MonitorConfig(stuck_samples=50))
     _feed(m, block, [256] * 8)
     stuck = [f for f in m.active_faults if f["cause"] == "stuck"]
-    assert stuck == [{"triad": "gyro", "sensor": "gz", "cause": "stuck"}]
+    assert [{k: f[k] for k in ("triad", "sensor", "cause")} for f in stuck] == [
+        {"triad": "gyro", "sensor": "gz", "cause": "stuck"}
+    ]
+    # in force at the sample completing 50 identical outputs (the frozen one and 49 more)
+    t_frozen = block.t[np.searchsorted(block.t, 3.0)]
+    assert stuck[0]["t_first"] == pytest.approx(t_frozen + 49 / CERT.sample_rate, abs=1e-9)
+
+
+# -- the stuck check in any unit: physical outputs, float or quantised ----------------------
+
+SI_CERT = calibrated_certificate(CERT)  #: the same sensor calibrated into rad/s and m/s^2
+#: WitMotion WT901 output steps (16 g and 2000 deg/s over 32768), in rad/s and m/s^2
+WT901_STEP = {"gyro": 2000.0 / 32768 * np.pi / 180.0, "accel": 16.0 / 32768 * 9.80665}
+
+
+def _si(block: SampleBlock, step: dict[str, float] | None = None) -> SampleBlock:
+    """``block`` (counts) calibrated into SI floats, rounded to ``step`` (SI units) if given."""
+    gyro, accel = calibrate(block, CERT)
+    if step is not None:
+        gyro = np.rint(gyro / step["gyro"]) * step["gyro"]
+        accel = np.rint(accel / step["accel"]) * step["accel"]
+    return SampleBlock(t=block.t, gyro=gyro, accel=accel)
+
+
+@pytest.mark.parametrize("step", [None, WT901_STEP], ids=["float", "wt901-quantised"])
+def test_stuck_and_dead_channels_are_named_in_si_units(step):
+    """SI outputs whose noise spans many steps (a float HIGHRES_IMU, a WT901's LSB at a
+    noise of 4 and 16 LSB): a frozen gyro and a dead accelerometer channel are named."""
+    faults = [Fault("stuck", "gx", 4.0, None), Fault("dead", "ay", 8.0, 0.0)]
+    block = _si(_session(faults, duration_s=10.0), step)
+    m = Monitor(SI_CERT)
+    _feed(m, block, [97] * 20)
+    stuck = {
+        (f["triad"], f["sensor"]): f["t_first"] for f in m.active_faults if f["cause"] == "stuck"
+    }
+    assert set(stuck) == {("gyro", "gx"), ("accel", "ay")}
+    assert 4.0 < stuck["gyro", "gx"] <= 4.0 + 50 / SI_CERT.sample_rate
+    assert 8.0 < stuck["accel", "ay"] <= 8.0 + 50 / SI_CERT.sample_rate
+
+
+@pytest.mark.parametrize("step", [None, WT901_STEP], ids=["float", "wt901-quantised"])
+def test_clean_si_outputs_are_never_stuck(step):
+    block = _si(_session(duration_s=20.0), step)
+    m = Monitor(SI_CERT)
+    _feed(m, block, [1000, 7, 300])
+    assert [f for f in m.active_faults if f["cause"] == "stuck"] == []
+
+
+def test_a_quantised_output_at_rest_that_repeats_is_not_stuck():
+    """A WT901-like output whose step is coarser than the noise (10 sigma): at rest it
+    repeats for long runs, as a real one does; the check stays off on such a channel
+    (the step learned from the data is never finer than the true one), so no false stuck,
+    while the channels with fine steps are still checked."""
+    sigma = SI_CERT.accel.noise_sigma(SI_CERT.sample_rate)
+    coarse = {"gyro": WT901_STEP["gyro"], "accel": 10.0 * float(np.max(sigma))}
+    block = _si(_session([Fault("stuck", "gy", 10.0, None)], duration_s=20.0), coarse)
+    for axis in range(3):  # (an axis may never change at all in the session)
+        changes = np.flatnonzero(np.diff(block.accel[:, axis]) != 0)
+        runs = np.diff(np.concatenate([[-1], changes, [len(block) - 1]]))
+        assert runs.max() >= 50  # runs of identical outputs longer than the stuck count
+    m = Monitor(SI_CERT)
+    _feed(m, block, [333] * 12)
+    named = [(f["sensor"], f["cause"]) for f in m.active_faults if f["cause"] == "stuck"]
+    assert named == [("gy", "stuck")]
 
 
 def test_saturation_flags_persist_into_a_fault():
