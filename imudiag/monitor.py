@@ -435,6 +435,15 @@ class Monitor:
         return self._self_test
 
     @property
+    def stuck_checked(self) -> dict[str, list[bool]]:
+        """Per triad and axis whether the stuck check runs (the certificate's noise is at
+        least ``stuck_min_sigma`` quantisation steps of the output; no step is known
+        before the output first changed)."""
+        self.flush()
+        on = [bool(x) for x in self._stuck_enabled]
+        return {name: on[3 * k : 3 * k + 3] for k, name in enumerate(TRIADS_RING)}
+
+    @property
     def adc_errors_checked(self) -> int:
         """:attr:`adc_errors` among the samples checked so far (no :meth:`flush`)."""
         return self._adc_errors

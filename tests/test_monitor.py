@@ -145,6 +145,7 @@ def test_a_quantised_output_at_rest_that_repeats_is_not_stuck():
     _feed(m, block, [333] * 12)
     named = [(f["sensor"], f["cause"]) for f in m.active_faults if f["cause"] == "stuck"]
     assert named == [("gy", "stuck")]
+    assert m.stuck_checked == {"gyro": [True] * 3, "accel": [False] * 3}  # said in the status
 
 
 def test_saturation_flags_persist_into_a_fault():

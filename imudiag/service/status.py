@@ -5,7 +5,8 @@ Every line starts with ``class`` (``STATUS``) and ``format`` (``imudiag-status/1
 degraded, fault, no_data), ``faults`` (triad, sensor where it can be told,
 cause), ``counters`` (the receiver counters). Added keys: ``link``,
 ``static``, ``f0``, ``diagnosis``, ``certificate`` (with ``datasheet`` and ``note`` when it
-is a data-sheet certificate), ``device`` (the source's identity), ``adc_errors``, ``notes``,
+is a data-sheet certificate), ``device`` (the source's identity), ``stuck_checked``,
+``adc_errors``, ``notes``,
 ``status_link`` (NMEA sentences ``written`` and ``dropped`` when a serial link is set).
 
 The record is built here from what the daemon holds (:func:`status_record`,
@@ -102,6 +103,8 @@ def status_record(
             name: {"judged": st.noise_judged, "set_aside": st.noise_not_at_rest}
             for name, st in monitor.state.items()
         },
+        # per triad and axis: whether the stuck check runs (docs/service.md)
+        "stuck_checked": monitor.stuck_checked,
         "adc_errors": monitor.adc_errors,
         "self_test": monitor.self_test,
         "certificate": certificate_object(certificate, reloads),
