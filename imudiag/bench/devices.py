@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import copy
 import errno
-import math
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -39,7 +38,6 @@ from imudiag.drivers.wire import SAMPLE_FRAME_SIZE, TYPE_SAMPLE, encode_samples
 from imudiag.errors import BenchError
 from imudiag.samples import SampleBlock
 from imudiag.sim.board import SimulatedBoard
-from imudiag.units import STANDARD_GRAVITY_M_S2
 
 from . import fake_iio, fake_isensor, fake_witmotion
 from .pty import PtyPair, read_available, write_all
@@ -532,26 +530,14 @@ class IIOEncoder:
     garbage_alphabet = b""
     dialogue = False
     units = {"gyro": "rad/s", "accel": "m/s^2"}
-    GYRO_SCALE = math.pi / 180.0 / 40.0 / 65536.0  #: rad/s per LSB of the 32-bit output
-    ACCEL_SCALE = STANDARD_GRAVITY_M_S2 * 0.25e-3 / 65536.0  #: m/s^2 per LSB
+    GYRO_SCALE = fake_iio.ADIS16475_2_GYRO_SCALE  #: rad/s per LSB of the 32-bit output
+    ACCEL_SCALE = fake_iio.ADIS16475_2_ACCEL_SCALE  #: m/s^2 per LSB
 
     def __init__(self, cert: Certificate, model: str = "adis16475-2") -> None:
         self.model = model
         self.scenario_certificate = cert
         self.certificate = calibrated_certificate(cert)
-        chan = fake_iio.Channel
-        self.channels = [
-            *(
-                chan(f"anglvel_{a}", i, "le:s32/32>>0", scale=self.GYRO_SCALE)
-                for i, a in enumerate("xyz")
-            ),
-            *(
-                chan(f"accel_{a}", 3 + i, "le:s32/32>>0", scale=self.ACCEL_SCALE)
-                for i, a in enumerate("xyz")
-            ),
-            chan("temp0", 7, "le:s16/16>>0", scale=100.0, enabled=True),
-            chan("timestamp", 8, "le:s64/64>>0"),
-        ]
+        self.channels = fake_iio.imu_channels(self.GYRO_SCALE, self.ACCEL_SCALE, temperature=True)
         #: the records of the channels the reader enables (its six and the time stamp)
         self._read = [c for c in self.channels if c.name != "temp0"]
         self.record_size = len(fake_iio.pack_records(self._read, self._columns(None)))
