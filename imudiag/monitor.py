@@ -18,7 +18,9 @@ Every sample of both triads is corrected with the certificate. The checks
   least ``stuck_min_sigma`` quantisation steps of the output, the step being 1 for
   counts and otherwise the smallest nonzero change between consecutive outputs seen,
   which is the LSB of a quantised physical output and next to nothing for a float one;
-  any unit) and saturation flags;
+  any unit; a physical output, which its device may filter, must also have shown at
+  most ``stuck_max_repeat`` identical consecutive pairs over ``stuck_history`` pairs)
+  and saturation flags;
 - excess noise: per channel, the white-noise sigma estimated from second
   differences over ``noise_window_s`` (var(d2 U) = 6 sigma^2 for white noise;
   smooth motion contributes almost nothing at the sample rate; squares are
@@ -72,6 +74,12 @@ class MonitorConfig:
     #: quantisation steps of the output: the stuck check runs only on channels whose
     #: certificate noise sigma is at least this many steps (a finer noise repeats at rest)
     stuck_min_sigma: float = 1.0
+    #: a physical output (not counts; a device may filter it) is checked for stuck only
+    #: after this many consecutive output pairs were seen ...
+    stuck_history: int = 200
+    #: ... with at most this share of them identical (then a clean run of
+    #: ``stuck_samples`` has a chance of about 0.5**49 = 2e-15 per sample)
+    stuck_max_repeat: float = 0.5
     static_window_s: float = 0.5  #: window of the quasi-static detector, s
     gyro_window_s: float = 1.0  #: averaging window of the MEMS rest-rate check, s
     k_sigma: float = 5.0  #: standard deviations of margin in the gyro rest-rate check
@@ -331,7 +339,13 @@ class Monitor:
                 for _ in range(3)
             ]
         )
+        #: raw ADC counts carry the noise the certificate states; a physical output may be
+        #: filtered by its device (smoother than stated): its own repeat rate must be low too
+        self._stuck_raw = np.isfinite(self._quantum)
+        self._stuck_pairs = np.zeros(6, dtype=np.int64)  #: consecutive output pairs seen
+        self._stuck_repeats = np.zeros(6, dtype=np.int64)  #: ... of them identical
         self._stuck_enabled = self._stuck_sigma >= cfg.stuck_min_sigma * self._quantum
+        self._stuck_enabled &= self._stuck_raw
         self._stuck_run = np.zeros(6, dtype=np.int64)
         self._stuck_last = np.full(6, np.nan)
         self._stuck_t_first = np.full(6, np.nan)  #: s, when each stuck came in force
@@ -437,8 +451,8 @@ class Monitor:
     @property
     def stuck_checked(self) -> dict[str, list[bool]]:
         """Per triad and axis whether the stuck check runs (the certificate's noise is at
-        least ``stuck_min_sigma`` quantisation steps of the output; no step is known
-        before the output first changed)."""
+        least ``stuck_min_sigma`` quantisation steps of the output, no step is known
+        before the output first changed; a physical output's own repeat rate is low)."""
         self.flush()
         on = [bool(x) for x in self._stuck_enabled]
         return {name: on[3 * k : 3 * k + 3] for k, name in enumerate(TRIADS_RING)}
@@ -904,14 +918,14 @@ class Monitor:
         np.subtract(raw[:, 0], self._stuck_last, out=step[:, 0])
         np.subtract(raw[:, 1:], raw[:, :-1], out=step[:, 1:])
         same_prev = step == 0.0
+        valid = np.isfinite(step)
         # the quantisation step: the smallest nonzero change seen (never below the true
         # step, so a channel whose noise is finer than its step stays unchecked)
         np.abs(step, out=step)
-        step[same_prev | ~np.isfinite(step)] = np.inf
+        step[same_prev | ~valid] = np.inf
         smallest = step.min(axis=1)
         if (smallest < self._quantum).any():
             np.minimum(self._quantum, smallest, out=self._quantum)
-            self._stuck_enabled = self._stuck_sigma >= self.config.stuck_min_sigma * self._quantum
         if same_prev.all():  # no change in the block: every run grows by n
             run = self._stuck_run + n
         else:
@@ -932,6 +946,19 @@ class Monitor:
             at = np.clip(n - 1 - (self._stuck_run[rising] - need), 0, n - 1)
             self._stuck_t_first[rising] = np.asarray(t, dtype=float)[at]
         self._stuck_t_first[~active] = np.nan
+        # the repeat rate of the channels not stuck now (a stuck run must not make the
+        # channel look like one that repeats by nature, or its fault would clear)
+        free = ~active
+        self._stuck_pairs[free] += np.count_nonzero(valid[free], axis=1)
+        self._stuck_repeats[free] += np.count_nonzero(same_prev[free], axis=1)
+        cfg = self.config
+        self._stuck_enabled = (self._stuck_sigma >= cfg.stuck_min_sigma * self._quantum) & (
+            self._stuck_raw
+            | (
+                (self._stuck_pairs >= cfg.stuck_history)
+                & (self._stuck_repeats <= cfg.stuck_max_repeat * self._stuck_pairs)
+            )
+        )
         self._state["gyro"].stuck_active = active[:3]
         self._state["accel"].stuck_active = active[3:]
 

@@ -222,3 +222,29 @@ def test_every_status_fault_carries_the_contract_keys_sensor_null_where_untold()
     )
     assert [list(f)[:3] for f in merged] == [["triad", "sensor", "cause"]] * 2
     assert [(f["sensor"], f["cause"]) for f in merged] == [(None, "f0"), ("az", "scale_factor")]
+
+
+def test_a_filtered_physical_output_that_repeats_at_rest_is_not_stuck():
+    """A device that filters its output (as a WT901 does) is smoother than its certificate
+    says: at rest its output at the WT901's step repeats more often than not, in runs
+    longer than the stuck count, though the stated noise spans several steps. The
+    channel's own repeat rate keeps the check off there: no false stuck."""
+    block = _si(_session(duration_s=30.0))
+    kernel = np.ones(100) / 100  # a 0.5 s moving average, then the WT901's step
+    for name in ("gyro", "accel"):
+        x = getattr(block, name)
+        smooth = np.stack([np.convolve(x[:, i], kernel, mode="same") for i in range(3)], axis=1)
+        setattr(block, name, np.rint(smooth / WT901_STEP[name]) * WT901_STEP[name])
+    changes = np.flatnonzero(np.diff(block.accel[:, 0]) != 0)
+    assert np.diff(np.concatenate([[-1], changes, [len(block) - 1]])).max() >= 50
+    sigma = SI_CERT.accel.noise_sigma(SI_CERT.sample_rate)
+    assert np.all(sigma >= 4 * WT901_STEP["accel"])  # what the certificate states
+    for max_repeat, expected in ((1.0, True), (MonitorConfig().stuck_max_repeat, False)):
+        m = Monitor(SI_CERT, MonitorConfig(stuck_max_repeat=max_repeat))
+        ever = []
+        for start in range(0, len(block), 97):
+            m.update(block.slice(start, start + 97))
+            ever += [f["sensor"] for f in m.active_faults if f["cause"] == "stuck"]
+        # without the repeat-rate rule (1.0: any rate) the filtered axes would be "stuck"
+        assert bool(ever) is expected, (max_repeat, ever)
+    assert m.stuck_checked["accel"] == [False] * 3
