@@ -15,8 +15,9 @@ A source is one line in :data:`SOURCES`: its URL for a pty path, the fake device
 A device with a set-up dialogue (the iSensor SPI Buffer board) is answered by its fake's
 command line until its daemon reports the link connected, then streams like the others.
 The IIO source reads a character device, not a port: it gets a fake sysfs tree and FIFO
-(:class:`imudiag.bench.fake_iio.FakeIIODevice`) with one packed record per sample of the
-calibrated session (ADIS16475-2's 32-bit LSB sizes, SI scales).
+(:class:`imudiag.bench.fake_iio.FakeIIODevice`) with one packed record per sample, encoded
+by the bench's IIO fake (:class:`imudiag.bench.devices.IIOEncoder`: ADIS16475-2's 32-bit
+LSB sizes, SI scales).
 
 Run: ``.venv/bin/python -m benchmarks.sources [--duration 30] [--runs 3] [--only mavlink]``.
 """
@@ -25,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import queue
 import signal
 import subprocess
@@ -36,15 +36,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from imudiag.bench.devices import (
     DeviceEncoder,
-    calibrate,
-    calibrated_certificate,
+    IIOEncoder,
     make_encoder,
 )
-from imudiag.bench.fake_iio import Channel, FakeIIODevice, pack_records
+from imudiag.bench.fake_iio import FakeIIODevice
 from imudiag.bench.pty import BoardWriter, PtyPair, read_available, write_all
 from imudiag.certificate import load_default
 from imudiag.samples import SampleBlock
@@ -64,19 +61,6 @@ SOURCES: dict[str, tuple[str, str, float]] = {
     "iio": ("iio://adis16475?root={path}/root&devdir={path}/dev&rate=1000", "iio", 1000.0),
 }
 IIO = "iio"  #: not a port: a fake sysfs tree and FIFO (:mod:`imudiag.bench.fake_iio`)
-#: the fake IIO part's 32-bit outputs: ADIS16475-2's LSB sizes / 65536, in SI units
-IIO_GYRO_LSB = math.radians(1 / 40) / 65536  #: rad/s per LSB
-IIO_ACCEL_LSB = 0.25e-3 * 9.80665 / 65536  #: m/s^2 per LSB
-IIO_CHANNELS = [
-    *(Channel(f"anglvel_{a}", i, "le:s32/32>>0", scale=IIO_GYRO_LSB) for i, a in enumerate("xyz")),
-    *(
-        Channel(f"accel_{a}", 3 + i, "le:s32/32>>0", scale=IIO_ACCEL_LSB)
-        for i, a in enumerate("xyz")
-    ),
-    Channel("timestamp", 6, "le:s64/64>>0"),
-]
-
-
 #: the host's last set-up lines: start the capture (the iSensor board's CLI; others ignore it)
 START_CAPTURE = b"stream 1\r\nwrite 0 FF\r\n"
 
@@ -114,19 +98,6 @@ def device_writes(device: str, rate_hz: float, duration_s: float, seed: int = 0)
     motion = scenario_motion("static", seed)
     board = SimulatedBoard(cert, motion, rate_hz, seed, duration_s=duration_s)
     writes: list[bytes] = []
-    if device == IIO:  # packed records of the calibrated samples, one per sample
-        while not board.exhausted:
-            _, block = board.generate(int(rate_hz * 5))
-            gyro, accel = calibrate(block, cert)
-            cols = {f"anglvel_{a}": np.rint(gyro[:, i] / IIO_GYRO_LSB) for i, a in enumerate("xyz")}
-            cols.update(
-                {f"accel_{a}": np.rint(accel[:, i] / IIO_ACCEL_LSB) for i, a in enumerate("xyz")}
-            )
-            cols["timestamp"] = np.rint(block.t * 1e9).astype(np.int64)
-            data = pack_records(IIO_CHANNELS, cols)
-            size = len(data) // len(block)
-            writes.extend(data[i : i + size] for i in range(0, len(data), size))
-        return writes
     encoder = make_encoder(device, cert)
     encoder.answer(START_CAPTURE)  # a board with a set-up dialogue: as the host leaves it
     while not board.exhausted:
@@ -154,12 +125,10 @@ def measure(names: Sequence[str], rate_hz: float, duration_s: float, seed: int =
                 cert_path = Path(tmp) / f"{name}.yaml"
                 if device == IIO:
                     path = str(Path(tmp) / name)
-                    fakes.append(
-                        FakeIIODevice(
-                            f"{path}/root", f"{path}/dev", "adis16475-2", IIO_CHANNELS, 0, rate_hz
-                        )
-                    )
-                    calibrated_certificate(cert).save(cert_path)
+                    iio = IIOEncoder(cert)  # one packed record per sample (its encode)
+                    root, devdir = f"{path}/root", f"{path}/dev"
+                    fakes.append(FakeIIODevice(root, devdir, iio.model, iio.channels, 0, rate_hz))
+                    iio.certificate.save(cert_path)
                 else:
                     path = pairs[name].slave_path
                     make_encoder(device, cert).certificate.save(cert_path)

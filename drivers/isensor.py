@@ -19,9 +19,11 @@ Each streamed line is one buffer entry, words in hexadecimal::
 
 ``SIG`` is the sum of every other word (mod 2**16); a line whose signature fails
 counts as a checksum error, as does an ADIS1647x/1650x burst whose own checksum
-(the byte sum of DIAG_STAT .. DATA_CNTR) fails. Lines that are not entries
-(garbage, CLI chatter) are skipped bytes. The timestamp (microseconds, 32 bits)
-is the sample time; the IMU's data counter counts lost and repeated samples.
+(the byte sum of DIAG_STAT .. DATA_CNTR) fails, and an ADIS1649x burst whose CRC-32
+(SYS_E_FLAG .. DATA_CNT, :func:`burst_crc_ok_1649x`) fails: the sample is skipped.
+Lines that are not entries (garbage, CLI chatter) are skipped bytes. The timestamp
+(microseconds, 32 bits) is the sample time; the IMU's data counter counts lost and
+repeated samples.
 
 Scaling: the part's 16-bit output LSB sizes (:data:`MODELS`, sources in
 ``docs/devices.md``). ADIS1647x/1650x bursts carry the 16-bit outputs; ADIS1649x
@@ -43,6 +45,7 @@ from __future__ import annotations
 import math
 import struct
 import time
+import zlib
 from dataclasses import dataclass
 from typing import Any
 
@@ -148,6 +151,32 @@ def burst_checksum_1647x(data: np.ndarray) -> np.ndarray:
     return ((w & 0xFF).sum(axis=1) + (w >> 8).sum(axis=1)) & 0xFFFF
 
 
+def burst_start_1649x(data: np.ndarray) -> np.ndarray:
+    """Per burst (rows of DATA_0..): the index of its last leading BURST_ID (0xA5A5) among
+    the first words (the reply may hold one or two, by the SPI clock; SYS_E_FLAG follows
+    the last). Rows without one give 0 (the caller rejects them)."""
+    is_id = data[:, :4] == BURST_ID_1649X
+    first = np.argmax(is_id[:, :3], axis=1)
+    rows = np.arange(data.shape[0])
+    return first + is_id[rows, first + 1]
+
+
+def burst_crc_ok_1649x(data: np.ndarray) -> np.ndarray:
+    """ADIS1649x burst CRC-32 check per burst (rows of DATA_0..): the 15 words SYS_E_FLAG,
+    TEMP_OUT, the six outputs' _LOW and _OUT words and DATA_CNT, each sent as its low byte
+    then its high byte, through the CRC-32 of IEEE 802.3 (polynomial 0x04C11DB7 reflected,
+    initial value and final XOR 0xFFFFFFFF: ``zlib.crc32``), against CRC_UPR:CRC_LWR,
+    the two words after DATA_CNT (ADIS16495 data sheet, burst read; the Linux adis16480
+    driver checks it the same way)."""
+    start = burst_start_1649x(data)
+    idx = start[:, None] + np.arange(1, 18)[None, :]
+    f = np.take_along_axis(data, np.minimum(idx, data.shape[1] - 1), axis=1)
+    body = np.ascontiguousarray(f[:, :15].astype("<u2"))
+    sent = (f[:, 16].astype(np.int64) << 16) | f[:, 15].astype(np.int64)
+    calc = np.fromiter((zlib.crc32(row.tobytes()) for row in body), np.int64, len(body))
+    return np.asarray(calc == sent)
+
+
 def _signed16(w: np.ndarray) -> np.ndarray:
     return w.astype(np.int64) - ((w.astype(np.int64) & 0x8000) << 1)
 
@@ -236,7 +265,8 @@ class ISensorDecoder(DeviceDecoder):
         if self.model is not None and self.model.family == G_FAMILY_1647X:
             good &= burst_checksum_1647x(data) == data[:, 10]
         else:
-            good &= (data == BURST_ID_1649X).any(axis=1)
+            good &= (data[:, :3] == BURST_ID_1649X).any(axis=1)
+            good &= burst_crc_ok_1649x(data)
         if good.all():
             self.frame_bytes += int(size_arr.sum())
             return self._samples(words_arr), end + 1
@@ -337,7 +367,7 @@ class ISensorDecoder(DeviceDecoder):
             failed = (diag & DIAG_SENSOR_FAILURE) != 0
         else:
             # locate the burst ID (0xA5A5) in the first words; fields follow at fixed offsets
-            start = np.argmax(data[:, :3] == BURST_ID_1649X, axis=1)
+            start = burst_start_1649x(data)
             idx = start[:, None] + np.arange(1, 17)[None, :]
             f = np.take_along_axis(data, np.minimum(idx, data.shape[1] - 1), axis=1)
             diag = f[:, 0]

@@ -4,7 +4,8 @@ Each device test simulates the same motion (:data:`SESSION`, seed :data:`SEED`) 
 part's data-sheet certificate, a +5-limit accelerometer ``ax`` bias from
 :data:`FAULT_T_S` of sample time, encodes it with the test's own hand-written encoder,
 feeds it to the daemon through the device's transport, and compares the sample times at
-which the daemon's status says ``ok`` for both triads and names ``accel ax bias`` with
+which the daemon's verdict ``ok`` for both triads and its fault ``accel ax bias`` came in
+force (as the status states them: ``diagnosis.since``, the fault's ``t_first``) with
 those of the native wire protocol on the same session with the bundled certificate
 (:func:`native_times`, computed once per process). Everything is judged on sample time.
 """
@@ -66,20 +67,25 @@ def settings(url: str, cert_path: str | None) -> DaemonSettings:
 
 
 def first_ok(lines: list[dict[str, Any]]) -> float | None:
-    """Sample time of the first status whose diagnosis says ok for both triads."""
+    """Sample time, s, at which the verdict ``ok`` for both triads came in force, on the
+    first status saying so: the later of the triads' ``diagnosis.since`` (the end of the
+    window that brought each verdict), never the line's ``t`` (that depends on how fast
+    the daemon kept up)."""
     for s in lines:
         d = s.get("diagnosis") or {}
-        if s["t"] is not None and d.get("accel") == "ok" and d.get("gyro") == "ok":
-            return float(s["t"])
+        if d.get("accel") == "ok" and d.get("gyro") == "ok":
+            since = d["since"]
+            return max(float(since["accel"]), float(since["gyro"]))
     return None
 
 
 def first_named(lines: list[dict[str, Any]], triad: str, sensor: str, cause: str) -> float | None:
-    """Sample time of the first status with a fault naming (triad, sensor, cause)."""
+    """Sample time, s, at which a fault naming (triad, sensor, cause) came in force (its
+    ``t_first``), on the first status that names it."""
     for s in lines:
         for f in s["faults"]:
             if (f["triad"], f.get("sensor"), f["cause"]) == (triad, sensor, cause):
-                return float(s["t"])
+                return float(f["t_first"])
     return None
 
 
@@ -152,11 +158,10 @@ def judge_session(lines: list[dict[str, Any]]) -> tuple[float, float]:
     assert ok <= native_ok + SLACK_S, (ok, native_ok)
     assert FAULT_T_S <= named <= native_named + SLACK_S, (named, native_named)
     early = [
-        s["t"]
+        f["t_first"]
         for s in lines
-        if s["t"] is not None
-        and s["t"] < FAULT_T_S
-        and any(f["cause"] == "bias" for f in s["faults"])
+        for f in s["faults"]
+        if f["cause"] == "bias" and f["t_first"] < FAULT_T_S
     ]
     assert not early, f"a bias fault before the injection at {early[:3]}"
     return ok, named

@@ -1,6 +1,7 @@
 """Every device of the shared fake-device harness (:data:`imudiag.bench.devices.ENCODERS`)
 runs a bench scenario: the daemon (a real subprocess) reads the fake WitMotion WT901 and the
-fake iSensor SPI Buffer board (its set-up dialogue answered) on a pty; an accelerometer
+fake iSensor SPI Buffer board (its set-up dialogue answered) on a pty, and the fake IIO
+device (a sysfs tree and a FIFO, unplugged by removing them); an accelerometer
 fault, garbage, corrupted, lost and repeated samples and an unplug are judged as on the
 native board, with the counters exact."""
 
@@ -10,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from imudiag.bench import loads, run_scenario
+from imudiag.bench import ScenarioError, loads, run_scenario
 from imudiag.bench.devices import ENCODERS, SOURCE_URLS, make_encoder
 from imudiag.certificate import load_default
 
@@ -36,12 +37,52 @@ injections:
 """
 
 
-@pytest.mark.parametrize("device", ["witmotion", "isensor"])
+@pytest.mark.parametrize("device", ["witmotion", "isensor", "iio"])
 def test_bench_scenario_runs_on_the_fake_device(tmp_path: Path, device: str):
-    scenario = loads(SCENARIO.format(device=device), f"{device}-smoke.yaml")
+    text = SCENARIO.format(device=device)
+    if device == "iio":  # a kernel buffer: no garbage, no corrupted frames (refused: below)
+        text = "\n".join(ln for ln in text.splitlines() if "garbage" not in ln and "crc" not in ln)
+    scenario = loads(text, f"{device}-smoke.yaml")
     report = run_scenario(scenario, diagnosis=False, workdir=tmp_path).report
     assert report["device"] == device
     assert report["passed"], report
+
+
+STUCK_DEAD = """
+format: imudiag-bench-scenario/1
+name: {device}-stuck-dead
+motion: static
+duration: 7.0
+seed: 5
+speed: 4.0
+device: {device}
+injections:
+  - {{t: 2.0, kind: stuck, sensor: gx,
+     expect: [{{triad: gyro, sensor: gx, cause: stuck, within: 0.5}}],
+     also: [{{triad: gyro, sensor: gx, cause: f0}}]}}
+  - {{t: 4.5, kind: dead, sensor: ay,
+     expect: [{{triad: accel, sensor: ay, cause: stuck, within: 0.5}}],
+     also: [{{triad: accel, cause: f0}}]}}
+"""
+
+
+@pytest.mark.parametrize("device", sorted(ENCODERS))
+def test_stuck_and_dead_channels_are_named_on_every_device(tmp_path: Path, device: str):
+    """The stuck check in the device's own units (docs/service.md): counts (native), float
+    SI (MAVLink HIGHRES_IMU), 16-bit words of the part's LSB (iSensor, in deg/s and g),
+    the WT901's 16 g and 2000 deg/s over 32768: a frozen gyro and a dead accelerometer
+    channel are named within 0.5 s of sample time (the fault's ``t_first``), and nothing
+    is stuck before (a false alarm fails the report)."""
+    scenario = loads(STUCK_DEAD.format(device=device), f"{device}-stuck-dead.yaml")
+    report = run_scenario(scenario, diagnosis=False, workdir=tmp_path).report
+    assert report["device"] == device
+    assert report["passed"], report
+    assert not report["false_alarms"], report["false_alarms"]
+
+
+def test_iio_refuses_garbage_and_corrupted_frames():
+    with pytest.raises(ScenarioError, match="no framing and no checksum"):
+        loads(SCENARIO.format(device="iio"), "iio-smoke.yaml")
 
 
 def test_every_device_has_a_source_url():

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from imudiag.bench.devices import calibrate, calibrated_certificate
 from imudiag.certificate import load_default
 from imudiag.monitor import Monitor, MonitorConfig
 from imudiag.samples import FLAG_ACCEL_SATURATED, SampleBlock
@@ -80,7 +81,71 @@ def test_stuck_channel_is_named():
     m = Monitor(CERT, MonitorConfig(stuck_samples=50))
     _feed(m, block, [256] * 8)
     stuck = [f for f in m.active_faults if f["cause"] == "stuck"]
-    assert stuck == [{"triad": "gyro", "sensor": "gz", "cause": "stuck"}]
+    assert [{k: f[k] for k in ("triad", "sensor", "cause")} for f in stuck] == [
+        {"triad": "gyro", "sensor": "gz", "cause": "stuck"}
+    ]
+    # in force at the sample completing 50 identical outputs (the frozen one and 49 more)
+    t_frozen = block.t[np.searchsorted(block.t, 3.0)]
+    assert stuck[0]["t_first"] == pytest.approx(t_frozen + 49 / CERT.sample_rate, abs=1e-9)
+
+
+# -- the stuck check in any unit: physical outputs, float or quantised ----------------------
+
+SI_CERT = calibrated_certificate(CERT)  #: the same sensor calibrated into rad/s and m/s^2
+#: WitMotion WT901 output steps (16 g and 2000 deg/s over 32768), in rad/s and m/s^2
+WT901_STEP = {"gyro": 2000.0 / 32768 * np.pi / 180.0, "accel": 16.0 / 32768 * 9.80665}
+
+
+def _si(block: SampleBlock, step: dict[str, float] | None = None) -> SampleBlock:
+    """``block`` (counts) calibrated into SI floats, rounded to ``step`` (SI units) if given."""
+    gyro, accel = calibrate(block, CERT)
+    if step is not None:
+        gyro = np.rint(gyro / step["gyro"]) * step["gyro"]
+        accel = np.rint(accel / step["accel"]) * step["accel"]
+    return SampleBlock(t=block.t, gyro=gyro, accel=accel)
+
+
+@pytest.mark.parametrize("step", [None, WT901_STEP], ids=["float", "wt901-quantised"])
+def test_stuck_and_dead_channels_are_named_in_si_units(step):
+    """SI outputs whose noise spans many steps (a float HIGHRES_IMU, a WT901's LSB at a
+    noise of 4 and 16 LSB): a frozen gyro and a dead accelerometer channel are named."""
+    faults = [Fault("stuck", "gx", 4.0, None), Fault("dead", "ay", 8.0, 0.0)]
+    block = _si(_session(faults, duration_s=10.0), step)
+    m = Monitor(SI_CERT)
+    _feed(m, block, [97] * 20)
+    stuck = {
+        (f["triad"], f["sensor"]): f["t_first"] for f in m.active_faults if f["cause"] == "stuck"
+    }
+    assert set(stuck) == {("gyro", "gx"), ("accel", "ay")}
+    assert 4.0 < stuck["gyro", "gx"] <= 4.0 + 50 / SI_CERT.sample_rate
+    assert 8.0 < stuck["accel", "ay"] <= 8.0 + 50 / SI_CERT.sample_rate
+
+
+@pytest.mark.parametrize("step", [None, WT901_STEP], ids=["float", "wt901-quantised"])
+def test_clean_si_outputs_are_never_stuck(step):
+    block = _si(_session(duration_s=20.0), step)
+    m = Monitor(SI_CERT)
+    _feed(m, block, [1000, 7, 300])
+    assert [f for f in m.active_faults if f["cause"] == "stuck"] == []
+
+
+def test_a_quantised_output_at_rest_that_repeats_is_not_stuck():
+    """A WT901-like output whose step is coarser than the noise (10 sigma): at rest it
+    repeats for long runs, as a real one does; the check stays off on such a channel
+    (the step learned from the data is never finer than the true one), so no false stuck,
+    while the channels with fine steps are still checked."""
+    sigma = SI_CERT.accel.noise_sigma(SI_CERT.sample_rate)
+    coarse = {"gyro": WT901_STEP["gyro"], "accel": 10.0 * float(np.max(sigma))}
+    block = _si(_session([Fault("stuck", "gy", 10.0, None)], duration_s=20.0), coarse)
+    for axis in range(3):  # (an axis may never change at all in the session)
+        changes = np.flatnonzero(np.diff(block.accel[:, axis]) != 0)
+        runs = np.diff(np.concatenate([[-1], changes, [len(block) - 1]]))
+        assert runs.max() >= 50  # runs of identical outputs longer than the stuck count
+    m = Monitor(SI_CERT)
+    _feed(m, block, [333] * 12)
+    named = [(f["sensor"], f["cause"]) for f in m.active_faults if f["cause"] == "stuck"]
+    assert named == [("gy", "stuck")]
+    assert m.stuck_checked == {"gyro": [True] * 3, "accel": [False] * 3}  # said in the status
 
 
 def test_saturation_flags_persist_into_a_fault():
@@ -157,3 +222,29 @@ def test_every_status_fault_carries_the_contract_keys_sensor_null_where_untold()
     )
     assert [list(f)[:3] for f in merged] == [["triad", "sensor", "cause"]] * 2
     assert [(f["sensor"], f["cause"]) for f in merged] == [(None, "f0"), ("az", "scale_factor")]
+
+
+def test_a_filtered_physical_output_that_repeats_at_rest_is_not_stuck():
+    """A device that filters its output (as a WT901 does) is smoother than its certificate
+    says: at rest its output at the WT901's step repeats more often than not, in runs
+    longer than the stuck count, though the stated noise spans several steps. The
+    channel's own repeat rate keeps the check off there: no false stuck."""
+    block = _si(_session(duration_s=30.0))
+    kernel = np.ones(100) / 100  # a 0.5 s moving average, then the WT901's step
+    for name in ("gyro", "accel"):
+        x = getattr(block, name)
+        smooth = np.stack([np.convolve(x[:, i], kernel, mode="same") for i in range(3)], axis=1)
+        setattr(block, name, np.rint(smooth / WT901_STEP[name]) * WT901_STEP[name])
+    changes = np.flatnonzero(np.diff(block.accel[:, 0]) != 0)
+    assert np.diff(np.concatenate([[-1], changes, [len(block) - 1]])).max() >= 50
+    sigma = SI_CERT.accel.noise_sigma(SI_CERT.sample_rate)
+    assert np.all(sigma >= 4 * WT901_STEP["accel"])  # what the certificate states
+    for max_repeat, expected in ((1.0, True), (MonitorConfig().stuck_max_repeat, False)):
+        m = Monitor(SI_CERT, MonitorConfig(stuck_max_repeat=max_repeat))
+        ever = []
+        for start in range(0, len(block), 97):
+            m.update(block.slice(start, start + 97))
+            ever += [f["sensor"] for f in m.active_faults if f["cause"] == "stuck"]
+        # without the repeat-rate rule (1.0: any rate) the filtered axes would be "stuck"
+        assert bool(ever) is expected, (max_repeat, ever)
+    assert m.stuck_checked["accel"] == [False] * 3

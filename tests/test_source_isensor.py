@@ -238,19 +238,82 @@ def test_daemon_sends_the_self_test_command(board):
     assert any("'REBOOT' not sent" in n for n in noted["notes"])
 
 
-def entry_1649x(ts_us: int, count: int, gyro, accel, sys_e_flag: int = 0) -> bytes:
+def crc32_bitwise(data: bytes) -> int:
+    """CRC-32 as the ADIS16495 data sheet states it (IEEE 802.3 polynomial 0x04C11DB7,
+    initial value 0xFFFFFFFF, final XOR 0xFFFFFFFF, bits least significant first), one
+    bit at a time: the test's own, not the source's table-driven zlib."""
+    crc = 0xFFFFFFFF
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ (0xEDB88320 if crc & 1 else 0)  # 0x04C11DB7 reflected
+    return crc ^ 0xFFFFFFFF
+
+
+def entry_1649x(
+    ts_us: int, count: int, gyro, accel, sys_e_flag: int = 0, two_ids: bool = False
+) -> bytes:
     """One buffer entry of an ADIS16495-2 burst (ADIS1649x data sheet: burst ID 0xA5A5,
-    SYS_E_FLAG, TEMP_OUT, then each output as _LOW and _OUT words, DATA_CNT, CRC)."""
+    twice at a fast SPI clock, SYS_E_FLAG, TEMP_OUT, then each output as _LOW and _OUT
+    words, DATA_CNT, then CRC_LWR and CRC_UPR: the CRC-32 of the words SYS_E_FLAG ..
+    DATA_CNT, each low byte first)."""
     g_lsb, a_lsb = 450 / 18000 / 65536, 8 / 32000 / 65536  # deg/s and g per 32-bit LSB
-    words = [0xA5A5, sys_e_flag, int(round(25.0 / 0.0125))]
+    body = [sys_e_flag, int(round(25.0 / 0.0125))]
     for v, lsb in [*((x, g_lsb) for x in gyro), *((x, a_lsb) for x in accel)]:
         raw = int(round(v / lsb)) & 0xFFFFFFFF
-        words += [raw & 0xFFFF, raw >> 16]
-    words += [count & 0xFFFF, 0x1234, 0x5678]  # the part's CRC-32 words (not checked)
-    data = [0x0000, *words, 0x0000]  # 20 words: BUF_LEN 40
+        body += [raw & 0xFFFF, raw >> 16]
+    body += [count & 0xFFFF]
+    crc = crc32_bitwise(b"".join(w.to_bytes(2, "little") for w in body))
+    words = [0xA5A5, 0xA5A5] if two_ids else [0xA5A5]
+    words += [*body, crc & 0xFFFF, crc >> 16]
+    data = [0x0000, *words] + [0x0000] * (19 - len(words))  # 20 words: BUF_LEN 40
     head = [0, 0, ts_us & 0xFFFF, ts_us >> 16]
     sig = (sum(head) + sum(data)) & 0xFFFF
     return (",".join(f"{w:04X}" for w in [*head, sig, *data]) + "\r\n").encode("ascii")
+
+
+def with_word(line: bytes, index: int, value: int) -> bytes:
+    """``line`` (an entry) with word ``index`` (of DATA_0..) replaced and its line
+    signature made good again: only the burst's own check can fail."""
+    words = [int(w, 16) for w in line.strip().split(b",")]
+    words[5 + index] = value
+    words[4] = (sum(words) - words[4]) & 0xFFFF
+    return (",".join(f"{w:04X}" for w in words) + "\r\n").encode("ascii")
+
+
+def test_adis16495_burst_crc32_mismatches_are_counted_and_skipped():
+    """A burst whose CRC-32 fails (a flipped output bit, a flipped CRC bit) under a good
+    line signature is a checksum error and no sample; one with two leading burst IDs (a
+    fast SPI clock) decodes and checks from the second."""
+    with PtyPair() as pair:
+        fake = FakeISensorBoard(pair, prod_id=16495)
+        fake.start()
+        try:
+            with open_source(f"isensor://{pair.slave_path}?model=adis16495-2") as src:
+                lines = [
+                    entry_1649x(
+                        1000 + 500 * i, i, [0.5, -1.0, 2.0], [0.0, 0.0, 1.0], two_ids=i == 7
+                    )
+                    for i in range(12)
+                ]
+                word = int(lines[3].split(b",")[5 + 5], 16)  # DATA_5: X_GYRO_OUT
+                lines[3] = with_word(lines[3], 5, word ^ 0x0004)
+                crc_upr = int(lines[9].split(b",")[5 + 18], 16)
+                lines[9] = with_word(lines[9], 18, crc_upr ^ 0x8000)
+                fake.queue(lines)
+                got = read_samples(src, 10)
+                c = src.counters
+        finally:
+            fake.stop()
+    assert len(got) == 10 and c.crc_errors == 2 and c.lost == 2
+    kept = [i for i in range(12) if i not in (3, 9)]
+    assert np.allclose(got.t, 0.001 + 0.0005 * np.array(kept))
+    assert np.allclose(got.gyro, [0.5, -1.0, 2.0], atol=1e-6)  # the two-ID burst too
+    assert np.allclose(got.accel, [0.0, 0.0, 1.0], atol=1e-8)
+
+
+def test_crc32_bitwise_is_the_ieee_crc():
+    assert crc32_bitwise(b"123456789") == 0xCBF43926  # the CRC-32 check value
 
 
 def test_adis16495_32_bit_burst():

@@ -26,6 +26,7 @@ import errno
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -38,7 +39,7 @@ from imudiag.errors import BenchError
 from imudiag.samples import SampleBlock
 from imudiag.sim.board import SimulatedBoard
 
-from . import fake_isensor, fake_witmotion
+from . import fake_iio, fake_isensor, fake_witmotion
 from .pty import PtyPair, read_available, write_all
 from .transport import corrupt_sample_frames, frame_spans
 
@@ -478,20 +479,130 @@ class ISensorEncoder:
         return frame[:i] + digit + frame[i + 1 :]
 
 
+class IIOPort:
+    """A fake IIO device (:class:`.fake_iio.FakeIIODevice`) as the port a feeder writes
+    to: its sysfs tree at ``LINK-sys``, its FIFO (``/dev/iio:device0``) in ``LINK-dev``;
+    closing it unplugs the device (the FIFO and the tree go away)."""
+
+    def __init__(self, link: Path, encoder: IIOEncoder) -> None:
+        self.device = fake_iio.FakeIIODevice(
+            iio_root(link), iio_devdir(link), encoder.model, encoder.channels, 0
+        )
+
+    @property
+    def master_fd(self) -> int:
+        """The FIFO's writing end."""
+        return self.device.fd
+
+    @property
+    def master_open(self) -> bool:
+        """True while the device is plugged."""
+        return self.device._fd is not None
+
+    def close(self) -> None:
+        """Unplug the device."""
+        self.device.unplug()
+
+
+def iio_root(link: Path) -> Path:
+    """The fake IIO devices directory of a bench run whose device path is ``link``."""
+    return Path(f"{link}-sys")
+
+
+def iio_devdir(link: Path) -> Path:
+    """The directory of the fake ``iio:device0`` FIFO for ``link``."""
+    return Path(f"{link}-dev")
+
+
+class IIOEncoder:
+    """A fake Linux IIO IMU, an ADIS16475-2 as the kernel's adis16475 driver presents it:
+    the scan elements ``anglvel_x/y/z`` and ``accel_x/y/z`` as ``le:s32/32>>0`` (the
+    32-bit burst outputs) with their ``scale`` (rad/s and m/s^2 per LSB: the part's 1/40
+    deg/s and 0.25 mg per 16-bit LSB over 65536), ``timestamp`` (ns, ``le:s64/64>>0``)
+    and a temperature channel the reader must switch off; each sample one packed record
+    (:func:`.fake_iio.pack_records`), the certificate's nominal calibration applied.
+
+    A kernel buffer has no framing and no checksum: garbage and corrupted records cannot
+    happen on it (a scenario with them is refused for this device); lost and repeated
+    records are seen by the time stamps, an unplug removes the device."""
+
+    name = "iio"
+    garbage_alphabet = b""
+    dialogue = False
+    units = {"gyro": "rad/s", "accel": "m/s^2"}
+    GYRO_SCALE = fake_iio.ADIS16475_2_GYRO_SCALE  #: rad/s per LSB of the 32-bit output
+    ACCEL_SCALE = fake_iio.ADIS16475_2_ACCEL_SCALE  #: m/s^2 per LSB
+
+    def __init__(self, cert: Certificate, model: str = "adis16475-2") -> None:
+        self.model = model
+        self.scenario_certificate = cert
+        self.certificate = calibrated_certificate(cert)
+        self.channels = fake_iio.imu_channels(self.GYRO_SCALE, self.ACCEL_SCALE, temperature=True)
+        #: the records of the channels the reader enables (its six and the time stamp)
+        self._read = [c for c in self.channels if c.name != "temp0"]
+        self.record_size = len(fake_iio.pack_records(self._read, self._columns(None)))
+
+    def _columns(self, block: SampleBlock | None) -> dict[str, np.ndarray]:
+        if block is None:  # one record of zeros (its size)
+            return {c.name: np.zeros(1) for c in self._read}
+        dev = device_units(block, self.scenario_certificate, self.units)
+        cols = {
+            f"anglvel_{a}": np.rint(dev.gyro[:, i] / self.GYRO_SCALE) for i, a in enumerate("xyz")
+        }
+        cols.update(
+            {f"accel_{a}": np.rint(dev.accel[:, i] / self.ACCEL_SCALE) for i, a in enumerate("xyz")}
+        )
+        cols["timestamp"] = np.rint(np.asarray(block.t) * 1e9)
+        return cols
+
+    def encode(self, block: SampleBlock) -> bytes:
+        """One packed record per sample, outputs clipped to the 32-bit range."""
+        if not len(block):
+            return b""
+        cols = self._columns(block)
+        for name in cols:
+            if name != "timestamp":
+                cols[name] = np.clip(cols[name], -(2**31), 2**31 - 1)
+        return fake_iio.pack_records(self._read, cols)
+
+    def answer(self, data: bytes) -> bytes:
+        """Nothing is sent to a kernel buffer."""
+        return b""
+
+    def idle(self) -> bytes:
+        """Nothing before the buffer is enabled."""
+        return b""
+
+    def split(self, data: bytes) -> list[tuple[bytes, bool]]:
+        """The records (each a sample)."""
+        size = self.record_size
+        return [(data[p : p + size], True) for p in range(0, len(data), size)]
+
+    def corrupt(self, frame: bytes) -> bytes | None:
+        """None: a record has no checksum to break."""
+        return None
+
+    def open_port(self, link: Path) -> IIOPort:
+        """Lay the fake device out for a bench run whose device path is ``link``."""
+        return IIOPort(link, self)
+
+
 #: the fake devices by name: ``device:`` of a bench scenario, ``make_encoder(name)``
 ENCODERS: dict[str, Callable[..., DeviceEncoder]] = {
     "native": NativeEncoder,
     "mavlink": MavlinkEncoder,
     "witmotion": WitmotionEncoder,
     "isensor": ISensorEncoder,
+    "iio": IIOEncoder,
 }
 #: the source URL of each device for a port ``path`` and the sample ``rate`` (Hz); the IIO
-#: source reads a character device, not a port: its fake is :mod:`.fake_iio` (a sysfs tree)
+#: device is a sysfs tree and a FIFO beside ``path`` (:class:`IIOPort`)
 SOURCE_URLS: dict[str, str] = {
     "native": "serial://{path}",
     "mavlink": "mavlink://{path}",
     "witmotion": "witmotion://{path}?rate={rate:g}",
     "isensor": "isensor://{path}",
+    "iio": "iio://iio:device0?root={path}-sys&devdir={path}-dev&rate={rate:g}",
 }
 
 
@@ -609,6 +720,8 @@ __all__ = [
     "SOURCE_URLS",
     "DeviceEncoder",
     "DeviceWriter",
+    "IIOEncoder",
+    "IIOPort",
     "ISensorEncoder",
     "MavlinkEncoder",
     "NativeEncoder",
@@ -617,5 +730,7 @@ __all__ = [
     "calibrate",
     "calibrated_certificate",
     "device_units",
+    "iio_devdir",
+    "iio_root",
     "make_encoder",
 ]

@@ -4,11 +4,10 @@ Per injection:
 
 - sensor faults: the first status line whose ``faults`` hold an expected
   entry (triad, sensor, cause); detected at the entry's ``t_first`` (the sample
-  time the daemon's monitor put the fault in force) when that is after the line
-  before, else (a check that does not say: the window diagnosis, stuck; or a
-  fault in force before under another sensor, as the rest-rate check's worst
-  axis) at the line's ``t``: so a daemon that reads a late burst of frames at
-  once does not look slow; latency = that
+  time the daemon put the fault in force: every check says it) when that is after
+  the line before, else (a fault in force before under another sensor, as the
+  rest-rate check's worst axis, or an entry without one) at the line's ``t``:
+  so a daemon that reads a late burst of frames at once does not look slow; latency = that
   minus the injection time, both sample time (s); a matching entry before the
   injection is *premature*; unexplained entries on the same triad within the
   bound are *wrong* attributions (first seen at their own sample time, the same

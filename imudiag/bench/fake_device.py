@@ -31,7 +31,13 @@ from imudiag.samples import SampleBlock
 from imudiag.sim import Fault
 from imudiag.sim.scenarios import scenario_motion
 
-from .fake_iio import Channel, FakeIIODevice, pack_records
+from .fake_iio import (
+    ADIS16475_2_ACCEL_SCALE,
+    ADIS16475_2_GYRO_SCALE,
+    FakeIIODevice,
+    imu_channels,
+    pack_records,
+)
 from .fake_isensor import ISENSOR_LSB, FakeISensorBoard, entry_lines
 from .fake_witmotion import encode_frames
 from .pty import BoardWriter, PtyPair
@@ -137,19 +143,9 @@ def serve(
         g = cert.gyro.output_unit
         if g != "deg/s":
             raise ValueError(f"{key}: gyro in {g}, expected deg/s")
-        gscale = np.pi / 180 / 40 / 65536  # rad/s per LSB of a 32-bit output (x deg/s / 40)
-        ascale = 9.80665 / 4000 / 65536 if cert.accel.output_unit == "g" else 1 / 4000 / 65536
-        chans = [
-            *(
-                Channel(f"anglvel_{a}", i, "le:s32/32>>0", scale=gscale)
-                for i, a in enumerate("xyz")
-            ),
-            *(
-                Channel(f"accel_{a}", 3 + i, "le:s32/32>>0", scale=ascale)
-                for i, a in enumerate("xyz")
-            ),
-            Channel("timestamp", 6, "le:s64/64>>0"),
-        ]
+        # the ADIS16475-2's 32-bit LSB sizes (an m/s^2 part: 1/4000 m/s^2 per 16-bit LSB)
+        ascale = ADIS16475_2_ACCEL_SCALE if cert.accel.output_unit == "g" else 1 / 4000 / 65536
+        chans = imu_channels(ADIS16475_2_GYRO_SCALE, ascale)
         fake = FakeIIODevice(root, devdir, model, chans, 0, rate_hz)
         gyro_counts = 40 * 65536  # per deg/s
         accel_counts = 4000 * 65536  # per g (or per m/s^2 for the m/s^2 parts)

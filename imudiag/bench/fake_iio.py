@@ -16,6 +16,7 @@ Point a reader at it with ``IMUDIAG_IIO_ROOT`` / ``IMUDIAG_IIO_DEV`` or the URL'
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 from dataclasses import dataclass
@@ -34,6 +35,34 @@ class Channel:
     scale: float | None = None  #: written as in_<name>_scale (None: not written)
     offset: float | None = None  #: written as in_<name>_offset (None: not written)
     enabled: bool = False  #: the _en file's value before a reader configures it
+
+
+#: an ADIS16475-2's 32-bit outputs as the kernel's adis16475 driver scales them (the
+#: data sheet's 1/40 deg/s and 0.25 mg per 16-bit LSB, over 65536): rad/s per LSB
+ADIS16475_2_GYRO_SCALE = math.pi / 180.0 / 40.0 / 65536.0
+#: m/s^2 per LSB of the ADIS16475-2's 32-bit accelerometer output
+ADIS16475_2_ACCEL_SCALE = 9.80665 * 0.25e-3 / 65536.0
+
+
+def imu_channels(gyro_scale: float, accel_scale: float, temperature: bool = False) -> list[Channel]:
+    """An IMU's scan elements as a 32-bit ADIS driver lays them out: ``anglvel_x/y/z``
+    (index 0-2) and ``accel_x/y/z`` (3-5) as ``le:s32/32>>0`` with their ``scale`` (rad/s
+    and m/s^2 per LSB), with ``temperature`` a ``temp0`` channel (6) left enabled for the
+    reader to switch off, and the ``timestamp`` (ns, ``le:s64/64>>0``) last."""
+    out = [
+        *(
+            Channel(f"anglvel_{a}", i, "le:s32/32>>0", scale=gyro_scale)
+            for i, a in enumerate("xyz")
+        ),
+        *(
+            Channel(f"accel_{a}", 3 + i, "le:s32/32>>0", scale=accel_scale)
+            for i, a in enumerate("xyz")
+        ),
+    ]
+    if temperature:
+        out.append(Channel("temp0", 6, "le:s16/16>>0", scale=100.0, enabled=True))
+    out.append(Channel("timestamp", len(out), "le:s64/64>>0"))
+    return out
 
 
 class FakeIIODevice:

@@ -57,6 +57,22 @@ class Host(Protocol):
         """True once the reader reports at least ``n`` bytes read."""
 
 
+class Port(Protocol):
+    """Where the feeder writes: a pty (:class:`PtyPair`) or a device that lays itself out
+    (:class:`.devices.IIOPort`)."""
+
+    @property
+    def master_fd(self) -> int:
+        """The writing end."""
+
+    @property
+    def master_open(self) -> bool:
+        """True while the device is plugged."""
+
+    def close(self) -> None:
+        """Unplug."""
+
+
 class FeederError(BenchError):
     """The feeder could not go on (the reader never connected, or never drained)."""
 
@@ -120,7 +136,7 @@ class BoardFeeder:
         self.encoder = encoder
         self.pending = sorted(injections, key=lambda i: i.t_s)
         self.records: list[InjectionRecord] = []
-        self.pair: PtyPair | None = None
+        self.pair: Port | None = None
         self.bytes_sent = 0
         self._samples_withheld = 0  # sample frames corrupted or never sent
         self.samples_generated = 0
@@ -134,9 +150,12 @@ class BoardFeeder:
 
     # -- lifetime -----------------------------------------------------------
 
-    def plug(self) -> PtyPair:
-        """A new pty with the symlink pointing at its slave."""
-        self.pair = PtyPair(link=self.link)
+    def plug(self) -> Port:
+        """A new pty with the symlink pointing at its slave (a device that is no serial
+        port, IIO, lays itself out instead: :meth:`.devices.IIOEncoder.open_port`)."""
+        open_port = getattr(self.encoder, "open_port", None)
+        self.pair = PtyPair(link=self.link) if open_port is None else open_port(self.link)
+        assert self.pair is not None
         return self.pair
 
     def unplug(self) -> None:
@@ -398,4 +417,4 @@ class BoardFeeder:
         rec.wall_reconnected_s = self._wait_connected(rec.wall_replug_s)
 
 
-__all__ = ["BoardFeeder", "FeederError", "Host", "InjectionRecord"]
+__all__ = ["BoardFeeder", "FeederError", "Host", "InjectionRecord", "Port"]

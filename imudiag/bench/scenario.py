@@ -390,6 +390,12 @@ def device_problem(device: str, injections: tuple[Injection, ...]) -> str | None
     if device == "native":
         return None
     for inj in injections:
+        if device == "iio" and inj.kind in ("garbage", "crc"):
+            return (
+                f"injection {inj.number} ({inj.kind}): device iio is a kernel buffer of "
+                "packed records, with no framing and no checksum: garbage and corrupted "
+                "frames cannot happen on it (lost, duplicate, unplug and stall can)"
+            )
         if inj.category != "sensor" and (inj.kind not in DEVICE_TRANSPORT_KINDS or inj.random):
             return (
                 f"injection {inj.number} (random garbage) is the native wire protocol's; "

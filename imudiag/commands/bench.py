@@ -53,8 +53,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--device",
-        help="the fake device the board's samples go out as: native (default), mavlink "
-        "(overrides the scenario's; docs/devices.md)",
+        help="the fake device the board's samples go out as: native (default), mavlink, "
+        "witmotion, isensor, iio (overrides the scenario's; docs/devices.md)",
     )
     p.add_argument(
         "--no-diagnosis", action="store_true", help="run the daemon with per-sample checks only"

@@ -137,7 +137,8 @@ class PredicateTracker:
                 if st.streak >= self.persist:
                     if not st.active:
                         st.active = True
-                        st.fault = dict(entry, t_first=st.t_first, t_last=t)
+                        # t_in_force: the window (its end, s) that completed the persistence
+                        st.fault = dict(entry, t_first=st.t_first, t_last=t, t_in_force=t)
                         self.raised.append(st.fault)
                     elif st.fault is not None:
                         st.fault.update(estimate=entry["estimate"], std=entry["std"], t_last=t)
@@ -168,9 +169,12 @@ class PredicateTracker:
         }
 
     def active(self) -> list[dict]:
-        """Faults active now (reports.md ``faults`` entries plus ``std`` and ``t_last``)."""
+        """Faults active now (reports.md ``faults`` entries plus ``std``, ``t_last`` and
+        ``t_in_force``: the sample time, s, of the window that completed the persistence)."""
         return [
-            _public(st.fault) for st in self._state.values() if st.active and st.fault is not None
+            dict(_public(st.fault), t_in_force=st.fault["t_in_force"])
+            for st in self._state.values()
+            if st.active and st.fault is not None
         ]
 
     def all_raised(self) -> list[dict]:

@@ -104,6 +104,11 @@ class StreamingDiagnoser:
         self._determined = {t: np.zeros(9, dtype=bool) for t in TRIADS}
         self._reasons: dict[str, list[str]] = {t: ["no window was fitted"] * 9 for t in TRIADS}
         self.samples = 0
+        #: per triad the live verdict (ok, fault, undetermined) and the sample time, s (the
+        #: end of the window that brought it; None before a window), it came in force
+        self.verdict_since: dict[str, tuple[str, float | None]] = {
+            t: ("undetermined", None) for t in TRIADS
+        }
         #: known-rate sessions: F0 of each plateau (checked, failed, squares, streak)
         self.plateau_f0: dict[str, Any] = {
             "checked": 0,
@@ -227,6 +232,17 @@ class StreamingDiagnoser:
             for i in range(9):
                 if not fit.determined[i]:
                     self._reasons[triad][i] = fit.reasons[i]
+        in_force = {f["triad"] for f in self.tracker.active()}
+        for triad in TRIADS:
+            now = (
+                "fault"
+                if triad in in_force
+                else "ok"
+                if self._determined[triad].all()
+                else "undetermined"
+            )
+            if now != self.verdict_since[triad][0]:
+                self.verdict_since[triad] = (now, float(res.t_end))
         self.windows.append(res)
 
     # -- moving base -------------------------------------------------------------

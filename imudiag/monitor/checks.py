@@ -14,7 +14,13 @@ Every sample of both triads is corrected with the certificate. The checks
   limit plus ``k_sigma`` standard deviations of that mean, per axis;
 - k-of-n persistence before a triad is declared failed;
 - stuck outputs (a channel repeating the same raw value for ``stuck_samples``
-  samples where its noise makes that impossible) and saturation flags;
+  samples where its noise makes that impossible: the certificate's noise sigma is at
+  least ``stuck_min_sigma`` quantisation steps of the output, the step being 1 for
+  counts and otherwise the smallest nonzero change between consecutive outputs seen,
+  which is the LSB of a quantised physical output and next to nothing for a float one;
+  any unit; a physical output, which its device may filter, must also have shown at
+  most ``stuck_max_repeat`` identical consecutive pairs over ``stuck_history`` pairs)
+  and saturation flags;
 - excess noise: per channel, the white-noise sigma estimated from second
   differences over ``noise_window_s`` (var(d2 U) = 6 sigma^2 for white noise;
   smooth motion contributes almost nothing at the sample rate; squares are
@@ -51,9 +57,10 @@ from ..samples import (
 )
 from ..scalar import f0
 from ..trailing import PrefixSums
+from ..units import COUNT, canonical
 from ..vibration import VibrationMeter
 from .batching import F0Screen
-from .noise import NoiseCheck
+from .noise import TRIADS_RING, NoiseCheck
 from .state import MonitorConfig, TriadState
 from .stuck import StuckCheck
 from .trace import F0Trace
@@ -157,7 +164,18 @@ class Monitor:
         self._screen = F0Screen(certificate, self._n_inv_t, self._limit)
         # stuck outputs: both triads as one (6,) row, gyro then accel (the ring's column order)
         self._stuck = StuckCheck(
-            (self._sigma["gyro"], self._sigma["accel"]), cfg.stuck_min_sigma, cfg.stuck_samples
+            (self._sigma["gyro"], self._sigma["accel"]),
+            cfg.stuck_min_sigma,
+            cfg.stuck_samples,
+            counts=np.array(
+                [
+                    canonical(certificate.triad(name).output_unit) == COUNT
+                    for name in TRIADS_RING
+                    for _ in range(3)
+                ]
+            ),
+            history=cfg.stuck_history,
+            max_repeat=cfg.stuck_max_repeat,
         )
         self._gyro_window = max(1, int(round(cfg.gyro_window_s * rate)))
         # the MEMS rest-rate check's threshold per axis (rad/s): Earth rate, the bias limit
@@ -253,6 +271,15 @@ class Monitor:
         return self._self_test
 
     @property
+    def stuck_checked(self) -> dict[str, list[bool]]:
+        """Per triad and axis whether the stuck check runs (the certificate's noise is at
+        least ``stuck_min_sigma`` quantisation steps of the output, no step is known
+        before the output first changed; a physical output's own repeat rate is low)."""
+        self.flush()
+        on = [bool(x) for x in self._stuck.enabled]
+        return {name: on[3 * k : 3 * k + 3] for k, name in enumerate(TRIADS_RING)}
+
+    @property
     def adc_errors_checked(self) -> int:
         """:attr:`adc_errors` among the samples checked so far (no :meth:`flush`)."""
         return self._adc_errors
@@ -303,8 +330,17 @@ class Monitor:
                     fault["sensor"] = SENSOR_NAMES[name][st.worst_axis]
                 fault["t_first"] = st.persistence.t_first
                 out.append(fault)
+            base = 0 if name == TRIADS_RING[0] else 3
             for stuck in np.flatnonzero(st.stuck_active):
-                out.append({"triad": name, "sensor": SENSOR_NAMES[name][stuck], "cause": "stuck"})
+                t_in = float(self._stuck.t_first[base + stuck])
+                out.append(
+                    {
+                        "triad": name,
+                        "sensor": SENSOR_NAMES[name][stuck],
+                        "cause": "stuck",
+                        "t_first": t_in if math.isfinite(t_in) else None,
+                    }
+                )
             for axis, (p, gross) in enumerate(zip(st.noise, st.noise_gross, strict=True)):
                 firsts = [q.t_first for q in (p, gross) if q.active and q.t_first is not None]
                 if p.active or gross.active:
@@ -614,7 +650,7 @@ class Monitor:
             chan[:, :h] = self.ring.latest(h)[:, 1:7].T
         chan[:3, h:] = block.gyro.T
         chan[3:, h:] = block.accel.T
-        active = self._stuck.update(chan[:, h:])
+        active = self._stuck.update(chan[:, h:], block.t)
         self._state["gyro"].stuck_active = active[:3]
         self._state["accel"].stuck_active = active[3:]
         if pos.size:

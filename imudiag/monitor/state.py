@@ -17,7 +17,15 @@ class MonitorConfig:
     persistence_k: int = 20  #: failed checks among the last n checked samples to declare a fault
     persistence_n: int = 50  #: checked samples in the persistence window
     stuck_samples: int = 50  #: identical consecutive raw outputs that mean a stuck channel
-    stuck_min_sigma: float = 1.0  #: output units; stuck check only where noise is at least this
+    #: quantisation steps of the output: the stuck check runs only on channels whose
+    #: certificate noise sigma is at least this many steps (a finer noise repeats at rest)
+    stuck_min_sigma: float = 1.0
+    #: a physical output (not counts; a device may filter it) is checked for stuck only
+    #: after this many consecutive output pairs were seen ...
+    stuck_history: int = 200
+    #: ... with at most this share of them identical (then a clean run of
+    #: ``stuck_samples`` has a chance of about 0.5**49 = 2e-15 per sample)
+    stuck_max_repeat: float = 0.5
     static_window_s: float = 0.5  #: window of the quasi-static detector, s
     gyro_window_s: float = 1.0  #: averaging window of the MEMS rest-rate check, s
     k_sigma: float = 5.0  #: standard deviations of margin in the gyro rest-rate check

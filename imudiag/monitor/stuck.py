@@ -1,5 +1,12 @@
 """The monitor's stuck-output check: a channel repeating the same raw value for
-``stuck_samples`` samples where its noise makes that impossible."""
+``stuck_samples`` samples where its noise makes that impossible, in any output unit.
+
+A channel is checked when its certificate noise sigma is at least ``min_sigma``
+quantisation steps of its output: the step is 1 for counts, and otherwise the smallest
+nonzero change between consecutive outputs seen (the LSB of a quantised physical output,
+next to nothing for a float one; none known before the output first changed). A physical
+output, which its device may filter (smoother than the certificate states), must also have
+shown at most ``max_repeat`` identical consecutive pairs over ``history`` pairs."""
 
 from __future__ import annotations
 
@@ -8,25 +15,61 @@ import numpy as np
 
 class StuckCheck:
     """Run length of identical raw outputs per channel (6: gyro then accel), carried across
-    blocks. ``sigma``: each triad's noise sigma (output units; None: no figure), checked
-    only where at least ``min_sigma``; ``samples``: the run that means a stuck channel."""
+    blocks. ``sigma``: each triad's noise sigma (output units; None: no figure);
+    ``min_sigma``: quantisation steps of noise a checked channel needs; ``samples``: the run
+    that means a stuck channel; ``counts`` (6,): channels whose output is raw counts (step
+    1; default all); ``history`` and ``max_repeat``: a physical output's own repeat rate
+    (pairs seen, the share of them identical at most) before it is checked."""
 
     def __init__(
-        self, sigma: tuple[np.ndarray | None, np.ndarray | None], min_sigma: float, samples: int
+        self,
+        sigma: tuple[np.ndarray | None, np.ndarray | None],
+        min_sigma: float,
+        samples: int,
+        counts: np.ndarray | None = None,
+        history: int = 200,
+        max_repeat: float = 0.5,
     ) -> None:
-        enabled = [np.zeros(3, dtype=bool) if sig is None else sig >= min_sigma for sig in sigma]
-        self.enabled = np.concatenate(enabled)
+        #: per channel the certificate's noise sigma (output units; NaN: none stated)
+        self.sigma = np.concatenate(
+            [
+                np.full(3, np.nan) if sig is None else np.broadcast_to(sig, (3,)).astype(float)
+                for sig in sigma
+            ]
+        )
+        raw = np.ones(6, dtype=bool) if counts is None else np.asarray(counts, dtype=bool)
+        #: per channel the output's quantisation step (output units): 1 for counts, else
+        #: the smallest nonzero change between consecutive outputs seen (inf: none yet)
+        self.quantum = np.where(raw, 1.0, np.inf)
+        self.counts = raw
+        self.min_sigma = min_sigma
         self.samples = samples
+        self.history = history
+        self.max_repeat = max_repeat
+        self.pairs = np.zeros(6, dtype=np.int64)  #: consecutive output pairs seen
+        self.repeats = np.zeros(6, dtype=np.int64)  #: ... of them identical
+        self.enabled = (self.sigma >= min_sigma * self.quantum) & self.counts
         self.run = np.zeros(6, dtype=np.int64)  #: samples in each run, excluding its first
         self.last = np.full(6, np.nan)  #: the last raw output of each channel
+        self.t_first = np.full(6, np.nan)  #: s, when each stuck channel came in force
 
-    def update(self, raw: np.ndarray) -> np.ndarray:
+    def update(self, raw: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
         """The channels (6,) stuck after the block ``raw`` (6, N): its raw outputs (output
-        units), gyro then accel, channel by channel."""
+        units), gyro then accel, channel by channel, at sample times ``t`` (s; None: the
+        times in force are not kept)."""
         n = raw.shape[1]
-        same_prev = np.empty(raw.shape, dtype=bool)
-        np.equal(raw[:, 0], self.last, out=same_prev[:, 0])
-        np.equal(raw[:, 1:], raw[:, :-1], out=same_prev[:, 1:])
+        step = np.empty(raw.shape)
+        np.subtract(raw[:, 0], self.last, out=step[:, 0])
+        np.subtract(raw[:, 1:], raw[:, :-1], out=step[:, 1:])
+        same_prev = step == 0.0
+        valid = np.isfinite(step)
+        # the quantisation step: the smallest nonzero change seen (never below the true
+        # step, so a channel whose noise is finer than its step stays unchecked)
+        np.abs(step, out=step)
+        step[same_prev | ~valid] = np.inf
+        smallest = step.min(axis=1)
+        if (smallest < self.quantum).any():
+            np.minimum(self.quantum, smallest, out=self.quantum)
         if same_prev.all():  # no change in the block: every run grows by n
             run = self.run + n
         else:
@@ -38,5 +81,22 @@ class StuckCheck:
         # samples in the current run of equal values, excluding its first
         self.run = run.astype(np.int64)
         self.last = raw[:, -1].astype(float)
-        active: np.ndarray = self.enabled & (self.run >= self.samples - 1)
+        need = self.samples - 1
+        active: np.ndarray = self.enabled & (self.run >= need)
+        # the sample time each came in force: the sample whose run reached the count (or
+        # the block's first, for a run long enough before the check was enabled)
+        rising = active & np.isnan(self.t_first)
+        if t is not None and rising.any():
+            at = np.clip(n - 1 - (self.run[rising] - need), 0, n - 1)
+            self.t_first[rising] = np.asarray(t, dtype=float)[at]
+        self.t_first[~active] = np.nan
+        # the repeat rate of the channels not stuck now (a stuck run must not make the
+        # channel look like one that repeats by nature, or its fault would clear)
+        free = ~active
+        self.pairs[free] += np.count_nonzero(valid[free], axis=1)
+        self.repeats[free] += np.count_nonzero(same_prev[free], axis=1)
+        self.enabled = (self.sigma >= self.min_sigma * self.quantum) & (
+            self.counts
+            | ((self.pairs >= self.history) & (self.repeats <= self.max_repeat * self.pairs))
+        )
         return active

@@ -178,7 +178,6 @@ class Daemon:
         self.noise = NoiseMeter(self.monitor.rate_hz, max_chunks=int(NOISE_WINDOW_S))
         self.diagnoser = self._make_diagnoser(self.certificate, self.monitor.rate_hz)
         self._diag_blocks: list[SampleBlock] = []  # gathered for the diagnoser and noise meter
-        self._batch_t0 = 0.0  # time of the first sample gathered, s
         # the diagnoser's faults and verdict change only when it is fed: kept between feeds
         # rather than rebuilt on every read
         self._diag_view: tuple[list[dict[str, Any]], dict[str, Any]] | None = None
@@ -493,6 +492,7 @@ class Daemon:
                 faults_now,
                 (u["triad"] for u in self.diagnoser.undetermined),
                 len(self.diagnoser.tracker.raised),
+                {t: v[1] for t, v in self.diagnoser.verdict_since.items()},
             )
             self._diag_view = (faults_now, view)
         return self._diag_view
@@ -519,10 +519,18 @@ class Daemon:
         ):
             # the checkers hand back the same lists until something changed
             merged = merge_faults(
-                # the monitor's faults keep t_first: the sample time (s) each came in force
-                # (the bench judges latency on it, not on how fast the loop keeps up)
+                # every fault keeps t_first: the sample time (s) it came in force (the
+                # monitor's: the sample completing its persistence; the window
+                # diagnosis's: the end of the window completing it). Tests and the bench
+                # judge latency on it, not on how fast the loop keeps up
                 monitor_faults,
-                [{k: f[k] for k in ("triad", "sensor", "cause") if k in f} for f in diag_faults],
+                [
+                    {
+                        **{k: f[k] for k in ("triad", "sensor", "cause") if k in f},
+                        "t_first": f["t_in_force"],
+                    }
+                    for f in diag_faults
+                ],
                 aiding,
             )
             cached = (monitor_faults, diag_faults, merged)
@@ -686,24 +694,41 @@ class Daemon:
             self._diag_view = None
 
     def _feed_batch(self, block: SampleBlock | None) -> None:
-        """Gather ``block``; feed the noise meter and the diagnoser once
-        ``diagnosis_batch_s`` of samples are gathered (``None``: feed what is gathered
-        now, at the end of a stream). Neither needs a low latency, and both cost per call."""
-        if block is not None:
-            if not self._diag_blocks:
-                self._batch_t0 = float(block.t[0])
+        """Gather ``block``; feed the noise meter and the diagnoser one cell of the
+        ``diagnosis_batch_s`` sample-time grid at a time, once the cell is complete
+        (``None``: feed what is gathered now, at the end of a stream). Neither needs a low
+        latency, and both cost per call. The cells depend on the sample times only, never
+        on how the reads cut the stream: the same samples give the same windows, verdicts
+        and their sample times however fast the daemon keeps up (the still detector's noise
+        estimate is per block fed)."""
+        if block is not None and len(block):
             self._diag_blocks.append(block)
         pending = self._diag_blocks
         if not pending:
             return
-        t_last = self.monitor.t_last  # the last sample's time, s (the monitor has had it)
-        ready = t_last is not None and t_last - self._batch_t0 >= self.settings.diagnosis_batch_s
-        if block is None or ready:
-            self._diag_blocks = []
-            batch = pending[0] if len(pending) == 1 else SampleBlock.concat(pending)
-            self._feed_noise(batch)
+        step = self.settings.diagnosis_batch_s
+        if block is not None and math.floor(float(pending[0].t[0]) / step) == math.floor(
+            float(pending[-1].t[-1]) / step
+        ):
+            return  # (the common case: no cell completed by this read, nothing joined)
+        batch = pending[0] if len(pending) == 1 else SampleBlock.concat(pending)
+        cells = np.floor(np.asarray(batch.t, dtype=float) / step)
+        bounds = np.flatnonzero(np.diff(cells)) + 1  # where a cell of the grid begins
+        stop = len(batch)
+        if block is not None:
+            # the newest sample's cell is still open: the cells before it are complete
+            if not bounds.size:
+                self._diag_blocks = [batch]
+                return
+            stop, bounds = int(bounds[-1]), bounds[:-1]
+        self._diag_blocks = [batch.slice(stop, len(batch))] if stop < len(batch) else []
+        for a, b in zip(
+            np.concatenate([[0], bounds]), np.concatenate([bounds, [stop]]), strict=True
+        ):
+            cell = batch.slice(int(a), int(b))
+            self._feed_noise(cell)
             if self.diagnoser is not None:
-                self.diagnoser.update(batch)
+                self.diagnoser.update(cell)
                 self._diag_view = None
 
     def _emit(self, now: float, force: bool = False) -> None:

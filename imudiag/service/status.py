@@ -5,7 +5,8 @@ Every line starts with ``class`` (``STATUS``) and ``format`` (``imudiag-status/1
 degraded, fault, no_data), ``faults`` (triad, sensor where it can be told,
 cause), ``counters`` (the receiver counters). Added keys: ``link``,
 ``static``, ``f0``, ``diagnosis``, ``certificate`` (with ``datasheet`` and ``note`` when it
-is a data-sheet certificate), ``device`` (the source's identity), ``adc_errors``, ``notes``,
+is a data-sheet certificate), ``device`` (the source's identity), ``stuck_checked``,
+``adc_errors``, ``notes``,
 ``status_link`` (NMEA sentences ``written`` and ``dropped`` when a serial link is set).
 
 The record is built here from what the daemon holds (:func:`status_record`,
@@ -102,6 +103,8 @@ def status_record(
             name: {"judged": st.noise_judged, "set_aside": st.noise_not_at_rest}
             for name, st in monitor.state.items()
         },
+        # per triad and axis: whether the stuck check runs (docs/service.md)
+        "stuck_checked": monitor.stuck_checked,
         "adc_errors": monitor.adc_errors,
         "self_test": monitor.self_test,
         "certificate": certificate_object(certificate, reloads),
@@ -158,11 +161,16 @@ def noise_object(
 
 
 def diagnosis_verdict(
-    faults: Iterable[Mapping[str, Any]], undetermined: Iterable[str], raised: int
+    faults: Iterable[Mapping[str, Any]],
+    undetermined: Iterable[str],
+    raised: int,
+    since: Mapping[str, float | None] | None = None,
 ) -> dict[str, Any]:
     """The ``diagnosis`` object: per triad ``fault`` while a fault of it is in force, else
-    ``undetermined`` or ``ok``; ``raised`` counts what was ever raised. The live verdict
-    comes from the faults in force, never a latch that contradicts ``faults`` and ``state``."""
+    ``undetermined`` or ``ok``; ``raised`` counts what was ever raised; ``since`` per triad
+    the sample time, s, at which that verdict came in force (the end of the window that
+    brought it; None before any window). The live verdict comes from the faults in force,
+    never a latch that contradicts ``faults`` and ``state``."""
     in_force = {f["triad"] for f in faults}
     unseen = set(undetermined)
     view: dict[str, Any] = {
@@ -170,6 +178,9 @@ def diagnosis_verdict(
         for name in TRIADS
     }
     view["raised"] = raised
+    if since is not None:
+        at = {name: since.get(name) for name in TRIADS}
+        view["since"] = {name: None if t is None else round(float(t), 6) for name, t in at.items()}
     return view
 
 
