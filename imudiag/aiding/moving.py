@@ -56,7 +56,7 @@ from .isolation import IsolationTracker
 from .joint import choose, separate_latency_std, solve_latency_lever
 from .lever_arm import LeverArmEstimate, lever_arm_rows, row_noise_variance, solve_lever_arm
 from .onset import isolate_window
-from .specific_force import GateConfig, GnssEpochs, ImuEpochs, gnss_epochs, imu_epochs
+from .specific_force import GateConfig, GnssEpochs, ImuEpochs, ImuSeries, gnss_epochs
 from .tpv import GnssTrack
 
 
@@ -180,10 +180,11 @@ def moving_base_diagnosis(
         report["verdict"] = "unknown"
         report["reason"] = "no valid GNSS epoch over the IMU record"
         return report
+    series = ImuSeries(t, f_si, w_si)  # cut at many latencies below: made once
     if cfg.latency_s is None:
         lat = estimate_latency(
             t, f_si, ep, gyro_si=w_si, max_latency_s=cfg.max_latency_s,
-            max_std_s=cfg.latency_tolerance_s,
+            max_std_s=cfg.latency_tolerance_s, series=series,
         )  # fmt: skip
         latency, latency_std = used_latency(lat, cfg.max_latency_s)
         report["gnss"]["latency"] = dict(
@@ -195,16 +196,15 @@ def moving_base_diagnosis(
         report["gnss"]["latency"] = dict(lat.to_json(), used_s=latency, used_std_s=0.0)
     sig_raw = accel_noise(block.accel, acc.noise_sigma(rate))
     sig_si = sig_raw / acc.scale_factor * acc.unit_to_si
-    plain = imu_epochs(
-        t, f_si, ep.t0, ep.t1, gyro_si=w_si, accel_raw=block.accel,
-        sigma_sample_si=sig_si, latency_s=latency,
-    )  # fmt: skip
+    plain = series.epochs(
+        ep.t0, ep.t1, accel_raw=block.accel, sigma_sample_si=sig_si, latency_s=latency
+    )
     gyro_sig_si = gyro_noise_si(block.gyro, gyr, rate)  # once: lever rows, joint, turns
     est = estimate_lever_arm(t, w_si, gyro_sig_si, ep, plain, latency, rate)
     if cfg.latency_s is None and cfg.lever_arm_m is None and math.isfinite(lat.std_s):
         latency, est, joint = solve_jointly(
             t, f_si, w_si, gyro_sig_si, ep, sig_si, rate, latency, est, cfg.max_latency_s,
-            lat.determined,
+            lat.determined, series=series,
         )  # fmt: skip
         if joint["used"]:
             latency_std = float(joint["latency_std_s"])
@@ -228,12 +228,9 @@ def moving_base_diagnosis(
         configured=cfg.lever_arm_m is not None,
         used_m=[round(float(x), 3) for x in lever],
     )
-    im = imu_epochs(
-        t,
-        f_si,
+    im = series.epochs(
         ep.t0,
         ep.t1,
-        gyro_si=w_si,
         accel_raw=block.accel,
         sigma_sample_si=sig_si,
         latency_s=latency,
@@ -300,6 +297,7 @@ def solve_jointly(
     lever: LeverArmEstimate,
     max_latency_s: float,
     latency_determined: bool = True,
+    series: ImuSeries | None = None,
 ) -> tuple[float, LeverArmEstimate, dict]:
     """Latency and lever arm solved together from the separate ``latency_s`` (s) and
     ``lever`` (:mod:`.joint`): (latency, lever estimate, report), the joint ones where
@@ -308,6 +306,7 @@ def solve_jointly(
     joint = solve_latency_lever(
         t, f_si, w_si, ep, latency_s, sigma_sample_si=sig_si,
         row_noise_var=lever_row_noise(gyro_sigma_si, ep, rate_hz), max_latency_s=max_latency_s,
+        series=series,
     )  # fmt: skip
     return choose(joint, latency_s, lever, latency_determined)
 
