@@ -41,7 +41,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..certificate import Certificate, TriadModel
-from ..diagnosis.params import CAUSES, cause_unit, parameter_units, sensor_of
+from ..diagnosis.params import CAUSES, cause_unit, sensor_of, triad_form
 from ..diagnosis.scalar_fit import exact_fit
 from ..samples import SampleBlock
 from .align import (
@@ -345,6 +345,7 @@ def _windows(
     noise per sample (raw units), ``sig_lat`` (K,) the epochs' |f| std from the latency's
     (m/s^2)."""
     acc = cert.accel
+    form = triad_form(acc)  # the certificate's internal form, once for every window's fits
     means, var, mag_in = epoch_observations(ep, im, acc, sig_raw, sig_lat)
     tracker = IsolationTracker(persist=cfg.persist)
     t_mid = 0.5 * (ep.t0 + ep.t1)
@@ -365,13 +366,13 @@ def _windows(
                 # a fault onset inside the window: only the epochs after it (.onset)
                 win = np.flatnonzero(sel)
                 wi = isolate_window(
-                    acc, means[win], var[win], mag_in[win], t_mid[win], cfg.min_epochs_after_onset,
+                    form, means[win], var[win], mag_in[win], t_mid[win], cfg.min_epochs_after_onset,
                     k_sigma=cfg.k_sigma, prior_factor=cfg.prior_factor,
                 )  # fmt: skip
                 sel = np.zeros_like(sel)
                 sel[win[wi.first :] if wi.iso is not None else win] = True
                 fit = exact_fit(
-                    acc,
+                    form,
                     means[sel],
                     var[sel],
                     mag_in[sel],
@@ -419,7 +420,7 @@ def _windows(
     for fault in faults:
         if fault["named"]:
             fault["unit"] = cause_unit(acc, fault["cause"])
-    units = parameter_units(acc)
+    units = form.units
     findings = _aggregate_findings(
         windows, cfg.persist, {f"{sensor_of('accel', j)} {CAUSES[j]}": units[j] for j in range(9)}
     )

@@ -500,8 +500,8 @@ class ImuSeries:
         fc = self._accel_rows
         gyro_mean = None
         big = self._gyro_integral
-        if w is not None and big is not None:
-            w_rows = self._gyro_rows
+        w_rows = self._gyro_rows
+        if w is not None and w_rows is not None and big is not None:
             gsum = _binned_sums(idx, w_rows, kk)
             with np.errstate(invalid="ignore", divide="ignore"):
                 gyro_mean = gsum / count[:, None]

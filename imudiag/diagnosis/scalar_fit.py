@@ -27,16 +27,8 @@ from typing import Any
 import numpy as np
 
 from ..certificate import TriadModel
-from .gauge import p_matrix, shape_of_triad
-from .params import (
-    TriadFit,
-    certificate_std_vector,
-    certificate_vector,
-    internal_scale,
-    limit_vector,
-    parameter_units,
-    std_above_limit,
-)
+from .gauge import p_matrix
+from .params import TriadFit, TriadForm, std_above_limit, triad_form
 from .robust import point_diagnostics, reject_outliers
 
 #: Floor of the standard deviation of a normalised residual (model resolution).
@@ -71,18 +63,20 @@ def _regressor_jacobian(y: np.ndarray) -> np.ndarray:
     return jac
 
 
-def internal_limits(triad: TriadModel, m0: float) -> np.ndarray:
-    return limit_vector(triad) / internal_scale(triad, m0)
+def internal_limits(triad: TriadModel | TriadForm, m0: float) -> np.ndarray:
+    """The limits (9,) in the fits' dimensionless units at reference magnitude m0."""
+    return triad_form(triad).internal_limits(m0)
 
 
-def certificate_internal(triad: TriadModel, m0: float) -> tuple[np.ndarray, np.ndarray]:
-    """theta_c (9,) = (B / (S m0), shape of P) and the rotation Q of the certificate's N."""
-    shape, q = shape_of_triad(triad)
-    return np.concatenate([triad.bias / (triad.scale_factor * m0), shape]), q
+def certificate_internal(triad: TriadModel | TriadForm, m0: float) -> tuple[np.ndarray, np.ndarray]:
+    """theta_c (9,) = (B / (S m0), shape of P) and the rotation Q (read-only) of the
+    certificate's N."""
+    form = triad_form(triad)
+    return form.internal(m0), form.q
 
 
 def _finish(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     method: str,
     m0: float,
     theta_dev: np.ndarray,
@@ -94,10 +88,9 @@ def _finish(
     rms: float,
 ) -> TriadFit:
     """Turn internal deviations and covariance into a TriadFit in certificate units."""
-    scale = internal_scale(triad, m0)
-    cert = certificate_vector(triad)
-    limit = limit_vector(triad)
-    units = parameter_units(triad)
+    form = triad_form(triad)
+    scale = form.scale(m0)
+    cert, limit, units = form.certificate, form.limit, form.units
     est = cert + theta_dev * scale
     std = np.sqrt(np.maximum(np.diag(cov), 0.0)) * scale
     std = np.where(null, np.inf, std)
@@ -114,7 +107,7 @@ def _finish(
         for i in range(9)
     ]
     return TriadFit(
-        triad=triad.name,
+        triad=form.name,
         method=method,
         estimate=est,
         std=std,
@@ -125,7 +118,7 @@ def _finish(
         condition=condition,
         points=points,
         rms_residual=rms,
-        certificate_std=certificate_std_vector(triad),
+        certificate_std=form.certificate_std,
     )
 
 
@@ -167,7 +160,7 @@ def residuals_and_jacobian(
 
 
 def exact_fit(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     mean_var: np.ndarray,
     magnitude: float | np.ndarray,
@@ -193,7 +186,10 @@ def exact_fit(
     ``predict``: (means (J, 3), variances (J, 3), magnitudes (J,)) of points not
     in the fit; their prediction errors in sigma (their noise, the fit's excess
     scatter and its parameter uncertainty) go to ``fit.extra["predicted_z"]``.
+    ``triad``: the certificate's model or its internal form (:func:`.params.triad_form`,
+    made once by a caller that fits many windows).
     """
+    triad = triad_form(triad)
     means = np.asarray(means, dtype=float).reshape(-1, 3)
     k = means.shape[0]
     mag = np.broadcast_to(np.asarray(magnitude, dtype=float), (k,))
@@ -300,7 +296,7 @@ def exact_fit(
     fit.excess_var = float(extra_used)
     if k and max_iter > 0:
         diag = point_diagnostics(jac, r, sig2 - extra_used, cov_unscaled, weights=wgt)
-        scale = internal_scale(triad, m0)
+        scale = triad.scale(m0)
         loo = (theta - theta_c)[None, :] + diag.shift
         fit.loo_deviation = np.where(null[None, :], 0.0, loo * scale[None, :])
         fit.point_z = diag.z
@@ -323,7 +319,7 @@ def exact_fit(
 
 
 def robust_exact_fit(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     mean_var: np.ndarray,
     magnitude: float | np.ndarray,
@@ -345,7 +341,7 @@ def robust_exact_fit(
 
 
 def robust_exact_fit_and_plain(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     mean_var: np.ndarray,
     magnitude: float | np.ndarray,
@@ -458,7 +454,7 @@ class NormalEquations:
         return self
 
 
-def corrected_normalised(triad: TriadModel, raw: np.ndarray, m0: float) -> np.ndarray:
+def corrected_normalised(triad: TriadModel | TriadForm, raw: np.ndarray, m0: float) -> np.ndarray:
     """Certificate-corrected outputs (N, 3) in units of ``m0`` (input units)."""
     theta_c, q = certificate_internal(triad, m0)
     p = p_matrix(theta_c[3:])
@@ -468,7 +464,7 @@ def corrected_normalised(triad: TriadModel, raw: np.ndarray, m0: float) -> np.nd
 
 
 def sample_rows(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     raw: np.ndarray,
     magnitude: np.ndarray,
     m0: float,
@@ -501,7 +497,7 @@ def sample_rows(
 
 
 def samples_normal_equations(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     raw: np.ndarray,
     magnitude: np.ndarray,
     m0: float,
@@ -514,7 +510,7 @@ def samples_normal_equations(
 
 
 def interval_normal_equations(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     covs: np.ndarray,
     counts: np.ndarray,
@@ -565,7 +561,7 @@ def interval_normal_equations(
 
 
 def normal_equation_fit(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     ne: NormalEquations,
     m0: float,
     method: str,
@@ -613,7 +609,7 @@ def normal_equation_fit(
 
 
 def linear_fit(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     covs: np.ndarray,
     counts: np.ndarray,

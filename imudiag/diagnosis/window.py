@@ -33,11 +33,9 @@ from .intervals import MotionSegment, QuasiStaticInterval, stacked_mean_var
 from .known_rate import classify_plateaus
 from .params import (
     TriadFit,
-    certificate_std_vector,
     certificate_vector,
-    limit_vector,
-    parameter_units,
     std_above_limit,
+    triad_form,
     undetermined_fit,
 )
 from .predicates import held_back
@@ -181,7 +179,7 @@ def accel_window_fit(
         # wrong parameter); a single interval is kept from making a fault by the
         # influence rule of the predicates
         fit = window_exact_fit(
-            tri,
+            triad_form(tri),  # the certificate converted once for the window's fits
             means,
             mvar,
             g_in,
@@ -343,7 +341,7 @@ def gyro_window_fit(
         return fit, 0
     if mode == "earth-rate":
         fit = window_exact_fit(
-            tri,
+            triad_form(tri),
             means,
             mvar,
             w_in,
@@ -361,9 +359,8 @@ def gyro_window_fit(
         )
         return fit, 0
 
-    cert_vec = certificate_vector(tri)
-    limit = limit_vector(tri)
-    units = parameter_units(tri)
+    form = triad_form(tri)
+    cert_vec, limit, units = form.certificate, form.limit, form.units
     bias, bias_std = rest_bias(tri, means, mvar, counts, cert.earth_rate)
     est = cert_vec.copy()
     std = np.full(9, np.inf)
@@ -434,7 +431,7 @@ def gyro_window_fit(
         dof=rot_dof,
         loo_deviation=loo_rows,
         point_labels=motion_labels(pairs) if loo_rows is not None else None,
-        certificate_std=certificate_std_vector(tri),
+        certificate_std=form.certificate_std,
     )
     if rotations:
         fit.require_redundancy(rot_dof, config.min_dof, range(3, 9), f"{len(pairs)} motions")

@@ -17,7 +17,7 @@ from ..errors import BadInput
 from ..logs.extras import MissingExtra
 from .discovery import describe, expand
 from .records import RecordLog, read_records, write_table
-from .task import Job, diagnose_log
+from .task import Job, diagnose_log, warm_up
 
 EXTRA = "fleet"
 #: Default per-log timeout, s of wall time.
@@ -71,6 +71,26 @@ def load_certificate_map(path: str) -> dict[str, str]:
     return out
 
 
+def _warm_plugin() -> Any:
+    """A Dask worker plugin that imports what a per-log task needs (:func:`.task.warm_up`)
+    on every worker, the ones started later (a killed worker's replacement) too, so that
+    no log's CPU pays the imports."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class WarmUp(WorkerPlugin):
+        name = "imudiag-warm-up"
+
+        def setup(self, worker: Any) -> None:
+            warm_up()
+
+    return WarmUp()
+
+
+def _register_warm_up(client: Any) -> None:
+    register = getattr(client, "register_plugin", None) or client.register_worker_plugin
+    register(_warm_plugin())
+
+
 @contextlib.contextmanager
 def _client(
     scheduler: str | None,
@@ -91,6 +111,7 @@ def _client(
             except OSError as exc:
                 raise BadInput(f"--scheduler {scheduler}: cannot connect: {exc}") from None
             try:
+                _register_warm_up(client)
                 yield client
             finally:
                 client.close()
@@ -110,6 +131,7 @@ def _client(
         if dashboard:
             print(f"imudiag fleet: dashboard at {client.dashboard_link}", flush=True)
         try:
+            _register_warm_up(client)
             yield client
         finally:
             client.close()
