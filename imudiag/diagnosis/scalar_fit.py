@@ -140,10 +140,11 @@ _PAIR_I = np.array([0, 0, 1])
 _PAIR_J = np.array([1, 2, 2])
 
 
-def residuals_and_jacobian(
+def _residuals(
     theta: np.ndarray, v: np.ndarray, mu: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Residuals |P^-1 (v - beta)| - mu (K,), Jacobian (K, 9) and w = P^-1 x_hat (K, 3)."""
+    """Residuals |P^-1 (v - beta)| - mu (K,), x = P^-1 (v - beta) (K, 3) and
+    w = P^-1 x_hat (K, 3): :func:`residuals_and_jacobian` without the Jacobian."""
     beta = theta[:3]
     p = p_matrix(theta[3:])
     pinv = np.linalg.inv(p)
@@ -151,12 +152,25 @@ def residuals_and_jacobian(
     nx = np.sqrt((x * x).sum(axis=1))  # np.linalg.norm's own sum, without its wrapper
     xh = x / nx[:, None]
     w = xh @ pinv.T  # P^-1 symmetric
-    jac = np.empty((v.shape[0], 9))
+    return nx - mu, x, w
+
+
+def _jacobian(x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The Jacobian (K, 9) of :func:`_residuals` from its x and w."""
+    jac = np.empty((x.shape[0], 9))
     jac[:, 0:3] = -w
     jac[:, 3:6] = -w * x
     # columns 6-8: -0.5 (w_i x_j + w_j x_i) for (i, j) = (0, 1), (0, 2), (1, 2), in one pass
     jac[:, 6:9] = -0.5 * (w[:, _PAIR_I] * x[:, _PAIR_J] + w[:, _PAIR_J] * x[:, _PAIR_I])
-    return nx - mu, jac, w
+    return jac
+
+
+def residuals_and_jacobian(
+    theta: np.ndarray, v: np.ndarray, mu: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Residuals |P^-1 (v - beta)| - mu (K,), Jacobian (K, 9) and w = P^-1 x_hat (K, 3)."""
+    r, x, w = _residuals(theta, v, mu)
+    return r, _jacobian(x, w), w
 
 
 def exact_fit(
@@ -216,16 +230,21 @@ def exact_fit(
     else:
         theta = np.asarray(start, dtype=float).copy()
 
-    def cost(th: np.ndarray, extra: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-        r, jac, w = residuals_and_jacobian(th, v, mu)
+    def cost(
+        th: np.ndarray, extra: float
+    ) -> tuple[float, np.ndarray, tuple[np.ndarray, np.ndarray], np.ndarray]:
+        """(cost, residuals, (x, w) for the Jacobian, variances): the Jacobian is made
+        (:func:`_jacobian`) only for a step that is taken; most tries are not."""
+        r, x, w = _residuals(th, v, mu)
         sig2 = np.einsum("kj,kj->k", w * w, var_v) + RESIDUAL_FLOOR**2 + extra
         c = float((r * r / sig2).sum() + (prior_prec * (th - theta_c) ** 2).sum())
-        return c, r, jac, sig2
+        return c, r, (x, w), sig2
 
     def gauss_newton(
         theta: np.ndarray, extra: float
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        c0, r, jac, sig2 = cost(theta, extra)
+        c0, r, xw, sig2 = cost(theta, extra)
+        jac = _jacobian(*xw)
         lam = 1e-6
         for _ in range(max_iter):
             wgt = 1.0 / sig2
@@ -240,9 +259,9 @@ def exact_fit(
                 if abs(cand[3:] - shape_c).max() > MAX_SHAPE:
                     lam *= 10.0
                     continue
-                c1, r1, j1, s1 = cost(cand, extra)
+                c1, r1, xw1, s1 = cost(cand, extra)
                 if np.isfinite(c1) and c1 <= c0:
-                    theta, c0, r, jac, sig2 = cand, c1, r1, j1, s1
+                    theta, c0, r, jac, sig2 = cand, c1, r1, _jacobian(*xw1), s1
                     lam = max(lam / 10.0, 1e-12)
                     accepted = True
                     break

@@ -110,19 +110,22 @@ def model_with(triad: TriadModel, estimate: np.ndarray) -> TriadModel:
     """A copy of ``triad`` with B, E, d of ``estimate`` (certificate units, (9,)).
 
     The shape comes from the estimate's deviations; the certificate's
-    unobservable rotation Q of N = P Q is kept.
+    unobservable rotation Q of N = P Q is kept. The fields it does not change are the
+    certificate's own objects, not copies (every window makes one: a deep copy of the
+    temperature, noise and limit blocks cost more than the window's accelerometer fit).
     """
-    import copy
+    import dataclasses
 
     shape_c, q = shape_of_triad(triad)
     dev = np.asarray(estimate, dtype=float) - certificate_vector(triad)
     shape = shape_c + np.concatenate([dev[3:6] / triad.scale_factor, dev[6:9]])
     n = p_matrix(shape) @ q
-    out = copy.deepcopy(triad)
-    out.bias = np.asarray(estimate[:3], dtype=float).copy()
-    out.scale_factor_error = (np.diag(n) - 1.0) * triad.scale_factor
-    out.misalignment = misalignment_of_n(n)
-    return out
+    return dataclasses.replace(
+        triad,
+        bias=np.asarray(estimate[:3], dtype=float).copy(),
+        scale_factor_error=(np.diag(n) - 1.0) * triad.scale_factor,
+        misalignment=misalignment_of_n(n),
+    )
 
 
 def interval_labels(intervals: list[QuasiStaticInterval]) -> list[str]:

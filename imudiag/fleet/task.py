@@ -58,6 +58,35 @@ def warm_up() -> float:
     return time.process_time() - cpu0
 
 
+#: Certificates parsed in this worker, by (absolute path or None for the bundled one, size,
+#: mtime_ns): a fleet's logs share a few certificates, and parsing the YAML was a tenth of a
+#: short log's CPU. At most _CERTIFICATE_CACHE_SIZE, emptied when full.
+_CERTIFICATES: dict[tuple[str | None, int, int], Any] = {}
+_CERTIFICATE_CACHE_SIZE = 32
+
+
+def load_certificate_once(path: str | None) -> Any:
+    """The certificate at ``path`` (None: the bundled one) as
+    :func:`imudiag.api.load_certificate` loads it, parsed once per worker while the file is
+    unchanged (same size and modification time); each call gets its own copy."""
+    from ..api import load_certificate
+
+    key: tuple[str | None, int, int] = (None, 0, 0)
+    if path is not None:
+        try:
+            st = os.stat(path)
+        except OSError:
+            return load_certificate(path)  # its own error, naming the file and the reason
+        key = (str(Path(path).absolute()), st.st_size, st.st_mtime_ns)
+    cert = _CERTIFICATES.get(key)
+    if cert is None:
+        cert = load_certificate(path)
+        if len(_CERTIFICATES) >= _CERTIFICATE_CACHE_SIZE:
+            _CERTIFICATES.clear()
+        _CERTIFICATES[key] = cert
+    return cert.copy()
+
+
 class LogTimeout(ImudiagError):
     """A log's diagnosis ran past the per-log timeout."""
 
@@ -204,7 +233,7 @@ def _json_safe(meta: dict[str, Any]) -> dict[str, Any]:
 
 def diagnose_log(job: Job) -> dict[str, Any]:
     """Diagnose one log; the record of docs/fleet.md (``status`` ``ok`` or ``error``)."""
-    from ..api import diagnose, load_certificate
+    from ..api import diagnose
     from .identity import folder_vehicle, identify
 
     started, cpu0 = time.monotonic(), _cpu_s()
@@ -236,7 +265,7 @@ def diagnose_log(job: Job) -> dict[str, Any]:
         cert_path, cert_source = choose_certificate(job, record["vehicle"], folder)
         record["certificate_source"] = cert_source
         stage = "loading the certificate"
-        cert = load_certificate(cert_path)
+        cert = load_certificate_once(cert_path)
         record["certificate"] = str(cert.source) if cert.source else cert_path
         if cert.source and Path(str(cert.source)).is_file():
             record["certificate_sha256"] = hashlib.sha256(
@@ -292,5 +321,6 @@ __all__ = [
     "best_estimates",
     "choose_certificate",
     "diagnose_log",
+    "load_certificate_once",
     "warm_up",
 ]
