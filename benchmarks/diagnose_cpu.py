@@ -4,10 +4,10 @@ fleet's per-log task run (issue 28: at most 1.0 s of CPU per 10^6 samples).
 
 Cases (fixed seeds), each written once into a temporary folder:
 
-- ``multiposition``: a simulated board turned through attitudes (12 to 40 holds of about a
-  minute), written as NPZ and diagnosed by the fleet's per-log task
+- ``multiposition``: a simulated board turned through 12 attitudes (a flight of ``imudiag
+  simulate fleet``), written as NPZ and diagnosed by the fleet's per-log task
   (:func:`imudiag.fleet.task.diagnose_log`, which calls :func:`imudiag.diagnose`);
-- ``static``: the static scenario (a multi-position check with fewer attitudes);
+- ``static``: the static cycle (8 attitudes), the same way;
 - ``drive``: a moving-base drive (``urban``) with its GNSS track, the samples and the track
   passed to :func:`imudiag.diagnose` in memory (the report's ``moving_base`` section).
 
@@ -37,28 +37,13 @@ CASES = ("multiposition", "static", "drive")
 
 
 def write_board_log(path: Path, kind: str, n: int, rate_hz: float, seed: int) -> Path:
-    """``n`` samples of the simulated board in scenario ``kind`` at ``rate_hz``, as a log."""
+    """``n`` samples of the simulated board in scenario ``kind`` at ``rate_hz``, as a log
+    (one flight of ``imudiag simulate fleet``: 12 holds, or 8 for ``static``)."""
     from imudiag.certificate import load_default
-    from imudiag.logs import open_writer
-    from imudiag.sim.scenarios import parse_effects, scenario_motion
-    from imudiag.sim.simulator import Simulator
+    from imudiag.fleet.simulate import write_flight
 
-    seconds = n / rate_hz
-    holds = 40 if kind == "multiposition" else 12
-    holds = max(6, min(holds, int(seconds // 30)))
-    dwell = max(3.0, (seconds - holds * 1.5) / holds)
-    motion = scenario_motion(kind, seed, {"n": str(holds), "dwell": f"{dwell:g}", "turn": "1.5"})
-    most = motion.n_samples(rate_hz)
-    n = n if most is None else min(n, most)
-    sim = Simulator(load_default(), parse_effects(["board"]), [], seed, meta={})
-    meta: dict[str, Any] = {"sample_rate": rate_hz}
-    chunk = int(30 * rate_hz)
-    with open_writer(path, meta=meta) as writer:
-        done = 0
-        while done < n:
-            k = min(chunk, n - done)
-            writer.write(sim.step(motion.sample(rate_hz, done, k)))
-            done += k
+    meta = {"sample_rate": rate_hz}
+    write_flight(path, load_default(), kind, n / rate_hz, rate_hz, [], seed, meta)
     return path
 
 

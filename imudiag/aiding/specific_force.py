@@ -378,25 +378,51 @@ def imu_epochs(
     sums = np.stack([np.bincount(idx, fc[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
     plain = np.stack([np.bincount(idx, f[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        # the rotation and lever-arm terms from the samples of each epoch; the mean
-        # itself as the integral of the linearly interpolated samples over [a, b]
+        # the mean itself as the integral of the linearly interpolated samples over [a, b]
         # (trapezoid: samples are instants, no half-sample shift)
-        comp = (sums - plain) / count[:, None]
-        mean = _interval_mean(t, f, a, b) + comp
-        mag = np.linalg.norm(mean, axis=1)
-        u = mean / mag[:, None]
-        s2 = np.broadcast_to(np.asarray(sigma_sample_si, dtype=float) ** 2, (3,))
-        sigma_mag = np.sqrt(np.sum(u * u * s2, axis=1) / count)
+        interval_mean = _interval_mean(t, f, a, b)
         mean_raw = None
         if accel_raw is not None:
             mean_raw = _interval_mean(t, np.asarray(accel_raw, dtype=float), a, b)
-    # covered: samples reach both ends of the epoch within 1.5 sample periods
-    if n > 1:
-        period = float(np.median(np.diff(t)))
+    ends = None
+    if n > 1:  # each epoch's first and last sample time
         first = np.full(kk, np.inf)
         last = np.full(kk, -np.inf)
         np.minimum.at(first, idx[inside], t[inside])
         np.maximum.at(last, idx[inside], t[inside])
+        ends = (first, last, float(np.median(np.diff(t))))
+    return _epochs_of(
+        sums, plain, count, interval_mean, sigma_sample_si, a, b, ends, mean_raw, gyro_mean
+    )
+
+
+def _epochs_of(
+    sums: np.ndarray,
+    plain: np.ndarray,
+    count: np.ndarray,
+    interval_mean: np.ndarray,
+    sigma_sample_si: np.ndarray | float,
+    a: np.ndarray,
+    b: np.ndarray,
+    ends: tuple[np.ndarray, np.ndarray, float] | None,
+    mean_raw: np.ndarray | None,
+    gyro_mean: np.ndarray | None,
+) -> ImuEpochs:
+    """The epochs of :func:`imu_epochs` (and :meth:`ImuSeries.epochs`) from each epoch's
+    sums of the compensated and of the plain samples (K, 3), sample counts, interval means
+    (K, 3, m/s^2), epoch bounds [a, b] (K,) s, and ``ends``: each epoch's first and last
+    sample time (K,) s and the sample period, s (None: fewer than 2 samples)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # the rotation and lever-arm terms from the samples of each epoch
+        comp = (sums - plain) / count[:, None]
+        mean = interval_mean + comp
+        mag = np.linalg.norm(mean, axis=1)
+        u = mean / mag[:, None]
+        s2 = np.broadcast_to(np.asarray(sigma_sample_si, dtype=float) ** 2, (3,))
+        sigma_mag = np.sqrt(np.sum(u * u * s2, axis=1) / count)
+    # covered: samples reach both ends of the epoch within 1.5 sample periods
+    if ends is not None:
+        first, last, period = ends
         expected = (b - a) / period
         covered = (
             (first - a <= 1.5 * period)
@@ -404,7 +430,7 @@ def imu_epochs(
             & (count >= np.maximum(1, 0.9 * expected - 1))
         )
     else:
-        covered = np.zeros(kk, dtype=bool)
+        covered = np.zeros(a.shape[0], dtype=bool)
     return ImuEpochs(
         mean_si=mean,
         mag=mag,
@@ -523,40 +549,21 @@ class ImuSeries:
         sums = _binned_sums(idx, fc, kk)
         plain = _binned_sums(idx, self._accel_rows, kk)
         with np.errstate(invalid="ignore", divide="ignore"):
-            comp = (sums - plain) / count[:, None]
             if self._accel_integral is None:
-                mean = np.full((kk, 3), np.nan) + comp
+                interval_mean = np.full((kk, 3), np.nan)
             else:
-                mean = _mean_of_integral(t, *self._accel_integral, a, b) + comp
-            mag = np.linalg.norm(mean, axis=1)
-            u = mean / mag[:, None]
-            s2 = np.broadcast_to(np.asarray(sigma_sample_si, dtype=float) ** 2, (3,))
-            sigma_mag = np.sqrt(np.sum(u * u * s2, axis=1) / count)
+                interval_mean = _mean_of_integral(t, *self._accel_integral, a, b)
             mean_raw = None
             if accel_raw is not None:
                 mean_raw = _interval_mean(t, np.asarray(accel_raw, dtype=float), a, b)
-        if n > 1:
-            period = self.period_s
+        ends = None
+        if n > 1:  # each epoch's first and last sample: the ends of its slice
             some = count > 0
             first = np.where(some, t[np.minimum(start, n - 1)], np.inf)
             last = np.where(some, t[np.maximum(end - 1, 0)], -np.inf)
-            expected = (b - a) / period
-            covered = (
-                (first - a <= 1.5 * period)
-                & (b - last <= 1.5 * period)
-                & (count >= np.maximum(1, 0.9 * expected - 1))
-            )
-        else:
-            covered = np.zeros(kk, dtype=bool)
-        return ImuEpochs(
-            mean_si=mean,
-            mag=mag,
-            sigma_mag=sigma_mag,
-            comp_si=comp,
-            count=count,
-            covered=covered,
-            mean_raw=mean_raw,
-            gyro_mean=gyro_mean,
+            ends = (first, last, self.period_s)
+        return _epochs_of(
+            sums, plain, count, interval_mean, sigma_sample_si, a, b, ends, mean_raw, gyro_mean
         )
 
 

@@ -71,24 +71,18 @@ def load_certificate_map(path: str) -> dict[str, str]:
     return out
 
 
-def _warm_plugin() -> Any:
-    """A Dask worker plugin that imports what a per-log task needs (:func:`.task.warm_up`)
-    on every worker, the ones started later (a killed worker's replacement) too, so that
-    no log's CPU pays the imports."""
-    from distributed.diagnostics.plugin import WorkerPlugin
-
-    class WarmUp(WorkerPlugin):
-        name = "imudiag-warm-up"
-
-        def setup(self, worker: Any) -> None:
-            warm_up()
-
-    return WarmUp()
-
-
-def _register_warm_up(client: Any) -> None:
-    register = getattr(client, "register_plugin", None) or client.register_worker_plugin
-    register(_warm_plugin())
+def _warm_workers(client: Any) -> None:
+    """Every worker imports what a per-log task needs (:func:`.task.warm_up`) before the
+    first log is submitted, so no log's CPU pays the imports. A worker that dies doing it
+    (a memory limit below what the imports take) is restarted by its nanny and imports
+    with its first log instead, as a worker restarted after a killed log does: no worker
+    plugin, whose warm-up a restarted worker would repeat before taking any log, so a
+    worker that cannot warm up would never reach the log that is to be recorded as
+    having killed it."""
+    try:
+        client.run(warm_up)
+    except Exception:  # noqa: BLE001, S110 - a worker lost while warming up is Dask's to restart
+        pass
 
 
 @contextlib.contextmanager
@@ -111,7 +105,7 @@ def _client(
             except OSError as exc:
                 raise BadInput(f"--scheduler {scheduler}: cannot connect: {exc}") from None
             try:
-                _register_warm_up(client)
+                _warm_workers(client)
                 yield client
             finally:
                 client.close()
@@ -131,7 +125,7 @@ def _client(
         if dashboard:
             print(f"imudiag fleet: dashboard at {client.dashboard_link}", flush=True)
         try:
-            _register_warm_up(client)
+            _warm_workers(client)
             yield client
         finally:
             client.close()
