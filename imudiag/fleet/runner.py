@@ -17,7 +17,7 @@ from ..errors import BadInput
 from ..logs.extras import MissingExtra
 from .discovery import describe, expand
 from .records import RecordLog, read_records, write_table
-from .task import Job, diagnose_log, warm_up
+from .task import Job, diagnose_log
 
 EXTRA = "fleet"
 #: Default per-log timeout, s of wall time.
@@ -71,20 +71,6 @@ def load_certificate_map(path: str) -> dict[str, str]:
     return out
 
 
-def _warm_workers(client: Any) -> None:
-    """Every worker imports what a per-log task needs (:func:`.task.warm_up`) before the
-    first log is submitted, so no log's CPU pays the imports. A worker that dies doing it
-    (a memory limit below what the imports take) is restarted by its nanny and imports
-    with its first log instead, as a worker restarted after a killed log does: no worker
-    plugin, whose warm-up a restarted worker would repeat before taking any log, so a
-    worker that cannot warm up would never reach the log that is to be recorded as
-    having killed it."""
-    try:
-        client.run(warm_up)
-    except Exception:  # noqa: BLE001, S110 - a worker lost while warming up is Dask's to restart
-        pass
-
-
 @contextlib.contextmanager
 def _client(
     scheduler: str | None,
@@ -105,7 +91,6 @@ def _client(
             except OSError as exc:
                 raise BadInput(f"--scheduler {scheduler}: cannot connect: {exc}") from None
             try:
-                _warm_workers(client)
                 yield client
             finally:
                 client.close()
@@ -125,7 +110,6 @@ def _client(
         if dashboard:
             print(f"imudiag fleet: dashboard at {client.dashboard_link}", flush=True)
         try:
-            _warm_workers(client)
             yield client
         finally:
             client.close()
