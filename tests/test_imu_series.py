@@ -99,3 +99,28 @@ def test_rotation_rows_equal_rodrigues():
     x = rng.normal(0.0, 9.8, (5000, 3))
     rows = _rodrigues_rows(np.ascontiguousarray(theta.T), np.ascontiguousarray(x.T))
     np.testing.assert_array_equal(rows.T, _rodrigues(theta, x))
+
+
+def test_moving_base_report_equals_the_plain_cuts(drive, monkeypatch):
+    """The whole moving-base section with every cut made by the plain ``imu_epochs`` equals
+    the one made through the series (latency search, joint solve, final epochs)."""
+    import json
+
+    from imudiag.aiding import specific_force
+    from imudiag.aiding.moving import MovingConfig, moving_base_diagnosis
+    from imudiag.samples import SampleBlock
+
+    block, track, _, _ = drive
+    cert = load_default()
+    samples = SampleBlock(t=block.t, gyro=block.gyro, accel=block.accel)
+    fast = moving_base_diagnosis(samples, cert, track, MovingConfig())
+
+    def plain_cut(self, t0, t1, **kw):
+        return imu_epochs(self.t, self.accel_si, t0, t1, gyro_si=self.gyro_si, **kw)
+
+    monkeypatch.setattr(specific_force.ImuSeries, "epochs", plain_cut)
+    plain = moving_base_diagnosis(samples, cert, track, MovingConfig())
+    assert fast["windows_run"] >= 1
+    assert json.dumps(fast, sort_keys=True, default=str) == json.dumps(
+        plain, sort_keys=True, default=str
+    )
