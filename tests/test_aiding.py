@@ -355,13 +355,13 @@ def test_latency_search_coarse_to_fine_equals_the_full_grid(scenario, latency_s,
     track = track_from_reports([x for x in (parse_tpv(r) for r in reports) if x])
     epochs = gnss_epochs(track, span=max(1, int(round(1.0 / track.period_s()))))
     passes = []
-    real = align.imu_epochs
+    real = align.ImuSeries.epochs  # each lag is one cut of the record (ImuSeries.epochs)
 
-    def counted(*args, **kwargs):
+    def counted(self, *args, **kwargs):
         passes.append(kwargs["latency_s"])
-        return real(*args, **kwargs)
+        return real(self, *args, **kwargs)
 
-    monkeypatch.setattr(align, "imu_epochs", counted)
+    monkeypatch.setattr(align.ImuSeries, "epochs", counted)
     fast = align.estimate_latency(s.t, f_si, epochs, gyro_si=w_si)
     n_fast = len(passes)
     monkeypatch.setattr(align, "COARSE_LAG_S", 0.0)

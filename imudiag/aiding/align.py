@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .specific_force import GnssEpochs, imu_epochs
+from .specific_force import GnssEpochs, ImuSeries
 
 #: spacing of the first, coarse pass over the lags, s (refined around its peak)
 COARSE_LAG_S = 0.05
@@ -188,10 +188,12 @@ def estimate_latency(
     min_correlation: float = 0.5,
     min_epochs: int = 20,
     max_std_s: float = LATENCY_TOLERANCE_S,
+    series: ImuSeries | None = None,
 ) -> LatencyEstimate:
     """Latency (s) in [-max_latency_s, max_latency_s] maximising the |f| correlation, with
     its jackknife std (s); determined when the peak correlation is at least
-    ``min_correlation`` and the std at most ``max_std_s`` (s) (module doc)."""
+    ``min_correlation`` and the std at most ``max_std_s`` (s) (module doc). ``series``: the
+    record made once (:class:`.ImuSeries` of t, accel_si, gyro_si) when the caller has it."""
     t = np.asarray(t, dtype=float)
     if step_s is None:
         step_s = max(float(np.median(np.diff(t))), MIN_LAG_STEP_S) if t.size > 1 else 0.01
@@ -217,6 +219,8 @@ def estimate_latency(
             len(use),
         )
     lags = np.arange(-max_latency_s, max_latency_s + 0.5 * step_s, step_s)
+    if series is None:  # every lag cuts the same record: what does not depend on it, once
+        series = ImuSeries(t, accel_si, gyro_si)
     corr = np.full(lags.shape, np.nan)
     done = np.zeros(lags.shape, dtype=bool)
     mags: dict[int, np.ndarray] = {}  #: the IMU |f| per epoch at each lag searched
@@ -224,7 +228,7 @@ def estimate_latency(
     def correlate(indices: np.ndarray) -> None:
         for i in indices[~done[indices]]:
             done[i] = True
-            im = imu_epochs(t, accel_si, use.t0, use.t1, gyro_si=gyro_si, latency_s=float(lags[i]))
+            im = series.epochs(use.t0, use.t1, latency_s=float(lags[i]))
             ok = np.isfinite(im.mag) & im.covered
             if np.sum(ok) < min_epochs:
                 continue

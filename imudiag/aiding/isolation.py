@@ -31,11 +31,10 @@ from typing import Any
 import numpy as np
 
 from ..certificate import TriadModel
-from ..diagnosis.params import CAUSES, certificate_vector, internal_scale, sensor_of
+from ..diagnosis.params import CAUSES, TriadForm, sensor_of, triad_form
 from ..diagnosis.scalar_fit import (
     RESIDUAL_FLOOR,
     certificate_internal,
-    internal_limits,
     residuals_and_jacobian,
 )
 
@@ -96,13 +95,14 @@ def _wls(jw: np.ndarray, rw: np.ndarray, cols: list[int]) -> tuple[np.ndarray, n
 
 
 def linearised_at_certificate(
-    triad: TriadModel, means: np.ndarray, mean_var: np.ndarray, magnitude: np.ndarray
+    triad: TriadModel | TriadForm, means: np.ndarray, mean_var: np.ndarray, magnitude: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The epochs' weighted residual problem at the certificate: (J_w (K, 9), r_w (K,),
     limits (9,) and the factors to certificate units (9,)), both internal (dimensionless:
     the means, output units, and magnitudes, input units, are normalised by the median
     magnitude). r_w + J_w delta is the whitened residual after moving the parameters by
     delta (internal units) from the certificate, to first order."""
+    triad = triad_form(triad)
     means = np.asarray(means, dtype=float).reshape(-1, 3)
     mag = np.asarray(magnitude, dtype=float)
     m0 = float(np.median(mag))
@@ -114,11 +114,11 @@ def linearised_at_certificate(
     r, jac, w = residuals_and_jacobian(theta_c, v, mu)
     sig2 = np.einsum("kj,kj->k", w * w, var_v) + RESIDUAL_FLOOR**2
     sw = 1.0 / np.sqrt(sig2)
-    return jac * sw[:, None], r * sw, internal_limits(triad, m0), internal_scale(triad, m0)
+    return jac * sw[:, None], r * sw, triad.internal_limits(m0), triad.scale(m0)
 
 
 def isolate(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     mean_var: np.ndarray,
     magnitude: np.ndarray,
@@ -132,6 +132,7 @@ def isolate(
     that alone removes most of the chi^2, then, given it, the next, while the
     next one removes more than ``k_sigma``^2 (module doc for groups and faults).
     """
+    triad = triad_form(triad)
     jw, rw, lim, scale = linearised_at_certificate(triad, means, mean_var, magnitude)
     k = jw.shape[0]
     norms = np.maximum(np.linalg.norm(jw, axis=0), 1e-300)
@@ -181,7 +182,7 @@ def isolate(
         triad=triad.name,
         findings=findings,
         limit=lim * scale,
-        certificate=certificate_vector(triad),
+        certificate=triad.certificate.copy(),
         alone_std=alone_std * scale,
         correlation=corr,
         points=k,

@@ -27,7 +27,7 @@ from .lever_arm import (
     undetermined_reason,
     weighted_solve,
 )
-from .specific_force import GnssEpochs, imu_epochs
+from .specific_force import GnssEpochs, ImuSeries
 
 #: lag step of the |f| derivative, s
 DERIVATIVE_STEP_S = 0.02
@@ -94,13 +94,17 @@ def solve_latency_lever(
     determined_std_m: float = 0.15,
     min_epochs: int = 30,
     free_axes: np.ndarray | None = None,
+    series: ImuSeries | None = None,
 ) -> JointEstimate:
     """The joint latency and lever arm (module doc), started at ``latency_s`` (s):
     t (N,) s, accel_si and gyro_si (N, 3) corrected SI samples, the GNSS ``epochs``;
     ``sigma_sample_si`` the accelerometer white noise per sample (m/s^2) and
     ``row_noise_var`` the lever rows' noise (:func:`.lever_arm.row_noise_variance`);
     ``free_axes`` (3,) bool: the lever components solved for (the others are held at 0
-    and reported undetermined; default all three)."""
+    and reported undetermined; default all three). ``series``: the record made once
+    (:class:`.ImuSeries` of t, accel_si, gyro_si) when the caller has it."""
+    if series is None:  # three cuts of the same record per iteration
+        series = ImuSeries(t, accel_si, gyro_si)
     free = np.ones(3, bool) if free_axes is None else np.asarray(free_axes, bool)
     cols = np.concatenate([[True], free, [True]])
     tau = float(latency_s)
@@ -112,10 +116,14 @@ def solve_latency_lever(
     u_ok = np.zeros((0, 3))
     while it < MAX_ITERATIONS:
         it += 1
-        kw = dict(gyro_si=gyro_si, sigma_sample_si=sigma_sample_si)
-        im = imu_epochs(t, accel_si, epochs.t0, epochs.t1, latency_s=tau, **kw)  # type: ignore[arg-type]
-        hi = imu_epochs(t, accel_si, epochs.t0, epochs.t1, latency_s=tau + DERIVATIVE_STEP_S, **kw)  # type: ignore[arg-type]
-        lo = imu_epochs(t, accel_si, epochs.t0, epochs.t1, latency_s=tau - DERIVATIVE_STEP_S, **kw)  # type: ignore[arg-type]
+        sig = sigma_sample_si
+        im = series.epochs(epochs.t0, epochs.t1, sigma_sample_si=sig, latency_s=tau)
+        hi = series.epochs(
+            epochs.t0, epochs.t1, sigma_sample_si=sig, latency_s=tau + DERIVATIVE_STEP_S
+        )
+        lo = series.epochs(
+            epochs.t0, epochs.t1, sigma_sample_si=sig, latency_s=tau - DERIVATIVE_STEP_S
+        )
         d = (hi.mag - lo.mag) / (2.0 * DERIVATIVE_STEP_S)
         rows = lever_arm_rows(t, gyro_si, epochs.t0, epochs.t1, im.mean_si, tau)
         y = epochs.mag - im.mag

@@ -54,7 +54,7 @@ from .moving import (
     solve_jointly,
 )
 from .onset import isolate_window
-from .specific_force import GnssEpochs, ImuEpochs, gnss_epochs, imu_epochs
+from .specific_force import GnssEpochs, ImuEpochs, ImuSeries, gnss_epochs
 from .tpv import GnssTrack, track_from_reports
 from .worker import JOIN_TIMEOUT_S, BatchWorker
 
@@ -220,10 +220,11 @@ class AidingBatches:
         # the accelerometers' white noise per sample over the buffer (raw units, and SI)
         sig_raw = accel_noise(self._acc, acc.noise_sigma(rate))
         sig_si = sig_raw / acc.scale_factor * acc.unit_to_si
+        series = ImuSeries(t_utc, f_si, w_si)  # the buffer cut at every latency tried: once
         if cfg.latency_s is None and ep.t1[-1] - self._window_t >= cfg.step_s:
             est = estimate_latency(
                 t_utc, f_si, ep, gyro_si=w_si, max_latency_s=cfg.max_latency_s,
-                max_std_s=cfg.latency_tolerance_s,
+                max_std_s=cfg.latency_tolerance_s, series=series,
             )  # fmt: skip
             if est.determined:
                 self.latency_s, self.latency_std_s = est.latency_s, est.std_s
@@ -237,10 +238,7 @@ class AidingBatches:
                     f"undetermined: {est.reason}; used {self.latency_s:.3f} s with std "
                     f"{1e3 * self.latency_std_s:.0f} ms"
                 )
-            plain = imu_epochs(
-                t_utc, f_si, ep.t0, ep.t1, gyro_si=w_si, sigma_sample_si=sig_si,
-                latency_s=self.latency_s,
-            )  # fmt: skip
+            plain = series.epochs(ep.t0, ep.t1, sigma_sample_si=sig_si, latency_s=self.latency_s)
             self.lever_estimate = estimate_lever_arm(
                 t_utc, w_si, gyro_sig_si, ep, plain, self.latency_s, rate
             )
@@ -248,6 +246,7 @@ class AidingBatches:
                 lat, self.lever_estimate, self.joint = solve_jointly(
                     t_utc, f_si, w_si, gyro_sig_si, ep, sig_si, rate,
                     self.latency_s, self.lever_estimate, cfg.max_latency_s, est.determined,
+                    series=series,
                 )  # fmt: skip
                 if self.joint["used"]:
                     self.latency_s, self.latency_std_s = lat, float(self.joint["latency_std_s"])
@@ -267,12 +266,9 @@ class AidingBatches:
                         )
             if cfg.lever_arm_m is None:
                 self.lever_arm_m = self.lever_estimate.used()
-        im = imu_epochs(
-            t_utc,
-            f_si,
+        im = series.epochs(
             ep.t0,
             ep.t1,
-            gyro_si=w_si,
             accel_raw=self._acc,
             sigma_sample_si=sig_si,
             latency_s=self.latency_s,

@@ -41,7 +41,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..certificate import Certificate, TriadModel
-from ..diagnosis.params import CAUSES, cause_unit, parameter_units, sensor_of
+from ..diagnosis.params import CAUSES, cause_unit, sensor_of, triad_form
 from ..diagnosis.scalar_fit import exact_fit
 from ..quasistatic import BAD_FLAGS
 from ..samples import SampleBlock
@@ -57,7 +57,7 @@ from .isolation import IsolationTracker
 from .joint import choose, separate_latency_std, solve_latency_lever
 from .lever_arm import LeverArmEstimate, lever_arm_rows, row_noise_variance, solve_lever_arm
 from .onset import isolate_window
-from .specific_force import GateConfig, GnssEpochs, ImuEpochs, gnss_epochs, imu_epochs
+from .specific_force import GateConfig, GnssEpochs, ImuEpochs, ImuSeries, gnss_epochs
 from .tpv import GnssTrack
 
 
@@ -188,10 +188,11 @@ def moving_base_diagnosis(
         report["verdict"] = "unknown"
         report["reason"] = "no valid GNSS epoch over the IMU record"
         return report
+    series = ImuSeries(t, f_si, w_si)  # cut at many latencies below: made once
     if cfg.latency_s is None:
         lat = estimate_latency(
             t, f_si, ep, gyro_si=w_si, max_latency_s=cfg.max_latency_s,
-            max_std_s=cfg.latency_tolerance_s,
+            max_std_s=cfg.latency_tolerance_s, series=series,
         )  # fmt: skip
         latency, latency_std = used_latency(lat, cfg.max_latency_s)
         report["gnss"]["latency"] = dict(
@@ -203,16 +204,15 @@ def moving_base_diagnosis(
         report["gnss"]["latency"] = dict(lat.to_json(), used_s=latency, used_std_s=0.0)
     sig_raw = accel_noise(block.accel, acc.noise_sigma(rate))
     sig_si = sig_raw / acc.scale_factor * acc.unit_to_si
-    plain = imu_epochs(
-        t, f_si, ep.t0, ep.t1, gyro_si=w_si, accel_raw=block.accel,
-        sigma_sample_si=sig_si, latency_s=latency,
-    )  # fmt: skip
+    plain = series.epochs(
+        ep.t0, ep.t1, accel_raw=block.accel, sigma_sample_si=sig_si, latency_s=latency
+    )
     gyro_sig_si = gyro_noise_si(block.gyro, gyr, rate)  # once: lever rows, joint, turns
     est = estimate_lever_arm(t, w_si, gyro_sig_si, ep, plain, latency, rate)
     if cfg.latency_s is None and cfg.lever_arm_m is None and math.isfinite(lat.std_s):
         latency, est, joint = solve_jointly(
             t, f_si, w_si, gyro_sig_si, ep, sig_si, rate, latency, est, cfg.max_latency_s,
-            lat.determined,
+            lat.determined, series=series,
         )  # fmt: skip
         if joint["used"]:
             latency_std = float(joint["latency_std_s"])
@@ -236,12 +236,9 @@ def moving_base_diagnosis(
         configured=cfg.lever_arm_m is not None,
         used_m=[round(float(x), 3) for x in lever],
     )
-    im = imu_epochs(
-        t,
-        f_si,
+    im = series.epochs(
         ep.t0,
         ep.t1,
-        gyro_si=w_si,
         accel_raw=block.accel,
         sigma_sample_si=sig_si,
         latency_s=latency,
@@ -308,6 +305,7 @@ def solve_jointly(
     lever: LeverArmEstimate,
     max_latency_s: float,
     latency_determined: bool = True,
+    series: ImuSeries | None = None,
 ) -> tuple[float, LeverArmEstimate, dict]:
     """Latency and lever arm solved together from the separate ``latency_s`` (s) and
     ``lever`` (:mod:`.joint`): (latency, lever estimate, report), the joint ones where
@@ -316,6 +314,7 @@ def solve_jointly(
     joint = solve_latency_lever(
         t, f_si, w_si, ep, latency_s, sigma_sample_si=sig_si,
         row_noise_var=lever_row_noise(gyro_sigma_si, ep, rate_hz), max_latency_s=max_latency_s,
+        series=series,
     )  # fmt: skip
     return choose(joint, latency_s, lever, latency_determined)
 
@@ -354,6 +353,7 @@ def _windows(
     noise per sample (raw units), ``sig_lat`` (K,) the epochs' |f| std from the latency's
     (m/s^2)."""
     acc = cert.accel
+    form = triad_form(acc)  # the certificate's internal form, once for every window's fits
     means, var, mag_in = epoch_observations(ep, im, acc, sig_raw, sig_lat)
     tracker = IsolationTracker(persist=cfg.persist)
     t_mid = 0.5 * (ep.t0 + ep.t1)
@@ -374,13 +374,13 @@ def _windows(
                 # a fault onset inside the window: only the epochs after it (.onset)
                 win = np.flatnonzero(sel)
                 wi = isolate_window(
-                    acc, means[win], var[win], mag_in[win], t_mid[win], cfg.min_epochs_after_onset,
+                    form, means[win], var[win], mag_in[win], t_mid[win], cfg.min_epochs_after_onset,
                     k_sigma=cfg.k_sigma, prior_factor=cfg.prior_factor,
                 )  # fmt: skip
                 sel = np.zeros_like(sel)
                 sel[win[wi.first :] if wi.iso is not None else win] = True
                 fit = exact_fit(
-                    acc,
+                    form,
                     means[sel],
                     var[sel],
                     mag_in[sel],
@@ -428,7 +428,7 @@ def _windows(
     for fault in faults:
         if fault["named"]:
             fault["unit"] = cause_unit(acc, fault["cause"])
-    units = parameter_units(acc)
+    units = form.units
     findings = _aggregate_findings(
         windows, cfg.persist, {f"{sensor_of('accel', j)} {CAUSES[j]}": units[j] for j in range(9)}
     )

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..certificate import TriadModel
-from ..diagnosis.params import CAUSES, sensor_of
+from ..diagnosis.params import CAUSES, TriadForm, sensor_of
 from .isolation import Isolation, isolate, linearised_at_certificate
 
 #: chi^2 (inflated by the scatter beyond the noise model) that a step of one parameter at
@@ -70,7 +70,7 @@ class Onset:
 
 
 def find_onset(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     mean_var: np.ndarray,
     magnitude: np.ndarray,
@@ -130,7 +130,7 @@ class WindowIsolation:
 
 
 def isolate_window(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     mean_var: np.ndarray,
     magnitude: np.ndarray,

@@ -259,20 +259,33 @@ class ImuEpochs:
     gyro_mean: np.ndarray | None = None  #: (K, 3) rad/s
 
 
-def _interval_mean(t: np.ndarray, x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Mean over [a, b] (K,) of the samples x (N, 3) at instants t, linearly interpolated."""
-    if t.shape[0] < 2:
-        return np.full((a.shape[0], 3), np.nan)
+def _running_integral(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x[0], trapezoid integral (N, 3) of x - x[0] from t[0] to each t_i), for
+    :func:`_mean_of_integral`; t (N,) s with N >= 2."""
     ref = x[0]
     xc = x - ref  # keeps the running integral small (raw counts are ~3e4)
     steps = 0.5 * (xc[1:] + xc[:-1]) * np.diff(t)[:, None]
-    big = np.vstack([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+    return ref, np.vstack([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+
+
+def _mean_of_integral(
+    t: np.ndarray, ref: np.ndarray, big: np.ndarray, a: np.ndarray, b: np.ndarray
+) -> np.ndarray:
+    """Mean over [a, b] (K,) from a :func:`_running_integral` of samples at instants t."""
     out = np.empty((a.shape[0], 3))
     for c in range(3):
         fa = np.interp(a, t, big[:, c])
         fb = np.interp(b, t, big[:, c])
         out[:, c] = (fb - fa) / (b - a)
     return out + ref
+
+
+def _interval_mean(t: np.ndarray, x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Mean over [a, b] (K,) of the samples x (N, 3) at instants t, linearly interpolated."""
+    if t.shape[0] < 2:
+        return np.full((a.shape[0], 3), np.nan)
+    ref, big = _running_integral(t, x)
+    return _mean_of_integral(t, ref, big, a, b)
 
 
 def _rodrigues(theta: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -284,6 +297,33 @@ def _rodrigues(theta: np.ndarray, x: np.ndarray) -> np.ndarray:
     kx = np.cross(k, x)
     kd = np.sum(k * x, axis=1)[:, None]
     return x * c + kx * s + k * kd * (1.0 - c)
+
+
+def _rodrigues_rows(theta: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """:func:`_rodrigues` on components in rows: theta, x (3, N) contiguous, rad and any
+    unit; returns (3, N). The same operations in the same order, on contiguous rows (equal
+    to :func:`_rodrigues` bit for bit, tests/test_imu_series.py)."""
+    a2 = theta[0] * theta[0]
+    a2 += theta[1] * theta[1]
+    a2 += theta[2] * theta[2]
+    ang = np.sqrt(a2)  # np.linalg.norm's sum, in its order
+    small = ang < 1e-12
+    k = theta / np.where(small, 1.0, ang)
+    k[:, small] = 0.0
+    c, s = np.cos(ang), np.sin(ang)
+    (k0, k1, k2), (x0, x1, x2) = k, x
+    kd = k0 * x0
+    kd += k1 * x1
+    kd += k2 * x2
+    omc = 1.0 - c
+    out = np.empty_like(x)
+    crosses = (k1 * x2 - k2 * x1, k2 * x0 - k0 * x2, k0 * x1 - k1 * x0)  # np.cross's terms
+    for i in range(3):
+        r = out[i]
+        np.multiply(x[i], c, out=r)
+        r += crosses[i] * s
+        r += (k[i] * kd) * omc
+    return out
 
 
 def imu_epochs(
@@ -338,25 +378,51 @@ def imu_epochs(
     sums = np.stack([np.bincount(idx, fc[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
     plain = np.stack([np.bincount(idx, f[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        # the rotation and lever-arm terms from the samples of each epoch; the mean
-        # itself as the integral of the linearly interpolated samples over [a, b]
+        # the mean itself as the integral of the linearly interpolated samples over [a, b]
         # (trapezoid: samples are instants, no half-sample shift)
-        comp = (sums - plain) / count[:, None]
-        mean = _interval_mean(t, f, a, b) + comp
-        mag = np.linalg.norm(mean, axis=1)
-        u = mean / mag[:, None]
-        s2 = np.broadcast_to(np.asarray(sigma_sample_si, dtype=float) ** 2, (3,))
-        sigma_mag = np.sqrt(np.sum(u * u * s2, axis=1) / count)
+        interval_mean = _interval_mean(t, f, a, b)
         mean_raw = None
         if accel_raw is not None:
             mean_raw = _interval_mean(t, np.asarray(accel_raw, dtype=float), a, b)
-    # covered: samples reach both ends of the epoch within 1.5 sample periods
-    if n > 1:
-        period = float(np.median(np.diff(t)))
+    ends = None
+    if n > 1:  # each epoch's first and last sample time
         first = np.full(kk, np.inf)
         last = np.full(kk, -np.inf)
         np.minimum.at(first, idx[inside], t[inside])
         np.maximum.at(last, idx[inside], t[inside])
+        ends = (first, last, float(np.median(np.diff(t))))
+    return _epochs_of(
+        sums, plain, count, interval_mean, sigma_sample_si, a, b, ends, mean_raw, gyro_mean
+    )
+
+
+def _epochs_of(
+    sums: np.ndarray,
+    plain: np.ndarray,
+    count: np.ndarray,
+    interval_mean: np.ndarray,
+    sigma_sample_si: np.ndarray | float,
+    a: np.ndarray,
+    b: np.ndarray,
+    ends: tuple[np.ndarray, np.ndarray, float] | None,
+    mean_raw: np.ndarray | None,
+    gyro_mean: np.ndarray | None,
+) -> ImuEpochs:
+    """The epochs of :func:`imu_epochs` (and :meth:`ImuSeries.epochs`) from each epoch's
+    sums of the compensated and of the plain samples (K, 3), sample counts, interval means
+    (K, 3, m/s^2), epoch bounds [a, b] (K,) s, and ``ends``: each epoch's first and last
+    sample time (K,) s and the sample period, s (None: fewer than 2 samples)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # the rotation and lever-arm terms from the samples of each epoch
+        comp = (sums - plain) / count[:, None]
+        mean = interval_mean + comp
+        mag = np.linalg.norm(mean, axis=1)
+        u = mean / mag[:, None]
+        s2 = np.broadcast_to(np.asarray(sigma_sample_si, dtype=float) ** 2, (3,))
+        sigma_mag = np.sqrt(np.sum(u * u * s2, axis=1) / count)
+    # covered: samples reach both ends of the epoch within 1.5 sample periods
+    if ends is not None:
+        first, last, period = ends
         expected = (b - a) / period
         covered = (
             (first - a <= 1.5 * period)
@@ -364,7 +430,7 @@ def imu_epochs(
             & (count >= np.maximum(1, 0.9 * expected - 1))
         )
     else:
-        covered = np.zeros(kk, dtype=bool)
+        covered = np.zeros(a.shape[0], dtype=bool)
     return ImuEpochs(
         mean_si=mean,
         mag=mag,
@@ -375,6 +441,130 @@ def imu_epochs(
         mean_raw=mean_raw,
         gyro_mean=gyro_mean,
     )
+
+
+def _binned_sums(idx: np.ndarray, rows: np.ndarray, kk: int) -> np.ndarray:
+    """Sums (kk, 3) of the components in rows (3, N) per bin idx (N,) < kk (the sums of
+    :func:`imu_epochs`: bincount, in sample order)."""
+    return np.stack([np.bincount(idx, rows[c], minlength=kk + 1)[:kk] for c in range(3)], 1)
+
+
+class ImuSeries:
+    """One IMU record cut into GNSS epochs again and again (the latency search, the joint
+    latency and lever-arm solve, the final epochs): :meth:`epochs` gives what
+    :func:`imu_epochs` gives for the same arguments, equal to it
+    (tests/test_imu_series.py), with what depends on neither the epochs nor the latency
+    made once here (the gyro integral, the accelerometer's running integral, the sample
+    period, the angular acceleration of the lever-arm term) and each epoch's samples taken
+    as the slice of the time-ordered record between two ``searchsorted`` bounds instead
+    of a search per sample. :func:`imu_epochs` stays the plain path.
+
+    t (N,) s increasing; accel_si (N, 3) m/s^2 corrected; gyro_si (N, 3) rad/s corrected
+    (None: no rotation compensation, no lever arm).
+    """
+
+    def __init__(
+        self, t: np.ndarray, accel_si: np.ndarray, gyro_si: np.ndarray | None = None
+    ) -> None:
+        self.t = np.asarray(t, dtype=float)
+        self.accel_si = np.asarray(accel_si, dtype=float)
+        self.gyro_si = None if gyro_si is None else np.asarray(gyro_si, dtype=float)
+        n = self.t.shape[0]
+        #: s, the median sample period (nan below 2 samples)
+        self.period_s = float(np.median(np.diff(self.t))) if n > 1 else math.nan
+        self._accel_integral = _running_integral(self.t, self.accel_si) if n > 1 else None
+        # components in contiguous rows (3, N): the per-sample work of every cut runs on them
+        self._accel_rows = np.ascontiguousarray(self.accel_si.T)
+        self._gyro_rows: np.ndarray | None = None
+        self._gyro_integral: np.ndarray | None = None  #: (3, N) rad, up to each t_i
+        self._wdot: np.ndarray | None = None
+        if self.gyro_si is not None:
+            self._gyro_rows = np.ascontiguousarray(self.gyro_si.T)
+        if self.gyro_si is not None and n > 1:
+            w, t = self.gyro_si, self.t
+            dt = np.diff(t, append=t[-1] + (t[-1] - t[-2]))
+            big = np.cumsum(w * dt[:, None], axis=0) - w * dt[:, None]
+            self._gyro_integral = np.ascontiguousarray(big.T)
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    def _bins(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(epoch index per sample, kk for none (N,); first sample (K,); end (K,)): epoch k
+        holds samples start_k <= i < end_k, a_k <= t_i < b_k, a sample in two overlapping
+        epochs in the later one (as :func:`imu_epochs`)."""
+        t, n, kk = self.t, len(self), a.shape[0]
+        start = np.searchsorted(t, a, side="left")
+        end = np.searchsorted(t, b, side="left")
+        if kk > 1:
+            end[:-1] = np.minimum(end[:-1], start[1:])
+        end = np.maximum(end, start)
+        bounds = np.empty(2 * kk + 2, dtype=np.intp)
+        bounds[0], bounds[-1] = 0, n
+        bounds[1:-1:2], bounds[2:-1:2] = start, end
+        values = np.full(2 * kk + 1, kk, dtype=np.intp)
+        values[1::2] = np.arange(kk)
+        return np.repeat(values, np.diff(bounds)), start, end
+
+    def epochs(
+        self,
+        t0: np.ndarray,
+        t1: np.ndarray,
+        accel_raw: np.ndarray | None = None,
+        sigma_sample_si: np.ndarray | float = 0.0,
+        latency_s: float = 0.0,
+        lever_arm_m: np.ndarray | None = None,
+    ) -> ImuEpochs:
+        """:func:`imu_epochs` of this record over the GNSS epochs [t0, t1] - ``latency_s``."""
+        t, f, w = self.t, self.accel_si, self.gyro_si
+        a = np.asarray(t0, dtype=float) - latency_s
+        b = np.asarray(t1, dtype=float) - latency_s
+        kk, n = a.shape[0], len(self)
+        idx, start, end = self._bins(a, b)
+        inside = idx < kk
+        count = end - start
+        fc = self._accel_rows
+        gyro_mean = None
+        big = self._gyro_integral
+        w_rows = self._gyro_rows
+        if w is not None and w_rows is not None and big is not None:
+            gsum = _binned_sums(idx, w_rows, kk)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                gyro_mean = gsum / count[:, None]
+            if lever_arm_m is not None and np.any(lever_arm_m):
+                lev = np.asarray(lever_arm_m, dtype=float)
+                if self._wdot is None:
+                    self._wdot = np.gradient(w, t, axis=0)
+                lever = f + np.cross(self._wdot, lev) + np.cross(w, np.cross(w, lev))
+                fc = np.ascontiguousarray(lever.T)
+            # rotation vector from the epoch's mid time (interpolated) to each sample
+            mid = 0.5 * (a + b)
+            theta = np.empty((3, n))
+            for c in range(3):
+                big_mid = np.zeros(kk + 1)
+                big_mid[:kk] = np.interp(mid, t, big[c])
+                np.subtract(big[c], big_mid[idx], out=theta[c])
+            theta[:, ~inside] = 0.0
+            fc = _rodrigues_rows(theta, fc)
+        sums = _binned_sums(idx, fc, kk)
+        plain = _binned_sums(idx, self._accel_rows, kk)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            if self._accel_integral is None:
+                interval_mean = np.full((kk, 3), np.nan)
+            else:
+                interval_mean = _mean_of_integral(t, *self._accel_integral, a, b)
+            mean_raw = None
+            if accel_raw is not None:
+                mean_raw = _interval_mean(t, np.asarray(accel_raw, dtype=float), a, b)
+        ends = None
+        if n > 1:  # each epoch's first and last sample: the ends of its slice
+            some = count > 0
+            first = np.where(some, t[np.minimum(start, n - 1)], np.inf)
+            last = np.where(some, t[np.maximum(end - 1, 0)], -np.inf)
+            ends = (first, last, self.period_s)
+        return _epochs_of(
+            sums, plain, count, interval_mean, sigma_sample_si, a, b, ends, mean_raw, gyro_mean
+        )
 
 
 def noise_floor(epochs: GnssEpochs) -> float:
@@ -388,6 +578,7 @@ __all__ = [
     "GateConfig",
     "GnssEpochs",
     "ImuEpochs",
+    "ImuSeries",
     "gnss_epochs",
     "imu_epochs",
     "measured_velocity_sigma",

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..certificate import TriadModel
-from .params import TriadFit
+from .params import TriadFit, TriadForm
 from .scalar_fit import exact_fit, robust_exact_fit_and_plain
 
 #: Median prediction error (sigma) of the intervals beyond a rejected one, predicted from
@@ -37,7 +37,7 @@ STEP_SIGMA = 3.0
 
 
 def _median_prediction_z(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     var: np.ndarray,
     mag: np.ndarray,
@@ -61,7 +61,7 @@ def _median_prediction_z(
 
 
 def step_change(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     var: np.ndarray,
     mag: np.ndarray,
@@ -87,7 +87,7 @@ def step_change(
 
 
 def window_exact_fit(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     mean_var: np.ndarray,
     magnitude: float | np.ndarray,

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..certificate import MISALIGNMENT_PAIRS, SENSOR_NAMES, TriadModel
+from .gauge import shape_of_triad
 
 CAUSES = ("bias",) * 3 + ("scale_factor",) * 3 + ("misalignment",) * 3
 PARAM_KEYS = ("bias", "scale_factor", "misalignment")
@@ -83,6 +84,72 @@ def internal_scale(triad: TriadModel, magnitude: float) -> np.ndarray:
     """
     s = triad.scale_factor
     return np.concatenate([s * magnitude, s, np.ones(3)])
+
+
+def _frozen(x: np.ndarray) -> np.ndarray:
+    x.setflags(write=False)
+    return x
+
+
+@dataclass(frozen=True, eq=False)
+class TriadForm:
+    """A triad's certificate in the one internal form the fits work in, made once per
+    diagnosis (:func:`triad_form`) and passed down to every window's fits instead of the
+    :class:`~imudiag.certificate.TriadModel` they would each convert again: the (B, E, d)
+    vector, the limits and the certificate's own std (9,) in certificate units, the
+    parameters' units, and the gauge (:mod:`.gauge`: the observable shape (6,) of the
+    certificate's N = P Q and Q). Its arrays are read-only (they are shared by every fit).
+    Every fit taking a ``TriadModel`` also takes its form."""
+
+    model: TriadModel
+    certificate: np.ndarray  #: (9,) certificate units
+    limit: np.ndarray  #: (9,) certificate units
+    certificate_std: np.ndarray  #: (9,) certificate units
+    units: tuple[str, ...]  #: the 9 parameters' units (:func:`parameter_units`)
+    scale_factor: np.ndarray  #: (3,) output per input unit
+    shape: np.ndarray  #: (6,) observable shape of the certificate's N (e_x e_y e_z d1 d2 d3)
+    q: np.ndarray  #: (3, 3) rotation of the certificate's N = P Q
+
+    @property
+    def name(self) -> str:
+        """The triad's name (``accel`` / ``gyro``)."""
+        return self.model.name
+
+    def scale(self, magnitude: float) -> np.ndarray:
+        """Factors (9,) from the fits' dimensionless parameters to certificate units at
+        reference magnitude ``magnitude`` (input units): :func:`internal_scale`."""
+        s = self.scale_factor
+        return np.concatenate([s * magnitude, s, np.ones(3)])
+
+    def internal(self, magnitude: float) -> np.ndarray:
+        """The certificate's dimensionless parameters theta_c (9,) = (B / (S m), shape)."""
+        return np.concatenate([self.model.bias / (self.scale_factor * magnitude), self.shape])
+
+    def internal_limits(self, magnitude: float) -> np.ndarray:
+        """The limits (9,) in the fits' dimensionless units."""
+        return self.limit / self.scale(magnitude)
+
+
+def triad_form(triad: TriadModel | TriadForm) -> TriadForm:
+    """The internal form of ``triad`` (``triad`` itself when it is one already)."""
+    if isinstance(triad, TriadForm):
+        return triad
+    shape, q = shape_of_triad(triad)
+    return TriadForm(
+        model=triad,
+        certificate=_frozen(certificate_vector(triad)),
+        limit=_frozen(limit_vector(triad)),
+        certificate_std=_frozen(certificate_std_vector(triad)),
+        units=parameter_units(triad),
+        scale_factor=_frozen(np.asarray(triad.scale_factor, dtype=float).copy()),
+        shape=_frozen(shape),
+        q=_frozen(q),
+    )
+
+
+def model_of(triad: TriadModel | TriadForm) -> TriadModel:
+    """The certificate's triad model behind ``triad`` (a model or its form)."""
+    return triad.model if isinstance(triad, TriadForm) else triad
 
 
 @dataclass
@@ -175,19 +242,19 @@ class TriadFit:
         return out
 
 
-def undetermined_fit(triad: TriadModel, method: str, reason: str) -> TriadFit:
+def undetermined_fit(triad: TriadModel | TriadForm, method: str, reason: str) -> TriadFit:
     """A fit where nothing could be estimated, for ``reason``."""
-    cert = certificate_vector(triad)
+    form = triad_form(triad)
     return TriadFit(
-        triad=triad.name,
+        triad=form.name,
         method=method,
-        estimate=cert.copy(),
+        estimate=form.certificate.copy(),
         std=np.full(9, np.inf),
-        certificate=cert,
-        limit=limit_vector(triad),
+        certificate=form.certificate,
+        limit=form.limit,
         determined=np.zeros(9, dtype=bool),
         reasons=[reason] * 9,
-        certificate_std=certificate_std_vector(triad),
+        certificate_std=form.certificate_std,
     )
 
 
@@ -195,7 +262,10 @@ __all__ = [
     "CAUSES",
     "PARAM_KEYS",
     "TriadFit",
+    "TriadForm",
     "certificate_std_vector",
+    "model_of",
+    "triad_form",
     "certificate_vector",
     "limit_vector",
     "internal_scale",

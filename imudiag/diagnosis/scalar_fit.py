@@ -27,16 +27,8 @@ from typing import Any
 import numpy as np
 
 from ..certificate import TriadModel
-from .gauge import p_matrix, shape_of_triad
-from .params import (
-    TriadFit,
-    certificate_std_vector,
-    certificate_vector,
-    internal_scale,
-    limit_vector,
-    parameter_units,
-    std_above_limit,
-)
+from .gauge import p_matrix
+from .params import TriadFit, TriadForm, std_above_limit, triad_form
 from .robust import point_diagnostics, reject_outliers
 
 #: Floor of the standard deviation of a normalised residual (model resolution).
@@ -71,18 +63,20 @@ def _regressor_jacobian(y: np.ndarray) -> np.ndarray:
     return jac
 
 
-def internal_limits(triad: TriadModel, m0: float) -> np.ndarray:
-    return limit_vector(triad) / internal_scale(triad, m0)
+def internal_limits(triad: TriadModel | TriadForm, m0: float) -> np.ndarray:
+    """The limits (9,) in the fits' dimensionless units at reference magnitude m0."""
+    return triad_form(triad).internal_limits(m0)
 
 
-def certificate_internal(triad: TriadModel, m0: float) -> tuple[np.ndarray, np.ndarray]:
-    """theta_c (9,) = (B / (S m0), shape of P) and the rotation Q of the certificate's N."""
-    shape, q = shape_of_triad(triad)
-    return np.concatenate([triad.bias / (triad.scale_factor * m0), shape]), q
+def certificate_internal(triad: TriadModel | TriadForm, m0: float) -> tuple[np.ndarray, np.ndarray]:
+    """theta_c (9,) = (B / (S m0), shape of P) and the rotation Q (read-only) of the
+    certificate's N."""
+    form = triad_form(triad)
+    return form.internal(m0), form.q
 
 
 def _finish(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     method: str,
     m0: float,
     theta_dev: np.ndarray,
@@ -94,10 +88,9 @@ def _finish(
     rms: float,
 ) -> TriadFit:
     """Turn internal deviations and covariance into a TriadFit in certificate units."""
-    scale = internal_scale(triad, m0)
-    cert = certificate_vector(triad)
-    limit = limit_vector(triad)
-    units = parameter_units(triad)
+    form = triad_form(triad)
+    scale = form.scale(m0)
+    cert, limit, units = form.certificate, form.limit, form.units
     est = cert + theta_dev * scale
     std = np.sqrt(np.maximum(np.diag(cov), 0.0)) * scale
     std = np.where(null, np.inf, std)
@@ -114,7 +107,7 @@ def _finish(
         for i in range(9)
     ]
     return TriadFit(
-        triad=triad.name,
+        triad=form.name,
         method=method,
         estimate=est,
         std=std,
@@ -125,7 +118,7 @@ def _finish(
         condition=condition,
         points=points,
         rms_residual=rms,
-        certificate_std=certificate_std_vector(triad),
+        certificate_std=form.certificate_std,
     )
 
 
@@ -147,10 +140,11 @@ _PAIR_I = np.array([0, 0, 1])
 _PAIR_J = np.array([1, 2, 2])
 
 
-def residuals_and_jacobian(
+def _residuals(
     theta: np.ndarray, v: np.ndarray, mu: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Residuals |P^-1 (v - beta)| - mu (K,), Jacobian (K, 9) and w = P^-1 x_hat (K, 3)."""
+    """Residuals |P^-1 (v - beta)| - mu (K,), x = P^-1 (v - beta) (K, 3) and
+    w = P^-1 x_hat (K, 3): :func:`residuals_and_jacobian` without the Jacobian."""
     beta = theta[:3]
     p = p_matrix(theta[3:])
     pinv = np.linalg.inv(p)
@@ -158,16 +152,29 @@ def residuals_and_jacobian(
     nx = np.sqrt((x * x).sum(axis=1))  # np.linalg.norm's own sum, without its wrapper
     xh = x / nx[:, None]
     w = xh @ pinv.T  # P^-1 symmetric
-    jac = np.empty((v.shape[0], 9))
+    return nx - mu, x, w
+
+
+def _jacobian(x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The Jacobian (K, 9) of :func:`_residuals` from its x and w."""
+    jac = np.empty((x.shape[0], 9))
     jac[:, 0:3] = -w
     jac[:, 3:6] = -w * x
     # columns 6-8: -0.5 (w_i x_j + w_j x_i) for (i, j) = (0, 1), (0, 2), (1, 2), in one pass
     jac[:, 6:9] = -0.5 * (w[:, _PAIR_I] * x[:, _PAIR_J] + w[:, _PAIR_J] * x[:, _PAIR_I])
-    return nx - mu, jac, w
+    return jac
+
+
+def residuals_and_jacobian(
+    theta: np.ndarray, v: np.ndarray, mu: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Residuals |P^-1 (v - beta)| - mu (K,), Jacobian (K, 9) and w = P^-1 x_hat (K, 3)."""
+    r, x, w = _residuals(theta, v, mu)
+    return r, _jacobian(x, w), w
 
 
 def exact_fit(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     mean_var: np.ndarray,
     magnitude: float | np.ndarray,
@@ -193,7 +200,10 @@ def exact_fit(
     ``predict``: (means (J, 3), variances (J, 3), magnitudes (J,)) of points not
     in the fit; their prediction errors in sigma (their noise, the fit's excess
     scatter and its parameter uncertainty) go to ``fit.extra["predicted_z"]``.
+    ``triad``: the certificate's model or its internal form (:func:`.params.triad_form`,
+    made once by a caller that fits many windows).
     """
+    triad = triad_form(triad)
     means = np.asarray(means, dtype=float).reshape(-1, 3)
     k = means.shape[0]
     mag = np.broadcast_to(np.asarray(magnitude, dtype=float), (k,))
@@ -220,16 +230,21 @@ def exact_fit(
     else:
         theta = np.asarray(start, dtype=float).copy()
 
-    def cost(th: np.ndarray, extra: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-        r, jac, w = residuals_and_jacobian(th, v, mu)
+    def cost(
+        th: np.ndarray, extra: float
+    ) -> tuple[float, np.ndarray, tuple[np.ndarray, np.ndarray], np.ndarray]:
+        """(cost, residuals, (x, w) for the Jacobian, variances): the Jacobian is made
+        (:func:`_jacobian`) only for a step that is taken; most tries are not."""
+        r, x, w = _residuals(th, v, mu)
         sig2 = np.einsum("kj,kj->k", w * w, var_v) + RESIDUAL_FLOOR**2 + extra
         c = float((r * r / sig2).sum() + (prior_prec * (th - theta_c) ** 2).sum())
-        return c, r, jac, sig2
+        return c, r, (x, w), sig2
 
     def gauss_newton(
         theta: np.ndarray, extra: float
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        c0, r, jac, sig2 = cost(theta, extra)
+        c0, r, xw, sig2 = cost(theta, extra)
+        jac = _jacobian(*xw)
         lam = 1e-6
         for _ in range(max_iter):
             wgt = 1.0 / sig2
@@ -244,9 +259,9 @@ def exact_fit(
                 if abs(cand[3:] - shape_c).max() > MAX_SHAPE:
                     lam *= 10.0
                     continue
-                c1, r1, j1, s1 = cost(cand, extra)
+                c1, r1, xw1, s1 = cost(cand, extra)
                 if np.isfinite(c1) and c1 <= c0:
-                    theta, c0, r, jac, sig2 = cand, c1, r1, j1, s1
+                    theta, c0, r, jac, sig2 = cand, c1, r1, _jacobian(*xw1), s1
                     lam = max(lam / 10.0, 1e-12)
                     accepted = True
                     break
@@ -303,7 +318,7 @@ def exact_fit(
     fit.excess_var = float(extra_used)
     if k and max_iter > 0:
         diag = point_diagnostics(jac, r, sig2 - extra_used, cov_unscaled, weights=wgt)
-        scale = internal_scale(triad, m0)
+        scale = triad.scale(m0)
         loo = (theta - theta_c)[None, :] + diag.shift
         fit.loo_deviation = np.where(null[None, :], 0.0, loo * scale[None, :])
         fit.point_z = diag.z
@@ -326,7 +341,7 @@ def exact_fit(
 
 
 def robust_exact_fit(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     mean_var: np.ndarray,
     magnitude: float | np.ndarray,
@@ -348,7 +363,7 @@ def robust_exact_fit(
 
 
 def robust_exact_fit_and_plain(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     mean_var: np.ndarray,
     magnitude: float | np.ndarray,
@@ -461,7 +476,7 @@ class NormalEquations:
         return self
 
 
-def corrected_normalised(triad: TriadModel, raw: np.ndarray, m0: float) -> np.ndarray:
+def corrected_normalised(triad: TriadModel | TriadForm, raw: np.ndarray, m0: float) -> np.ndarray:
     """Certificate-corrected outputs (N, 3) in units of ``m0`` (input units)."""
     theta_c, q = certificate_internal(triad, m0)
     p = p_matrix(theta_c[3:])
@@ -471,7 +486,7 @@ def corrected_normalised(triad: TriadModel, raw: np.ndarray, m0: float) -> np.nd
 
 
 def sample_rows(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     raw: np.ndarray,
     magnitude: np.ndarray,
     m0: float,
@@ -504,7 +519,7 @@ def sample_rows(
 
 
 def samples_normal_equations(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     raw: np.ndarray,
     magnitude: np.ndarray,
     m0: float,
@@ -517,7 +532,7 @@ def samples_normal_equations(
 
 
 def interval_normal_equations(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     covs: np.ndarray,
     counts: np.ndarray,
@@ -568,7 +583,7 @@ def interval_normal_equations(
 
 
 def normal_equation_fit(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     ne: NormalEquations,
     m0: float,
     method: str,
@@ -616,7 +631,7 @@ def normal_equation_fit(
 
 
 def linear_fit(
-    triad: TriadModel,
+    triad: TriadModel | TriadForm,
     means: np.ndarray,
     covs: np.ndarray,
     counts: np.ndarray,

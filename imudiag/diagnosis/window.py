@@ -34,6 +34,7 @@ from .known_rate import classify_plateaus
 from .params import (
     TriadFit,
     certificate_vector,
+    triad_form,
     undetermined_fit,
 )
 from .predicates import held_back
@@ -108,19 +109,22 @@ def model_with(triad: TriadModel, estimate: np.ndarray) -> TriadModel:
     """A copy of ``triad`` with B, E, d of ``estimate`` (certificate units, (9,)).
 
     The shape comes from the estimate's deviations; the certificate's
-    unobservable rotation Q of N = P Q is kept.
+    unobservable rotation Q of N = P Q is kept. The fields it does not change are the
+    certificate's own objects, not copies (every window makes one: a deep copy of the
+    temperature, noise and limit blocks cost more than the window's accelerometer fit).
     """
-    import copy
+    import dataclasses
 
     shape_c, q = shape_of_triad(triad)
     dev = np.asarray(estimate, dtype=float) - certificate_vector(triad)
     shape = shape_c + np.concatenate([dev[3:6] / triad.scale_factor, dev[6:9]])
     n = p_matrix(shape) @ q
-    out = copy.deepcopy(triad)
-    out.bias = np.asarray(estimate[:3], dtype=float).copy()
-    out.scale_factor_error = (np.diag(n) - 1.0) * triad.scale_factor
-    out.misalignment = misalignment_of_n(n)
-    return out
+    return dataclasses.replace(
+        triad,
+        bias=np.asarray(estimate[:3], dtype=float).copy(),
+        scale_factor_error=(np.diag(n) - 1.0) * triad.scale_factor,
+        misalignment=misalignment_of_n(n),
+    )
 
 
 def interval_labels(intervals: list[QuasiStaticInterval]) -> list[str]:
@@ -177,7 +181,7 @@ def accel_window_fit(
         # wrong parameter); a single interval is kept from making a fault by the
         # influence rule of the predicates
         fit = window_exact_fit(
-            tri,
+            triad_form(tri),  # the certificate converted once for the window's fits
             means,
             mvar,
             g_in,
@@ -339,7 +343,7 @@ def gyro_window_fit(
         return fit, 0
     if mode == "earth-rate":
         fit = window_exact_fit(
-            tri,
+            triad_form(tri),
             means,
             mvar,
             w_in,

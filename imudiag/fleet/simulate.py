@@ -65,7 +65,7 @@ def _motion(kind: str, seconds: float, seed: int) -> Any:
     return scenario_motion(kind, seed, {"n": str(n), "dwell": f"{dwell:g}", "turn": "1.5"})
 
 
-def _write(
+def write_flight(
     path: Path,
     cert: Certificate,
     kind: str,
@@ -75,6 +75,9 @@ def _write(
     seed: int,
     meta: dict[str, Any],
 ) -> int:
+    """One simulated flight of ``kind`` (``multiposition``: 12 holds, ``static``: 8) lasting
+    ``seconds`` at ``rate`` Hz with ``faults``, written to ``path`` (any log format) with
+    ``meta``; the number of samples written."""
     motion = _motion(kind, seconds, seed)
     total = motion.n_samples(rate)
     want = int(round(seconds * rate))
@@ -193,7 +196,7 @@ def simulate_fleet(
                 meta["vehicle"] = serial
             path = folder / f"flight-{k + 1:03d}{fmt}"
             seconds_k = float(rng.uniform(*seconds))
-            n = _write(
+            n = write_flight(
                 path, cert, kind, seconds_k, rate_hz, faults, seed * 100003 + v * 1009 + k, meta
             )
             entry["flights"].append(
@@ -217,7 +220,7 @@ def simulate_fleet(
         folder = root / f"unit-{v + 1:02d}"
         fmt = ".npz" if how == "truncated" else ".csv"
         path = folder / f"bad-{c + 1:02d}{fmt}"
-        _write(
+        write_flight(
             path,
             cert,
             "multiposition",
@@ -233,4 +236,4 @@ def simulate_fleet(
     return truth
 
 
-__all__ = ["simulate_fleet"]
+__all__ = ["simulate_fleet", "write_flight"]

@@ -1,0 +1,129 @@
+"""``python -m benchmarks.diagnose_cpu``: CPU of :func:`imudiag.diagnose` per 10^6 samples in a
+warm process (imports and a first call paid before timing), on the library path users and the
+fleet's per-log task run (issue 28: at most 1.0 s of CPU per 10^6 samples).
+
+Cases (fixed seeds), each written once into a temporary folder:
+
+- ``multiposition``: a simulated board turned through 12 attitudes (a flight of ``imudiag
+  simulate fleet``), written as NPZ and diagnosed by the fleet's per-log task
+  (:func:`imudiag.fleet.task.diagnose_log`, which calls :func:`imudiag.diagnose`);
+- ``static``: the static cycle (8 attitudes), the same way;
+- ``drive``: a moving-base drive (``urban``) with its GNSS track, the samples and the track
+  passed to :func:`imudiag.diagnose` in memory (the report's ``moving_base`` section).
+
+Options: ``--samples 1e5,1e6`` (sizes), ``--rates 100,1000`` (Hz), ``--cases`` (comma list),
+``--repeat N`` (best of N, default 1), ``--profile N`` (cProfile of the last run of each case,
+top N functions by internal time). Prints one line per case: CPU s, samples, CPU s per 10^6
+samples. No assertion: docs/benchmarks.md holds the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import io
+import os
+import pstats
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")  # as the command line and the fleet's workers
+
+CASES = ("multiposition", "static", "drive")
+
+
+def write_board_log(path: Path, kind: str, n: int, rate_hz: float, seed: int) -> Path:
+    """``n`` samples of the simulated board in scenario ``kind`` at ``rate_hz``, as a log
+    (one flight of ``imudiag simulate fleet``: 12 holds, or 8 for ``static``)."""
+    from imudiag.certificate import load_default
+    from imudiag.fleet.simulate import write_flight
+
+    meta = {"sample_rate": rate_hz}
+    write_flight(path, load_default(), kind, n / rate_hz, rate_hz, [], seed, meta)
+    return path
+
+
+def drive_case(n: int, rate_hz: float, seed: int) -> tuple[Any, Any]:
+    """(samples, GNSS track) of a simulated urban drive of ``n`` samples at ``rate_hz``."""
+    from imudiag.aiding.tpv import parse_tpv, track_from_reports
+    from imudiag.certificate import load_default
+    from imudiag.sim.drive import simulate_drive
+
+    res, reports, _ = simulate_drive("urban", n / rate_hz, load_default(), seed, rate_hz)
+    return res.samples, track_from_reports([parse_tpv(r) for r in reports])
+
+
+def run_once(case: str, data: Any) -> tuple[float, int, dict[str, Any]]:
+    """(CPU s of this thread, samples, report) of one diagnosis of ``data``."""
+    import imudiag
+    from imudiag.fleet.task import Job, diagnose_log
+
+    cpu0 = time.thread_time()
+    if case == "drive":
+        samples, track = data
+        report = imudiag.diagnose(samples, None, gnss=track)
+        n = len(samples)
+    else:
+        st = data.stat()
+        record = diagnose_log(Job(str(data), "-", st.st_size, st.st_mtime_ns, str(data.parent)))
+        if record["status"] != "ok":
+            raise SystemExit(f"{data}: {record['reason']}")
+        report, n = record["report"], int(record["samples"])
+    return time.thread_time() - cpu0, n, report
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--samples", default="1e5,1e6", help="log sizes, comma-separated")
+    ap.add_argument("--rates", default="100,1000", help="sample rates, Hz, comma-separated")
+    ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--repeat", type=int, default=1, help="best of N runs")
+    ap.add_argument("--profile", type=int, default=0, help="print the top N of a cProfile")
+    ap.add_argument("--seed", type=int, default=5)
+    args = ap.parse_args(argv)
+    sizes = [int(float(s)) for s in args.samples.split(",")]
+    rates = [float(r) for r in args.rates.split(",")]
+    cases = args.cases.split(",")
+    print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}", flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        # warm-up: imports and one small call of each path
+        warm = write_board_log(Path(tmp) / "warm.npz", "multiposition", 20000, 100.0, 1)
+        run_once("multiposition", warm)
+        if "drive" in cases:
+            run_once("drive", drive_case(20000, 100.0, 1))
+        for case in cases:
+            for rate in rates:
+                for n in sizes:
+                    if case == "drive":
+                        data: Any = drive_case(n, rate, args.seed)
+                    else:
+                        path = Path(tmp) / f"{case}-{n}-{rate:g}.npz"
+                        data = write_board_log(path, case, n, rate, args.seed)
+                    best = float("inf")
+                    for _ in range(max(1, args.repeat)):
+                        cpu, got, report = run_once(case, data)
+                        best = min(best, cpu)
+                    mb = report.get("moving_base") or {}
+                    print(
+                        f"{case:14s} {rate:6g} Hz {got:8d} samples: {best:7.3f} s CPU, "
+                        f"{best / got * 1e6:6.3f} s per 10^6 samples"
+                        + (f" (moving-base: {len(mb.get('windows') or [])} windows)" if mb else ""),
+                        flush=True,
+                    )
+                    if args.profile:
+                        prof = cProfile.Profile()
+                        prof.enable()
+                        run_once(case, data)
+                        prof.disable()
+                        s = io.StringIO()
+                        pstats.Stats(prof, stream=s).sort_stats("tottime").print_stats(args.profile)
+                        print(s.getvalue(), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

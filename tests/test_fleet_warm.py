@@ -1,0 +1,102 @@
+"""A fleet worker pays its imports and its certificate parsing once (issue 28's per-log CPU in
+a warm worker): the first task's :func:`imudiag.fleet.task.warm_up` imports everything a
+per-log task imports, outside the log's ``cpu_s`` (``warm_up_cpu_s``), and
+:func:`~imudiag.fleet.task.load_certificate_once` parses a certificate file once while it is
+unchanged, each log getting its own copy. No Dask needed: the task is called as a worker
+calls it, in a fresh interpreter."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from imudiag.errors import ImudiagError
+from imudiag.fleet import task
+
+ROOT = Path(__file__).resolve().parent.parent
+CERT = ROOT / "config" / "default-certificate.yaml"
+
+CHILD = """
+import json, sys
+from pathlib import Path
+from imudiag.certificate import load_default
+from imudiag.logs import open_writer
+from imudiag.sim import multi_position, simulate
+from imudiag.fleet import task
+
+log = Path(sys.argv[1])
+sim = simulate(load_default(), multi_position(n_attitudes=12, dwell_s=3.0, rate_hz=100, seed=4),
+               seed=5)
+with open_writer(log, {"sample_rate": 100, "units": "gyro=count accel=count"}) as w:
+    w.write(sim.samples)
+st = log.stat()
+job = task.Job(str(log), "-", st.st_size, st.st_mtime_ns, str(log.parent))
+first = task.diagnose_log(job)
+task.warm_up()
+before = {m for m in sys.modules if m.startswith("imudiag")}
+second = task.diagnose_log(job)
+after = {m for m in sys.modules if m.startswith("imudiag")}
+print(json.dumps({"status": [first["status"], second["status"]], "reason": first["reason"],
+                  "warm": [first["warm_up_cpu_s"], second["warm_up_cpu_s"]],
+                  "new": sorted(after - before)}))
+"""
+
+
+def test_a_warm_worker_imports_nothing_more_for_a_log(tmp_path):
+    out = subprocess.run(
+        [sys.executable, "-c", CHILD, str(tmp_path / "flight.npz")],
+        check=True,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, "OPENBLAS_NUM_THREADS": "1"},
+    )
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["status"] == ["ok", "ok"], got["reason"]
+    assert got["warm"][0] > 0.0 and got["warm"][1] < got["warm"][0]
+    assert got["new"] == []  # warm_up imported everything a log needs
+
+
+def test_a_certificate_is_parsed_once_while_its_file_is_unchanged(tmp_path, monkeypatch):
+    path = tmp_path / "certificate.yaml"
+    path.write_text(CERT.read_text())
+    parsed = []
+    monkeypatch.setattr(task, "_CERTIFICATES", {})
+    from imudiag import api
+
+    original = api.load_certificate
+
+    def counted(p=None):
+        parsed.append(p)
+        return original(p)
+
+    monkeypatch.setattr(api, "load_certificate", counted)
+    a = task.load_certificate_once(str(path))
+    b = task.load_certificate_once(str(path))
+    assert len(parsed) == 1
+    assert a is not b and a.accel is not b.accel  # each log its own copy
+    np.testing.assert_array_equal(a.accel.bias, b.accel.bias)
+    a.accel.bias[0] += 1.0  # a log that changed its copy changes no other log's
+    assert task.load_certificate_once(str(path)).accel.bias[0] == b.accel.bias[0]
+    # the file changed: parsed again
+    path.write_text(path.read_text() + "\n# edited\n")
+    st = path.stat()
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))
+    task.load_certificate_once(str(path))
+    assert len(parsed) == 2
+    # the bundled one (None) is cached too
+    task.load_certificate_once(None)
+    task.load_certificate_once(None)
+    assert parsed.count(None) == 1
+
+
+def test_a_missing_certificate_is_its_own_error(tmp_path):
+    with pytest.raises(ImudiagError) as err:
+        task.load_certificate_once(str(tmp_path / "nope.yaml"))
+    assert "nope.yaml" in str(err.value)
