@@ -8,8 +8,10 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
+import numpy as np
 import pytest
-from rosbags.rosbag1 import Reader  # the [test] extra installs rosbags
+from rosbags.rosbag1 import Reader, Writer  # the [test] extra installs rosbags
+from rosbags.typesys import Stores, get_typestore
 
 from imudiag.cli import main
 from imudiag.logs import LogError, read_log
@@ -86,3 +88,43 @@ def test_a_definition_that_does_not_match_its_md5_is_refused(tmp_path):
     text = str(err.value)
     assert "stored definition of sensor_msgs/msg/JointState does not match its MD5" in text
     assert str(bad) in text
+
+
+def test_an_imu_bag_with_pre_electric_definitions_reads_its_samples(tmp_path):
+    """The IMU path of the old header: a ROS 1 bag whose stored Imu definition names
+    ``Header`` / ``roslib/Header`` as bags before ROS Electric do (same MD5 as today's),
+    written by rosbags with that definition and the real imucal session's first samples
+    (tests/data/real/imucal-ferraris): read sample for sample (rosbags alone refuses it)."""
+    session = read_log(Path(__file__).parent / "data/real/imucal-ferraris/session.csv.gz")
+    n = 200
+    store = get_typestore(Stores.ROS1_NOETIC)
+    msgdef, md5 = store.generate_msgdef("sensor_msgs/msg/Imu")
+    old = msgdef.replace("std_msgs/Header header", "Header header")
+    old = old.replace("MSG: std_msgs/Header", "MSG: roslib/Header")
+    assert "roslib/Header" in old and "std_msgs" not in old
+    T = store.types
+    w = np.radians(session.gyro[:n])  # the session is in deg/s; Imu is rad/s
+    a = session.accel[:n]
+    path = tmp_path / "old.bag"
+    with Writer(path) as bag:
+        conn = bag.add_connection("/imu", "sensor_msgs/msg/Imu", msgdef=old, md5sum=md5)
+        for i in range(n):
+            t_ns = 1_300_000_000 * 10**9 + int(round(session.t[i] * 1e9))
+            sec, nsec = divmod(t_ns, 10**9)
+            stamp = T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
+            vec, quat = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
+            msg = T["sensor_msgs/msg/Imu"](
+                header=T["std_msgs/msg/Header"](seq=i, stamp=stamp, frame_id="imu"),
+                orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0),
+                orientation_covariance=np.zeros(9),
+                angular_velocity=vec(x=w[i, 0], y=w[i, 1], z=w[i, 2]),
+                angular_velocity_covariance=np.zeros(9),
+                linear_acceleration=vec(x=a[i, 0], y=a[i, 1], z=a[i, 2]),
+                linear_acceleration_covariance=np.zeros(9),
+            )
+            bag.write(conn, t_ns, store.serialize_ros1(msg, "sensor_msgs/msg/Imu"))
+    b = read_log(path)
+    assert len(b) == n
+    np.testing.assert_array_equal(b.gyro, w)
+    np.testing.assert_array_equal(b.accel, a)
+    np.testing.assert_allclose(b.t - 1_300_000_000, session.t[:n], rtol=0, atol=1e-6)
