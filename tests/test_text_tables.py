@@ -81,6 +81,22 @@ def test_microsecond_time_and_skipped_columns(tmp_path: Path) -> None:
     _check(read_log_opts(path, opts))
 
 
+def test_slash_comment_lines_as_xsens_mt_manager_writes_them(tmp_path: Path) -> None:
+    """Xsens MT Manager's ASCII export opens with ``// key: value`` lines, then a
+    tab-separated header (the real one is in the corpus: tests/data/real/skinematics);
+    they are comments, ``// units:`` is metadata like ``# units:``, and a ``//`` line
+    among the rows is skipped like a ``#`` one."""
+    head = ["// Start Time: 0", "// Sample rate: 100.0Hz", "// units: gyro=rad/s accel=m/s^2"]
+    names = "\t".join(["Counter", "Gyr_X", "Gyr_Y", "Gyr_Z", "Acc_X", "Acc_Y", "Acc_Z"])
+    rows = [f" {i}\t{r}\t" for i, r in enumerate(_rows("\t", with_t=False))]
+    path = tmp_path / "MT_0001.txt"
+    path.write_text("\n".join([*head, names, *rows[:10], "// a note", *rows[10:]]) + "\n")
+    opts = LogOptions(columns=parse_columns("_,gx,gy,gz,ax,ay,az"), rate=100.0)
+    block = read_log_opts(path, opts)
+    _check(block, t=np.arange(N) * 0.01)
+    assert block.meta["units"] == {"gyro": "rad/s", "accel": "m/s^2"}
+
+
 def test_bad_rows_name_file_and_line(tmp_path: Path) -> None:
     rows = _rows("\t")
     rows[7] = rows[7].replace(repr(float(G[7, 1])), "abc")

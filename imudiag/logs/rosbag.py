@@ -46,19 +46,20 @@ VELOCITY_TYPES = (
 
 
 class _PlainReader:
-    """rosbags' ROS 2 reader with a typestore for a bag that stores no definitions: the
-    reader interface the IMU and GNSS reads use (connections, messages, deserialize)."""
+    """rosbags' own ROS 2 or ROS 1 reader with a typestore it is handed: the reader
+    interface the IMU and GNSS reads use (connections, messages, deserialize)."""
 
-    def __init__(self, reader: Any, store: Any) -> None:
+    def __init__(self, reader: Any, store: Any, ros1: bool = False) -> None:
         self.reader, self.store = reader, store
         self.connections = reader.connections
+        self._deserialize = store.deserialize_ros1 if ros1 else store.deserialize_cdr
 
     def messages(self, connections: Any = ()) -> Any:
         return self.reader.messages(connections=connections)
 
     def deserialize(self, raw: bytes, msgtype: str) -> Any:
         try:
-            return self.store.deserialize_cdr(raw, msgtype)
+            return self._deserialize(raw, msgtype)
         except KeyError:
             raise LogError(
                 str(self.reader.path), f"no definition of {msgtype} in the typestore"
@@ -66,6 +67,37 @@ class _PlainReader:
 
     def close(self) -> None:
         self.reader.close()
+
+
+#: The header type of ROS 1 bags recorded before ROS Electric (2011): their stored
+#: definitions name ``roslib/Header`` where later ones name ``std_msgs/Header``; the two
+#: are the same message (same fields, same MD5), and ROS 1's own rosbag reads both.
+OLD_ROS1_HEADER = "roslib/msg/Header"
+
+
+def ros1_typestore(connections: Any, where: str) -> Any:
+    """A typestore of the definitions a ROS 1 bag stores with its connections, each
+    checked against the connection's MD5 as ROS 1 does; a bag recorded before ROS
+    Electric gets ``std_msgs/msg/Header`` as its stored ``roslib/Header``."""
+    typesys = require("rosbags.typesys", "ros", "ROS bags")
+    types: dict[str, Any] = {}
+    for c in connections:
+        if c.msgdef.data:
+            types.update(typesys.get_types_from_msg(c.msgdef.data, c.msgtype))
+    if OLD_ROS1_HEADER in types:
+        types.setdefault("std_msgs/msg/Header", types[OLD_ROS1_HEADER])
+    store = typesys.get_typestore(typesys.Stores.EMPTY)
+    store.register(types)
+    for c in connections:
+        if c.digest and c.msgdef.data:
+            have = store.generate_msgdef(c.msgtype)[1]
+            if have != c.digest:
+                raise LogError(
+                    where,
+                    f"topic {c.topic}: the stored definition of {c.msgtype} does not match "
+                    f"its MD5 ({have} != {c.digest})",
+                )
+    return store
 
 
 def typestore_for(distro: str | None, where: str) -> Any:
@@ -138,6 +170,7 @@ class RosbagReader(LogReader):
                 raise LogError(self.path, f"not a ROS bag ({p.suffix} without its file header)")
         self._bag = self._bag_path(p)
         self._store = self._typestore(p)
+        self._other_topics = ""  # the bag's topics of other types, for the messages
         topics = self._imu_topics()
         self.topic = self._choose(topics)
         self.meta.update(
@@ -199,8 +232,19 @@ class RosbagReader(LogReader):
     def _open_bag(self) -> Any:
         """An open reader of the bag: rosbags' own ROS 2 reader with the distribution's
         typestore for a bag that stores no definitions (the typestore built once), else
-        rosbags' AnyReader with the bag's own definitions."""
+        rosbags' AnyReader with the bag's own definitions (MCAP); a ROS 1 bag through
+        rosbags' ROS 1 reader with its stored definitions (:func:`ros1_typestore`)."""
         try:
+            if self._bag.suffix.lower() == ".bag":
+                rosbag1 = require("rosbags.rosbag1", "ros", "ROS bags")
+                plain1 = rosbag1.Reader(self._bag)
+                plain1.open()
+                try:
+                    store = ros1_typestore(plain1.connections, self.path)
+                except BaseException:
+                    plain1.close()
+                    raise
+                return _PlainReader(plain1, store, ros1=True)
             if self._store is not None:
                 rosbag2 = require("rosbags.rosbag2", "ros", "ROS bags")
                 plain = rosbag2.Reader(self._bag)
@@ -210,7 +254,7 @@ class RosbagReader(LogReader):
                 plain.close()
             reader = self._anyreader([self._bag], default_typestore=self._store)
             reader.open()
-        except MissingExtra:
+        except (MissingExtra, LogError):
             raise
         except Exception as exc:  # rosbags raises its own errors and plain ones
             text = str(exc)
@@ -222,11 +266,13 @@ class RosbagReader(LogReader):
     def _imu_topics(self) -> dict[str, int]:
         reader = self._open_bag()
         try:
-            counts: dict[str, int] = {}
+            every: dict[tuple[str, str], int] = {}
             for c in reader.connections:
-                if c.msgtype == IMU_TYPE:
-                    counts[c.topic] = counts.get(c.topic, 0) + int(c.msgcount)
-            return counts
+                every[c.topic, c.msgtype] = every.get((c.topic, c.msgtype), 0) + int(c.msgcount)
+            self._other_topics = ", ".join(
+                f"{t} ({m}, {n} messages)" for (t, m), n in sorted(every.items()) if m != IMU_TYPE
+            )
+            return {t: n for (t, m), n in every.items() if m == IMU_TYPE}
         finally:
             reader.close()
 
@@ -238,11 +284,15 @@ class RosbagReader(LogReader):
                 raise LogError(
                     self.path,
                     f"--topic {wanted}: no {IMU_TYPE} messages on it "
-                    f"(IMU topics: {listed or 'none'})",
+                    f"(IMU topics: {listed or 'none'}; "
+                    f"other topics: {self._other_topics or 'none'})",
                 )
             return wanted
         if not topics:
-            raise LogError(self.path, f"no {IMU_TYPE} topic in the bag")
+            raise LogError(
+                self.path,
+                f"no {IMU_TYPE} topic in the bag (its topics: {self._other_topics or 'none'})",
+            )
         if len(topics) > 1:
             raise LogError(
                 self.path, f"{len(topics)} IMU topics: choose one with --topic ({listed})"
@@ -365,4 +415,4 @@ def is_ros1_bag(head: bytes) -> bool:
     return head.startswith(ROSBAG1_MAGIC)
 
 
-__all__ = ["IMU_TYPE", "RosbagReader", "is_bag_directory", "is_ros1_bag"]
+__all__ = ["IMU_TYPE", "RosbagReader", "is_bag_directory", "is_ros1_bag", "ros1_typestore"]

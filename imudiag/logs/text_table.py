@@ -1,8 +1,9 @@
 """Text tables users already have (``.txt``, ``.tsv``, ``.dat``, and ``.csv`` read with options).
 
 Separator found from the first data line: semicolon (a decimal comma is then
-read as a point), tab, comma, else whitespace. Leading lines starting with
-``#`` or ``%`` are comments (``# key: value`` ones are metadata). A header is a
+read as a point), tab, comma, else whitespace. Lines starting with ``#``, ``%``
+or ``//`` (Xsens MT Manager's exports) are comments (``# key: value`` ones are
+metadata). A header is a
 first line with a field that is not a number; its names are matched to the
 columns (``t``/``time``/``timestamp``, ``gx``/``gyro_x``/``wx``...,
 ``ax``/``acc_x``..., ``temp``), ignoring a unit in brackets. Without a header,
@@ -65,6 +66,10 @@ for _axis in "xyz":
 _UNIT_SUFFIX = re.compile(r"\s*[\[(].*[\])]\s*$")
 
 
+#: What starts a comment line: ``#``, ``%`` (MATLAB, Octave) and ``//`` (Xsens MT Manager).
+COMMENT_PREFIXES = ("#", "%", "//")
+
+
 def _delimiter(line: str) -> str | None:
     for d in (";", "\t", ","):
         if d in line:
@@ -123,8 +128,9 @@ class TextTableReader(LogReader):
             stripped = line.strip()
             if not stripped:
                 continue
-            if stripped[0] in "#%":
-                key, sep, value = stripped[1:].partition(":")
+            if stripped.startswith(COMMENT_PREFIXES):
+                mark = next(m for m in COMMENT_PREFIXES if stripped.startswith(m))
+                key, sep, value = stripped[len(mark) :].partition(":")
                 if sep and META_KEY.fullmatch(key.strip()):
                     self.meta[key.strip()] = parse_meta_value(value.strip())
                 continue
@@ -240,7 +246,7 @@ class TextTableReader(LogReader):
             if lineno < self._data_line:
                 continue
             stripped = line.strip()
-            if stripped and stripped[0] not in "#%":
+            if stripped and not stripped.startswith(COMMENT_PREFIXES):
                 yield lineno, stripped
 
     def _parse(self, chunk: list[tuple[int, str]]) -> np.ndarray:
