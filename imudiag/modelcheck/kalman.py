@@ -66,11 +66,18 @@ def run_filter(
     if p0 is None:
         hh = np.maximum(np.sum(H * H, axis=1), 1e-300)
         p0 = np.full(d, 1e6 * float(np.median(R / hh)))
-    x = np.zeros((b, d, c))
-    P = np.broadcast_to(np.diag(p0), (b, d, d)).copy()
     nu = np.zeros((b, n, c))
     S = np.full((b, n), np.inf)
     valid = np.zeros((b, n), dtype=bool)
+    if d == 1 and not _GENERAL_ONLY:
+        rows, nu[:, use], S[:, use], hph_m = _one_state_innovations(
+            np.asarray(t, dtype=float), H[:, 0], R, Z, q, use, float(p0[0])
+        )
+        hr = H[rows, 0]
+        valid[:, use] = hph_m <= DIFFUSE_FRACTION * ((hr * hr) * p0[0])
+        return Innovations(nu=nu, S=S, valid=valid)
+    x = np.zeros((b, d, c))
+    P = np.broadcast_to(np.diag(p0), (b, d, d)).copy()
     diag = np.arange(d)
     t_prev = float(t[0]) if n else 0.0
     for i in range(n):  # one step per chunk (not per sample)
@@ -146,6 +153,10 @@ def filter_products(
     if p0 is None:
         hh = np.maximum(np.sum(H * H, axis=1), 1e-300)
         p0 = np.full(d, 1e6 * float(np.median(R / hh)))
+    if d == 1 and not _GENERAL_ONLY:
+        return _filter_products_one_state(
+            t, H, R, head, q, groups, use, p0, cand, step_axis, step_at, block_k, buffer_rows
+        )
     c1 = 0 if cand is None else cand.shape[1]
     steps = 0 if step_axis is None else step_axis.shape[0]
     cand_rows = cand if cand is not None else np.zeros((0, 0))
@@ -218,6 +229,175 @@ def filter_products(
                 filled = 0
     if filled:
         flush(filled)
+    return out
+
+
+#: tests set this to run the general (any number of states) path only, to compare the
+#: one-state path with it
+_GENERAL_ONLY = False
+
+
+def _one_state_innovations(
+    t: np.ndarray,
+    h: np.ndarray,
+    R: np.ndarray,
+    Z: np.ndarray,
+    q: np.ndarray,
+    use: np.ndarray,
+    p0: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The filter of :func:`run_filter` for one random-walk state (d = 1), the same floating
+    point operations in the same order with the state variance a (B,) vector: the
+    variance recursion does not depend on the data, so it runs first over (B,) vectors,
+    then the state over (B, c); with one batch member and one column both run on Python
+    floats. Returns (rows used (m,), innovations (B, m, c), S (B, m), h P h (B, m))."""
+    n = h.shape[0]
+    b = q.shape[0]
+    c = Z.shape[1]
+    q0 = q[:, 0]
+    rows = np.flatnonzero(use)
+    m = rows.shape[0]
+    tl = t.tolist()
+    hl = h.tolist()
+    rl = R.tolist()
+    used = use.tolist()
+    S = np.empty((b, m))
+    gain = np.empty((b, m))
+    hph = np.empty((b, m))
+    if b == 1:
+        pv = float(p0)
+        qv = float(q0[0])
+        sl, gl, hl_ = [0.0] * m, [0.0] * m, [0.0] * m
+        t_prev = tl[0] if n else 0.0
+        j = 0
+        for i in range(n):
+            dt = tl[i] - t_prev
+            t_prev = tl[i]
+            if dt > 0:
+                pv += qv * dt
+            if not used[i]:
+                continue
+            hi = hl[i]
+            ph = pv * hi
+            hp = ph * hi
+            si = hp + rl[i]
+            g = ph / si
+            pv -= g * ph
+            sl[j], gl[j], hl_[j] = si, g, hp
+            j += 1
+        S[0], gain[0], hph[0] = sl, gl, hl_
+    else:
+        pa = np.full(b, float(p0))
+        t_prev = tl[0] if n else 0.0
+        j = 0
+        for i in range(n):
+            dt = tl[i] - t_prev
+            t_prev = tl[i]
+            if dt > 0:
+                pa += q0 * dt
+            if not used[i]:
+                continue
+            hi = hl[i]
+            ph = pa * hi
+            hp = ph * hi
+            si = hp + rl[i]
+            g = ph / si
+            pa -= g * ph
+            S[:, j], gain[:, j], hph[:, j] = si, g, hp
+            j += 1
+    nu = np.empty((b, m, c))
+    if b == 1 and c == 1:
+        xv = 0.0
+        zl = Z[rows, 0].tolist()
+        gl = gain[0].tolist()
+        nl = [0.0] * m
+        for j in range(m):
+            innov = zl[j] - hl[rows[j]] * xv
+            xv += gl[j] * innov
+            nl[j] = innov
+        nu[0, :, 0] = nl
+    else:
+        x = np.zeros((b, c))
+        gcol = gain[:, :, None]
+        for j, i in enumerate(rows.tolist()):
+            innov = Z[i][None, :] - hl[i] * x
+            x += gcol[:, j] * innov
+            nu[:, j] = innov
+    return rows, nu, S, hph
+
+
+def _filter_products_one_state(
+    t: np.ndarray,
+    H: np.ndarray,
+    R: np.ndarray,
+    head: np.ndarray,
+    q: np.ndarray,
+    groups: np.ndarray,
+    use: np.ndarray,
+    p0: np.ndarray,
+    cand: np.ndarray | None,
+    step_axis: np.ndarray | None,
+    step_at: np.ndarray | None,
+    block_k: int,
+    buffer_rows: int,
+) -> Products:
+    """:func:`filter_products` for one random-walk state: the innovations first
+    (:func:`_one_state_innovations`), then the whitened rows summed in the same buffers of
+    ``buffer_rows`` rows in the same order as the general path (bit-identical results,
+    tests/test_modelcheck.py compares the two)."""
+    n = H.shape[0]
+    b = q.shape[0]
+    hw = head.shape[1]
+    cols = [head]
+    if cand is not None:
+        cols.append(cand)
+    if step_axis is not None and step_at is not None:
+        cols.append(H[:, step_axis] * (np.arange(n)[:, None] >= step_at[None, :]))
+    Z = np.concatenate(cols, axis=1) if len(cols) > 1 else head
+    width = Z.shape[1]
+    cw = width - hw
+    g = groups.shape[0]
+    out = Products(
+        head=np.zeros((b, g, hw, hw)),
+        cross=np.zeros((b, g, cw, hw)),
+        diag=np.zeros((b, g, cw)),
+        block=np.zeros((b, g, block_k, block_k)),
+        log_s=np.zeros((b, g)),
+        rows=groups.sum(axis=1).astype(float),
+    )
+    rows, nu, S, _ = _one_state_innovations(
+        np.asarray(t, dtype=float), H[:, 0], R, Z, q, use, float(p0[0])
+    )
+    in_groups = groups[:, rows]  # (G, m)
+    keep = np.any(in_groups, axis=0)
+    if not np.any(keep):
+        return out
+    S = S[:, keep]
+    in_groups = in_groups[:, keep]
+    # the log S sums row by row, in row order (cumsum adds sequentially, as the loop did)
+    log_s = np.log(S)
+    for gi in range(g):
+        sel = in_groups[gi]
+        if np.any(sel):
+            out.log_s[:, gi] = np.cumsum(log_s[:, sel], axis=1)[:, -1]
+    w_all = nu[:, keep] / np.sqrt(S)[:, :, None]
+    m = w_all.shape[1]
+    for start in range(0, m, buffer_rows):
+        w = w_all[:, start : start + buffer_rows]
+        k = w.shape[1]
+        for gi in range(g):
+            sel = in_groups[gi, start : start + k]
+            if not np.any(sel):
+                continue
+            ws = w[:, sel]
+            wh, wc = ws[:, :, :hw], ws[:, :, hw:]
+            out.head[:, gi] += np.einsum("bri,brj->bij", wh, wh)
+            if cw:
+                out.cross[:, gi] += np.einsum("bri,brj->bij", wc, wh)
+                out.diag[:, gi] += np.einsum("bri,bri->bi", wc, wc)
+            if block_k:
+                wk = wc[:, :, :block_k]
+                out.block[:, gi] += np.einsum("bri,brj->bij", wk, wk)
     return out
 
 
