@@ -302,15 +302,17 @@ def test_filter_products_equal_sums_of_whitened_innovations() -> None:
 
 
 def _kalman_cases(seed: int) -> dict:
-    """Random one-state filter inputs under ``seed``: gaps, unused rows, a batch of random
-    walks (some zero), head and candidate columns, bias steps, groups."""
+    """Random filter inputs under ``seed`` (1 state in half the cases, 2 or 3 in the
+    others): gaps, unused rows, a batch of random walks (some zero), head and candidate
+    columns, bias steps, groups."""
     rng = np.random.default_rng(seed)
     n = int(rng.integers(1, 400))
     b = int(rng.choice([1, 1, 3, 9]))
+    d = 1 if seed % 2 == 0 else int(rng.integers(2, 4))
     t = np.cumsum(rng.uniform(0.0, 2.0, n) * (rng.random(n) < 0.9))
-    h = rng.normal(size=(n, 1)) * (rng.random((n, 1)) < 0.95)
+    h = rng.normal(size=(n, d)) * (rng.random((n, d)) < 0.95)
     r = rng.uniform(0.2, 3.0, n)
-    q = rng.uniform(0.0, 0.5, (b, 1)) * (rng.random((b, 1)) < 0.8)
+    q = rng.uniform(0.0, 0.5, (b, d)) * (rng.random((b, d)) < 0.8)
     use = rng.random(n) < 0.85
     g = int(rng.integers(1, 4))
     groups = rng.random((g, n)) < 0.6
@@ -322,7 +324,7 @@ def _kalman_cases(seed: int) -> dict:
         "kw": {
             "use": use if rng.random() < 0.7 else None,
             "cand": rng.normal(size=(n, c1)) if c1 else None,
-            "step_axis": np.zeros(steps, np.int64) if steps else None,
+            "step_axis": rng.integers(0, d, steps) if steps else None,
             "step_at": rng.integers(0, n, steps) if steps else None,
             "block_k": min(int(rng.integers(0, 3)), c1 + steps),
             "buffer_rows": int(rng.choice([1, 7, 64])),
@@ -332,10 +334,11 @@ def _kalman_cases(seed: int) -> dict:
 
 
 @pytest.mark.parametrize("seed", range(40))
-def test_one_state_filter_is_the_general_filter_bit_for_bit(monkeypatch, seed: int) -> None:
-    """The one-state path of filter_products and run_filter (the model check's channels:
-    its speed) gives the general path's floating-point results exactly, on random inputs
-    with gaps, unused rows, batches, candidates, steps and groups."""
+def test_two_pass_filter_is_the_row_by_row_filter_bit_for_bit(monkeypatch, seed: int) -> None:
+    """The two-pass paths of filter_products and run_filter (variance recursion, then
+    the state; Python floats for one state: the model check's speed) give the row-by-row
+    loop's floating-point results exactly, on random inputs with 1-3 states, gaps, unused
+    rows, batches, candidates, steps and groups."""
     import imudiag.modelcheck.kalman as kalman
 
     case = _kalman_cases(seed)

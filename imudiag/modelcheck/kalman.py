@@ -14,7 +14,10 @@ validated from the same innovations, or from their cross products summed over
 row groups (:func:`filter_products`, memory independent of the series length).
 A batch of random-walk coefficients is filtered together for profile
 likelihoods. The loop runs over chunks (a few per second of data), vectorised
-across columns and the batch.
+across columns and the batch. It runs in two passes (the variance recursion does not
+depend on the data, so it goes first; then the state; on Python floats for the one-state
+channels), the same floating-point operations as the row-by-row loop kept beside them
+as the reference (``_GENERAL_ONLY``; tests/test_modelcheck.py compares them bit for bit).
 """
 
 from __future__ import annotations
@@ -75,6 +78,14 @@ def run_filter(
         )
         hr = H[rows, 0]
         valid[:, use] = hph_m <= DIFFUSE_FRACTION * ((hr * hr) * p0[0])
+        return Innovations(nu=nu, S=S, valid=valid)
+    if not _GENERAL_ONLY:
+        rows, nu[:, use], S[:, use], hph_m = _innovations(
+            np.asarray(t, dtype=float), H, R, Z, q, use, p0
+        )
+        hr = H[rows]
+        lim = np.array([float(np.dot(hi * hi, p0)) for hi in hr])
+        valid[:, use] = hph_m <= DIFFUSE_FRACTION * lim
         return Innovations(nu=nu, S=S, valid=valid)
     x = np.zeros((b, d, c))
     P = np.broadcast_to(np.diag(p0), (b, d, d)).copy()
@@ -153,8 +164,8 @@ def filter_products(
     if p0 is None:
         hh = np.maximum(np.sum(H * H, axis=1), 1e-300)
         p0 = np.full(d, 1e6 * float(np.median(R / hh)))
-    if d == 1 and not _GENERAL_ONLY:
-        return _filter_products_one_state(
+    if not _GENERAL_ONLY:
+        return _filter_products_split(
             t, H, R, head, q, groups, use, p0, cand, step_axis, step_at, block_k, buffer_rows
         )
     c1 = 0 if cand is None else cand.shape[1]
@@ -232,8 +243,8 @@ def filter_products(
     return out
 
 
-#: tests set this to run the general (any number of states) path only, to compare the
-#: one-state path with it
+#: tests set this to run the row-by-row loops of run_filter and filter_products only (the
+#: reference), to compare the two-pass paths with them
 _GENERAL_ONLY = False
 
 
@@ -326,7 +337,57 @@ def _one_state_innovations(
     return rows, nu, S, hph
 
 
-def _filter_products_one_state(
+def _innovations(
+    t: np.ndarray,
+    H: np.ndarray,
+    R: np.ndarray,
+    Z: np.ndarray,
+    q: np.ndarray,
+    use: np.ndarray,
+    p0: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The filter of :func:`run_filter` for d states, the same operations as its loop: the
+    variance recursion first (it does not depend on the data), then the state. Returns
+    (rows used (m,), innovations (B, m, c), S (B, m), h P h (B, m))."""
+    n, d = H.shape
+    b = q.shape[0]
+    c = Z.shape[1]
+    rows = np.flatnonzero(use)
+    m = rows.shape[0]
+    P = np.broadcast_to(np.diag(p0), (b, d, d)).copy()
+    diag = np.arange(d)
+    S = np.empty((b, m))
+    hph = np.empty((b, m))
+    gains = np.empty((b, m, d))
+    tl = t.tolist()
+    used = use.tolist()
+    t_prev = tl[0] if n else 0.0
+    j = 0
+    for i in range(n):
+        dt = tl[i] - t_prev
+        t_prev = tl[i]
+        if dt > 0:
+            P[:, diag, diag] += q * dt
+        if not used[i]:
+            continue
+        h = H[i]
+        ph = P @ h
+        hp = ph @ h
+        s = hp + R[i]
+        gain = ph / s[:, None]
+        P -= gain[:, :, None] * ph[:, None, :]
+        S[:, j], hph[:, j], gains[:, j] = s, hp, gain
+        j += 1
+    nu = np.empty((b, m, c))
+    x = np.zeros((b, d, c))
+    for j, i in enumerate(rows.tolist()):
+        innov = Z[i][None, :] - np.einsum("d,bdc->bc", H[i], x)
+        x += gains[:, j, :, None] * innov[:, None, :]
+        nu[:, j] = innov
+    return rows, nu, S, hph
+
+
+def _filter_products_split(
     t: np.ndarray,
     H: np.ndarray,
     R: np.ndarray,
@@ -341,10 +402,11 @@ def _filter_products_one_state(
     block_k: int,
     buffer_rows: int,
 ) -> Products:
-    """:func:`filter_products` for one random-walk state: the innovations first
-    (:func:`_one_state_innovations`), then the whitened rows summed in the same buffers of
-    ``buffer_rows`` rows in the same order as the general path (bit-identical results,
-    tests/test_modelcheck.py compares the two)."""
+    """:func:`filter_products` in two passes: the innovations of every row first
+    (:func:`_one_state_innovations` for one state, :func:`_innovations` for more), then
+    the whitened rows summed in the same buffers of ``buffer_rows`` rows in the same order
+    as the row-by-row loop (bit-identical results, tests/test_modelcheck.py compares the
+    two)."""
     n = H.shape[0]
     b = q.shape[0]
     hw = head.shape[1]
@@ -365,9 +427,12 @@ def _filter_products_one_state(
         log_s=np.zeros((b, g)),
         rows=groups.sum(axis=1).astype(float),
     )
-    rows, nu, S, _ = _one_state_innovations(
-        np.asarray(t, dtype=float), H[:, 0], R, Z, q, use, float(p0[0])
-    )
+    if H.shape[1] == 1:
+        rows, nu, S, _ = _one_state_innovations(
+            np.asarray(t, dtype=float), H[:, 0], R, Z, q, use, float(p0[0])
+        )
+    else:
+        rows, nu, S, _ = _innovations(np.asarray(t, dtype=float), H, R, Z, q, use, p0)
     in_groups = groups[:, rows]  # (G, m)
     keep = np.any(in_groups, axis=0)
     if not np.any(keep):
