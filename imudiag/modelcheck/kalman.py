@@ -73,15 +73,17 @@ def run_filter(
     S = np.full((b, n), np.inf)
     valid = np.zeros((b, n), dtype=bool)
     if d == 1 and not _GENERAL_ONLY:
+        st = _new_state(p0, b, c, float(t[0]) if n else 0.0)
         rows, nu[:, use], S[:, use], hph_m = _one_state_innovations(
-            np.asarray(t, dtype=float), H[:, 0], R, Z, q, use, float(p0[0])
+            np.asarray(t, dtype=float), H[:, 0], R, Z, q, use, st
         )
         hr = H[rows, 0]
         valid[:, use] = hph_m <= DIFFUSE_FRACTION * ((hr * hr) * p0[0])
         return Innovations(nu=nu, S=S, valid=valid)
     if not _GENERAL_ONLY:
+        st = _new_state(p0, b, c, float(t[0]) if n else 0.0)
         rows, nu[:, use], S[:, use], hph_m = _innovations(
-            np.asarray(t, dtype=float), H, R, Z, q, use, p0
+            np.asarray(t, dtype=float), H, R, Z, q, use, st
         )
         hr = H[rows]
         lim = np.array([float(np.dot(hi * hi, p0)) for hi in hr])
@@ -246,6 +248,26 @@ def filter_products(
 #: tests set this to run the row-by-row loops of run_filter and filter_products only (the
 #: reference), to compare the two-pass paths with them
 _GENERAL_ONLY = False
+#: rows (chunks) per pass of filter_products' two-pass path: its memory does not grow
+#: with the series
+PASS_ROWS = 2048
+
+
+@dataclass
+class _State:
+    """The filter's state between passes: variance P (B, d, d), state x (B, d, c), the
+    time of the last row (s)."""
+
+    P: np.ndarray
+    x: np.ndarray
+    t_prev: float
+
+
+def _new_state(p0: np.ndarray, b: int, c: int, t0: float) -> _State:
+    d = p0.shape[0]
+    return _State(
+        P=np.broadcast_to(np.diag(p0), (b, d, d)).copy(), x=np.zeros((b, d, c)), t_prev=t0
+    )
 
 
 def _one_state_innovations(
@@ -255,13 +277,13 @@ def _one_state_innovations(
     Z: np.ndarray,
     q: np.ndarray,
     use: np.ndarray,
-    p0: float,
+    st: _State,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The filter of :func:`run_filter` for one random-walk state (d = 1), the same floating
-    point operations in the same order with the state variance a (B,) vector: the
-    variance recursion does not depend on the data, so it runs first over (B,) vectors,
-    then the state over (B, c); with one batch member and one column both run on Python
-    floats. Returns (rows used (m,), innovations (B, m, c), S (B, m), h P h (B, m))."""
+    """Rows ``t`` of the filter of :func:`run_filter` for one random-walk state (d = 1),
+    the same floating-point operations in the same order, from the state ``st`` (updated):
+    the variance recursion does not depend on the data, so it runs first over (B,)
+    vectors, then the state over (B, c); with one batch member and one column both run on
+    Python floats. Returns (rows used (m,), innovations (B, m, c), S (B, m), h P h (B, m))."""
     n = h.shape[0]
     b = q.shape[0]
     c = Z.shape[1]
@@ -275,11 +297,11 @@ def _one_state_innovations(
     S = np.empty((b, m))
     gain = np.empty((b, m))
     hph = np.empty((b, m))
+    t_prev = st.t_prev
     if b == 1:
-        pv = float(p0)
+        pv = float(st.P[0, 0, 0])
         qv = float(q0[0])
         sl, gl, hl_ = [0.0] * m, [0.0] * m, [0.0] * m
-        t_prev = tl[0] if n else 0.0
         j = 0
         for i in range(n):
             dt = tl[i] - t_prev
@@ -297,9 +319,9 @@ def _one_state_innovations(
             sl[j], gl[j], hl_[j] = si, g, hp
             j += 1
         S[0], gain[0], hph[0] = sl, gl, hl_
+        st.P[0, 0, 0] = pv
     else:
-        pa = np.full(b, float(p0))
-        t_prev = tl[0] if n else 0.0
+        pa = st.P[:, 0, 0].copy()
         j = 0
         for i in range(n):
             dt = tl[i] - t_prev
@@ -316,9 +338,11 @@ def _one_state_innovations(
             pa -= g * ph
             S[:, j], gain[:, j], hph[:, j] = si, g, hp
             j += 1
+        st.P[:, 0, 0] = pa
+    st.t_prev = t_prev
     nu = np.empty((b, m, c))
     if b == 1 and c == 1:
-        xv = 0.0
+        xv = float(st.x[0, 0, 0])
         zl = Z[rows, 0].tolist()
         gl = gain[0].tolist()
         nl = [0.0] * m
@@ -327,13 +351,15 @@ def _one_state_innovations(
             xv += gl[j] * innov
             nl[j] = innov
         nu[0, :, 0] = nl
+        st.x[0, 0, 0] = xv
     else:
-        x = np.zeros((b, c))
+        x = st.x[:, 0, :].copy()
         gcol = gain[:, :, None]
         for j, i in enumerate(rows.tolist()):
             innov = Z[i][None, :] - hl[i] * x
             x += gcol[:, j] * innov
             nu[:, j] = innov
+        st.x[:, 0, :] = x
     return rows, nu, S, hph
 
 
@@ -344,24 +370,25 @@ def _innovations(
     Z: np.ndarray,
     q: np.ndarray,
     use: np.ndarray,
-    p0: np.ndarray,
+    st: _State,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The filter of :func:`run_filter` for d states, the same operations as its loop: the
-    variance recursion first (it does not depend on the data), then the state. Returns
-    (rows used (m,), innovations (B, m, c), S (B, m), h P h (B, m))."""
+    """Rows ``t`` of the filter of :func:`run_filter` for d states from the state ``st``
+    (updated), the same operations as its loop: the variance recursion first (it does not
+    depend on the data), then the state. Returns (rows used (m,), innovations (B, m, c),
+    S (B, m), h P h (B, m))."""
     n, d = H.shape
     b = q.shape[0]
     c = Z.shape[1]
     rows = np.flatnonzero(use)
     m = rows.shape[0]
-    P = np.broadcast_to(np.diag(p0), (b, d, d)).copy()
+    P = st.P
     diag = np.arange(d)
     S = np.empty((b, m))
     hph = np.empty((b, m))
     gains = np.empty((b, m, d))
     tl = t.tolist()
     used = use.tolist()
-    t_prev = tl[0] if n else 0.0
+    t_prev = st.t_prev
     j = 0
     for i in range(n):
         dt = tl[i] - t_prev
@@ -378,13 +405,29 @@ def _innovations(
         P -= gain[:, :, None] * ph[:, None, :]
         S[:, j], hph[:, j], gains[:, j] = s, hp, gain
         j += 1
+    st.t_prev = t_prev
     nu = np.empty((b, m, c))
-    x = np.zeros((b, d, c))
+    x = st.x
     for j, i in enumerate(rows.tolist()):
         innov = Z[i][None, :] - np.einsum("d,bdc->bc", H[i], x)
         x += gains[:, j, :, None] * innov[:, None, :]
         nu[:, j] = innov
     return rows, nu, S, hph
+
+
+def _pass(
+    t: np.ndarray,
+    H: np.ndarray,
+    R: np.ndarray,
+    Z: np.ndarray,
+    q: np.ndarray,
+    use: np.ndarray,
+    st: _State,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One pass over rows: the one-state path or the d-state path."""
+    if H.shape[1] == 1:
+        return _one_state_innovations(t, H[:, 0], R, Z, q, use, st)
+    return _innovations(t, H, R, Z, q, use, st)
 
 
 def _filter_products_split(
@@ -402,21 +445,18 @@ def _filter_products_split(
     block_k: int,
     buffer_rows: int,
 ) -> Products:
-    """:func:`filter_products` in two passes: the innovations of every row first
-    (:func:`_one_state_innovations` for one state, :func:`_innovations` for more), then
-    the whitened rows summed in the same buffers of ``buffer_rows`` rows in the same order
-    as the row-by-row loop (bit-identical results, tests/test_modelcheck.py compares the
-    two)."""
+    """:func:`filter_products` in passes of :data:`PASS_ROWS` rows, each in two steps: the
+    innovations of its rows (:func:`_pass`), then the whitened rows summed in the same
+    buffers of ``buffer_rows`` rows in the same order as the row-by-row loop
+    (bit-identical results, tests/test_modelcheck.py compares the two); memory does not
+    grow with the series."""
+    t = np.asarray(t, dtype=float)
     n = H.shape[0]
     b = q.shape[0]
     hw = head.shape[1]
-    cols = [head]
-    if cand is not None:
-        cols.append(cand)
-    if step_axis is not None and step_at is not None:
-        cols.append(H[:, step_axis] * (np.arange(n)[:, None] >= step_at[None, :]))
-    Z = np.concatenate(cols, axis=1) if len(cols) > 1 else head
-    width = Z.shape[1]
+    c1 = 0 if cand is None else cand.shape[1]
+    steps = 0 if step_axis is None or step_at is None else step_axis.shape[0]
+    width = hw + c1 + steps
     cw = width - hw
     g = groups.shape[0]
     out = Products(
@@ -427,31 +467,13 @@ def _filter_products_split(
         log_s=np.zeros((b, g)),
         rows=groups.sum(axis=1).astype(float),
     )
-    if H.shape[1] == 1:
-        rows, nu, S, _ = _one_state_innovations(
-            np.asarray(t, dtype=float), H[:, 0], R, Z, q, use, float(p0[0])
-        )
-    else:
-        rows, nu, S, _ = _innovations(np.asarray(t, dtype=float), H, R, Z, q, use, p0)
-    in_groups = groups[:, rows]  # (G, m)
-    keep = np.any(in_groups, axis=0)
-    if not np.any(keep):
-        return out
-    S = S[:, keep]
-    in_groups = in_groups[:, keep]
-    # the log S sums row by row, in row order (cumsum adds sequentially, as the loop did)
-    log_s = np.log(S)
-    for gi in range(g):
-        sel = in_groups[gi]
-        if np.any(sel):
-            out.log_s[:, gi] = np.cumsum(log_s[:, sel], axis=1)[:, -1]
-    w_all = nu[:, keep] / np.sqrt(S)[:, :, None]
-    m = w_all.shape[1]
-    for start in range(0, m, buffer_rows):
-        w = w_all[:, start : start + buffer_rows]
-        k = w.shape[1]
+    st = _new_state(p0, b, width, float(t[0]) if n else 0.0)
+    pending_w = np.zeros((b, 0, width))  # whitened rows not yet summed (< buffer_rows)
+    pending_g = np.zeros((g, 0), dtype=bool)
+
+    def flush(w: np.ndarray, in_g: np.ndarray) -> None:
         for gi in range(g):
-            sel = in_groups[gi, start : start + k]
+            sel = in_g[gi]
             if not np.any(sel):
                 continue
             ws = w[:, sel]
@@ -463,6 +485,42 @@ def _filter_products_split(
             if block_k:
                 wk = wc[:, :, :block_k]
                 out.block[:, gi] += np.einsum("bri,brj->bij", wk, wk)
+
+    for a in range(0, n, PASS_ROWS):
+        e = min(a + PASS_ROWS, n)
+        cols = [head[a:e]]
+        if cand is not None:
+            cols.append(cand[a:e])
+        if steps:
+            assert step_axis is not None and step_at is not None
+            idx = np.arange(a, e)[:, None]
+            cols.append(H[a:e, step_axis] * (idx >= step_at[None, :]))
+        Z = np.concatenate(cols, axis=1) if len(cols) > 1 else cols[0]
+        rows, nu, S, _ = _pass(t[a:e], H[a:e], R[a:e], Z, q, use[a:e], st)
+        in_groups = groups[:, a:e][:, rows]  # (G, m)
+        keep = np.any(in_groups, axis=0)
+        if not np.any(keep):
+            continue
+        S = S[:, keep]
+        in_groups = in_groups[:, keep]
+        # the log S sums row by row, in row order (cumsum adds sequentially, as the loop
+        # did, from the sum so far)
+        log_s = np.log(S)
+        for gi in range(g):
+            sel = in_groups[gi]
+            if np.any(sel):
+                seq = np.concatenate([out.log_s[:, gi : gi + 1], log_s[:, sel]], axis=1)
+                out.log_s[:, gi] = np.cumsum(seq, axis=1)[:, -1]
+        w_all = np.concatenate([pending_w, nu[:, keep] / np.sqrt(S)[:, :, None]], axis=1)
+        g_all = np.concatenate([pending_g, in_groups], axis=1)
+        m = w_all.shape[1]
+        full = m - m % buffer_rows
+        for start in range(0, full, buffer_rows):
+            stop = start + buffer_rows
+            flush(w_all[:, start:stop], g_all[:, start:stop])
+        pending_w, pending_g = w_all[:, full:].copy(), g_all[:, full:].copy()
+    if pending_w.shape[1]:
+        flush(pending_w, pending_g)
     return out
 
 
