@@ -90,8 +90,13 @@ def overlapping_allan(
     x *= tau0
     adev = np.empty(m.shape[0])
     nterms = np.empty(m.shape[0], dtype=np.int64)
+    buf = np.empty(n_samples + 1)  # one scratch array for every tau (no temporaries)
     for i, mj in enumerate(m.tolist()):  # one vectorised pass per tau
-        d = x[2 * mj :] - 2.0 * x[mj:-mj] + x[: -2 * mj]
+        # d = x[2m:] - 2 x[m:-m] + x[:-2m], in that order of operations (bit-identical)
+        d = buf[: n_samples + 1 - 2 * mj]
+        np.multiply(x[mj:-mj], 2.0, out=d)
+        np.subtract(x[2 * mj :], d, out=d)
+        np.add(d, x[: -2 * mj], out=d)
         nterms[i] = d.shape[0]
         adev[i] = math.sqrt(float(np.dot(d, d)) / (2.0 * d.shape[0])) / (mj * tau0)
     return AllanResult(

@@ -299,3 +299,60 @@ def test_filter_products_equal_sums_of_whitened_innovations() -> None:
         assert np.allclose(p.diag[b, 0], np.diag(full)[3:])
         assert np.allclose(p.block[b, 0], full[3:5, 3:5])
         assert p.log_s[b, 0] == pytest.approx(np.sum(np.log(inn.S[b, rows])))
+
+
+def _kalman_cases(seed: int) -> dict:
+    """Random filter inputs under ``seed`` (1 state in half the cases, 2 or 3 in the
+    others): gaps, unused rows, a batch of random walks (some zero), head and candidate
+    columns, bias steps, groups."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 400))
+    b = int(rng.choice([1, 1, 3, 9]))
+    d = 1 if seed % 2 == 0 else int(rng.integers(2, 4))
+    t = np.cumsum(rng.uniform(0.0, 2.0, n) * (rng.random(n) < 0.9))
+    h = rng.normal(size=(n, d)) * (rng.random((n, d)) < 0.95)
+    r = rng.uniform(0.2, 3.0, n)
+    q = rng.uniform(0.0, 0.5, (b, d)) * (rng.random((b, d)) < 0.8)
+    use = rng.random(n) < 0.85
+    g = int(rng.integers(1, 4))
+    groups = rng.random((g, n)) < 0.6
+    hw = int(rng.integers(1, 4))
+    c1 = int(rng.integers(0, 3))
+    steps = int(rng.integers(0, 5))
+    return {
+        "args": (t, h, r, rng.normal(size=(n, hw)), q, groups),
+        "kw": {
+            "use": use if rng.random() < 0.7 else None,
+            "cand": rng.normal(size=(n, c1)) if c1 else None,
+            "step_axis": rng.integers(0, d, steps) if steps else None,
+            "step_at": rng.integers(0, n, steps) if steps else None,
+            "block_k": min(int(rng.integers(0, 3)), c1 + steps),
+            "buffer_rows": int(rng.choice([1, 7, 64])),
+        },
+        "z": rng.normal(size=(n, int(rng.choice([1, 1, 4])))),
+    }
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_two_pass_filter_is_the_row_by_row_filter_bit_for_bit(monkeypatch, seed: int) -> None:
+    """The two-pass paths of filter_products and run_filter (variance recursion, then
+    the state; Python floats for one state: the model check's speed) give the row-by-row
+    loop's floating-point results exactly, on random inputs with 1-3 states, gaps, unused
+    rows, batches, candidates, steps and groups, in passes of 7, 37 or 2048 rows."""
+    import imudiag.modelcheck.kalman as kalman
+
+    case = _kalman_cases(seed)
+    t, h, r, head, q, groups = case["args"]
+    # passes of a few rows too: the state, the log S sums and the buffers carried across
+    monkeypatch.setattr(kalman, "PASS_ROWS", (7, 37, 2048)[seed % 3])
+    fast = filter_products(*case["args"], **case["kw"])
+    inn_fast = run_filter(t, h, r, case["z"], q, use=case["kw"]["use"])
+    monkeypatch.setattr(kalman, "_GENERAL_ONLY", True)
+    slow = filter_products(*case["args"], **case["kw"])
+    inn_slow = run_filter(t, h, r, case["z"], q, use=case["kw"]["use"])
+    for name in ("head", "cross", "diag", "block", "log_s", "rows"):
+        a, b = getattr(fast, name), getattr(slow, name)
+        assert a.shape == b.shape and np.array_equal(a, b), name
+    assert np.array_equal(inn_fast.nu, inn_slow.nu)
+    assert np.array_equal(inn_fast.S, inn_slow.S)
+    assert np.array_equal(inn_fast.valid, inn_slow.valid)
