@@ -10,6 +10,7 @@ import pytest
 from imudiag.errors import BadInput
 from imudiag.logs import LogError, LogOptions, open_log, read_log
 from imudiag.logs.options import parse_columns, parse_units
+from imudiag.samples import SampleBlock
 
 RNG = np.random.default_rng(11)
 N = 50
@@ -277,3 +278,54 @@ def test_si_log_with_a_counts_certificate_is_exit_2_naming_both(
     r = imudiag_cli(command, str(d / "session.csv"), "--units", "gyro=rad/s,accel=m/s^2", *args)
     assert r.returncode == 2 and "'rad/s'" in r.stderr and "'count'" in r.stderr, r.stderr
     assert not (tmp_path / "c.yaml").exists()
+
+
+XIO = Path(__file__).parent / "data" / "real" / "skinematics"
+
+
+def _read(path: Path, options: LogOptions | None = None) -> SampleBlock:
+    with open_log(path, options=options) as reader:
+        return SampleBlock.concat(list(reader))
+
+
+@pytest.mark.parametrize(
+    ("name", "opts"),
+    [
+        ("ngimu-sensors.csv", LogOptions(units={"gyro": "deg/s", "accel": "g"})),
+        ("ximu3-inertial.csv", LogOptions(units={"gyro": "deg/s", "accel": "g"}, time_unit="us")),
+    ],
+)
+def test_x_io_exports_read_their_units_from_the_header(name: str, opts: LogOptions) -> None:
+    """x-io's GUI writes ``Gyroscope X (deg/s)``, ``Accelerometer X (g)``, ``Timestamp
+    (us)``: the real exports read with no option as they read with the options stated."""
+    path = XIO / name
+    with open_log(path) as r:
+        assert r.meta["units"] == {"gyro": "deg/s", "accel": "g"}
+        assert r.meta["units_from"] == "the header's brackets"
+    bare, stated = _read(path), _read(path, opts)
+    assert len(bare) == len(stated) > 400
+    np.testing.assert_array_equal(bare.t, stated.t)
+    np.testing.assert_array_equal(bare.gyro, stated.gyro)
+    np.testing.assert_array_equal(bare.accel, stated.accel)
+    assert 0.015 < float(np.median(np.diff(bare.t))) < 0.025  # about 50 Hz, in seconds
+
+
+def test_stated_options_win_over_the_header_and_mixed_brackets_state_nothing(
+    tmp_path: Path,
+) -> None:
+    rows = "\n".join(f"{i * 10},0.1,0.2,0.3,0,0,1" for i in range(50))
+    mixed = tmp_path / "mixed.csv"
+    mixed.write_text(
+        "Time (ms),Gyro X (deg/s),Gyro Y (rad/s),Gyro Z (deg/s),Acc X (g),Acc Y (g),Acc Z (g)\n"
+        + rows
+    )
+    with open_log(mixed) as r:
+        assert "units" not in r.meta  # the gyro columns disagree: no unit is guessed
+    assert float(_read(mixed).t[1]) == pytest.approx(0.010)  # the (ms) of the time column
+    opts = LogOptions(units={"gyro": "rad/s", "accel": "m/s^2"}, time_unit="s")
+    with open_log(mixed, options=opts) as r:
+        assert r.meta["units"] == {"gyro": "rad/s", "accel": "m/s^2"}
+        assert "units_from" not in r.meta
+    # --time-unit s is taken as said: 10 s per sample, which the rate check refuses
+    with pytest.raises(LogError, match="likely in ms"):
+        _read(mixed, opts)

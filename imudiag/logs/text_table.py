@@ -6,7 +6,10 @@ or ``//`` (Xsens MT Manager's exports) are comments (``# key: value`` ones are
 metadata). A header is a
 first line with a field that is not a number; its names are matched to the
 columns (``t``/``time``/``timestamp``, ``gx``/``gyro_x``/``wx``...,
-``ax``/``acc_x``..., ``temp``), ignoring a unit in brackets. Without a header,
+``ax``/``acc_x``/``Accelerometer X``..., ``temp``); a unit in brackets is taken as
+the log's own where a triad's three columns state one (x-io's ``Gyroscope X (deg/s)``)
+and for the time column (``Timestamp (us)``), unless ``--units`` or ``--time-unit``
+say otherwise. Without a header,
 ``--columns`` names the columns in file order (``_`` skips one). Without a
 ``t`` column, ``--rate HZ`` gives the time: ``t = i / rate`` s.
 
@@ -27,6 +30,7 @@ from typing import IO
 import numpy as np
 
 from ..samples import SampleBlock
+from ..units import canonical, units_of
 from .base import (
     DEFAULT_BLOCK_SIZE,
     META_KEY,
@@ -59,11 +63,13 @@ ALIASES = {
     "flags": "flags",
 }
 for _axis in "xyz":
-    for _p in ("gyro_", "gyr_", "w", "omega_", "gyro", "g_"):
+    for _p in ("gyro_", "gyr_", "w", "omega_", "gyro", "g_", "gyroscope_"):
         ALIASES[f"{_p}{_axis}"] = f"g{_axis}"
-    for _p in ("acc_", "accel_", "a_", "acc", "accel"):
+    for _p in ("acc_", "accel_", "a_", "acc", "accel", "accelerometer_"):
         ALIASES[f"{_p}{_axis}"] = f"a{_axis}"
-_UNIT_SUFFIX = re.compile(r"\s*[\[(].*[\])]\s*$")
+_UNIT_SUFFIX = re.compile(r"\s*[\[(](.*)[\])]\s*$")
+#: time units a header may state in brackets (``Timestamp (us)``), as --time-unit names them
+_HEADER_TIME_UNITS = {"s": "s", "sec": "s", "ms": "ms", "us": "us", "\u00b5s": "us", "ns": "ns"}
 
 
 #: What starts a comment line: ``#``, ``%`` (MATLAB, Octave) and ``//`` (Xsens MT Manager).
@@ -100,7 +106,8 @@ class TextTableReader(LogReader):
     ) -> None:
         super().__init__(path, block_size)
         self.options = options or LogOptions()
-        self.time_scale = TIME_UNITS[self.options.time_unit or "s"]  #: s per unit of t
+        self.header_units: dict[str, str] = {}  #: units the header states in brackets
+        self.header_time_unit: str | None = None  #: the time column's, from the header
         self._data_line = 0  # file line of the first data row
         self._delim: str | None = None
         fh = self._file()
@@ -108,9 +115,16 @@ class TextTableReader(LogReader):
             self._read_table_head(fh)
         finally:
             self._release(fh)
+        time_unit = self.options.time_unit or self.header_time_unit or "s"
+        self.time_scale = TIME_UNITS[time_unit]  #: s per unit of t
         units = dict(self.options.units) or units_from_meta(self.meta)
+        if not units and len(self.header_units) == 2:  # both triads' units in the header
+            units = dict(self.header_units)
+            self.meta["units_from"] = "the header's brackets"
         if units:
             self.meta["units"] = units
+        if self.header_time_unit and not self.options.time_unit:
+            self.meta["time_unit_from"] = f"the header's brackets ({self.header_time_unit})"
         if self.options.rate is not None and "t" not in self._names:
             self.meta.setdefault("sample_rate", self.options.rate)
 
@@ -170,9 +184,14 @@ class TextTableReader(LogReader):
                 )
             return list(self.options.columns)
         names = []
+        stated: dict[str, str] = {}  # column name -> the unit its header states in brackets
         for f in fields:
             key = _UNIT_SUFFIX.sub("", f).strip().lower().replace(" ", "_")
             names.append(ALIASES.get(key, "_"))
+            unit = _UNIT_SUFFIX.search(f)
+            if unit and names[-1] != "_":
+                stated[names[-1]] = unit.group(1).strip()
+        self._header_units(stated)
         missing = missing_columns(names, self.options.gyro_only)
         if missing:
             raise LogError(
@@ -182,6 +201,21 @@ class TextTableReader(LogReader):
                 lineno,
             )
         return names
+
+    def _header_units(self, stated: dict[str, str]) -> None:
+        """The units a header states in brackets (x-io's ``Gyroscope X (deg/s)``,
+        ``Timestamp (us)``): a triad's where its three columns state one unit imudiag knows,
+        the time column's where it is s, ms, us or ns. Kept in ``header_units`` and
+        ``header_time_unit``; --units and --time-unit, where given, are taken instead."""
+        for triad, prefix in (("gyro", "g"), ("accel", "a")):
+            said = {stated.get(prefix + axis) for axis in "xyz"}
+            if len(said) == 1 and None not in said:
+                unit = canonical(said.pop() or "")
+                if unit in units_of(triad):
+                    self.header_units[triad] = unit
+        time_unit = _HEADER_TIME_UNITS.get(stated.get("t", "").lower())
+        if time_unit is not None:
+            self.header_time_unit = time_unit
 
     def _from_options(self, lineno: int) -> list[str]:
         if not self.options.columns:
