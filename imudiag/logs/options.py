@@ -10,11 +10,11 @@ a log without time stamps. The same keys are ``replay://`` URL query keys
 from __future__ import annotations
 
 import argparse
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..argtypes import nonnegative_int, rate_problem, sample_rate
+from .. import validate
+from ..argtypes import nonnegative_int, sample_rate
 from ..errors import BadInput
 from ..units import canonical, units_of
 from .base import OPTIONAL_COLUMNS, REQUIRED_COLUMNS
@@ -123,18 +123,13 @@ def parse_time_unit(text: str, where: str = "--time-unit") -> str:
 
 
 def parse_rate(value: Any, where: str = "--rate") -> float:
-    """A sample rate in Hz, finite and an IMU's (:func:`imudiag.argtypes.rate_problem`);
-    raises BadInput."""
+    """A sample rate in Hz given as text or a number (a URL query's ``rate=200``), checked
+    as every sample rate is (:func:`imudiag.validate.sample_rate`); raises BadInput."""
     try:
         rate = float(value)
     except (TypeError, ValueError):
         raise BadInput(f"{where}: expected a rate in Hz, got {value!r}") from None
-    if not (rate > 0 and math.isfinite(rate)):
-        raise BadInput(f"{where}: must be a finite rate > 0 Hz, got {value!r}")
-    problem = rate_problem(rate)
-    if problem:
-        raise BadInput(f"{where}: {problem}")
-    return rate
+    return validate.sample_rate(rate, where)
 
 
 def add_log_options(parser: argparse.ArgumentParser) -> None:
