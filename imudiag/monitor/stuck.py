@@ -48,7 +48,7 @@ class StuckCheck:
         self.max_repeat = max_repeat
         self.pairs = np.zeros(6, dtype=np.int64)  #: consecutive output pairs seen
         self.repeats = np.zeros(6, dtype=np.int64)  #: ... of them identical
-        self.enabled = (self.sigma >= min_sigma * self.quantum) & self.counts
+        self.enabled = self._enabled()
         self.run = np.zeros(6, dtype=np.int64)  #: samples in each run, excluding its first
         self.last = np.full(6, np.nan)  #: the last raw output of each channel
         self.t_first = np.full(6, np.nan)  #: s, when each stuck channel came in force
@@ -95,8 +95,12 @@ class StuckCheck:
         free = ~active
         self.pairs[free] += np.count_nonzero(valid[free], axis=1)
         self.repeats[free] += np.count_nonzero(same_prev[free], axis=1)
-        self.enabled = (self.sigma >= self.min_sigma * self.quantum) & (
-            self.counts
-            | ((self.pairs >= self.history) & (self.repeats <= self.max_repeat * self.pairs))
-        )
+        self.enabled = self._enabled()
         return active
+
+    def _enabled(self) -> np.ndarray:
+        """The channels (6,) checked: noise of at least ``min_sigma`` steps, and counts or a
+        physical output whose own repeat rate is low over ``history`` pairs."""
+        own = (self.pairs >= self.history) & (self.repeats <= self.max_repeat * self.pairs)
+        checked: np.ndarray = (self.sigma >= self.min_sigma * self.quantum) & (self.counts | own)
+        return checked
