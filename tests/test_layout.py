@@ -368,3 +368,18 @@ def test_the_split_packages_keep_each_algorithm_apart_from_its_machinery():
         own = {d.rpartition(".")[2] for d in GRAPH[f"{package}.{algorithm}"]
                if d.startswith(package + ".")}  # fmt: skip
         assert own <= machinery, (package, own)
+
+
+def test_every_package_is_installed_by_pyproject() -> None:
+    """A non-editable install (the README's first command) ships exactly the packages
+    pyproject.toml lists: each package folder under imudiag/ must be among them (the
+    monitor, quasistatic and fleet packages were missing, and `pip install .` then failed
+    at `imudiag run` with ModuleNotFoundError)."""
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    listed = set(
+        tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    )
+    found = {"imudiag." + p.parent.name for p in (root / "imudiag").glob("*/__init__.py")}
+    assert found - listed == set(), f"packages not in pyproject.toml: {sorted(found - listed)}"
