@@ -22,6 +22,7 @@ import pytest
 from imudiag.api import diagnose
 from imudiag.certificate import load, load_default
 from imudiag.logs import open_writer
+from imudiag.logs.options import options_from_query
 from imudiag.samples import SampleBlock
 from imudiag.service.daemon import Daemon, DaemonSettings
 from imudiag.sim import Effects, Fault, multi_position, simulate
@@ -46,7 +47,16 @@ REAL_CASES = {
     "px4-ulog": (REAL / "px4-ulog/sample.ulg", LIKE / "like-px4.yaml"),
     "ardupilot-dataflash": (REAL / "ardupilot-dataflash/test.BIN", DATA / "interop/like-si.yaml"),
     "firm-rocket": (REAL / "firm-rocket-launch/flight.csv.gz", LIKE / "like-firm.yaml"),
+    # the units' own software's exports, read unchanged (tests/data/corpus/skinematics): a
+    # 49.4 Hz x-io NGIMU against a 200 Hz certificate, the rate its time stamps show being
+    # the one both faces must check at (the daemon ran at the certificate's until
+    # 2026-11-29 and raised an accelerometer F0 fault diagnose did not)
+    "x-io-ngimu": (REAL / "skinematics/ngimu-sensors.csv", DATA / "interop/like-si.yaml"),
+    "x-io-ximu3": (REAL / "skinematics/ximu3-inertial.csv", DATA / "interop/like-si.yaml"),
 }
+#: how a case's log is read where its own header does not say (replay:// URL query keys,
+#: the same for both faces), e.g. ``units=gyro=rad/s,accel=m/s^2&rate=50``
+READ_AS: dict[str, str] = {}
 
 SIM_RATE_HZ = 100.0
 #: the simulated drive's accelerometer output range, counts: about +-40 m/s^2 about the
@@ -97,13 +107,12 @@ def _sessions(directory: Path) -> dict[str, Path]:
     }
 
 
-def _run_both(log: Path, cert: Path) -> dict[str, Any]:
-    report = diagnose(str(log), str(cert), windows=False)
+def _run_both(log: Path, cert: Path, read_as: str = "") -> dict[str, Any]:
+    query = dict(kv.split("=", 1) for kv in read_as.split("&") if kv)
+    report = diagnose(str(log), str(cert), windows=False, log_options=options_from_query(query))
     sink = CollectSink()
-    daemon = Daemon(
-        DaemonSettings(source_url=f"replay://{log}?speed=0&step=2", certificate_path=str(cert)),
-        [sink],
-    )
+    url = f"replay://{log}?speed=0&step=2" + (f"&{read_as}" if read_as else "")
+    daemon = Daemon(DaemonSettings(source_url=url, certificate_path=str(cert)), [sink])
     assert daemon.run() == 0
     lines = [s for s in sink.lines if s["t"] is not None]
     return {"report": report, "lines": lines}
@@ -146,7 +155,9 @@ def runs(sim_logs, tmp_path_factory) -> dict[str, dict[str, Any]]:
         cases[name] = (log, cert)
     for name in ("drive", "drive-noise", "session-clean", "session-faulty"):
         cases[name] = (sim_logs[name], BUNDLED)
-    return {name: _run_both(log, cert) for name, (log, cert) in cases.items()}
+    return {
+        name: _run_both(log, cert, READ_AS.get(name, "")) for name, (log, cert) in cases.items()
+    }
 
 
 def _named(faults: list[dict[str, Any]]) -> set[tuple[str, str, str]]:

@@ -21,7 +21,7 @@ import numpy as np
 from ..argtypes import rate_problem
 from ..certificate import Certificate
 from ..errors import BadInput
-from ..logs.timing import stated_rate_problem
+from ..logs.timing import first_block_rate_hz, stated_rate_problem
 from ..samples import SampleBlock
 from ..units import Conversion, conform_meta
 
@@ -49,11 +49,8 @@ def log_rate_hz(
                 return rate
         except (TypeError, ValueError):
             pass
-    if first is not None and len(first) > 2:
-        dt = float(np.median(np.diff(first.t)))
-        if dt > 0:
-            return 1.0 / dt
-    return float(cert.sample_rate)
+    stamped = first_block_rate_hz(first.t) if first is not None else None
+    return stamped if stamped is not None else float(cert.sample_rate)
 
 
 def session_rate_hz(

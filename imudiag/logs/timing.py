@@ -31,6 +31,18 @@ def step_rate_hz(t: np.ndarray) -> float:
     return 1.0 / float(np.median(dt)) if dt.size else math.nan
 
 
+def first_block_rate_hz(t: np.ndarray) -> float | None:
+    """The sample rate (Hz) the time stamps ``t`` (s) of a log's first block show, as
+    ``imudiag diagnose`` and a replay take it when the log states none: 1 / the median
+    step over more than two stamps; None when there are fewer or the median step is not
+    positive (repeated stamps)."""
+    t = np.asarray(t, dtype=float)
+    if t.shape[0] <= 2:
+        return None
+    dt = float(np.median(np.diff(t)))
+    return 1.0 / dt if dt > 0 else None
+
+
 def time_unit_problem(t: np.ndarray, unit: str = "s", option: bool = True) -> str | None:
     """Why the time stamps ``t`` (s, read from a column in ``unit``) cannot be an IMU's,
     naming the unit the column is likely in, or None when their rate is plausible.

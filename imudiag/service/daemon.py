@@ -26,6 +26,7 @@ from ..diagnosis.session import add_monitor_faults
 from ..drivers.base import EndOfStream, SourceError
 from ..drivers.reconnect import ReconnectingSource
 from ..errors import BadInput
+from ..logs.timing import RATE_CHECK_SAMPLES, RATE_TOLERANCE, step_rate_hz
 from ..monitor import Monitor, MonitorConfig
 from ..noise_estimate import NoiseMeter
 from ..quasistatic import BAD_FLAGS
@@ -204,6 +205,10 @@ class Daemon:
         self._last_errors = 0
         self._errors_wall = -math.inf
         self.notes: list[str] = []
+        #: where the rate the samples are checked at comes from (status ``sample_rate_from``)
+        self.rate_from = "certificate"
+        self._rate_stamps: list[np.ndarray] | None = []  # the first stamps, until checked
+        self._rate_note: str | None = None
         self.reloads = 0
         self.statuses = 0
         #: (monotonic s, process CPU s, simulated board CPU s), one a second
@@ -402,8 +407,8 @@ class Daemon:
 
     def _adopt_rate(self) -> None:
         """Run the checks at the sample rate the source states (a replayed log's
-        ``sample_rate``), as ``imudiag diagnose`` does, rather than the certificate's;
-        only before the first sample."""
+        ``sample_rate``, or what its first block's time stamps show: the rate ``imudiag
+        diagnose`` takes), rather than the certificate's; only before the first sample."""
         stated = self.source.device_info.get("sample_rate")
         try:
             rate = float(stated) if stated is not None else math.nan
@@ -411,13 +416,57 @@ class Daemon:
             return
         if not (math.isfinite(rate) and rate > 0) or self.monitor.samples:
             return
-        if math.isclose(rate, self.monitor.rate_hz, rel_tol=1e-12):
-            return
+        said = self.source.device_info.get("sample_rate_from")
+        self.rate_from = str(said) if said else "the source's sample_rate"
+        if not math.isclose(rate, self.monitor.rate_hz, rel_tol=1e-12):
+            self._run_at(rate)
+
+    def _run_at(self, rate: float) -> None:
+        """Check the samples from here on at ``rate`` (Hz): the monitor, the noise meter and
+        the window diagnosis started again at it."""
         self.monitor = Monitor(self.certificate, self.settings.monitor, rate_hz=rate)
         self.noise = NoiseMeter(rate, max_chunks=int(NOISE_WINDOW_S))
         self.diagnoser = self._make_diagnoser(self.certificate, self.monitor.rate_hz)
+        self._diag_blocks = []
         self._diag_view = None
         self._merged = None
+
+    def _check_rate(self, block: SampleBlock) -> None:
+        """Check the rate the samples are checked at against the stream's own time stamps,
+        once, over its first :data:`~imudiag.logs.timing.RATE_CHECK_SAMPLES` samples (issue
+        30 item 4). A certificate's rate they contradict by more than
+        :data:`~imudiag.logs.timing.RATE_TOLERANCE` is corrected to theirs from here on,
+        and said (a note in the status and the log); a rate the source states is kept, as
+        ``imudiag diagnose`` keeps a log's, and the disagreement said."""
+        stamps = self._rate_stamps
+        if stamps is None:
+            return
+        have = sum(len(t) for t in stamps)
+        stamps.append(np.asarray(block.t[: RATE_CHECK_SAMPLES - have], dtype=float))
+        if have + len(stamps[-1]) < RATE_CHECK_SAMPLES:
+            return
+        self._rate_stamps = None
+        t = np.concatenate(stamps)
+        measured = step_rate_hz(t)
+        rate = self.monitor.rate_hz
+        if not math.isfinite(measured) or abs(rate - measured) <= RATE_TOLERANCE * measured:
+            return
+        off = f"by {abs(rate / measured - 1) * 100:.3g} % (more than {RATE_TOLERANCE * 100:g} %)"
+        if self.rate_from == "certificate":
+            self._run_at(measured)
+            self.rate_from = "the stream's time stamps (the certificate's rate corrected)"
+            note = (
+                f"sample rate: the certificate's {rate:g} Hz disagrees with the stream's time "
+                f"stamps ({measured:.6g} Hz, median step over their first {len(t)}) {off}: "
+                f"the checks run at {measured:.6g} Hz from t = {float(t[-1]):.6g} s"
+            )
+        else:
+            note = (
+                f"sample rate: {self.rate_from} says {rate:g} Hz, the stream's time stamps "
+                f"show {measured:.6g} Hz {off}; the stated rate is kept"
+            )
+        log.warning("%s", note)
+        self._rate_note = note
 
     # -- status -----------------------------------------------------------
 
@@ -585,7 +634,11 @@ class Daemon:
         device = self.source.device_info
         if device:  # what the daemon is talking to (docs/devices.md: the shared keys first)
             status["device"] = device_object(device)
+        status["sample_rate"] = self.monitor.rate_hz
+        status["sample_rate_from"] = self.rate_from
         notes = list(self.notes)
+        if self._rate_note:
+            notes.append(self._rate_note)
         if self._command_note:
             notes.append(self._command_note)
         why = self._no_data_reason(now, status["state"])
@@ -660,6 +713,9 @@ class Daemon:
                 read_done = time.monotonic()
                 if len(block):
                     self._check_units()
+                    if not self.monitor.samples:  # what the first block says of the rate
+                        self._adopt_rate()
+                    self._check_rate(block)
                     block = self.units.apply(block)
                     self._last_data_wall = now
                     self.watchdog.frames_arrived(now)

@@ -78,6 +78,7 @@ class ReplaySource(Source):
         self._exhausted = False
         self._t0: float | None = None
         self._wall0 = 0.0
+        self._rate_said = False  # the log's sample rate stated in device_info (first block)
 
     def open(self) -> None:
         """Open the file; SourceError if missing, LogError if its header is bad."""
@@ -101,6 +102,7 @@ class ReplaySource(Source):
             self._reader = open_log(self.path, self.block_size, options=self.log_options)
             self.device_info = dict(self._reader.meta)
             self._blocks = iter(self._reader)
+        self._rate_said = False
 
     def _wire_capture(self) -> bool:
         """Whether a ``.bin`` file is a raw wire capture (not another format sharing the
@@ -144,9 +146,26 @@ class ReplaySource(Source):
             self._counter_marks.append((self._pulled, snapshot))
         else:
             self.counters.frames += len(block)
+            if not self._rate_said:
+                self._say_rate(block)
         if len(block):
             self._buffer = SampleBlock.concat([self._buffer, block]) if len(self._buffer) else block
         return True
+
+    def _say_rate(self, first: SampleBlock) -> None:
+        """State the log's sample rate in :attr:`device_info` as ``imudiag diagnose`` takes
+        it (:func:`~imudiag.diagnosis.inputs.log_rate_hz`): the log's ``sample_rate`` where
+        it states a number, else what the time stamps of its first block show, so that the
+        daemon checks the samples at the rate ``diagnose`` does, not the certificate's."""
+        from imudiag.logs.timing import first_block_rate_hz, metadata_rate
+
+        self._rate_said = True
+        if metadata_rate(self.device_info) is not None:
+            return
+        rate = first_block_rate_hz(first.t)
+        if rate is not None:
+            self.device_info["sample_rate"] = rate
+            self.device_info["sample_rate_from"] = "the time stamps of the log's first block"
 
     def _take(self, n: int) -> SampleBlock:
         out = self._buffer.slice(0, n)
