@@ -214,11 +214,13 @@ class Monitor:
         self._turn_offsets = np.array([self._noise.window + 2])
         self._turn_prefix = PrefixSums(1, self._noise.window + 2)
 
-    def _f0_group(self, name: str) -> int:
-        """Checked samples averaged per F0 check of ``name`` (see ``f0_noise_ratio``)."""
+    def _f0_group(self, name: str, sigma: np.ndarray | None = None) -> int:
+        """Checked samples averaged per F0 check of ``name`` (see ``f0_noise_ratio``), for
+        the per-sample noise ``sigma`` (output units; default: the certificate's)."""
         ratio = self.config.f0_noise_ratio
         tri = self.certificate.triad(name)
-        sigma = tri.noise_sigma(self.rate_hz)
+        if sigma is None:
+            sigma = tri.noise_sigma(self.rate_hz)
         if ratio <= 0 or sigma is None:
             return 1
         magnitude = self.certificate.gravity if name == "accel" else self.certificate.earth_rate
@@ -397,6 +399,16 @@ class Monitor:
         """Why the F0 check of ``name`` has checked no sample (None once it has): which
         criterion failed, with the figure and its threshold (issue 25 item 4)."""
         st = self.state[name]
+        if st.checked and math.isnan(st.last_f0) and self._per_check[name] > st.checked:
+            # still samples, but too few for one check at their noise (a unit never still)
+            m = self._per_check[name]
+            return (
+                f"{st.checked} still samples, fewer than the {m} one F0 check averages at "
+                "the noise the still detector measures in the data (the certificate states "
+                "none): a unit that is never still"
+                if self._sigma[name] is None
+                else f"{st.checked} still samples, fewer than the {m} one F0 check averages"
+            )
         if st.checked:
             return None
         e = self.detector.explain
@@ -664,6 +676,15 @@ class Monitor:
         limit = self._limit[name]
         st.checked += int(values.size)
         st.sum_f0_sq += float(np.sum(values * values))
+        if self._sigma[name] is None:
+            # the certificate states no noise: the still detector measures the data's
+            # (the quietest windows so far), and each check averages as many samples as
+            # that noise needs, as it would for the certificate's. A unit that is never
+            # still (hand-held) shows a noise far above the F0 limit: no check completes
+            # on its few "quietest" samples, rather than failing on its motion
+            data_sigma = self.detector.noise_sigma(name)
+            if data_sigma is not None:
+                self._per_check[name] = self._f0_group(name, data_sigma)
         m = self._per_check[name]
         if m > 1:
             carry_v, carry_t = st.carry

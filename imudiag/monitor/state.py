@@ -46,9 +46,10 @@ class MonitorConfig:
     earth_rate_noise_ratio: float = 0.2  #: per-sample Earth-rate F0 needs sigma_f0 < ratio*limit
     #: F0 is judged on the mean of m consecutive checked samples, m the least that makes the
     #: noise of the mean at most limit / f0_noise_ratio (from the certificate's noise at the
-    #: sample rate): 1 where one sample's noise is that small already (the bundled
-    #: certificate at 200 Hz), 13 at 4 kHz, where single samples fail a healthy unit's F0
-    #: about one time in four; 0 judges every sample alone
+    #: sample rate, else the noise the still detector measures in the data): 1 where one
+    #: sample's noise is that small already (the bundled certificate at 200 Hz), 13 at
+    #: 4 kHz, where single samples fail a healthy unit's F0 about one time in four; 0
+    #: judges every sample alone
     f0_noise_ratio: float = 4.0
     #: s of samples gathered before the checks run on them, when a read can change no F0
     #: verdict (every sample passes its F0 limit and none failed in the persistence window):

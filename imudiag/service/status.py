@@ -93,7 +93,7 @@ def status_record(
                 "checked": st.checked,
                 "failed": st.failed,
                 "last": finite_or_none(st.last_f0),
-                **({"why": monitor.f0_why(name)} if not st.checked else {}),
+                **({"why": why} if (why := monitor.f0_why(name)) is not None else {}),
             }
             for name, st in monitor.state.items()
         },
