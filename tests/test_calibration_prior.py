@@ -15,12 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imudiag.certificate import load
+from imudiag.certificate import load, load_default
 from imudiag.diagnosis.calibrate import PRIOR_CLASSES, PRIOR_DECIDES, calibrate
 from imudiag.diagnosis.config import DiagnosisConfig
-from imudiag.diagnosis.params import certificate_vector
+from imudiag.diagnosis.params import certificate_vector, limit_vector
 from imudiag.diagnosis.session import collect_intervals
 from imudiag.logs import read_log
+from imudiag.sim import multi_position, simulate
 
 DATA = Path(__file__).parent / "data"
 
@@ -116,3 +117,28 @@ def test_a_calibrated_certificate_as_like_regularises_a_short_session_toward_it(
     dev = (res.accel.estimate - certificate_vector(cal.accel)) / cal.accel.uncertainty.vector()
     print("shares", np.round(share, 3), "deviation / prior std", np.round(dev, 2))
     assert np.all(np.abs(dev[decided]) < 3.0)
+
+
+@pytest.mark.parametrize("offset", [0.5, 6.0])
+def test_prior_scale_is_the_marginal_likelihoods(offset):
+    """A simulated board whose accelerometer biases are ``offset`` limits off the bundled
+    certificate (signs under a seed), its scale factors within half a limit and its
+    misalignments at the certificate: the type-II ML scale of the bias prior follows the
+    biases' spread (about ``offset``, never below 1), the other classes keep their width."""
+    like = load_default()
+    true = like.copy()
+    rng = np.random.default_rng(291)
+    lim = limit_vector(true.accel)
+    true.accel.bias = true.accel.bias + offset * rng.choice([-1.0, 1.0], 3) * lim[:3]
+    true.accel.scale_factor_error = (
+        true.accel.scale_factor_error + rng.uniform(-0.5, 0.5, 3) * lim[3:6]
+    )
+    traj = multi_position(n_attitudes=16, dwell_s=3.0, turn_s=1.5, rate_hz=100, seed=7)
+    block = simulate(true, traj, seed=8).samples
+    intervals, rate, _ = collect_intervals(block, like, DiagnosisConfig())
+    res = calibrate(intervals, like, "exact", rate)
+    tau = res.accel.extra["prior"]["inflation"]
+    dev = (res.accel.estimate - certificate_vector(like.accel)) / lim
+    print(offset, tau, "deviations / limit", np.round(dev, 2))
+    assert tau["bias"] == pytest.approx(max(1.0, offset), rel=0.15)
+    assert tau["scale_factor"] == 1.0 == tau["misalignment"]
