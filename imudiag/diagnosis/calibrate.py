@@ -227,21 +227,23 @@ def prior_inflation(
     if not ok:
         return tau
 
-    def log_evidence(t: np.ndarray) -> float:
-        prec = 1.0 / (width * np.repeat(t, 3) * lim) ** 2
+    def log_evidence(t: np.ndarray) -> np.ndarray:
+        """Log marginal likelihood (nats, up to a constant) of each row of scales t (G, 3)."""
+        prec = 1.0 / (width * np.repeat(t, 3, axis=1) * lim) ** 2  # (G, 9)
+        a = info[None, :, :] + prec[:, :, None] * np.eye(9)[None, :, :]
         try:
-            sol = np.linalg.solve(info + np.diag(prec), b)
+            sol = np.linalg.solve(a, np.broadcast_to(b, prec.shape)[:, :, None])[:, :, 0]
         except np.linalg.LinAlgError:
-            return -math.inf
-        _, logdet = np.linalg.slogdet(np.eye(9) + info / prec[:, None])
-        return float(0.5 * (b @ sol) - 0.5 * logdet)
+            return np.full(t.shape[0], -np.inf)
+        _, logdet = np.linalg.slogdet(np.eye(9)[None, :, :] + info[None, :, :] / prec[:, :, None])
+        return 0.5 * (sol @ b) - 0.5 * logdet
 
     for _sweep in range(3):
         before = tau.copy()
         for c in range(3):
             trial = np.repeat(tau[None, :], INFLATION_GRID.shape[0], axis=0)
             trial[:, c] = INFLATION_GRID
-            tau[c] = INFLATION_GRID[int(np.argmax([log_evidence(t) for t in trial]))]
+            tau[c] = INFLATION_GRID[int(np.argmax(log_evidence(trial)))]
         if np.array_equal(tau, before):
             break
     return tau
