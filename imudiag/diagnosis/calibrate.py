@@ -197,12 +197,13 @@ def prior_inflation(
     scatter) and the marginal likelihood of the data under the prior N(like, (width tau
     limit)^2) is maximised over the three tau (coordinate ascent on
     :data:`INFLATION_GRID`): a class whose deviations the stated width explains keeps 1
-    (the certificate is not trusted beyond what it states); a class the data barely see
-    adds little to the likelihood and keeps what the determined ones show. This replaced
-    (issue 29) a moment estimate with a chi^2 gate that a nominal certificate's one 2.3 %
-    scale error could widen 3-4 fold for every axis. Left out by attitude inside each
-    recording (benchmarks/calibration_prior.py) it predicts imucal's faces 1.4x better (44 ->
-    31 mg), the Xsens session alike and the MPU-6050 within 4 %.
+    (the certificate is not trusted beyond what it states); a class the data do not see
+    leaves the likelihood flat and keeps 1; the parameters of a class are pooled, so a
+    class member the data barely see gets the scale its determined siblings show. This
+    replaced (issue 29) a moment estimate with a chi^2 gate that a nominal certificate's
+    one 2.3 % scale error could widen 3-4 fold for every axis. Left out by attitude inside
+    each recording (benchmarks/calibration_prior.py) it predicts imucal's faces 1.4x better
+    (44 -> 31 mg), the Xsens session alike and the MPU-6050 within 4 %.
     """
     means, mvar, magnitude = data
     if fit.kept is not None and fit.kept.shape[0] == means.shape[0]:
