@@ -15,12 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imudiag.certificate import load
-from imudiag.diagnosis.calibrate import PRIOR_DECIDES, calibrate
+from imudiag.certificate import load, load_default
+from imudiag.diagnosis.calibrate import PRIOR_CLASSES, PRIOR_DECIDES, calibrate
 from imudiag.diagnosis.config import DiagnosisConfig
-from imudiag.diagnosis.params import certificate_vector
+from imudiag.diagnosis.params import certificate_vector, limit_vector
 from imudiag.diagnosis.session import collect_intervals
 from imudiag.logs import read_log
+from imudiag.sim import multi_position, simulate
 
 DATA = Path(__file__).parent / "data"
 
@@ -44,11 +45,18 @@ def test_six_faces_leave_the_misalignments_to_the_prior(imucal):
     assert np.all(share[6:] > PRIOR_DECIDES)
     pairs = ("ax/ay", "ax/az", "ay/az")
     assert prior["decided_by_prior"] == [f"{p} misalignment" for p in pairs]
-    # limits as 1 sigma; the biases 8-12 limits off the nominal certificate widen theirs
-    # (chi^2 about 330 on 3), the scale factors (chi^2 about 5.6) and misalignments do not
+    # limits as 1 sigma, each class's scale the marginal likelihood's maximum (type-II ML):
+    # the biases, 8-12 limits off the nominal certificate, widen theirs about tenfold; the
+    # scale factors (0.3, 0.4, 2.5 limits off) to about their rms deviation; the
+    # misalignments, which the six faces barely see, keep the stated width
     assert prior["source"] == ["limit"] * 9
     assert 8.0 < prior["inflation"]["bias"] < 13.0
-    assert prior["inflation"]["scale_factor"] == 1.0 == prior["inflation"]["misalignment"]
+    dev_sf = (fit.estimate[3:6] - fit.certificate[3:6]) / fit.limit[3:6]
+    rms_sf = float(np.sqrt(np.mean(dev_sf**2)))
+    print("scale-factor deviations / limit", np.round(dev_sf, 2), "inflation", prior["inflation"])
+    assert 1.0 < prior["inflation"]["scale_factor"] < 2.0
+    assert abs(prior["inflation"]["scale_factor"] / rms_sf - 1.0) < 0.15
+    assert prior["inflation"]["misalignment"] == 1.0
     # the posterior std is written: the prior's width, narrowed by what the data add
     unc = res.certificate.accel.uncertainty
     assert unc is not None
@@ -97,10 +105,40 @@ def test_a_calibrated_certificate_as_like_regularises_a_short_session_toward_it(
     res = calibrate(short, cal, "exact", rate)
     prior = res.accel.extra["prior"]
     assert prior["source"] == ["uncertainty"] * 9
-    assert np.allclose(np.asarray(prior["std"]), cal.accel.uncertainty.vector())
+    # the stated uncertainty, each class scaled by what the 120 s show (type-II ML, at least
+    # 1): the first 120 s put ay's and az's biases about 3 stated std off the whole
+    # session's calibration, and the bias prior widens about threefold
+    tau = np.repeat([prior["inflation"][c] for c in PRIOR_CLASSES], 3)
+    assert np.all(tau >= 1.0)
+    assert np.allclose(np.asarray(prior["std"]), cal.accel.uncertainty.vector() * tau)
     share = np.asarray(prior["share"])
     decided = share > PRIOR_DECIDES
     assert decided.any()  # 120 s leave some parameters to the prior
     dev = (res.accel.estimate - certificate_vector(cal.accel)) / cal.accel.uncertainty.vector()
     print("shares", np.round(share, 3), "deviation / prior std", np.round(dev, 2))
     assert np.all(np.abs(dev[decided]) < 3.0)
+
+
+@pytest.mark.parametrize("offset", [0.5, 6.0])
+def test_prior_scale_is_the_marginal_likelihoods(offset):
+    """A simulated board whose accelerometer biases are ``offset`` limits off the bundled
+    certificate (signs under a seed), its scale factors within half a limit and its
+    misalignments at the certificate: the type-II ML scale of the bias prior follows the
+    biases' spread (about ``offset``, never below 1), the other classes keep their width."""
+    like = load_default()
+    true = like.copy()
+    rng = np.random.default_rng(291)
+    lim = limit_vector(true.accel)
+    true.accel.bias = true.accel.bias + offset * rng.choice([-1.0, 1.0], 3) * lim[:3]
+    true.accel.scale_factor_error = (
+        true.accel.scale_factor_error + rng.uniform(-0.5, 0.5, 3) * lim[3:6]
+    )
+    traj = multi_position(n_attitudes=16, dwell_s=3.0, turn_s=1.5, rate_hz=100, seed=7)
+    block = simulate(true, traj, seed=8).samples
+    intervals, rate, _ = collect_intervals(block, like, DiagnosisConfig())
+    res = calibrate(intervals, like, "exact", rate)
+    tau = res.accel.extra["prior"]["inflation"]
+    dev = (res.accel.estimate - certificate_vector(like.accel)) / lim
+    print(offset, tau, "deviations / limit", np.round(dev, 2))
+    assert tau["bias"] == pytest.approx(max(1.0, offset), rel=0.15)
+    assert tau["scale_factor"] == 1.0 == tau["misalignment"]

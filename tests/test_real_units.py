@@ -17,7 +17,7 @@ import yaml
 from conftest import run_imudiag
 
 from imudiag.certificate import load
-from imudiag.diagnosis.params import certificate_vector
+from imudiag.diagnosis.params import certificate_vector, limit_vector
 from imudiag.noise_estimate import METHOD, NoiseMeter, second_difference_sigma
 
 DATA = Path(__file__).parent / "data"
@@ -131,8 +131,16 @@ def _cut(tmp: Path, seconds: float) -> Path:
     return out
 
 
-def test_short_session_pins_what_it_cannot_determine(tmp_path, imudiag_cli):
-    """120 s of the session: the gyro shape and frame are undetermined and written as --like."""
+def test_short_session_pins_what_it_cannot_determine(tmp_path, imudiag_cli, xsens_calibrations):
+    """120 s of the session: what it cannot determine is listed, and what it writes lies near
+    the whole session's calibration, not at --like.
+
+    Before issue 29's type-II ML prior scale the accelerometer misalignments (3-7 limits off
+    the nominal --like) were held to a 1-limit prior, the gyro rotation fit could not place
+    the gyro frame and the gyro shape was written as --like (1.4-5.6 limits off the whole
+    session's misalignments). The marginal likelihood widens the misalignment prior about
+    fivefold; the 120 s then determine the gyro frame and shape, within a limit of the whole
+    session's calibration."""
     log = _cut(tmp_path, 120.0)
     like = _like_with_noise(tmp_path, 1 / 1.5)  # a data-sheet noise 1.5x too low
     cert_path, summary_path = tmp_path / "c.yaml", tmp_path / "c.json"
@@ -150,7 +158,24 @@ def test_short_session_pins_what_it_cannot_determine(tmp_path, imudiag_cli):
     summary = json.loads(summary_path.read_text())
     cert, ref = load(cert_path), load(like)
     listed = {(u["triad"], u["sensor"], u["cause"]) for u in summary["undetermined"]}
-    assert ("gyro", "gx/gy", "misalignment") in listed
+    # six faces in 120 s: the accelerometer misalignments are the prior's
+    for pair in ("ax/ay", "ax/az", "ay/az"):
+        assert ("accel", pair, "misalignment") in listed
+    full = xsens_calibrations[1.0][0]
+    for triad in ("accel", "gyro"):
+        lim = limit_vector(ref.triad(triad))
+        off = (certificate_vector(cert.triad(triad)) - certificate_vector(full.triad(triad))) / lim
+        like_off = (
+            certificate_vector(ref.triad(triad)) - certificate_vector(full.triad(triad))
+        ) / lim
+        print(
+            triad,
+            "120 s - whole session (limits)",
+            np.round(off, 2),
+            "--like",
+            np.round(like_off, 2),
+        )
+        assert np.all(np.abs(off) < 1.0), (triad, off)
     for triad in ("accel", "gyro"):
         fit = summary[triad]
         det = [d for k in ("bias", "scale_factor", "misalignment") for d in fit[k]["determined"]]
@@ -161,8 +186,6 @@ def test_short_session_pins_what_it_cannot_determine(tmp_path, imudiag_cli):
                 assert a[i] == pytest.approx(b[i], abs=1e-12)
         # a fit without redundancy is never called determined
         assert fit["dof"] is None or fit["dof"] >= 1.0 - 1e-6 or not any(det)
-    assert summary["gyro"]["frame_applied"] is False
-    assert np.max(np.abs(list(cert.gyro.misalignment.values()))) < 1e-9
     assert summary["generalisation"]["generalises"] is True
 
 
