@@ -15,9 +15,11 @@ Options: ``--samples 1e5,1e6`` (sizes), ``--rates 100,1000`` (Hz), ``--cases`` (
 ``--runs CASE:RATE:SAMPLES,...`` (explicit runs instead of the product of the three;
 ``--runs fleet`` is issue 28's three: a 10^6-sample multi-position board log, a 20-min drive
 with GNSS and a 5-min short log, all at 100 Hz),
-``--repeat N`` (best of N, default 1), ``--profile N`` (cProfile of the last run of each case,
-top N functions by internal time). Prints one line per case: CPU s, samples, CPU s per 10^6
-samples. No assertion: docs/benchmarks.md holds the figures.
+``--kernels auto|plain|numba`` (the window-fit loops: ``auto`` as a fleet worker, the
+compiled ones where numba is installed), ``--repeat N`` (best of N, default 1), ``--profile
+N`` (cProfile of the last run of each case, top N functions by ``--sort``, internal time).
+Prints one line per case: CPU s, samples, CPU s per 10^6 samples. No assertion:
+docs/benchmarks.md holds the figures.
 """
 
 from __future__ import annotations
@@ -90,6 +92,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs", default="", help="CASE:RATE:SAMPLES,... or 'fleet'")
     ap.add_argument("--repeat", type=int, default=1, help="best of N runs")
     ap.add_argument("--profile", type=int, default=0, help="print the top N of a cProfile")
+    ap.add_argument(
+        "--kernels",
+        choices=("auto", "plain", "numba"),
+        default="auto",
+        help="window-fit loops: the fleet worker's choice (numba where installed), or forced",
+    )
     ap.add_argument("--sort", default="tottime", help="cProfile order (tottime, cumulative)")
     ap.add_argument("--seed", type=int, default=5)
     args = ap.parse_args(argv)
@@ -102,7 +110,22 @@ def main(argv: list[str] | None = None) -> int:
         cases = sorted({c for c, _, _ in runs})
     else:
         runs = [(c, r, n) for c in cases for r in rates for n in sizes]
-    print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}", flush=True)
+    from imudiag.diagnosis import kernels
+
+    if args.kernels == "plain":
+        os.environ["IMUDIAG_KERNELS"] = "plain"  # what the fleet's warm-up reads
+        kernels.enable(False)
+    elif args.kernels == "numba" and not kernels.enable(True):
+        raise SystemExit(f"--kernels numba: {kernels.status()}")
+    elif args.kernels == "auto":
+        from imudiag.fleet.task import warm_up
+
+        warm_up()
+    print(
+        f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}, "
+        f"window-fit loops: {kernels.status()}",
+        flush=True,
+    )
     with tempfile.TemporaryDirectory() as tmp:
         # warm-up: imports and one small call of each path
         warm = write_board_log(Path(tmp) / "warm.npz", "multiposition", 20000, 100.0, 1)

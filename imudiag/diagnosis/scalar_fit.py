@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..certificate import TriadModel
+from . import kernels
 from .gauge import p_matrix
 from .params import TriadFit, TriadForm, std_above_limit, triad_form
 from .robust import point_diagnostics, reject_outliers
@@ -243,6 +244,21 @@ def exact_fit(
     def gauss_newton(
         theta: np.ndarray, extra: float
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        if kernels.enabled():  # the same loop compiled (fleet workers), None if it gave up
+            out = kernels.exact_gauss_newton(
+                theta,
+                extra,
+                v,
+                mu,
+                var_v,
+                prior_prec,
+                theta_c,
+                max_iter,
+                MAX_SHAPE,
+                RESIDUAL_FLOOR**2,
+            )
+            if out is not None:
+                return out
         c0, r, xw, sig2 = cost(theta, extra)
         jac = _jacobian(*xw)
         lam = 1e-6

@@ -48,13 +48,20 @@ WARM_MODULES = (
 
 
 def warm_up() -> float:
-    """Import :data:`WARM_MODULES` in this process (a fleet worker); the CPU of this thread
-    it took, s (about 0 once they are imported)."""
+    """Import :data:`WARM_MODULES` in this process (a fleet worker) and switch on the compiled
+    window-fit kernels where numba is installed (:mod:`imudiag.diagnosis.kernels`; not with
+    ``IMUDIAG_KERNELS=plain``); the CPU of this thread it took, s (about 0 once done)."""
     import importlib
 
     cpu0 = time.thread_time()
     for name in WARM_MODULES:
         importlib.import_module(name)
+    from ..diagnosis import kernels
+
+    if os.environ.get("IMUDIAG_KERNELS", "").strip().lower() != "plain" and not kernels.enabled():
+        # the compiled window-fit kernels where numba is installed (the fleet extra): the
+        # compile, or the load of numba's disk cache, is paid here once per worker
+        kernels.enable()
     return time.thread_time() - cpu0
 
 
@@ -216,6 +223,13 @@ def _peek(path: str) -> tuple[str, dict[str, Any], float | None]:
     return fmt, meta, t0
 
 
+def _kernels_status() -> str:
+    """Which window-fit loops this worker ran: ``numba`` or ``plain (why)``."""
+    from ..diagnosis import kernels
+
+    return kernels.status()
+
+
 def _cpu_s() -> float:
     """CPU time of this thread, s (the worker's other threads are other logs)."""
     return time.thread_time()
@@ -317,6 +331,7 @@ def diagnose_log(job: Job) -> dict[str, Any]:
         )
     record["cpu_s"] = _cpu_s() - cpu0
     record["warm_up_cpu_s"] = warm_cpu
+    record["kernels"] = _kernels_status()
     record["wall_s"] = time.monotonic() - started
     record["max_rss_kib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return record

@@ -1,0 +1,173 @@
+"""The compiled window-fit kernel (issue 28, :mod:`imudiag.diagnosis.kernels`, numba from the
+``fleet`` extra) against the plain numpy loop it replaces in fleet workers: the same exact
+fits on random interval means (fixed seeds), the plain loop where the kernel gives up (an
+ill-conditioned solve), and whole reports of the frozen-report inputs (a real Xsens MTi
+recording and a simulated board capture) equal to the frozen reports within the tolerance
+that holds reports across processors (rounding differences only: verdicts, faults, counts and
+every string equal)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("numba", reason="numba (the fleet extra) is not installed")
+
+from imudiag.certificate import load_default  # noqa: E402
+from imudiag.diagnosis import kernels  # noqa: E402
+from imudiag.diagnosis.scalar_fit import (  # noqa: E402
+    MAX_SHAPE,
+    RESIDUAL_FLOOR,
+    exact_fit,
+    robust_exact_fit,
+)
+
+#: The kernel solves its 9x9 normal equations by elimination, the plain loop by LAPACK's SVD
+#: least squares: the fits agree to rounding, amplified by the fit's conditioning (about 1e-9
+#: relative on parameters near zero here); held to the reports' cross-processor tolerance.
+RTOL = 1e-7
+
+
+@pytest.fixture
+def both():
+    """Runs ``fn`` with the plain loop, then with the kernel; the two results."""
+    was = kernels.enabled()
+
+    def run(fn):
+        kernels.enable(False)
+        plain = fn()
+        assert kernels.enable(True), kernels.status()
+        try:
+            fast = fn()
+        finally:
+            kernels.enable(was)
+        return plain, fast
+
+    yield run
+    kernels.enable(was)
+
+
+def fit_arrays(fit):
+    return {
+        "estimate": fit.estimate,
+        "std": fit.std,
+        "determined": fit.determined,
+        "loo": fit.loo_deviation,
+        "z": fit.point_z,
+        "rms": np.array([fit.rms_residual]),
+        "dof": np.array([fit.dof]),
+        "excess": np.array([fit.excess_var]),
+    }
+
+
+def assert_fits_close(fast, plain):
+    """Every array of two fits (:func:`fit_arrays`) equal within :data:`RTOL` of each value or
+    of its scale: an estimate's std, the largest of a column of shifts or of the z scores
+    (a value near zero, the difference of two nearly equal numbers, keeps only absolute
+    accuracy)."""
+    scale = {
+        "estimate": plain["std"],
+        "loo": None if plain["loo"] is None else np.max(np.abs(plain["loo"]), axis=0),
+        "z": None if plain["z"] is None else np.max(np.abs(plain["z"])),
+    }
+    for key in plain:
+        if plain[key] is None:
+            assert fast[key] is None, key
+            continue
+        a, b = np.asarray(fast[key], dtype=float), np.asarray(plain[key], dtype=float)
+        tol = RTOL * (np.abs(b) + (scale.get(key) if scale.get(key) is not None else 0.0))
+        bad = ~((np.abs(a - b) <= tol) | ((a == b) | (np.isnan(a) & np.isnan(b))))
+        assert not bad.any(), f"{key}: {a[bad]} != {b[bad]} (tolerance {tol[bad]})"
+
+
+def random_means(seed: int, k: int, outlier: bool = False):
+    """(means, variances, magnitudes) of ``k`` still attitudes of the default certificate's
+    accelerometers with biases and scale errors off the certificate, output units."""
+    rng = np.random.default_rng(seed)
+    model = load_default().accel
+    up = rng.normal(size=(k, 3))
+    up /= np.linalg.norm(up, axis=1)[:, None]
+    g = 9.80665 / model.unit_to_si
+    scale = model.scale_factor * (1.0 + rng.normal(0.0, 2e-3, 3))
+    bias = model.bias + rng.normal(0.0, 5.0, 3)
+    means = bias + scale * up * g + rng.normal(0.0, 0.5, (k, 3))
+    if outlier:
+        means[rng.integers(k)] += 40.0
+    return model, means, np.full((k, 3), 0.3), np.full(k, g)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_exact_fit_kernel_equals_plain(both, seed):
+    model, means, var, mag = random_means(seed, 8 + 5 * seed)
+    for kw in ({}, {"prior_factor": 3.0}, {"start": "certificate"}):
+        plain, fast = both(lambda kw=kw: fit_arrays(exact_fit(model, means, var, mag, **kw)))
+        assert_fits_close(fast, plain)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_robust_fit_kernel_rejects_what_plain_rejects(both, seed):
+    model, means, var, mag = random_means(100 + seed, 16, outlier=True)
+    labels = [f"interval {i}" for i in range(16)]
+    plain, fast = both(lambda: robust_exact_fit(model, means, var, mag, labels=labels))
+    assert plain.extra.get("rejected"), "the injected outlier is rejected"
+    assert fast.extra.get("rejected") == plain.extra.get("rejected")
+    np.testing.assert_array_equal(fast.kept, plain.kept)
+    assert_fits_close(fit_arrays(fast), fit_arrays(plain))
+
+
+def test_kernel_gives_up_where_its_solve_breaks_down(both):
+    # a mean that is not a number: the damped normal matrix is too, the kernel's elimination
+    # has no pivot, and the plain loop (SVD least squares) runs the fit instead
+    model, means, var, mag = random_means(7, 10)
+    means[4, 1] = np.nan
+    m0 = mag[0]
+    assert kernels.enable(True)
+    try:
+        got = kernels.exact_gauss_newton(
+            np.zeros(9), 0.0, means / (model.scale_factor * m0), mag / m0,
+            var / (model.scale_factor * m0) ** 2, np.ones(9), np.zeros(9), 20, MAX_SHAPE,
+            RESIDUAL_FLOOR**2,
+        )  # fmt: skip
+    finally:
+        kernels.enable(False)
+    assert got is None
+
+    def outcome():
+        try:
+            return fit_arrays(exact_fit(model, means, var, mag))
+        except Exception as exc:  # noqa: BLE001 - the same failure either way
+            return type(exc).__name__
+
+    plain, fast = both(outcome)
+    if isinstance(plain, str):
+        assert fast == plain
+    else:
+        for key in plain:
+            if plain[key] is not None:
+                np.testing.assert_array_equal(fast[key], plain[key], err_msg=key)
+
+
+def test_enable_off_is_the_plain_loop(both):
+    model, means, var, mag = random_means(3, 12)
+    kernels.enable(False)
+    assert not kernels.enabled() and kernels.status().startswith("plain")
+    assert kernels.exact_gauss_newton(np.zeros(9), 0.0, means, mag, var, *[np.zeros(9)] * 2,
+                                      20, MAX_SHAPE, 0.0) is None  # fmt: skip
+
+
+@pytest.mark.parametrize("name", ["board-static-bin", "xsens-mti"])
+def test_reports_with_the_kernel_equal_the_frozen_ones(name, tmp_path, monkeypatch):
+    """The whole `imudiag diagnose` report with the kernel (``IMUDIAG_KERNELS=numba``) on a
+    real recording and a simulated capture: equal to the frozen reports (written by the plain
+    loop) within the cross-processor tolerance, every non-float equal."""
+    from tests import test_diagnose_frozen_reports as frozen
+
+    if name not in frozen.CASES:
+        pytest.fail(f"no frozen case {name}: {sorted(frozen.CASES)}")
+    monkeypatch.setenv("IMUDIAG_KERNELS", "numba")
+    want = json.loads((frozen.FROZEN / f"{name}.json").read_text())
+    got = frozen.diagnose_report(name, tmp_path)
+    diff = frozen.hardware_differences(got, want)
+    assert not diff, f"{len(diff)} differences, first: " + "; ".join(diff[:8])
