@@ -420,12 +420,18 @@ def robust_exact_fit_and_plain(
 def _excess_variance(r: np.ndarray, sig2: np.ndarray, dof: float) -> float:
     """Variance e added to every point that makes sum r^2 / (sig2 + e) equal ``dof``."""
     lo, hi = 0.0, float(np.max(r * r)) * len(r) + 1e-300
+    r2 = r * r
     for _ in range(100):
+        before = (lo, hi)
         mid = 0.5 * (lo + hi)
-        if np.sum(r * r / (sig2 + mid)) > dof:
+        if np.sum(r2 / (sig2 + mid)) > dof:
             lo = mid
         else:
             hi = mid
+        if (lo, hi) == before:
+            # a halving is a function of (lo, hi) alone: once one leaves them as they were
+            # (adjacent floats), every later one would, and 100 would end here too
+            break
     return hi
 
 
