@@ -171,3 +171,28 @@ def test_reports_with_the_kernel_equal_the_frozen_ones(name, tmp_path, monkeypat
     got = frozen.diagnose_report(name, tmp_path)
     diff = frozen.hardware_differences(got, want)
     assert not diff, f"{len(diff)} differences, first: " + "; ".join(diff[:8])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_product_sensitivity_kernel_equals_plain(seed):
+    """The motions' rotations and their sensitivity to N^-1 (the gyro rotation fit), on
+    random blocks: empty segments, angles below the series thresholds (1e-4 and 1e-2 rad)
+    and above."""
+    from imudiag.rotations import segment_product_plan, segmented_product_sensitivity
+
+    rng = np.random.default_rng(seed)
+    lengths = rng.integers(0, 40, size=12)
+    lengths[3] = 0
+    k = int(lengths.sum())
+    inc = rng.normal(size=(k, 3)) * 10 ** rng.uniform(-6, -0.5, size=(k, 1))
+    ell = np.eye(3) + rng.normal(0.0, 1e-2, (3, 3))
+    theta = inc @ ell.T
+    q0, s0 = segmented_product_sensitivity(theta, inc, lengths, segment_product_plan(lengths))
+    assert kernels.enable(True)
+    try:
+        q1, s1 = kernels.product_sensitivity(theta, inc, lengths)
+    finally:
+        kernels.enable(False)
+    assert q1.shape == q0.shape and s1.shape == s0.shape
+    np.testing.assert_allclose(q1, q0, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(s1, s0, rtol=0, atol=1e-13 * max(1.0, float(np.abs(s0).max())))

@@ -36,6 +36,7 @@ from ..rotations import (
     segmented_product_sensitivity,
     skew,
 )
+from . import kernels
 from .gauge import p_matrix, shape_of_triad
 from .intervals import QuasiStaticInterval
 from .params import (
@@ -324,6 +325,9 @@ def motion_sensitivities(
     lengths = stack["lengths"]
     if memos is None or any(m is None for m in memos):
         theta = np.matmul(turning[None], ninv.T[None])[0]  # (K, 3)
+        fast = kernels.product_sensitivity(theta, turning, lengths)  # fleet workers
+        if fast is not None:
+            return fast
         return segmented_product_sensitivity(
             theta,
             turning,
@@ -337,11 +341,14 @@ def motion_sensitivities(
     if missing:
         sub = np.concatenate([parts[i] for i in missing])
         sub_lengths = lengths[missing]
-        q, sens = segmented_product_sensitivity(
-            np.matmul(sub[None], ninv.T[None])[0],
-            sub,
-            sub_lengths,
-            segment_product_plan(sub_lengths),
+        sub_theta = np.matmul(sub[None], ninv.T[None])[0]
+        fast = kernels.product_sensitivity(sub_theta, sub, sub_lengths)  # fleet workers
+        q, sens = (
+            fast
+            if fast is not None
+            else segmented_product_sensitivity(
+                sub_theta, sub, sub_lengths, segment_product_plan(sub_lengths)
+            )
         )
         for j, i in enumerate(missing):
             memos[i][keys[i]] = (q[j], sens[j])  # type: ignore[index]
