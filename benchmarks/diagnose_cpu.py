@@ -110,9 +110,17 @@ def main(argv: list[str] | None = None) -> int:
         cases = sorted({c for c, _, _ in runs})
     else:
         runs = [(c, r, n) for c in cases for r in rates for n in sizes]
-    from imudiag.diagnosis import kernels
-
-    if args.kernels == "plain":
+    try:
+        from imudiag.diagnosis import kernels
+    except ImportError:  # a tree from before the kernels (a before/after comparison)
+        if args.kernels == "numba":
+            raise SystemExit(
+                "--kernels numba: this tree has no imudiag.diagnosis.kernels"
+            ) from None
+        kernels = None
+    if kernels is None:
+        pass
+    elif args.kernels == "plain":
         os.environ["IMUDIAG_KERNELS"] = "plain"  # what the fleet's warm-up reads
         kernels.enable(False)
     elif args.kernels == "numba" and not kernels.enable(True):
@@ -123,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         warm_up()
     print(
         f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}, "
-        f"window-fit loops: {kernels.status()}",
+        f"window-fit loops: {kernels.status() if kernels else 'plain (no kernels)'}",
         flush=True,
     )
     with tempfile.TemporaryDirectory() as tmp:
