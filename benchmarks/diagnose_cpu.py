@@ -125,10 +125,11 @@ def main(argv: list[str] | None = None) -> int:
         kernels.enable(False)
     elif args.kernels == "numba" and not kernels.enable(True):
         raise SystemExit(f"--kernels numba: {kernels.status()}")
-    elif args.kernels == "auto":
-        from imudiag.fleet.task import warm_up
+    elif args.kernels == "auto":  # as a fleet worker: loaded by its warm-up, used by its tasks
+        from imudiag.fleet.task import _use_kernels, warm_up
 
         warm_up()
+        kernels.enable(_use_kernels())
     print(
         f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}, "
         f"window-fit loops: {kernels.status() if kernels else 'plain (no kernels)'}",

@@ -196,3 +196,23 @@ def test_product_sensitivity_kernel_equals_plain(seed):
     assert q1.shape == q0.shape and s1.shape == s0.shape
     np.testing.assert_allclose(q1, q0, rtol=0, atol=1e-14)
     np.testing.assert_allclose(s1, s0, rtol=0, atol=1e-13 * max(1.0, float(np.abs(s0).max())))
+
+
+def test_a_fleet_task_uses_the_kernels_in_its_own_thread_only(tmp_path, monkeypatch):
+    """A fleet task runs its diagnosis with the kernels (its record says so) and leaves the
+    calling process's choice as it was; ``IMUDIAG_KERNELS=plain`` keeps the plain loops."""
+    from imudiag.fleet.simulate import write_flight
+    from imudiag.fleet.task import Job, diagnose_log
+
+    log = tmp_path / "flight.npz"
+    write_flight(log, load_default(), "multiposition", 120.0, 100.0, [], 3, {"sample_rate": 100.0})
+    st = log.stat()
+    job = Job(str(log), "-", st.st_size, st.st_mtime_ns, str(tmp_path))
+    kernels.enable(False)
+    rec = diagnose_log(job)
+    assert rec["status"] == "ok", rec["reason"]
+    assert rec["kernels"] == "numba" and not kernels.enabled()
+    monkeypatch.setenv("IMUDIAG_KERNELS", "plain")
+    rec_plain = diagnose_log(job)
+    assert rec_plain["kernels"] == "plain (IMUDIAG_KERNELS=plain)" and not kernels.enabled()
+    assert rec_plain["report"]["verdict"] == rec["report"]["verdict"]

@@ -22,16 +22,20 @@ along each motion in order, so again equal to rounding.
 The kernels themselves are in :mod:`.numba_kernels` (module-level, so numba's disk cache
 serves every later process: about 1 s of CPU to load them against 11 s to compile). The
 plain numpy paths stay the reference and the default. :func:`enable` switches the kernel
-on in this process where numba is installed: the fleet's workers do it once (the JIT compile,
-or the load of numba's on-disk cache, is paid by the worker's first task, outside that log's
-CPU figure); ``imudiag diagnose`` and the daemon keep the plain loop unless
+on in this process where numba is installed, :func:`switched` in one thread for a block: a
+fleet task runs its diagnosis inside ``switched(True)`` (the JIT compile, or the load of
+numba's on-disk cache, paid once by the worker's first task in its warm-up, outside that
+log's CPU figure, :func:`load`), so a process that calls the task itself keeps its own
+choice; ``imudiag diagnose`` and the daemon keep the plain loop unless
 ``IMUDIAG_KERNELS=numba`` is set in the environment.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -51,29 +55,50 @@ def available() -> bool:
     return True
 
 
-def enable(on: bool = True) -> bool:
-    """Use the compiled kernels in this process from now on (``on``), or the plain loops;
-    returns whether the kernels are in use. The first enable compiles them (or loads numba's
-    cache) and runs them once; without numba, or when that fails, the plain loops stay and
-    :func:`status` says why."""
-    if not on:
-        _STATE["on"] = False
-        return False
-    if _STATE["kernel"] is None:
+def load() -> bool:
+    """Compile the kernels (or load them from numba's cache) and run each once, without
+    switching them on; whether they can be used (without numba, or when that failed,
+    :func:`status` says why). Cheap after the first call."""
+    if _STATE["kernel"] is None and _STATE["error"] is None:
         try:
             _KERNELS.update(_compile())
             _STATE["kernel"] = _KERNELS["exact_gauss_newton"]
         except Exception as exc:  # noqa: BLE001 - no numba, or a failed compile: plain loops
             _STATE["error"] = f"{type(exc).__name__}: {exc}"
-            _STATE["on"] = False
-            return False
-    _STATE["on"] = True
-    return True
+    return _STATE["kernel"] is not None
+
+
+def enable(on: bool = True) -> bool:
+    """Use the compiled kernels in this process from now on (``on``, after :func:`load`), or
+    the plain loops; returns whether the kernels are in use."""
+    _STATE["on"] = bool(on) and load()
+    return bool(_STATE["on"])
+
+
+#: a thread's own choice (:func:`switched`), over the process's
+_LOCAL = threading.local()
+
+
+@contextlib.contextmanager
+def switched(on: bool) -> Iterator[bool]:
+    """The kernels on (where :func:`load` can) or off in this thread for the ``with`` block,
+    whatever the process's choice, restored after (a fleet task: the caller's process and
+    other tasks' threads keep theirs); yields whether they are on."""
+    before = getattr(_LOCAL, "on", None)
+    _LOCAL.on = bool(on) and load()
+    try:
+        yield _LOCAL.on
+    finally:
+        _LOCAL.on = before
 
 
 def enabled() -> bool:
-    """Whether the compiled kernels are in use in this process (the first call switches them
-    on when ``IMUDIAG_KERNELS=numba`` is set in the environment)."""
+    """Whether the compiled kernels are in use in this thread: its :func:`switched` block,
+    else the process's :func:`enable` (the first call switches them on when
+    ``IMUDIAG_KERNELS=numba`` is set in the environment)."""
+    local = getattr(_LOCAL, "on", None)
+    if local is not None:
+        return bool(local)
     if _STATE["on"] is None:
         _STATE["on"] = False
         if os.environ.get("IMUDIAG_KERNELS", "").strip().lower() == "numba":
@@ -83,7 +108,7 @@ def enabled() -> bool:
 
 def status() -> str:
     """``numba`` when the kernels are in use, else ``plain`` and why."""
-    if _STATE["on"]:
+    if enabled():
         return "numba"
     return "plain" + (f" ({_STATE['error']})" if _STATE["error"] else "")
 
