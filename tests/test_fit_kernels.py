@@ -216,3 +216,36 @@ def test_a_fleet_task_uses_the_kernels_in_its_own_thread_only(tmp_path, monkeypa
     rec_plain = diagnose_log(job)
     assert rec_plain["kernels"] == "plain (IMUDIAG_KERNELS=plain)" and not kernels.enabled()
     assert rec_plain["report"]["verdict"] == rec["report"]["verdict"]
+
+
+@pytest.mark.parametrize("fit_frame", [False, True])
+def test_ninv_derivatives_and_predictions_kernels_equal_plain(fit_frame):
+    """The rotation fit's N^-1 and its derivatives (frame rotations below and above the
+    series thresholds) and its predicted directions with their derivatives, compiled
+    against the plain numpy (random, seeded)."""
+    from imudiag.diagnosis.gauge import shape_of_triad
+    from imudiag.diagnosis.gyro_fit import ninv_derivatives, predict_with_jacobian
+    from imudiag.rotations import segment_product_plan
+
+    shape_c, q_c = shape_of_triad(load_default().gyro)
+    rng = np.random.default_rng(5)
+    npar = 9 if fit_frame else 6
+    lengths = rng.integers(1, 30, size=8)
+    inc = rng.normal(size=(int(lengths.sum()), 3)) * 0.05
+    stack = {"turning": inc, "lengths": lengths, "plan": segment_product_plan(lengths)}
+    up0 = rng.normal(size=(8, 3))
+    up0 /= np.linalg.norm(up0, axis=1)[:, None]
+    for scale in (0.0, 1e-5, 3e-3, 0.05):
+        x = rng.normal(size=npar) * scale
+        kernels.enable(False)
+        plain = ninv_derivatives(shape_c, q_c, x, fit_frame)
+        pred0 = predict_with_jacobian(stack, *plain, up0)
+        assert kernels.enable(True)
+        try:
+            fast = ninv_derivatives(shape_c, q_c, x, fit_frame)
+            pred1 = predict_with_jacobian(stack, *plain, up0)
+        finally:
+            kernels.enable(False)
+        for a, b in zip(fast + pred1, plain + pred0, strict=True):
+            assert a.shape == b.shape
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-13 * max(1.0, float(np.abs(b).max())))

@@ -375,6 +375,9 @@ def predict_with_jacobian(
     ``memos``: as :func:`motion_sensitivities`.
     """
     q, sens = motion_sensitivities(stack, ninv, memos)
+    fast = kernels.predict_directions(q, sens, dninv, up0)  # fleet workers
+    if fast is not None:
+        return fast
     omega = np.einsum("nacd,mcd->nam", sens, dninv)  # (n, 3, m), rad per parameter unit
     c = quat_matrix(q)  # body at end -> body at start
     pred = np.einsum("nji,nj->ni", c, up0)
@@ -395,6 +398,9 @@ def ninv_derivatives(
     ``N = P(shape_c + x[:6]) [R(x[6:9])] Q_c`` (:func:`.gauge.p_matrix`; the frame
     rotation when ``fit_frame``), and ``dN^-1 = -N^-1 dN N^-1``.
     """
+    fast = kernels.ninv_derivatives(shape_c, q_c, x, fit_frame)  # fleet workers
+    if fast is not None:
+        return fast
     npar = x.shape[0]
     p = p_matrix(shape_c + x[:6])
     d_p = _D_P
@@ -413,9 +419,12 @@ def ninv_derivatives(
 
 
 @functools.lru_cache(maxsize=32)
-def _ninv_at_certificate(shape_c: bytes, q_c: bytes, npar: int) -> tuple[np.ndarray, np.ndarray]:
+def _ninv_at_certificate(
+    shape_c: bytes, q_c: bytes, npar: int, compiled: bool
+) -> tuple[np.ndarray, np.ndarray]:
     """:func:`ninv_derivatives` at x = 0 (the certificate) of the shape and rotation whose
-    bytes are given, kept (read-only): every window's fit starts there."""
+    bytes are given, kept (read-only): every window's fit starts there. ``compiled``:
+    whether the kernels are on (:mod:`.kernels`), so each path keeps its own figures."""
     # copies: a bytes object's buffer need not be aligned, and an unaligned operand takes
     # another matmul loop than the one the fit's other evaluations go through
     out = ninv_derivatives(
@@ -511,7 +520,7 @@ def rotation_fit(
         pred, d_pred = predict_with_jacobian(
             stack,
             *(
-                _ninv_at_certificate(shape_c.tobytes(), q_c.tobytes(), npar)
+                _ninv_at_certificate(shape_c.tobytes(), q_c.tobytes(), npar, kernels.enabled())
                 if at_certificate
                 else ninv_derivatives(shape_c, q_c, x, fit_frame)
             ),

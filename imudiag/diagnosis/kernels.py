@@ -167,6 +167,39 @@ def product_sensitivity(
     return q, sens.reshape(-1, 3, 3, 3)
 
 
+def ninv_derivatives(
+    shape_c: np.ndarray, q_c: np.ndarray, x: np.ndarray, fit_frame: bool
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`.gyro_fit.ninv_derivatives` compiled (N^-1 (3, 3) and its derivatives (npar,
+    3, 3) per parameter unit); None when the kernels are off."""
+    if not enabled():
+        return None
+    out: tuple[np.ndarray, np.ndarray] = _KERNELS["ninv_derivatives"](
+        np.ascontiguousarray(shape_c, dtype=float),
+        np.ascontiguousarray(q_c, dtype=float),
+        np.ascontiguousarray(x, dtype=float),
+        bool(fit_frame),
+    )
+    return out
+
+
+def predict_directions(
+    q: np.ndarray, sens: np.ndarray, dninv: np.ndarray, up0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The rotation fit's predicted end directions (n, 3) and their derivatives (n, 3, m)
+    from the motions' rotations ``q`` (n, 4), sensitivities ``sens`` (n, 3, 3, 3), dN^-1
+    (m, 3, 3) and start directions ``up0`` (n, 3), compiled; None when the kernels are off."""
+    if not enabled():
+        return None
+    out: tuple[np.ndarray, np.ndarray] = _KERNELS["predict"](
+        np.ascontiguousarray(q, dtype=float),
+        np.ascontiguousarray(sens, dtype=float),
+        np.ascontiguousarray(dninv, dtype=float),
+        np.ascontiguousarray(up0, dtype=float),
+    )
+    return out
+
+
 def _compile() -> dict[str, Callable[..., Any]]:
     """The numba kernels by name, compiled (or loaded from numba's cache) and each run once."""
     from . import numba_kernels

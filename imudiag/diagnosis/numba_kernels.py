@@ -286,6 +286,149 @@ def product_sensitivity_kernel(theta, inc, lengths):
     return out, sens
 
 
+@jit
+def inv3(a):
+    """Inverse of a 3x3 matrix by its adjugate."""
+    c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    c01 = a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]
+    c02 = a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]
+    c10 = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    c11 = a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
+    c12 = a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]
+    c20 = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    c21 = a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]
+    c22 = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    det = a[0, 0] * c00 + a[0, 1] * c10 + a[0, 2] * c20
+    out = np.empty((3, 3))
+    out[0, 0], out[0, 1], out[0, 2] = c00 / det, c01 / det, c02 / det
+    out[1, 0], out[1, 1], out[1, 2] = c10 / det, c11 / det, c12 / det
+    out[2, 0], out[2, 1], out[2, 2] = c20 / det, c21 / det, c22 / det
+    return out
+
+
+@jit
+def quat_rows(w, x, y, z):
+    """Rotation matrix of a quaternion (normalised), as :func:`imudiag.rotations.quat_matrix`."""
+    nq = np.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / nq, x / nq, y / nq, z / nq
+    r = np.empty((3, 3))
+    r[0, 0] = 1 - 2 * (y * y + z * z)
+    r[0, 1] = 2 * (x * y - w * z)
+    r[0, 2] = 2 * (x * z + w * y)
+    r[1, 0] = 2 * (x * y + w * z)
+    r[1, 1] = 1 - 2 * (x * x + z * z)
+    r[1, 2] = 2 * (y * z - w * x)
+    r[2, 0] = 2 * (x * z - w * y)
+    r[2, 1] = 2 * (y * z + w * x)
+    r[2, 2] = 1 - 2 * (x * x + y * y)
+    return r
+
+
+@jit
+def ninv_derivatives_kernel(shape_c, q_c, x, fit_frame):
+    """N^-1 (3, 3) and dN^-1 (npar, 3, 3) of the rotation fit's parameters ``x``, as
+    :func:`imudiag.diagnosis.gyro_fit.ninv_derivatives`."""
+    npar = x.shape[0]
+    s = np.empty(6)
+    for i in range(6):
+        s[i] = shape_c[i] + x[i]
+    p = np.empty((3, 3))
+    p[0, 0], p[1, 1], p[2, 2] = 1.0 + s[0], 1.0 + s[1], 1.0 + s[2]
+    p[0, 1] = p[1, 0] = 0.5 * s[3]
+    p[0, 2] = p[2, 0] = 0.5 * s[4]
+    p[1, 2] = p[2, 1] = 0.5 * s[5]
+    d_rf = np.zeros((3, 3, 3))
+    if fit_frame:
+        f0, f1, f2 = x[6], x[7], x[8]
+        a2 = f0 * f0 + f1 * f1 + f2 * f2
+        a = np.sqrt(a2)
+        half = 0.5 * a
+        k = np.sin(half) / a if a > 1e-4 else 0.5 - a2 / 48.0
+        rf = quat_rows(np.cos(half), f0 * k, f1 * k, f2 * k)
+        if a < 1e-2:
+            c1 = 0.5 - a2 / 24.0 + a2 * a2 / 720.0
+            c2 = 1.0 / 6.0 - a2 / 120.0 + a2 * a2 / 5040.0
+        else:
+            c1 = (1.0 - np.cos(a)) / a**2
+            c2 = (a - np.sin(a)) / a**3
+        dg = 1.0 - c2 * a2
+        jr = np.empty((3, 3))
+        jr[0, 0], jr[0, 1], jr[0, 2] = (
+            dg + c2 * f0 * f0,
+            c2 * f0 * f1 + c1 * f2,
+            c2 * f0 * f2 - c1 * f1,
+        )
+        jr[1, 0], jr[1, 1], jr[1, 2] = (
+            c2 * f1 * f0 - c1 * f2,
+            dg + c2 * f1 * f1,
+            c2 * f1 * f2 + c1 * f0,
+        )
+        jr[2, 0], jr[2, 1], jr[2, 2] = (
+            c2 * f2 * f0 + c1 * f1,
+            c2 * f2 * f1 - c1 * f0,
+            dg + c2 * f2 * f2,
+        )
+        for j in range(3):
+            v0, v1, v2 = jr[0, j], jr[1, j], jr[2, j]  # column j of J_r
+            sk = np.zeros((3, 3))
+            sk[0, 1], sk[0, 2] = -v2, v1
+            sk[1, 0], sk[1, 2] = v2, -v0
+            sk[2, 0], sk[2, 1] = -v1, v0
+            d_rf[j] = rf @ sk
+    else:
+        rf = np.eye(3)
+    rq = rf @ q_c
+    n = p @ rq
+    d_n = np.zeros((npar, 3, 3))
+    for i in range(min(npar, 6)):
+        e = np.zeros((3, 3))
+        if i < 3:
+            e[i, i] = 1.0
+        elif i == 3:
+            e[0, 1] = e[1, 0] = 0.5
+        elif i == 4:
+            e[0, 2] = e[2, 0] = 0.5
+        else:
+            e[1, 2] = e[2, 1] = 0.5
+        d_n[i] = e @ rq
+    for j in range(npar - 6):
+        d_n[6 + j] = p @ d_rf[j] @ q_c
+    ninv = inv3(n)
+    dninv = np.empty((npar, 3, 3))
+    for i in range(npar):
+        dninv[i] = -(ninv @ d_n[i] @ ninv)
+    return ninv, dninv
+
+
+@jit
+def predict_kernel(q, sens, dninv, up0):
+    """Predicted end directions (n, 3) and their derivatives (n, 3, m), as
+    :func:`imudiag.diagnosis.gyro_fit.predict_with_jacobian` after its motion products."""
+    n = q.shape[0]
+    m = dninv.shape[0]
+    pred = np.empty((n, 3))
+    d = np.empty((n, 3, m))
+    omega = np.empty((3, m))
+    for k in range(n):
+        c = quat_rows(q[k, 0], q[k, 1], q[k, 2], q[k, 3])
+        for i in range(3):
+            pred[k, i] = c[0, i] * up0[k, 0] + c[1, i] * up0[k, 1] + c[2, i] * up0[k, 2]
+        for a in range(3):
+            for mm in range(m):
+                acc = 0.0
+                for cc in range(3):
+                    for dd in range(3):
+                        acc += sens[k, a, cc, dd] * dninv[mm, cc, dd]
+                omega[a, mm] = acc
+        p0, p1, p2 = pred[k, 0], pred[k, 1], pred[k, 2]
+        for mm in range(m):
+            o0, o1, o2 = omega[0, mm], omega[1, mm], omega[2, mm]
+            d[k, 0, mm] = p1 * o2 - p2 * o1
+            d[k, 1, mm] = p2 * o0 - p0 * o2
+            d[k, 2, mm] = p0 * o1 - p1 * o0
+    return pred, d
+
+
 def warm_up() -> dict[str, Any]:
     """Run each kernel once (compiling it, or loading it from numba's cache); the kernels by
     name."""
@@ -307,4 +450,15 @@ def warm_up() -> dict[str, Any]:
         0.5,
         1e-14,
     )
-    return {"exact_gauss_newton": gauss_newton, "product_sensitivity": product_sensitivity_kernel}
+    q_c = np.eye(3)
+    for npar, frame in ((6, False), (9, True)):
+        ninv, dninv = ninv_derivatives_kernel(np.zeros(6), q_c, np.full(npar, 1e-3), frame)
+        predict_kernel(
+            np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 3, 3, 3)), dninv, np.ones((1, 3))
+        )
+    return {
+        "exact_gauss_newton": gauss_newton,
+        "product_sensitivity": product_sensitivity_kernel,
+        "ninv_derivatives": ninv_derivatives_kernel,
+        "predict": predict_kernel,
+    }
