@@ -17,7 +17,9 @@ whole reports made with the kernels to the frozen ones within the cross-processo
 The gyro rotation fit evaluates each motion's rotation and its sensitivity to N^-1
 (:func:`imudiag.rotations.segmented_product_sensitivity`, a pairwise product tree in numpy)
 once per try; :func:`product_sensitivity` is the same figures compiled, the products taken
-along each motion in order, so again equal to rounding.
+along each motion in order, so again equal to rounding; so are N^-1 and its derivatives
+(:func:`ninv_derivatives`) and the predicted directions with theirs
+(:func:`predict_directions`).
 
 The kernels themselves are in :mod:`.numba_kernels` (module-level, so numba's disk cache
 serves every later process: about 1 s of CPU to load them against 11 s to compile). The
@@ -42,7 +44,8 @@ import numpy as np
 
 #: "on": None until the first :func:`enabled` reads ``IMUDIAG_KERNELS``
 _STATE: dict[str, Any] = {"on": None, "kernel": None, "error": None}
-#: the compiled functions by name (``exact_gauss_newton``, ``product_sensitivity``)
+#: the compiled functions by name (``exact_gauss_newton``, ``product_sensitivity``,
+#: ``ninv_derivatives``, ``predict``)
 _KERNELS: dict[str, Callable[..., Any]] = {}
 
 
