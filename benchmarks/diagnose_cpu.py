@@ -12,9 +12,14 @@ Cases (fixed seeds), each written once into a temporary folder:
   passed to :func:`imudiag.diagnose` in memory (the report's ``moving_base`` section).
 
 Options: ``--samples 1e5,1e6`` (sizes), ``--rates 100,1000`` (Hz), ``--cases`` (comma list),
-``--repeat N`` (best of N, default 1), ``--profile N`` (cProfile of the last run of each case,
-top N functions by internal time). Prints one line per case: CPU s, samples, CPU s per 10^6
-samples. No assertion: docs/benchmarks.md holds the figures.
+``--runs CASE:RATE:SAMPLES,...`` (explicit runs instead of the product of the three;
+``--runs fleet`` is issue 28's three: a 10^6-sample multi-position board log, a 20-min drive
+with GNSS and a 5-min short log, all at 100 Hz),
+``--kernels auto|plain|numba`` (the window-fit loops: ``auto`` as a fleet worker, the
+compiled ones where numba is installed), ``--repeat N`` (best of N, default 1), ``--profile
+N`` (cProfile of the last run of each case, top N functions by ``--sort``, internal time).
+Prints one line per case: CPU s, samples, CPU s per 10^6 samples. No assertion:
+docs/benchmarks.md holds the figures.
 """
 
 from __future__ import annotations
@@ -34,6 +39,9 @@ for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")  # as the command line and the fleet's workers
 
 CASES = ("multiposition", "static", "drive")
+#: ``--runs fleet``: (a) a 10^6-sample multi-position board log, (b) a 20-min moving-base drive
+#: with its GNSS, (c) a 5-min short log (the fixed per-log cost), all at 100 Hz.
+FLEET_RUNS = "multiposition:100:1e6,drive:100:1.2e5,multiposition:100:3e4"
 
 
 def write_board_log(path: Path, kind: str, n: int, rate_hz: float, seed: int) -> Path:
@@ -81,47 +89,83 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--samples", default="1e5,1e6", help="log sizes, comma-separated")
     ap.add_argument("--rates", default="100,1000", help="sample rates, Hz, comma-separated")
     ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--runs", default="", help="CASE:RATE:SAMPLES,... or 'fleet'")
     ap.add_argument("--repeat", type=int, default=1, help="best of N runs")
     ap.add_argument("--profile", type=int, default=0, help="print the top N of a cProfile")
+    ap.add_argument(
+        "--kernels",
+        choices=("auto", "plain", "numba"),
+        default="auto",
+        help="window-fit loops: the fleet worker's choice (numba where installed), or forced",
+    )
+    ap.add_argument("--sort", default="tottime", help="cProfile order (tottime, cumulative)")
     ap.add_argument("--seed", type=int, default=5)
     args = ap.parse_args(argv)
     sizes = [int(float(s)) for s in args.samples.split(",")]
     rates = [float(r) for r in args.rates.split(",")]
     cases = args.cases.split(",")
-    print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}", flush=True)
+    if args.runs:
+        spec = FLEET_RUNS if args.runs == "fleet" else args.runs
+        runs = [(c, float(r), int(float(n))) for c, r, n in (x.split(":") for x in spec.split(","))]
+        cases = sorted({c for c, _, _ in runs})
+    else:
+        runs = [(c, r, n) for c in cases for r in rates for n in sizes]
+    try:
+        from imudiag.diagnosis import kernels
+    except ImportError:  # a tree from before the kernels (a before/after comparison)
+        if args.kernels == "numba":
+            raise SystemExit(
+                "--kernels numba: this tree has no imudiag.diagnosis.kernels"
+            ) from None
+        kernels = None
+    if kernels is None:
+        pass
+    elif args.kernels == "plain":
+        os.environ["IMUDIAG_KERNELS"] = "plain"  # what the fleet's warm-up reads
+        kernels.enable(False)
+    elif args.kernels == "numba" and not kernels.enable(True):
+        raise SystemExit(f"--kernels numba: {kernels.status()}")
+    elif args.kernels == "auto":  # as a fleet worker: loaded by its warm-up, used by its tasks
+        from imudiag.fleet.task import _use_kernels, warm_up
+
+        warm_up()
+        kernels.enable(_use_kernels())
+    print(
+        f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}, "
+        f"window-fit loops: {kernels.status() if kernels else 'plain (no kernels)'}",
+        flush=True,
+    )
     with tempfile.TemporaryDirectory() as tmp:
         # warm-up: imports and one small call of each path
         warm = write_board_log(Path(tmp) / "warm.npz", "multiposition", 20000, 100.0, 1)
         run_once("multiposition", warm)
         if "drive" in cases:
             run_once("drive", drive_case(20000, 100.0, 1))
-        for case in cases:
-            for rate in rates:
-                for n in sizes:
-                    if case == "drive":
-                        data: Any = drive_case(n, rate, args.seed)
-                    else:
-                        path = Path(tmp) / f"{case}-{n}-{rate:g}.npz"
-                        data = write_board_log(path, case, n, rate, args.seed)
-                    best = float("inf")
-                    for _ in range(max(1, args.repeat)):
-                        cpu, got, report = run_once(case, data)
-                        best = min(best, cpu)
-                    mb = report.get("moving_base") or {}
-                    print(
-                        f"{case:14s} {rate:6g} Hz {got:8d} samples: {best:7.3f} s CPU, "
-                        f"{best / got * 1e6:6.3f} s per 10^6 samples"
-                        + (f" (moving-base: {len(mb.get('windows') or [])} windows)" if mb else ""),
-                        flush=True,
-                    )
-                    if args.profile:
-                        prof = cProfile.Profile()
-                        prof.enable()
-                        run_once(case, data)
-                        prof.disable()
-                        s = io.StringIO()
-                        pstats.Stats(prof, stream=s).sort_stats("tottime").print_stats(args.profile)
-                        print(s.getvalue(), flush=True)
+        for case, rate, n in runs:
+            if case == "drive":
+                data: Any = drive_case(n, rate, args.seed)
+            else:
+                path = Path(tmp) / f"{case}-{n}-{rate:g}.npz"
+                data = write_board_log(path, case, n, rate, args.seed)
+            best = float("inf")
+            for _ in range(max(1, args.repeat)):
+                cpu, got, report = run_once(case, data)
+                best = min(best, cpu)
+            mb = report.get("moving_base") or {}
+            print(
+                f"{case:14s} {rate:6g} Hz {got:8d} samples: {best:7.3f} s CPU, "
+                f"{best / got * 1e6:6.3f} s per 10^6 samples"
+                + (f" (moving-base: {len(mb.get('windows') or [])} windows)" if mb else ""),
+                flush=True,
+            )
+            if args.profile:
+                prof = cProfile.Profile()
+                prof.enable()
+                run_once(case, data)
+                prof.disable()
+                s = io.StringIO()
+                pstats.Stats(prof, stream=s).sort_stats(args.sort).print_stats(args.profile)
+                print(s.getvalue(), flush=True)
     return 0
 
 

@@ -13,7 +13,10 @@ prints:
 - per-log CPU in a warm worker per 10^6 samples: each task's own thread CPU (``cpu_s`` of
   the record) over its samples, median and total, the first task of each worker left out;
   and the median of those first tasks alone (each worker imports the diagnosis when it
-  starts, :func:`imudiag.fleet.task.warm_up`, so they should cost what the others do).
+  starts, :func:`imudiag.fleet.task.warm_up`, so they should cost what the others do);
+- the workers' warm-up CPU (imports, the compiled kernels' load) and which window-fit loops
+  the workers ran (``numba`` where the fleet extra's numba is installed, else ``plain``;
+  ``IMUDIAG_KERNELS=plain`` keeps the plain ones).
 
 Each task carries the log's path only: the worker reads the log (nothing is shipped from
 the client but the path and its hash).
@@ -32,6 +35,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 
 def _cpu_s() -> float:
@@ -42,7 +46,7 @@ def _cpu_s() -> float:
     return total
 
 
-def measure(fleet: Path, workers: int, out: Path) -> dict[str, float]:
+def measure(fleet: Path, workers: int, out: Path) -> dict[str, Any]:
     """One run of the fleet on ``workers`` local workers; its figures."""
     import imudiag.fleet
 
@@ -76,6 +80,8 @@ def measure(fleet: Path, workers: int, out: Path) -> dict[str, float]:
             else float("nan")
         ),
         "task_cpu_s": sum(r["cpu_s"] for r in ok),
+        "warm_up_cpu_s": sum(r.get("warm_up_cpu_s") or 0.0 for r in ok),
+        "kernels": ", ".join(sorted({str(r.get("kernels")) for r in ok})),
     }
 
 
@@ -120,7 +126,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"CPU-hour, {r['logs_per_wall_hour']:.0f} logs per wall-hour; warm worker "
                 f"{r['warm_cpu_per_1e6_median_s']:.2f} s CPU per 10^6 samples (median; "
                 f"{r['warm_cpu_per_1e6_total_s']:.2f} over all warm tasks; each worker's "
-                f"first task {r['first_cpu_per_1e6_median_s']:.2f})",
+                f"first task {r['first_cpu_per_1e6_median_s']:.2f}); workers' warm-up "
+                f"{r['warm_up_cpu_s']:.1f} s CPU; window-fit loops: {r['kernels']}",
                 flush=True,
             )
         if 1 in results and 2 in results:

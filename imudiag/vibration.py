@@ -171,23 +171,42 @@ class VibrationMeter:
         sq = np.square(hp, out=hp)
         if not np.isfinite(sq).all():
             sq = np.nan_to_num(sq, nan=0.0, posinf=0.0, neginf=0.0)
-        # windows aligned on the stream index: cut the block where a window completes
-        pos = 0
-        while pos < n:
-            take = min(n - pos, self.window - self._count)
-            self._sumsq += sq[pos : pos + take].sum(axis=0)
-            self._count += take
-            pos += take
-            if self._count == self.window:
-                level = np.sqrt(self._sumsq / self.window)
-                self.last = level
-                self.peak = np.maximum(self.peak, level)
-                self.windows += 1
-                if float(np.max(level[3:])) > self.limits.accel_high:
-                    self.high_windows += 1
-                self._sumsq = np.zeros(6)
-                self._count = 0
+        self._add_squares(sq)
         self.seen += n
+
+    def _add_squares(self, sq: np.ndarray) -> None:
+        """Add the squared high-passed samples ``sq`` (N, 6), SI units^2, to the windows."""
+        n = sq.shape[0]
+        # windows aligned on the stream index: the window being filled, then the block's
+        # whole windows at once (each summed row by row as a slice of its own would be),
+        # then the start of the next
+        w = self.window
+        pos = 0
+        if self._count:
+            pos = min(n, w - self._count)
+            self._sumsq += sq[:pos].sum(axis=0)
+            self._count += pos
+            if self._count == w:
+                self._windows_done(np.sqrt(self._sumsq / w)[None])
+        whole = (n - pos) // w
+        if whole:
+            sums = sq[pos : pos + whole * w].reshape(whole, w, 6).sum(axis=1)
+            self._windows_done(np.sqrt(sums / w))
+            pos += whole * w
+        if pos < n:
+            self._sumsq += sq[pos:].sum(axis=0)
+            self._count += n - pos
+
+    def _windows_done(self, levels: np.ndarray) -> None:
+        """Count whole windows of ``levels`` (M, 6) SI, in stream order; start a new one."""
+        self.last = levels[-1]
+        self.peak = np.maximum(self.peak, levels.max(axis=0))
+        self.windows += levels.shape[0]
+        self.high_windows += int(
+            np.count_nonzero(levels[:, 3:].max(axis=1) > self.limits.accel_high)
+        )
+        self._sumsq = np.zeros(6)
+        self._count = 0
 
     def figures(self) -> VibrationFigures | None:
         """The last whole window's figures, or None before one."""

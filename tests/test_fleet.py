@@ -351,10 +351,14 @@ def test_the_task_uses_the_certificate_given_and_stops_at_its_timeout(
     assert rec["status"] == "error" and rec["reason"].startswith("loading the certificate: ")
 
 
-def test_a_drive_with_its_gnss_beside_gets_the_moving_base_diagnosis(tmp_path: Path) -> None:
+def test_a_drive_with_its_gnss_beside_gets_the_moving_base_diagnosis(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A simulated urban drive with its GNSS stream as ``LOG.gnss``: the record's report
-    carries the moving-base section equal to ``imudiag diagnose LOG --gnss GNSS``'s, its
-    start is the first sample's UTC time, and its vehicle is its folder (said so)."""
+    carries the moving-base section equal to ``imudiag diagnose LOG --gnss GNSS``'s (run
+    with the window-fit loops the worker ran: the compiled ones where numba is installed;
+    with the plain ones, equal within the reports' cross-processor tolerance), its start is
+    the first sample's UTC time, and its vehicle is its folder (said so)."""
     from conftest import run_imudiag
 
     log = tmp_path / "car-7" / "drive.npz"
@@ -382,9 +386,20 @@ def test_a_drive_with_its_gnss_beside_gets_the_moving_base_diagnosis(tmp_path: P
     )
     assert rec["start"] == "2026-01-01T00:00:00+00:00"
     out = tmp_path / "report.json"
+    if rec["kernels"] == "numba":
+        monkeypatch.setenv("IMUDIAG_KERNELS", "numba")
     r = run_imudiag("diagnose", str(log), "--gnss", str(gnss), "--json", str(out))
     assert r.returncode == 0, r.stderr
     assert rec["report"]["moving_base"] == json.loads(out.read_text())["moving_base"]
+    if rec["kernels"] == "numba":  # and the single process on the plain loops
+        from tests.test_diagnose_frozen_reports import hardware_differences
+
+        monkeypatch.setenv("IMUDIAG_KERNELS", "plain")
+        r = run_imudiag("diagnose", str(log), "--gnss", str(gnss), "--json", str(out))
+        assert r.returncode == 0, r.stderr
+        plain = json.loads(out.read_text())["moving_base"]
+        diff = hardware_differences(rec["report"]["moving_base"], plain, "moving_base")
+        assert not diff, "; ".join(diff[:8])
 
 
 def test_simulate_fleet_writes_mixed_logs_and_the_truth(tmp_path: Path) -> None:

@@ -36,6 +36,7 @@ from ..rotations import (
     segmented_product_sensitivity,
     skew,
 )
+from . import kernels
 from .gauge import p_matrix, shape_of_triad
 from .intervals import QuasiStaticInterval
 from .params import (
@@ -324,6 +325,9 @@ def motion_sensitivities(
     lengths = stack["lengths"]
     if memos is None or any(m is None for m in memos):
         theta = np.matmul(turning[None], ninv.T[None])[0]  # (K, 3)
+        fast = kernels.product_sensitivity(theta, turning, lengths)  # fleet workers
+        if fast is not None:
+            return fast
         return segmented_product_sensitivity(
             theta,
             turning,
@@ -337,11 +341,14 @@ def motion_sensitivities(
     if missing:
         sub = np.concatenate([parts[i] for i in missing])
         sub_lengths = lengths[missing]
-        q, sens = segmented_product_sensitivity(
-            np.matmul(sub[None], ninv.T[None])[0],
-            sub,
-            sub_lengths,
-            segment_product_plan(sub_lengths),
+        sub_theta = np.matmul(sub[None], ninv.T[None])[0]
+        fast = kernels.product_sensitivity(sub_theta, sub, sub_lengths)  # fleet workers
+        q, sens = (
+            fast
+            if fast is not None
+            else segmented_product_sensitivity(
+                sub_theta, sub, sub_lengths, segment_product_plan(sub_lengths)
+            )
         )
         for j, i in enumerate(missing):
             memos[i][keys[i]] = (q[j], sens[j])  # type: ignore[index]
@@ -368,6 +375,9 @@ def predict_with_jacobian(
     ``memos``: as :func:`motion_sensitivities`.
     """
     q, sens = motion_sensitivities(stack, ninv, memos)
+    fast = kernels.predict_directions(q, sens, dninv, up0)  # fleet workers
+    if fast is not None:
+        return fast
     omega = np.einsum("nacd,mcd->nam", sens, dninv)  # (n, 3, m), rad per parameter unit
     c = quat_matrix(q)  # body at end -> body at start
     pred = np.einsum("nji,nj->ni", c, up0)
@@ -388,6 +398,9 @@ def ninv_derivatives(
     ``N = P(shape_c + x[:6]) [R(x[6:9])] Q_c`` (:func:`.gauge.p_matrix`; the frame
     rotation when ``fit_frame``), and ``dN^-1 = -N^-1 dN N^-1``.
     """
+    fast = kernels.ninv_derivatives(shape_c, q_c, x, fit_frame)  # fleet workers
+    if fast is not None:
+        return fast
     npar = x.shape[0]
     p = p_matrix(shape_c + x[:6])
     d_p = _D_P
@@ -406,9 +419,12 @@ def ninv_derivatives(
 
 
 @functools.lru_cache(maxsize=32)
-def _ninv_at_certificate(shape_c: bytes, q_c: bytes, npar: int) -> tuple[np.ndarray, np.ndarray]:
+def _ninv_at_certificate(
+    shape_c: bytes, q_c: bytes, npar: int, compiled: bool
+) -> tuple[np.ndarray, np.ndarray]:
     """:func:`ninv_derivatives` at x = 0 (the certificate) of the shape and rotation whose
-    bytes are given, kept (read-only): every window's fit starts there."""
+    bytes are given, kept (read-only): every window's fit starts there. ``compiled``:
+    whether the kernels are on (:mod:`.kernels`), so each path keeps its own figures."""
     # copies: a bytes object's buffer need not be aligned, and an unaligned operand takes
     # another matmul loop than the one the fit's other evaluations go through
     out = ninv_derivatives(
@@ -504,7 +520,7 @@ def rotation_fit(
         pred, d_pred = predict_with_jacobian(
             stack,
             *(
-                _ninv_at_certificate(shape_c.tobytes(), q_c.tobytes(), npar)
+                _ninv_at_certificate(shape_c.tobytes(), q_c.tobytes(), npar, kernels.enabled())
                 if at_certificate
                 else ninv_derivatives(shape_c, q_c, x, fit_frame)
             ),

@@ -289,13 +289,20 @@ class IntervalCollector:
             self._gap_append(rows)
 
     def _split_long_run(self, out: list[QuasiStaticInterval]) -> None:
-        while self._run_n >= self.max_n + self.trim_n + self.min_n:
-            rows = np.concatenate(self._run)
-            out.append(self._emit(rows[: self.max_n]))
-            rest = rows[self.max_n :]
-            self._run, self._run_n = [rest], rest.shape[0]
-            self._gap = [rows[self.max_n - 1 : self.max_n]]
+        limit = self.max_n + self.trim_n + self.min_n
+        if self._run_n < limit:
+            return
+        # the run joined once, and cut into max_n-row intervals from its start (was: joined
+        # again after every cut, quadratic in a long hold's length)
+        rows = np.concatenate(self._run)
+        start = 0
+        while rows.shape[0] - start >= limit:
+            out.append(self._emit(rows[start : start + self.max_n]))
+            self._gap = [rows[start + self.max_n - 1 : start + self.max_n]]
             self._gap_n = 1
+            start += self.max_n
+        rest = rows[start:]
+        self._run, self._run_n = [rest], rest.shape[0]
 
     # -- streaming -------------------------------------------------------------
 

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..certificate import TriadModel
+from . import kernels
 from .gauge import p_matrix
 from .params import TriadFit, TriadForm, std_above_limit, triad_form
 from .robust import point_diagnostics, reject_outliers
@@ -243,6 +244,21 @@ def exact_fit(
     def gauss_newton(
         theta: np.ndarray, extra: float
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        if kernels.enabled():  # the same loop compiled (fleet workers), None if it gave up
+            out = kernels.exact_gauss_newton(
+                theta,
+                extra,
+                v,
+                mu,
+                var_v,
+                prior_prec,
+                theta_c,
+                max_iter,
+                MAX_SHAPE,
+                RESIDUAL_FLOOR**2,
+            )
+            if out is not None:
+                return out
         c0, r, xw, sig2 = cost(theta, extra)
         jac = _jacobian(*xw)
         lam = 1e-6
@@ -404,12 +420,18 @@ def robust_exact_fit_and_plain(
 def _excess_variance(r: np.ndarray, sig2: np.ndarray, dof: float) -> float:
     """Variance e added to every point that makes sum r^2 / (sig2 + e) equal ``dof``."""
     lo, hi = 0.0, float(np.max(r * r)) * len(r) + 1e-300
+    r2 = r * r
     for _ in range(100):
+        before = (lo, hi)
         mid = 0.5 * (lo + hi)
-        if np.sum(r * r / (sig2 + mid)) > dof:
+        if np.sum(r2 / (sig2 + mid)) > dof:
             lo = mid
         else:
             hi = mid
+        if (lo, hi) == before:
+            # a halving is a function of (lo, hi) alone: once one leaves them as they were
+            # (adjacent floats), every later one would, and 100 would end here too
+            break
     return hi
 
 

@@ -48,14 +48,27 @@ WARM_MODULES = (
 
 
 def warm_up() -> float:
-    """Import :data:`WARM_MODULES` in this process (a fleet worker); the CPU of this thread
-    it took, s (about 0 once they are imported)."""
+    """Import :data:`WARM_MODULES` in this process (a fleet worker) and load the compiled
+    window-fit kernels where numba is installed (:mod:`imudiag.diagnosis.kernels`; not with
+    ``IMUDIAG_KERNELS=plain``); the CPU of this thread it took, s (about 0 once done)."""
     import importlib
 
     cpu0 = time.thread_time()
     for name in WARM_MODULES:
         importlib.import_module(name)
+    if _use_kernels():
+        # the compiled window-fit kernels where numba is installed (the fleet extra): the
+        # compile, or the load of numba's disk cache, is paid here once per worker
+        from ..diagnosis import kernels
+
+        kernels.load()
     return time.thread_time() - cpu0
+
+
+def _use_kernels() -> bool:
+    """Whether a task runs the compiled window-fit kernels: unless ``IMUDIAG_KERNELS=plain``
+    in the worker's environment, where they load (numba installed)."""
+    return os.environ.get("IMUDIAG_KERNELS", "").strip().lower() != "plain"
 
 
 #: Certificates parsed in this worker, by (absolute path or None for the bundled one, size,
@@ -258,6 +271,7 @@ def diagnose_log(job: Job) -> dict[str, Any]:
         "certificate_source": None,
         "certificate_sha256": None,
         "worker_pid": os.getpid(),
+        "kernels": None,
     }
     stage = "reading the log"
     try:
@@ -285,16 +299,25 @@ def diagnose_log(job: Job) -> dict[str, Any]:
                 )
 
         gnss = gnss_beside(job.path)
-        report: dict[str, Any] = cast(
-            "dict[str, Any]",
-            diagnose(
-                job.path,
-                cert,
-                config=job.config or None,
-                progress=watch,
-                gnss=str(gnss) if gnss else "auto",
-            ),
-        )
+        from ..diagnosis import kernels
+
+        # the compiled window fits in this task's thread only (docs/fleet.md)
+        with kernels.switched(_use_kernels()) as compiled:
+            record["kernels"] = (
+                "numba"
+                if compiled
+                else ("plain (IMUDIAG_KERNELS=plain)" if not _use_kernels() else kernels.status())
+            )
+            report: dict[str, Any] = cast(
+                "dict[str, Any]",
+                diagnose(
+                    job.path,
+                    cert,
+                    config=job.config or None,
+                    progress=watch,
+                    gnss=str(gnss) if gnss else "auto",
+                ),
+            )
         record["gnss"] = (
             str(gnss) if gnss else ("the log's own" if "moving_base" in report else None)
         )

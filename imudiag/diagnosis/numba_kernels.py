@@ -1,0 +1,464 @@
+"""The numba kernels of :mod:`.kernels` (imported by it only when they are switched on: this
+module needs numba, the ``fleet`` extra). Module-level functions, so numba's on-disk cache
+(``cache=True``) serves every later process: a fleet worker loads them instead of compiling."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numba
+import numpy as np
+
+#: Smallest |pivot| / largest |pivot| of the Jacobi-scaled damped normal matrix the exact
+#: fit's kernel solves itself; below it the plain loop (SVD least squares) runs the fit.
+PIVOT_RATIO = 1e-8
+
+jit = numba.njit(cache=True, nogil=True)
+
+
+@jit
+def residuals(th, v, mu, var_v, prior_prec, theta_c, extra, floor2, r, x, w, sig2):
+    # P (symmetric) of the shape th[3:9] and its inverse (adjugate / determinant)
+    p00 = 1.0 + th[3]
+    p11 = 1.0 + th[4]
+    p22 = 1.0 + th[5]
+    p01 = 0.5 * th[6]
+    p02 = 0.5 * th[7]
+    p12 = 0.5 * th[8]
+    c00 = p11 * p22 - p12 * p12
+    c01 = p02 * p12 - p01 * p22
+    c02 = p01 * p12 - p02 * p11
+    c11 = p00 * p22 - p02 * p02
+    c12 = p01 * p02 - p00 * p12
+    c22 = p00 * p11 - p01 * p01
+    det = p00 * c00 + p01 * c01 + p02 * c02
+    i00 = c00 / det
+    i01 = c01 / det
+    i02 = c02 / det
+    i11 = c11 / det
+    i12 = c12 / det
+    i22 = c22 / det
+    k = v.shape[0]
+    cost = 0.0
+    for n in range(k):
+        a0 = v[n, 0] - th[0]
+        a1 = v[n, 1] - th[1]
+        a2 = v[n, 2] - th[2]
+        x0 = i00 * a0 + i01 * a1 + i02 * a2
+        x1 = i01 * a0 + i11 * a1 + i12 * a2
+        x2 = i02 * a0 + i12 * a1 + i22 * a2
+        nx = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+        h0 = x0 / nx
+        h1 = x1 / nx
+        h2 = x2 / nx
+        w0 = i00 * h0 + i01 * h1 + i02 * h2
+        w1 = i01 * h0 + i11 * h1 + i12 * h2
+        w2 = i02 * h0 + i12 * h1 + i22 * h2
+        x[n, 0] = x0
+        x[n, 1] = x1
+        x[n, 2] = x2
+        w[n, 0] = w0
+        w[n, 1] = w1
+        w[n, 2] = w2
+        rn = nx - mu[n]
+        r[n] = rn
+        s2 = w0 * w0 * var_v[n, 0] + w1 * w1 * var_v[n, 1] + w2 * w2 * var_v[n, 2]
+        s2 = s2 + floor2 + extra
+        sig2[n] = s2
+        cost += rn * rn / s2
+    for i in range(9):
+        d = th[i] - theta_c[i]
+        cost += prior_prec[i] * d * d
+    return cost
+
+
+@jit
+def jacobian(x, w, jac):
+    for n in range(x.shape[0]):
+        jac[n, 0] = -w[n, 0]
+        jac[n, 1] = -w[n, 1]
+        jac[n, 2] = -w[n, 2]
+        jac[n, 3] = -w[n, 0] * x[n, 0]
+        jac[n, 4] = -w[n, 1] * x[n, 1]
+        jac[n, 5] = -w[n, 2] * x[n, 2]
+        jac[n, 6] = -0.5 * (w[n, 0] * x[n, 1] + w[n, 1] * x[n, 0])
+        jac[n, 7] = -0.5 * (w[n, 0] * x[n, 2] + w[n, 2] * x[n, 0])
+        jac[n, 8] = -0.5 * (w[n, 1] * x[n, 2] + w[n, 2] * x[n, 1])
+
+
+@jit
+def solve(a, b, out):
+    # Gaussian elimination with partial pivoting on D^-1/2 A D^-1/2 (D = diag A > 0);
+    # False when a pivot is below PIVOT_RATIO of the largest (ill-conditioned)
+    m = a.shape[0]
+    s = np.empty(m)
+    for i in range(m):
+        s[i] = 1.0 / np.sqrt(a[i, i])
+    aa = np.empty((m, m))
+    bb = np.empty(m)
+    for i in range(m):
+        bb[i] = b[i] * s[i]
+        for j in range(m):
+            aa[i, j] = a[i, j] * s[i] * s[j]
+    big = 0.0
+    small = np.inf
+    for c in range(m):
+        piv = c
+        best = abs(aa[c, c])
+        for i in range(c + 1, m):
+            if abs(aa[i, c]) > best:
+                best = abs(aa[i, c])
+                piv = i
+        if piv != c:
+            for j in range(m):
+                t = aa[c, j]
+                aa[c, j] = aa[piv, j]
+                aa[piv, j] = t
+            t = bb[c]
+            bb[c] = bb[piv]
+            bb[piv] = t
+        big = max(big, best)
+        small = min(small, best)
+        if not best > 0.0:
+            return False
+        for i in range(c + 1, m):
+            f = aa[i, c] / aa[c, c]
+            if f != 0.0:
+                for j in range(c, m):
+                    aa[i, j] -= f * aa[c, j]
+                bb[i] -= f * bb[c]
+    if not small >= PIVOT_RATIO * big:
+        return False
+    for i in range(m - 1, -1, -1):
+        acc = bb[i]
+        for j in range(i + 1, m):
+            acc -= aa[i, j] * out[j]
+        out[i] = acc / aa[i, i]
+    for i in range(m):
+        out[i] *= s[i]
+    return True
+
+
+@jit
+def gauss_newton(theta, extra, v, mu, var_v, prior_prec, theta_c, max_iter, max_shape, floor2):
+    k = v.shape[0]
+    th = theta.copy()
+    r = np.empty(k)
+    x = np.empty((k, 3))
+    w = np.empty((k, 3))
+    sig2 = np.empty(k)
+    r1 = np.empty(k)
+    x1 = np.empty((k, 3))
+    w1 = np.empty((k, 3))
+    s1 = np.empty(k)
+    jac = np.empty((k, 9))
+    hess = np.empty((9, 9))
+    a = np.empty((9, 9))
+    grad = np.empty(9)
+    step = np.empty(9)
+    cand = np.empty(9)
+    c0 = residuals(th, v, mu, var_v, prior_prec, theta_c, extra, floor2, r, x, w, sig2)
+    jacobian(x, w, jac)
+    lam = 1e-6
+    wgt = np.empty(k)
+    for _ in range(max_iter):
+        for n in range(k):
+            wgt[n] = 1.0 / sig2[n]
+        for i in range(9):
+            for j in range(9):
+                acc = 0.0
+                for n in range(k):
+                    acc += jac[n, i] * (jac[n, j] * wgt[n])
+                hess[i, j] = acc
+            hess[i, i] += prior_prec[i]
+            acc = 0.0
+            for n in range(k):
+                acc += jac[n, i] * (r[n] * wgt[n])
+            grad[i] = acc + prior_prec[i] * (th[i] - theta_c[i])
+        c_before = c0
+        accepted = False
+        for _try in range(16):
+            for i in range(9):
+                for j in range(9):
+                    a[i, j] = hess[i, j]
+                a[i, i] = hess[i, i] + lam * max(hess[i, i], 1e-30)
+            if not solve(a, grad, step):
+                return False, th, r, jac, sig2
+            far = 0.0
+            for i in range(9):
+                cand[i] = th[i] - step[i]
+                if i >= 3:
+                    far = max(far, abs(cand[i] - theta_c[i]))
+            if far > max_shape:
+                lam *= 10.0
+                continue
+            c1 = residuals(cand, v, mu, var_v, prior_prec, theta_c, extra, floor2, r1, x1, w1, s1)
+            if np.isfinite(c1) and c1 <= c0:
+                th[:] = cand
+                c0 = c1
+                r[:] = r1
+                x[:, :] = x1
+                w[:, :] = w1
+                sig2[:] = s1
+                jacobian(x, w, jac)
+                lam = max(lam / 10.0, 1e-12)
+                accepted = True
+                break
+            lam *= 10.0
+        if not accepted or (c_before - c0) <= max(1e-3, 1e-9 * c0):
+            break
+    return True, th, r, jac, sig2
+
+
+@jit
+def qmul(a0, a1, a2, a3, b0, b1, b2, b3):
+    # Hamilton product, each component's terms in qmul's order
+    return (
+        a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
+        a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
+        a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
+        a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0,
+    )
+
+
+@jit
+def product_sensitivity_kernel(theta, inc, lengths):
+    s_count = lengths.shape[0]
+    out = np.zeros((s_count, 4))
+    sens = np.zeros((s_count, 27))
+    quat = np.empty((theta.shape[0], 4))
+    for k in range(theta.shape[0]):
+        x, y, z = theta[k, 0], theta[k, 1], theta[k, 2]
+        a2 = x * x + y * y + z * z
+        a = np.sqrt(a2)
+        half = 0.5 * a
+        kk = np.sin(half) / a if a > 1e-4 else 0.5 - a2 / 48.0
+        quat[k, 0] = np.cos(half)
+        quat[k, 1] = x * kk
+        quat[k, 2] = y * kk
+        quat[k, 3] = z * kk
+    first = 0
+    for s in range(s_count):
+        n = lengths[s]
+        # the suffix after the last block: the identity
+        s0, s1, s2, s3 = 1.0, 0.0, 0.0, 0.0
+        for k in range(first + n - 1, first - 1, -1):
+            # S_k^T J_r(theta_k), S_k the product of the blocks after k
+            nq = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2 + s3 * s3)
+            w, qx, qy, qz = s0 / nq, s1 / nq, s2 / nq, s3 / nq
+            r00 = 1 - 2 * (qy * qy + qz * qz)
+            r01 = 2 * (qx * qy - w * qz)
+            r02 = 2 * (qx * qz + w * qy)
+            r10 = 2 * (qx * qy + w * qz)
+            r11 = 1 - 2 * (qx * qx + qz * qz)
+            r12 = 2 * (qy * qz - w * qx)
+            r20 = 2 * (qx * qz - w * qy)
+            r21 = 2 * (qy * qz + w * qx)
+            r22 = 1 - 2 * (qx * qx + qy * qy)
+            x, y, z = theta[k, 0], theta[k, 1], theta[k, 2]
+            a2 = x * x + y * y + z * z
+            a = np.sqrt(a2)
+            if a < 1e-2:
+                c1 = 0.5 - a2 / 24.0 + a2 * a2 / 720.0
+                c2 = 1.0 / 6.0 - a2 / 120.0 + a2 * a2 / 5040.0
+            else:
+                c1 = (1.0 - np.cos(a)) / a**2
+                c2 = (a - np.sin(a)) / a**3
+            dg = 1.0 - c2 * a2
+            cx, cy, cz = c1 * x, c1 * y, c1 * z
+            gx, gy, gz = c2 * x, c2 * y, c2 * z
+            j00, j01, j02 = dg + gx * x, gx * y + cz, gx * z - cy
+            j10, j11, j12 = gy * x - cz, dg + gy * y, gy * z + cx
+            j20, j21, j22 = gz * x + cy, gz * y - cx, dg + gz * z
+            r = ((r00, r01, r02), (r10, r11, r12), (r20, r21, r22))
+            jm = ((j00, j01, j02), (j10, j11, j12), (j20, j21, j22))
+            i0, i1, i2 = inc[k, 0], inc[k, 1], inc[k, 2]
+            for i in range(3):
+                for j in range(3):
+                    aij = r[0][i] * jm[0][j] + r[1][i] * jm[1][j] + r[2][i] * jm[2][j]
+                    base = 9 * i + 3 * j
+                    sens[s, base] += aij * i0
+                    sens[s, base + 1] += aij * i1
+                    sens[s, base + 2] += aij * i2
+            s0, s1, s2, s3 = qmul(quat[k, 0], quat[k, 1], quat[k, 2], quat[k, 3], s0, s1, s2, s3)
+        out[s, 0], out[s, 1], out[s, 2], out[s, 3] = s0, s1, s2, s3
+        first += n
+    return out, sens
+
+
+@jit
+def inv3(a):
+    """Inverse of a 3x3 matrix by its adjugate."""
+    c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    c01 = a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]
+    c02 = a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]
+    c10 = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    c11 = a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
+    c12 = a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]
+    c20 = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    c21 = a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]
+    c22 = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    det = a[0, 0] * c00 + a[0, 1] * c10 + a[0, 2] * c20
+    out = np.empty((3, 3))
+    out[0, 0], out[0, 1], out[0, 2] = c00 / det, c01 / det, c02 / det
+    out[1, 0], out[1, 1], out[1, 2] = c10 / det, c11 / det, c12 / det
+    out[2, 0], out[2, 1], out[2, 2] = c20 / det, c21 / det, c22 / det
+    return out
+
+
+@jit
+def quat_rows(w, x, y, z):
+    """Rotation matrix of a quaternion (normalised), as :func:`imudiag.rotations.quat_matrix`."""
+    nq = np.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / nq, x / nq, y / nq, z / nq
+    r = np.empty((3, 3))
+    r[0, 0] = 1 - 2 * (y * y + z * z)
+    r[0, 1] = 2 * (x * y - w * z)
+    r[0, 2] = 2 * (x * z + w * y)
+    r[1, 0] = 2 * (x * y + w * z)
+    r[1, 1] = 1 - 2 * (x * x + z * z)
+    r[1, 2] = 2 * (y * z - w * x)
+    r[2, 0] = 2 * (x * z - w * y)
+    r[2, 1] = 2 * (y * z + w * x)
+    r[2, 2] = 1 - 2 * (x * x + y * y)
+    return r
+
+
+@jit
+def ninv_derivatives_kernel(shape_c, q_c, x, fit_frame):
+    """N^-1 (3, 3) and dN^-1 (npar, 3, 3) of the rotation fit's parameters ``x``, as
+    :func:`imudiag.diagnosis.gyro_fit.ninv_derivatives`."""
+    npar = x.shape[0]
+    s = np.empty(6)
+    for i in range(6):
+        s[i] = shape_c[i] + x[i]
+    p = np.empty((3, 3))
+    p[0, 0], p[1, 1], p[2, 2] = 1.0 + s[0], 1.0 + s[1], 1.0 + s[2]
+    p[0, 1] = p[1, 0] = 0.5 * s[3]
+    p[0, 2] = p[2, 0] = 0.5 * s[4]
+    p[1, 2] = p[2, 1] = 0.5 * s[5]
+    d_rf = np.zeros((3, 3, 3))
+    if fit_frame:
+        f0, f1, f2 = x[6], x[7], x[8]
+        a2 = f0 * f0 + f1 * f1 + f2 * f2
+        a = np.sqrt(a2)
+        half = 0.5 * a
+        k = np.sin(half) / a if a > 1e-4 else 0.5 - a2 / 48.0
+        rf = quat_rows(np.cos(half), f0 * k, f1 * k, f2 * k)
+        if a < 1e-2:
+            c1 = 0.5 - a2 / 24.0 + a2 * a2 / 720.0
+            c2 = 1.0 / 6.0 - a2 / 120.0 + a2 * a2 / 5040.0
+        else:
+            c1 = (1.0 - np.cos(a)) / a**2
+            c2 = (a - np.sin(a)) / a**3
+        dg = 1.0 - c2 * a2
+        jr = np.empty((3, 3))
+        jr[0, 0], jr[0, 1], jr[0, 2] = (
+            dg + c2 * f0 * f0,
+            c2 * f0 * f1 + c1 * f2,
+            c2 * f0 * f2 - c1 * f1,
+        )
+        jr[1, 0], jr[1, 1], jr[1, 2] = (
+            c2 * f1 * f0 - c1 * f2,
+            dg + c2 * f1 * f1,
+            c2 * f1 * f2 + c1 * f0,
+        )
+        jr[2, 0], jr[2, 1], jr[2, 2] = (
+            c2 * f2 * f0 + c1 * f1,
+            c2 * f2 * f1 - c1 * f0,
+            dg + c2 * f2 * f2,
+        )
+        for j in range(3):
+            v0, v1, v2 = jr[0, j], jr[1, j], jr[2, j]  # column j of J_r
+            sk = np.zeros((3, 3))
+            sk[0, 1], sk[0, 2] = -v2, v1
+            sk[1, 0], sk[1, 2] = v2, -v0
+            sk[2, 0], sk[2, 1] = -v1, v0
+            d_rf[j] = rf @ sk
+    else:
+        rf = np.eye(3)
+    rq = rf @ q_c
+    n = p @ rq
+    d_n = np.zeros((npar, 3, 3))
+    for i in range(min(npar, 6)):
+        e = np.zeros((3, 3))
+        if i < 3:
+            e[i, i] = 1.0
+        elif i == 3:
+            e[0, 1] = e[1, 0] = 0.5
+        elif i == 4:
+            e[0, 2] = e[2, 0] = 0.5
+        else:
+            e[1, 2] = e[2, 1] = 0.5
+        d_n[i] = e @ rq
+    for j in range(npar - 6):
+        d_n[6 + j] = p @ d_rf[j] @ q_c
+    ninv = inv3(n)
+    dninv = np.empty((npar, 3, 3))
+    for i in range(npar):
+        dninv[i] = -(ninv @ d_n[i] @ ninv)
+    return ninv, dninv
+
+
+@jit
+def predict_kernel(q, sens, dninv, up0):
+    """Predicted end directions (n, 3) and their derivatives (n, 3, m), as
+    :func:`imudiag.diagnosis.gyro_fit.predict_with_jacobian` after its motion products."""
+    n = q.shape[0]
+    m = dninv.shape[0]
+    pred = np.empty((n, 3))
+    d = np.empty((n, 3, m))
+    omega = np.empty((3, m))
+    for k in range(n):
+        c = quat_rows(q[k, 0], q[k, 1], q[k, 2], q[k, 3])
+        for i in range(3):
+            pred[k, i] = c[0, i] * up0[k, 0] + c[1, i] * up0[k, 1] + c[2, i] * up0[k, 2]
+        for a in range(3):
+            for mm in range(m):
+                acc = 0.0
+                for cc in range(3):
+                    for dd in range(3):
+                        acc += sens[k, a, cc, dd] * dninv[mm, cc, dd]
+                omega[a, mm] = acc
+        p0, p1, p2 = pred[k, 0], pred[k, 1], pred[k, 2]
+        for mm in range(m):
+            o0, o1, o2 = omega[0, mm], omega[1, mm], omega[2, mm]
+            d[k, 0, mm] = p1 * o2 - p2 * o1
+            d[k, 1, mm] = p2 * o0 - p0 * o2
+            d[k, 2, mm] = p0 * o1 - p1 * o0
+    return pred, d
+
+
+def warm_up() -> dict[str, Any]:
+    """Run each kernel once (compiling it, or loading it from numba's cache); the kernels by
+    name."""
+    rng = np.random.default_rng(0)
+    product_sensitivity_kernel(
+        rng.normal(size=(7, 3)), rng.normal(size=(7, 3)), np.array([3, 0, 4])
+    )
+    v = rng.normal(size=(12, 3))
+    v /= np.linalg.norm(v, axis=1)[:, None]
+    gauss_newton(
+        np.zeros(9),
+        0.0,
+        v,
+        np.ones(12),
+        np.full((12, 3), 1e-8),
+        np.ones(9),
+        np.zeros(9),
+        20,
+        0.5,
+        1e-14,
+    )
+    q_c = np.eye(3)
+    for npar, frame in ((6, False), (9, True)):
+        ninv, dninv = ninv_derivatives_kernel(np.zeros(6), q_c, np.full(npar, 1e-3), frame)
+        predict_kernel(
+            np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 3, 3, 3)), dninv, np.ones((1, 3))
+        )
+    return {
+        "exact_gauss_newton": gauss_newton,
+        "product_sensitivity": product_sensitivity_kernel,
+        "ninv_derivatives": ninv_derivatives_kernel,
+        "predict": predict_kernel,
+    }
