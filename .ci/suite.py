@@ -7,6 +7,21 @@
 3. real-time tier: the tests marked ``realtime`` (ptys, daemon processes, signals, the
    bench, gpsd), serially, after the deterministic tier.
 
+Bytecode: the steps run without ``PYTHONDONTWRITEBYTECODE`` (removed from their
+environment where it is set), so each module is compiled once and its ``__pycache__``
+(git-ignored) reused: the tests start hundreds of ``python -m imudiag`` processes, and each
+compiled imudiag's sources again (about 0.3-0.5 s a start on the 2-core machine), pytest
+rewrote every test module's asserts in every worker (12 s of each tier's collection), and
+``.ci/run`` installs the venv with ``pip --no-compile`` (70 s less install) because the
+modules the tests import are compiled on first use here.
+
+BLAS threads: the steps run with one BLAS/OpenMP thread per process (``OPENBLAS_NUM_THREADS``,
+``OMP_NUM_THREADS``, ``MKL_NUM_THREADS`` = 1 unless already set): the deterministic tier
+already runs one worker per core, and numpy's OpenBLAS started its own thread per core
+in each, whose spinning doubled the cost of a dot product of 7 10^4 samples on the
+loaded 2-core machine (the model check's Allan curves: 43 s against 60 s for two of its
+tests). Results are those of a single-threaded BLAS (the frozen reports hold to 1e-9).
+
 Every step runs, whatever the one before gave; the exit status is 0 only when all three
 passed. Each step's wall time is printed (a figure, not a bound). Extra arguments are
 passed to both pytest runs (e.g. ``-x``, ``-k bench``).
@@ -17,6 +32,7 @@ Usage: ``python .ci/suite.py [PYTEST ARGS]`` with the interpreter of the venv th
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import time
@@ -24,12 +40,20 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 WORKERS = 2  #: pytest-xdist workers of the deterministic tier (the CI machine has 2 cores)
+#: the steps' environment: this one without PYTHONDONTWRITEBYTECODE, one BLAS thread a
+#: process unless set (module docstring)
+ENV = {
+    "OPENBLAS_NUM_THREADS": "1",
+    "OMP_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    **{k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"},
+}
 
 
 def _step(name: str, argv: list[str]) -> tuple[str, int, float]:
     print(f"== {name}: {' '.join(argv[1:])}", flush=True)
     start = time.monotonic()
-    code = subprocess.run(argv, cwd=ROOT).returncode
+    code = subprocess.run(argv, cwd=ROOT, env=ENV).returncode
     took = time.monotonic() - start
     print(f"== {name}: {'passed' if code == 0 else f'FAILED (exit {code})'} in {took:.0f} s")
     return name, code, took

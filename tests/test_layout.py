@@ -9,6 +9,7 @@ arrow running up a floor, and on a module that no floor claims.
 from __future__ import annotations
 
 import ast
+import functools
 import os
 import re
 from pathlib import Path
@@ -160,7 +161,11 @@ def _imports(name: str, path: Path) -> set[str]:
     return found
 
 
-GRAPH = {name: _imports(name, path) for name, path in MODULES.items()}
+@functools.cache
+def graph() -> dict[str, set[str]]:
+    """Module -> the package's modules it imports; parsed on first use, once a process (not
+    at import: every pytest worker and the real-time tier import this file to collect it)."""
+    return {name: _imports(name, path) for name, path in MODULES.items()}
 
 
 def floor(name: str) -> int:
@@ -176,7 +181,7 @@ def floor(name: str) -> int:
 def test_the_walk_sees_the_package():
     assert len(MODULES) > 100
     assert "imudiag.drivers.wire" in MODULES and "imudiag.sources.sim" in MODULES
-    assert "imudiag.logs" in GRAPH["imudiag.sources.replay"]  # function-level imports count
+    assert "imudiag.logs" in graph()["imudiag.sources.replay"]  # function-level imports count
 
 
 def test_every_module_has_a_floor():
@@ -220,12 +225,12 @@ def test_the_monitor_stands_below_the_verdicts():
     """The per-sample checks import nothing of the window diagnosis, aiding, model check or
     simulator; the simulator imports no analysis (the Earth model is on the ground floor)."""
     verdicts = FLOORS[STAGES.index("verdicts")]
-    assert all(floor(d) <= floor("imudiag.monitor") for m, deps in GRAPH.items()
+    assert all(floor(d) <= floor("imudiag.monitor") for m, deps in graph().items()
                if floor(m) == floor("imudiag.monitor") for d in deps)  # fmt: skip
     analyses = tuple(v for v in verdicts if v != "imudiag.sim")
     from_sim = sorted(
         f"{m} imports {d}"
-        for m, deps in GRAPH.items()
+        for m, deps in graph().items()
         if m.startswith("imudiag.sim")
         for d in deps
         if d.startswith(analyses)
@@ -256,7 +261,7 @@ def test_ci_runs_the_readme_suite_command():
 def test_no_import_runs_up_a_floor():
     up = sorted(
         f"{m} (floor {floor(m)}) imports {d} (floor {floor(d)})"
-        for m, deps in GRAPH.items()
+        for m, deps in graph().items()
         for d in deps
         if floor(d) > floor(m)
     )
@@ -275,7 +280,7 @@ def test_no_import_cycle():
         index[v] = low[v] = len(index)
         stack.append(v)
         on_stack.add(v)
-        for w in sorted(GRAPH[v]):
+        for w in sorted(graph()[v]):
             if w not in index:
                 visit(w)
                 low[v] = min(low[v], low[w])
@@ -292,7 +297,7 @@ def test_no_import_cycle():
             if len(component) > 1:
                 cycles.append(sorted(component))
 
-    for v in sorted(GRAPH):
+    for v in sorted(graph()):
         if v not in index:
             visit(v)
     assert cycles == []
@@ -301,7 +306,7 @@ def test_no_import_cycle():
 @pytest.mark.parametrize("bottom", ["imudiag.drivers.wire", "imudiag.drivers.crc"])
 def test_the_wire_codec_is_the_bottom(bottom):
     """The codec imports nothing of the package but the ground and data floors."""
-    assert {d for d in GRAPH[bottom] if floor(d) >= floor(bottom) and d != bottom} <= {
+    assert {d for d in graph()[bottom] if floor(d) >= floor(bottom) and d != bottom} <= {
         "imudiag.drivers.crc"
     }
 
@@ -343,9 +348,9 @@ def test_no_module_imports_another_modules_private_names():
 
 def test_quaternion_helpers_live_in_one_module():
     """The gyro fit and the model check's rotation channel share imudiag.rotations."""
-    assert "imudiag.rotations" in GRAPH["imudiag.diagnosis.gyro_fit"]
-    assert "imudiag.rotations" in GRAPH["imudiag.modelcheck.rotations"]
-    assert "imudiag.diagnosis.gyro_fit" not in GRAPH["imudiag.modelcheck.rotations"]
+    assert "imudiag.rotations" in graph()["imudiag.diagnosis.gyro_fit"]
+    assert "imudiag.rotations" in graph()["imudiag.modelcheck.rotations"]
+    assert "imudiag.diagnosis.gyro_fit" not in graph()["imudiag.modelcheck.rotations"]
 
 
 def test_the_split_packages_keep_each_algorithm_apart_from_its_machinery():
@@ -359,13 +364,13 @@ def test_the_split_packages_keep_each_algorithm_apart_from_its_machinery():
     }
     for package, (algorithm, machinery, above) in inside.items():
         for part in machinery:
-            deps = GRAPH[f"{package}.{part}"]
+            deps = graph()[f"{package}.{part}"]
             assert f"{package}.{algorithm}" not in deps, (package, part)
             assert not any(d.startswith(f"{package}.") and d.rpartition(".")[2] in above
                            for d in deps), (package, part)  # fmt: skip
         for name in [m for m in MODULES if m.startswith(package + ".")]:
-            assert package not in GRAPH[name], name
-        own = {d.rpartition(".")[2] for d in GRAPH[f"{package}.{algorithm}"]
+            assert package not in graph()[name], name
+        own = {d.rpartition(".")[2] for d in graph()[f"{package}.{algorithm}"]
                if d.startswith(package + ".")}  # fmt: skip
         assert own <= machinery, (package, own)
 

@@ -114,11 +114,18 @@ def test_model_check_names_bias_instability_and_extends_the_certificate(tmp_path
     assert np.all(agrees(ratio, np.asarray(nm["sensors"]["gy"]["allan"]["relative_error"])))
 
 
-def test_mpu6050_still_recording_is_white_noise_and_predicted(tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def mpu6050_check():
+    """(certificate, model check) of the real MPU-6050 still recording, made once for the
+    two tests that read it (the check only reads its result)."""
+    cert = load(DATA / "modelcheck" / "mpu6050.yaml")
+    return cert, model_check(DATA / "real" / "mpu6050" / "static.csv.gz", cert, seed=0)
+
+
+def test_mpu6050_still_recording_is_white_noise_and_predicted(mpu6050_check, tmp_path) -> None:
     """449 s still (tau up to 45 s): white noise explains every sensor within 1.5x once the
     measured density replaces the data-sheet one (2-3x too low on the gyros)."""
-    cert = load(DATA / "modelcheck" / "mpu6050.yaml")
-    res = model_check(DATA / "real" / "mpu6050" / "static.csv.gz", cert, seed=0)
+    cert, res = mpu6050_check
     nm = res.report["noise_model"]
     assert 440 < nm["run_s"] < 450
     assert not [
@@ -149,7 +156,7 @@ def test_mpu6050_still_recording_is_white_noise_and_predicted(tmp_path: Path) ->
         assert {f"noise_model_{s}.png" for s in nm["sensors"]} <= names
 
 
-def test_one_white_noise_figure_in_allan_and_model_check(tmp_path: Path) -> None:
+def test_one_white_noise_figure_in_allan_and_model_check(mpu6050_check, tmp_path) -> None:
     """allan, model-check (and calibrate/diagnose, through the same meter) report the same
     white-noise density for a sensor, measured by one named method (issue 13 item 3)."""
     from conftest import run_imudiag
@@ -162,7 +169,7 @@ def test_one_white_noise_figure_in_allan_and_model_check(tmp_path: Path) -> None
     assert r.returncode == 0, r.stderr
     assert METHOD in r.stdout
     allan = json.loads(out.read_text())["sensors"]
-    res = model_check(log, load(DATA / "modelcheck" / "mpu6050.yaml"), seed=0)
+    _, res = mpu6050_check  # model_check(log, mpu6050.yaml, seed=0)
     mc = res.report["comparison"]["noise_density"]
     for s, entry in allan.items():
         assert entry["white_noise_method"] == METHOD

@@ -84,10 +84,10 @@ class DataFlashReader(ColumnsReader):
     ) -> None:
         super().__init__(path, block_size)
         self.options = options or LogOptions()
-        dfreader = require("pymavlink.DFReader", "ardupilot", "ArduPilot DataFlash logs")
-        head = self._read_head(len(DATAFLASH_MAGIC))
+        head = self._read_head(len(DATAFLASH_MAGIC))  # refused before the library's import
         if not is_dataflash(head):
             raise LogError(self.path, "not a DataFlash log (no FMT message at the start)")
+        dfreader = require("pymavlink.DFReader", "ardupilot", "ArduPilot DataFlash logs")
         imu: dict[int, list[tuple[float, ...]]] = {}
         raw: dict[tuple[str, int], list[tuple[float, ...]]] = {}
         batches: dict[int, dict[str, Any]] = {}

@@ -55,10 +55,10 @@ class ULogReader(ColumnsReader):
     ) -> None:
         super().__init__(path, block_size)
         self.options = options or LogOptions()
-        pyulog = require("pyulog", "px4", "PX4 ULog files")
-        head = self._read_head(len(ULOG_MAGIC))
+        head = self._read_head(len(ULOG_MAGIC))  # refused before the library's import
         if not is_ulog(head):
             raise LogError(self.path, "not a ULog file (no ULog header)")
+        pyulog = require("pyulog", "px4", "PX4 ULog files")
         try:
             ulog = pyulog.ULog(self.path, message_name_filter_list=[*_TOPICS, *GPS_TOPICS])
         except Exception as exc:  # pyulog raises bare Exceptions on corrupt files
