@@ -526,7 +526,11 @@ def test_scaled_imu_in_mg_and_mrad_s_conformed_to_the_si_data_sheet():
         {"triad": "accel", "from": "mg", "to": "m/s^2", "factor": 0.00980665},
     ]
     assert last["f0"]["accel"]["checked"] > 0 and last["faults"] == []
-    assert last["state"] == "ok"
+    # ok while the frames flow; once the fake autopilot has sent its last frame, a line
+    # may already say no_data (its timeout is wall time, the writer runs at 8x)
+    flowing = [s for s in sink.lines if s["state"] != "no_data"]
+    assert flowing[-1]["counters"]["frames"] >= len(block) - 100  # the last second's line
+    assert {s["state"] for s in flowing} == {"ok"}
 
 
 def test_bench_scenario_runs_on_the_fake_autopilot(tmp_path: Path):

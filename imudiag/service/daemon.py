@@ -26,7 +26,7 @@ from ..diagnosis.session import add_monitor_faults
 from ..drivers.base import EndOfStream, SourceError
 from ..drivers.reconnect import ReconnectingSource
 from ..errors import BadInput
-from ..logs.timing import RATE_CHECK_SAMPLES, RATE_TOLERANCE, step_rate_hz
+from ..logs.timing import RATE_TOLERANCE, step_rate_hz
 from ..monitor import Monitor, MonitorConfig
 from ..noise_estimate import NoiseMeter
 from ..quasistatic import BAD_FLAGS
@@ -46,6 +46,9 @@ from .status import (
 )
 
 log = logging.getLogger("imudiag.daemon")
+#: samples of a stream held, before the first is checked, to check the rate they are
+#: checked at against their time stamps (0.32 s at 200 Hz; a replay's first read has more)
+RATE_CHECK_HOLD = 64
 
 #: s of samples over which the status's measured white noise is taken (1 s chunks, the
 #: quietest quarter of them: motion in most of the window does not inflate it)
@@ -207,7 +210,8 @@ class Daemon:
         self.notes: list[str] = []
         #: where the rate the samples are checked at comes from (status ``sample_rate_from``)
         self.rate_from = "certificate"
-        self._rate_stamps: list[np.ndarray] | None = []  # the first stamps, until checked
+        #: the first samples, held until the stream's rate is checked on them (None: checked)
+        self._rate_held: list[SampleBlock] | None = []
         self._rate_note: str | None = None
         self.reloads = 0
         self.statuses = 0
@@ -431,22 +435,32 @@ class Daemon:
         self._diag_view = None
         self._merged = None
 
-    def _check_rate(self, block: SampleBlock) -> None:
-        """Check the rate the samples are checked at against the stream's own time stamps,
-        once, over its first :data:`~imudiag.logs.timing.RATE_CHECK_SAMPLES` samples (issue
-        30 item 4). A certificate's rate they contradict by more than
-        :data:`~imudiag.logs.timing.RATE_TOLERANCE` is corrected to theirs from here on,
-        and said (a note in the status and the log); a rate the source states is kept, as
-        ``imudiag diagnose`` keeps a log's, and the disagreement said."""
-        stamps = self._rate_stamps
-        if stamps is None:
+    def _hold_for_rate(self, block: SampleBlock) -> SampleBlock:
+        """Check the rate the samples are to be checked at against the stream's own time
+        stamps before the first sample is checked (issue 30 item 4): the first
+        :data:`RATE_CHECK_HOLD` samples are held, then released together (an empty block
+        while held). A certificate's rate they contradict by more than
+        :data:`~imudiag.logs.timing.RATE_TOLERANCE` is corrected to theirs, and said (a
+        note in the status and the log); a rate the source states is kept, as ``imudiag
+        diagnose`` keeps a log's, and the disagreement said. A replayed log's first read
+        holds enough samples already: nothing waits."""
+        held = self._rate_held
+        if held is None:
+            return block
+        if len(block):
+            held.append(block)
+        if sum(len(b) for b in held) < RATE_CHECK_HOLD:
+            return SampleBlock.empty()
+        self._release_held()
+        return held[0] if len(held) == 1 else SampleBlock.concat(held)
+
+    def _release_held(self) -> None:
+        """Decide the rate on the samples held (:meth:`_hold_for_rate`), and stop holding."""
+        held, self._rate_held = self._rate_held, None
+        if not held:
             return
-        have = sum(len(t) for t in stamps)
-        stamps.append(np.asarray(block.t[: RATE_CHECK_SAMPLES - have], dtype=float))
-        if have + len(stamps[-1]) < RATE_CHECK_SAMPLES:
-            return
-        self._rate_stamps = None
-        t = np.concatenate(stamps)
+        self._adopt_rate()
+        t = np.concatenate([np.asarray(b.t, dtype=float) for b in held])
         measured = step_rate_hz(t)
         rate = self.monitor.rate_hz
         if not math.isfinite(measured) or abs(rate - measured) <= RATE_TOLERANCE * measured:
@@ -457,8 +471,8 @@ class Daemon:
             self.rate_from = "the stream's time stamps (the certificate's rate corrected)"
             note = (
                 f"sample rate: the certificate's {rate:g} Hz disagrees with the stream's time "
-                f"stamps ({measured:.6g} Hz, median step over their first {len(t)}) {off}: "
-                f"the checks run at {measured:.6g} Hz from t = {float(t[-1]):.6g} s"
+                f"stamps ({measured:.6g} Hz, median step over its first {len(t)} samples) {off}: "
+                f"the samples are checked at {measured:.6g} Hz"
             )
         else:
             note = (
@@ -705,6 +719,12 @@ class Daemon:
                     else:
                         block = self.source.read(self.settings.read_timeout_s)
                 except EndOfStream:
+                    if self._rate_held:  # a stream shorter than the hold
+                        held = self._rate_held
+                        self._release_held()
+                        rest = self._check(SampleBlock.concat(held))
+                        if self.aiding is not None:
+                            self.aiding.update(rest)
                     self._feed_batch(None)
                     self._finish_stream()
                     self._emit(self.clock(), force=True)
@@ -715,12 +735,9 @@ class Daemon:
                     self._check_units()
                     if not self.monitor.samples:  # what the first block says of the rate
                         self._adopt_rate()
-                    self._check_rate(block)
-                    block = self.units.apply(block)
                     self._last_data_wall = now
                     self.watchdog.frames_arrived(now)
-                    self.monitor.update(block)
-                    self._feed_batch(block)
+                    block = self._check(self._hold_for_rate(block))
                 if self.aiding is not None:
                     self.aiding.update(block if len(block) else None)
                 self.watchdog.tick(now)
@@ -740,6 +757,16 @@ class Daemon:
             for sink in self.sinks:
                 sink.close()
         return 0
+
+    def _check(self, block: SampleBlock) -> SampleBlock:
+        """The samples of ``block`` in the certificate's units, checked by the monitor and
+        gathered for the window diagnosis; returned (an empty block: nothing to do)."""
+        if not len(block):
+            return block
+        block = self.units.apply(block)
+        self.monitor.update(block)
+        self._feed_batch(block)
+        return block
 
     def _finish_stream(self) -> None:
         """At the end of a finite stream (a replay): close the last still interval and
