@@ -211,6 +211,19 @@ def gauss_newton(theta, extra, v, mu, var_v, prior_prec, theta_c, max_iter, max_
 
 
 @jit
+def so3_coefficients(a, a2):
+    # (1 - cos a) / a^2 and (a - sin a) / a^3 of the rotation vector's length a (a2 = a^2),
+    # by their series below 1e-2 rad
+    if a < 1e-2:
+        c1 = 0.5 - a2 / 24.0 + a2 * a2 / 720.0
+        c2 = 1.0 / 6.0 - a2 / 120.0 + a2 * a2 / 5040.0
+    else:
+        c1 = (1.0 - np.cos(a)) / a**2
+        c2 = (a - np.sin(a)) / a**3
+    return c1, c2
+
+
+@jit
 def qmul(a0, a1, a2, a3, b0, b1, b2, b3):
     # Hamilton product, each component's terms in qmul's order
     return (
@@ -258,12 +271,7 @@ def product_sensitivity_kernel(theta, inc, lengths):
             x, y, z = theta[k, 0], theta[k, 1], theta[k, 2]
             a2 = x * x + y * y + z * z
             a = np.sqrt(a2)
-            if a < 1e-2:
-                c1 = 0.5 - a2 / 24.0 + a2 * a2 / 720.0
-                c2 = 1.0 / 6.0 - a2 / 120.0 + a2 * a2 / 5040.0
-            else:
-                c1 = (1.0 - np.cos(a)) / a**2
-                c2 = (a - np.sin(a)) / a**3
+            c1, c2 = so3_coefficients(a, a2)
             dg = 1.0 - c2 * a2
             cx, cy, cz = c1 * x, c1 * y, c1 * z
             gx, gy, gz = c2 * x, c2 * y, c2 * z
@@ -345,12 +353,7 @@ def ninv_derivatives_kernel(shape_c, q_c, x, fit_frame):
         half = 0.5 * a
         k = np.sin(half) / a if a > 1e-4 else 0.5 - a2 / 48.0
         rf = quat_rows(np.cos(half), f0 * k, f1 * k, f2 * k)
-        if a < 1e-2:
-            c1 = 0.5 - a2 / 24.0 + a2 * a2 / 720.0
-            c2 = 1.0 / 6.0 - a2 / 120.0 + a2 * a2 / 5040.0
-        else:
-            c1 = (1.0 - np.cos(a)) / a**2
-            c2 = (a - np.sin(a)) / a**3
+        c1, c2 = so3_coefficients(a, a2)
         dg = 1.0 - c2 * a2
         jr = np.empty((3, 3))
         jr[0, 0], jr[0, 1], jr[0, 2] = (
