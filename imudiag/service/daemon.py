@@ -435,7 +435,7 @@ class Daemon:
         self._diag_view = None
         self._merged = None
 
-    def _hold_for_rate(self, block: SampleBlock) -> SampleBlock:
+    def _hold_for_rate(self, block: SampleBlock, end: bool = False) -> SampleBlock:
         """Check the rate the samples are to be checked at against the stream's own time
         stamps before the first sample is checked (issue 30 item 4): the first
         :data:`RATE_CHECK_HOLD` samples are held, then released together (an empty block
@@ -443,15 +443,18 @@ class Daemon:
         :data:`~imudiag.logs.timing.RATE_TOLERANCE` is corrected to theirs, and said (a
         note in the status and the log); a rate the source states is kept, as ``imudiag
         diagnose`` keeps a log's, and the disagreement said. A replayed log's first read
-        holds enough samples already: nothing waits."""
+        holds enough samples already: nothing waits. ``end``: the stream has ended, what is
+        held is released however little."""
         held = self._rate_held
         if held is None:
             return block
         if len(block):
             held.append(block)
-        if sum(len(b) for b in held) < RATE_CHECK_HOLD:
+        if sum(len(b) for b in held) < RATE_CHECK_HOLD and not end:
             return SampleBlock.empty()
         self._release_held()
+        if not held:
+            return SampleBlock.empty()
         return held[0] if len(held) == 1 else SampleBlock.concat(held)
 
     def _release_held(self) -> None:
@@ -719,12 +722,10 @@ class Daemon:
                     else:
                         block = self.source.read(self.settings.read_timeout_s)
                 except EndOfStream:
-                    if self._rate_held:  # a stream shorter than the hold
-                        held = self._rate_held
-                        self._release_held()
-                        rest = self._check(SampleBlock.concat(held))
-                        if self.aiding is not None:
-                            self.aiding.update(rest)
+                    # a stream shorter than the hold: its samples are checked now
+                    rest = self._check(self._hold_for_rate(SampleBlock.empty(), end=True))
+                    if self.aiding is not None and len(rest):
+                        self.aiding.update(rest)
                     self._feed_batch(None)
                     self._finish_stream()
                     self._emit(self.clock(), force=True)
@@ -733,8 +734,6 @@ class Daemon:
                 read_done = time.monotonic()
                 if len(block):
                     self._check_units()
-                    if not self.monitor.samples:  # what the first block says of the rate
-                        self._adopt_rate()
                     self._last_data_wall = now
                     self.watchdog.frames_arrived(now)
                     block = self._check(self._hold_for_rate(block))
