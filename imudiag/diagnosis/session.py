@@ -249,6 +249,9 @@ def diagnose_recording(
                     f"{diag.intervals} still interval(s)"
                 )
             entry["why"] = why
+        unjudged = monitor.f0_unjudged(t)
+        if unjudged is not None:
+            entry["unjudged"] = unjudged
     known_fault = None
     if config.known_rate_rad_s is not None:
         # on a turntable the gyro F0 is checked per plateau against the table's rate

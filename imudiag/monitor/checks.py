@@ -395,20 +395,25 @@ class Monitor:
             )
         return out
 
-    def f0_why(self, name: str) -> str | None:
-        """Why the F0 check of ``name`` has checked no sample (None once it has): which
-        criterion failed, with the figure and its threshold (issue 25 item 4)."""
+    def f0_unjudged(self, name: str) -> str | None:
+        """Why the F0 check of ``name`` has judged nothing although it has still samples:
+        fewer than one check averages (``samples_per_check``); None otherwise."""
         st = self.state[name]
-        if st.checked and math.isnan(st.last_f0) and self._per_check[name] > st.checked:
-            # still samples, but too few for one check at their noise (a unit never still)
-            m = self._per_check[name]
+        m = self._per_check[name]
+        if not st.checked or not math.isnan(st.last_f0) or m <= st.checked:
+            return None
+        if self._sigma[name] is None:  # the noise the still detector measures (a unit never still)
             return (
                 f"{st.checked} still samples, fewer than the {m} one F0 check averages at "
                 "the noise the still detector measures in the data (the certificate states "
                 "none): a unit that is never still"
-                if self._sigma[name] is None
-                else f"{st.checked} still samples, fewer than the {m} one F0 check averages"
             )
+        return f"{st.checked} still samples, fewer than the {m} one F0 check averages"
+
+    def f0_why(self, name: str) -> str | None:
+        """Why the F0 check of ``name`` has checked no sample (None once it has): which
+        criterion failed, with the figure and its threshold (issue 25 item 4)."""
+        st = self.state[name]
         if st.checked:
             return None
         e = self.detector.explain

@@ -93,7 +93,8 @@ def status_record(
                 "checked": st.checked,
                 "failed": st.failed,
                 "last": finite_or_none(st.last_f0),
-                **({"why": why} if (why := monitor.f0_why(name)) is not None else {}),
+                **({"why": monitor.f0_why(name)} if not st.checked else {}),
+                **({"unjudged": u} if (u := monitor.f0_unjudged(name)) else {}),
             }
             for name, st in monitor.state.items()
         },
