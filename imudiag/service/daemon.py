@@ -543,9 +543,13 @@ class Daemon:
         fault or undetermined, and every named fault ever raised (triad, sensor, cause)."""
         assert self.diagnoser is not None
         v = add_monitor_faults(self.diagnoser.verdict(), self.monitor, self.certificate)
-        faults = [
-            {k: f[k] for k in ("triad", "sensor", "cause", "one_of") if k in f} for f in v["faults"]
-        ]
+        # each named fault once: a fault raised, cleared and raised again is two entries
+        # (two t_first) in the diagnosis's list, the same name here
+        named: dict[str, dict[str, Any]] = {}
+        for f in v["faults"]:
+            entry = {k: f[k] for k in ("triad", "sensor", "cause", "one_of") if k in f}
+            named.setdefault(repr(sorted(entry.items())), entry)
+        faults = list(named.values())
         return {"accel": v["accel"], "gyro": v["gyro"], "faults": faults, "note": VERDICT_NOTE}
 
     def _diagnosis_view(self) -> tuple[list[dict[str, Any]], dict[str, Any]]:
