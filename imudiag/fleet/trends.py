@@ -157,10 +157,12 @@ def _reason(trend: dict[str, Any], n_logs: int) -> dict[str, Any]:
     r["slope_std"] = {"per_log": trend["slope_std_per_log"], "per_day": trend["slope_std_per_day"]}
     words = []
     if trend["crosses_limit"] is not None:
-        words.append(
-            f"beyond its limit ({trend['limit']:.4g} {unit}) from log "
-            f"{trend['crosses_limit_index'] + 1} of {n_logs} ({trend['crosses_limit']})"
-        )
+        k, path = trend["crosses_limit_index"] + 1, trend["crosses_limit"]
+        where = f"from log {k} of {n_logs} ({path})"
+        if trend["limit"] is None:  # a fault with no parameter estimate (noise, stuck...)
+            words.append(f"raised as a fault {where}")
+        else:
+            words.append(f"beyond its limit ({trend['limit']:.4g} {unit}) {where}")
     if trend["drifting"]:
         words.append(
             f"drifting {trend['slope_per_log']:+.4g} {unit} per log "

@@ -1,0 +1,80 @@
+"""The fleet's per-log task and per-vehicle summary on real recordings (docs/fleet.md).
+
+Three real MPU-6050 logs (tests/data/real/mpu6050: a 449-s still record, a 102-s
+calibration session, a 90-degree turn) sit in one vehicle's folder, diagnosed against the
+bundled board certificate, whose accelerometer noise the MPU's (51-77 counts a sample,
+digital low-pass filter off) far exceeds: every log raises the accelerometers' ``noise``
+faults. A fault with no parameter estimate behind it (``noise``, ``stuck``,
+``saturation``) has no limit in the trend; the summary crashed formatting that missing
+limit (``imudiag fleet tests/data/real`` ended in a TypeError and wrote no ``fleet.json``).
+
+Here, in process (no Dask: tests/test_fleet.py runs the cluster): each record's verdict is
+``imudiag.diagnose``'s on the same log and certificate (one answer), the vehicle is to be
+looked at for the three noise faults with the log they were first raised in, the reasons
+say so in words, and the HTML report renders them.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+from conftest import PROJECT_DIR
+
+import imudiag
+from imudiag.certificate import default_certificate_path
+from imudiag.fleet.html import render
+from imudiag.fleet.task import Job, diagnose_log
+from imudiag.fleet.trends import summarize
+
+REAL = PROJECT_DIR / "tests" / "data" / "real" / "mpu6050"
+#: time order of the vehicle's logs (no start time in a CSV: ordered by path)
+LOGS = ("calibration.csv.gz", "rot90x.csv.gz", "static.csv.gz")
+
+
+@pytest.fixture(scope="module")
+def records(tmp_path_factory: pytest.TempPathFactory) -> list[dict]:
+    """The three logs copied into a vehicle folder ``mpu-01`` and diagnosed by the fleet's
+    per-log task, each with the bundled certificate."""
+    root = tmp_path_factory.mktemp("fleet-real")
+    unit = root / "mpu-01"
+    unit.mkdir()
+    out = []
+    for name in LOGS:
+        log = unit / name
+        shutil.copy(REAL / name, log)
+        st = log.stat()
+        out.append(diagnose_log(Job(str(log), "-", st.st_size, st.st_mtime_ns, str(root))))
+    return out
+
+
+def test_each_record_gives_the_verdict_of_diagnose(records: list[dict]) -> None:
+    for rec in records:
+        assert rec["status"] == "ok", rec["reason"]
+        assert rec["vehicle"] == "mpu-01"
+        assert Path(rec["certificate"]) == default_certificate_path()
+        report = imudiag.diagnose(rec["path"], default_certificate_path())
+        fleet, alone = rec["report"]["verdict"], report["verdict"]
+        assert fleet["accel"] == alone["accel"] == "fault"
+        assert fleet["gyro"] == alone["gyro"]
+        assert {(f["triad"], f["sensor"], f["cause"]) for f in fleet["faults"]} == {
+            (f["triad"], f["sensor"], f["cause"]) for f in alone["faults"]
+        }
+
+
+def test_a_fault_without_a_parameter_ranks_the_unit_with_its_log(records: list[dict]) -> None:
+    summary = summarize(records)
+    assert summary["logs"] == 3 and summary["errors"] == []
+    (vehicle,) = summary["vehicles"]
+    assert vehicle["vehicle"] == "mpu-01" and vehicle["look_at"] is True
+    noise = {r["sensor"]: r for r in vehicle["reasons"] if r["cause"] == "noise"}
+    assert set(noise) == {"ax", "ay", "az"}
+    first = records[0]["path"]
+    for r in noise.values():
+        assert r["triad"] == "accel"
+        assert r["limit"] is None and r["unit"] is None  # no estimate, no limit to state
+        assert r["crosses_limit"] == first and r["crosses_limit_index"] == 0
+        assert r["why"] == f"raised as a fault from log 1 of 3 ({first})"
+    html = render(summary, records)
+    assert "mpu-01" in html and "raised as a fault from log 1 of 3" in html
