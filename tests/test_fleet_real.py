@@ -78,3 +78,31 @@ def test_a_fault_without_a_parameter_ranks_the_unit_with_its_log(records: list[d
         assert r["why"] == f"raised as a fault from log 1 of 3 ({first})"
     html = render(summary, records)
     assert "mpu-01" in html and "raised as a fault from log 1 of 3" in html
+
+
+def test_a_value_not_determined_is_null_in_the_record_as_in_diagnose_json(
+    tmp_path: Path,
+) -> None:
+    """The small real PX4 ULog (1298 samples, its own GNSS: the moving-base section) has no
+    straight epochs, so the forward axis is not determined (NaN in the report): the record
+    must be strict JSON with null there, as ``imudiag diagnose --json`` writes it (the run
+    ended in 'Out of range float values are not JSON compliant' writing logs.jsonl)."""
+    import json
+
+    from imudiag.reports import json_text
+
+    unit = tmp_path / "px4"
+    unit.mkdir()
+    log = unit / "sample_log_small.ulg"
+    shutil.copy(PROJECT_DIR / "tests" / "data" / "real" / "px4-ulog" / log.name, log)
+    cert = PROJECT_DIR / "tests" / "data" / "diagnosis" / "like-px4.yaml"
+    shutil.copy(cert, unit / "certificate.yaml")
+    st = log.stat()
+    rec = diagnose_log(Job(str(log), "-", st.st_size, st.st_mtime_ns, str(tmp_path)))
+    assert rec["status"] == "ok", rec["reason"]
+    text = json.dumps(rec, allow_nan=False)  # the records file's writer: strict JSON
+    forward = json.loads(text)["report"]["moving_base"]["gyro_turns"]["forward_axis"]
+    assert forward["determined"] is False and forward["axis_body"] == [None, None, None]
+    alone = json.loads(json_text(imudiag.diagnose(log, cert)))
+    assert alone["moving_base"]["gyro_turns"]["forward_axis"] == forward
+    assert alone["verdict"] == json.loads(text)["report"]["verdict"]

@@ -17,6 +17,7 @@ from typing import Any, cast
 import numpy as np
 
 from ..errors import ImudiagError
+from ..reports import finite_or_null
 
 #: Certificate file names looked for in a log's folder and the folders above it (up to the
 #: folder named on the command line).
@@ -342,7 +343,9 @@ def diagnose_log(job: Job) -> dict[str, Any]:
     record["warm_up_cpu_s"] = warm_cpu
     record["wall_s"] = time.monotonic() - started
     record["max_rss_kib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return record
+    # a value the diagnosis could not determine (NaN) is null, as in ``imudiag diagnose
+    # --json`` (spec/reports.md): the record is written as strict JSON
+    return cast("dict[str, Any]", finite_or_null(record))
 
 
 __all__ = [
