@@ -20,7 +20,7 @@ import os
 import signal
 import sys
 from collections.abc import Sequence
-from typing import NoReturn
+from typing import NoReturn, cast
 
 from . import __version__
 from .errors import EXIT_BAD_INPUT, EXIT_ERROR, EXIT_OK, ImudiagError, exit_code
@@ -139,12 +139,23 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _subparser(parser: argparse.ArgumentParser, command: str | None) -> argparse.ArgumentParser:
+    """The parser of subcommand ``command`` (the top one when there is none)."""
+    for action in parser._actions:  # argparse keeps its subparsers only there
+        if isinstance(action, argparse._SubParsersAction) and command in action.choices:
+            return cast(argparse.ArgumentParser, action.choices[command])
+    return parser
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``imudiag`` console script."""
     single_threaded_blas()
     args_list = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(command_module(args_list))
-    args = parser.parse_args(args_list)
+    args, extra = parser.parse_known_args(args_list)
+    if extra:  # named by the command's own parser: "imudiag COMMAND: error: ... (see ...)"
+        sub = _subparser(parser, getattr(args, "command", None))
+        sub.error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
