@@ -75,7 +75,8 @@ def test_a_fault_without_a_parameter_ranks_the_unit_with_its_log(records: list[d
         assert r["triad"] == "accel"
         assert r["limit"] is None and r["unit"] is None  # no estimate, no limit to state
         assert r["crosses_limit"] == first and r["crosses_limit_index"] == 0
-        assert r["why"] == f"raised as a fault from log 1 of 3 ({first})"
+        assert r["logs_beyond"] == 3  # raised in every log, not in the first alone
+        assert r["why"] == f"raised as a fault from log 1 of 3 ({first}), in 3 of the 3"
     html = render(summary, records)
     assert "mpu-01" in html and "raised as a fault from log 1 of 3" in html
 

@@ -70,6 +70,7 @@ def parameter_trend(logs: list[dict[str, Any]], key: tuple[str, str, str]) -> di
     triad, sensor, cause = key
     points: list[dict[str, Any]] = []
     crosses = None
+    n_beyond = 0
     for index, rec in enumerate(logs):
         beyond = key in _faulted(rec)
         for p in rec.get("parameters") or []:
@@ -89,6 +90,7 @@ def parameter_trend(logs: list[dict[str, Any]], key: tuple[str, str, str]) -> di
                         "unit": p["unit"],
                     }
                 )
+        n_beyond += beyond
         if crosses is None and beyond:
             crosses = {"path": rec["path"], "index": index, "start": rec.get("start")}
     out: dict[str, Any] = {
@@ -106,6 +108,7 @@ def parameter_trend(logs: list[dict[str, Any]], key: tuple[str, str, str]) -> di
         "deviation_last": None,
         "crosses_limit": crosses["path"] if crosses else None,
         "crosses_limit_index": crosses["index"] if crosses else None,
+        "logs_beyond": n_beyond,
         "drifting": False,
     }
     if len(points) < MIN_LOGS:
@@ -151,6 +154,7 @@ def _reason(trend: dict[str, Any], n_logs: int) -> dict[str, Any]:
         "deviation_last",
         "crosses_limit",
         "crosses_limit_index",
+        "logs_beyond",
     )
     r = {k: trend[k] for k in keys if not k.startswith("slope")}
     r["slope"] = {"per_log": trend["slope_per_log"], "per_day": trend["slope_per_day"]}
@@ -158,7 +162,7 @@ def _reason(trend: dict[str, Any], n_logs: int) -> dict[str, Any]:
     words = []
     if trend["crosses_limit"] is not None:
         k, path = trend["crosses_limit_index"] + 1, trend["crosses_limit"]
-        where = f"from log {k} of {n_logs} ({path})"
+        where = f"from log {k} of {n_logs} ({path}), in {trend['logs_beyond']} of the {n_logs}"
         if trend["limit"] is None:  # a fault with no parameter estimate (noise, stuck...)
             words.append(f"raised as a fault {where}")
         else:
