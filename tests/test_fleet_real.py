@@ -17,6 +17,7 @@ say so in words, and the HTML report renders them.
 from __future__ import annotations
 
 import shutil
+from datetime import datetime
 from pathlib import Path
 
 import pytest
@@ -25,12 +26,15 @@ from conftest import PROJECT_DIR
 import imudiag
 from imudiag.certificate import default_certificate_path
 from imudiag.fleet.html import render
+from imudiag.fleet.identity import GNSS_CLOCK_START
 from imudiag.fleet.task import Job, diagnose_log
 from imudiag.fleet.trends import summarize
 
 REAL = PROJECT_DIR / "tests" / "data" / "real" / "mpu6050"
 #: time order of the vehicle's logs (no start time in a CSV: ordered by path)
 LOGS = ("calibration.csv.gz", "rot90x.csv.gz", "static.csv.gz")
+#: the small PX4 ULog's topics read by pyulog to check the start the fleet gives it
+GPS_AND_IMU = ["vehicle_gps_position", "sensor_combined"]
 
 
 @pytest.fixture(scope="module")
@@ -87,7 +91,9 @@ def test_a_value_not_determined_is_null_in_the_record_as_in_diagnose_json(
     """The small real PX4 ULog (1298 samples, its own GNSS: the moving-base section) has no
     straight epochs, so the forward axis is not determined (NaN in the report): the record
     must be strict JSON with null there, as ``imudiag diagnose --json`` writes it (the run
-    ended in 'Out of range float values are not JSON compliant' writing logs.jsonl)."""
+    ended in 'Out of range float values are not JSON compliant' writing logs.jsonl). Its
+    start, which the log does not state, is the UTC of its first sample through the
+    diagnosis's tie of the log clock to the GNSS fixes' UTC."""
     import json
 
     from imudiag.reports import json_text
@@ -104,6 +110,20 @@ def test_a_value_not_determined_is_null_in_the_record_as_in_diagnose_json(
     text = json.dumps(rec, allow_nan=False)  # the records file's writer: strict JSON
     forward = json.loads(text)["report"]["moving_base"]["gyro_turns"]["forward_axis"]
     assert forward["determined"] is False and forward["axis_body"] == [None, None, None]
+    # the log names no start (no time_ref_utc): its GNSS time gives it. Checked against
+    # pyulog's own reading: the first fix's UTC (time_utc_usec) less its boot-time lead
+    # over the first IMU sample (the fixes' UTC and boot stamps agree to about 10 ms)
+    from pyulog import ULog
+
+    topics = {d.name: d.data for d in ULog(str(log), GPS_AND_IMU).data_list}
+    gps, imu = topics["vehicle_gps_position"], topics["sensor_combined"]
+    utc_first_sample_s = (
+        gps["time_utc_usec"][0] - (gps["timestamp"][0] - imu["timestamp"][0])
+    ) / 1e6
+    assert rec["start_source"] == GNSS_CLOCK_START
+    start = datetime.fromisoformat(rec["start"]).timestamp()
+    assert abs(start - utc_first_sample_s) < 0.05, (rec["start"], utc_first_sample_s)
+    assert rec["start"].startswith("2021-04-21T06:30:58")
     alone = json.loads(json_text(imudiag.diagnose(log, cert)))
     assert alone["moving_base"]["gyro_turns"]["forward_axis"] == forward
     assert alone["verdict"] == json.loads(text)["report"]["verdict"]

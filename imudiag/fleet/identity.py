@@ -4,6 +4,7 @@ the log itself where its format says them, else the folder the log sits in (said
 from __future__ import annotations
 
 import datetime as dt
+import math
 import re
 from pathlib import Path
 from typing import Any
@@ -80,6 +81,22 @@ def _dataflash(path: Path) -> tuple[str | None, str]:
     return None, ""
 
 
+#: ``start_source`` of a start read from the clock tie of the log's own GNSS.
+GNSS_CLOCK_START = "the log's GNSS time (the diagnosis's clock tie at the first sample)"
+
+
+def start_from_gnss_clock(report: dict[str, Any], t0_s: float | None) -> str | None:
+    """The log's start (ISO 8601 UTC) from the clock tie of its GNSS in a diagnosis report
+    (``moving_base.gnss.clock``: UTC Unix s = ``offset_s`` + ``rate`` x log time, s) at
+    the first sample time ``t0_s`` (s, the log's clock), or None without a tie."""
+    clock = ((report.get("moving_base") or {}).get("gnss") or {}).get("clock") or {}
+    offset, rate = clock.get("offset_s"), clock.get("rate")
+    if t0_s is None or not isinstance(offset, int | float) or not isinstance(rate, int | float):
+        return None
+    t_utc = float(offset) + float(rate) * t0_s
+    return iso(t_utc) if math.isfinite(t_utc) and t_utc > UNIX_TIME_MIN_S else None
+
+
 def folder_vehicle(path: str | Path) -> str:
     """The vehicle of a log that does not name one: the folder it sits in."""
     return Path(path).absolute().parent.name or "/"
@@ -116,4 +133,11 @@ def identify(
     }
 
 
-__all__ = ["folder_vehicle", "identify", "iso", "parse_start"]
+__all__ = [
+    "GNSS_CLOCK_START",
+    "folder_vehicle",
+    "identify",
+    "iso",
+    "parse_start",
+    "start_from_gnss_clock",
+]

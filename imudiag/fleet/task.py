@@ -252,7 +252,7 @@ def diagnose_log(job: Job) -> dict[str, Any]:
     except Exception:  # noqa: BLE001 - an import that fails fails again below, as the row's reason
         warm_cpu = 0.0
     from ..api import diagnose
-    from .identity import folder_vehicle, identify
+    from .identity import GNSS_CLOCK_START, folder_vehicle, identify, start_from_gnss_clock
 
     started, cpu0 = time.monotonic(), _cpu_s()
     folder = folder_vehicle(job.path)
@@ -322,6 +322,10 @@ def diagnose_log(job: Job) -> dict[str, Any]:
         record["gnss"] = (
             str(gnss) if gnss else ("the log's own" if "moving_base" in report else None)
         )
+        if record["start"] is None:  # the log does not say: its GNSS time, where tied
+            start = start_from_gnss_clock(report, t0)
+            if start is not None:
+                record["start"], record["start_source"] = start, GNSS_CLOCK_START
         record["parameters"] = best_estimates(report, cert)
         for key in DROPPED_REPORT_KEYS:
             report.pop(key, None)
