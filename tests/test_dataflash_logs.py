@@ -37,24 +37,28 @@ def _fmt(type_id: int, name: str, fmt: str, cols: str) -> bytes:
     return HEAD + bytes([128]) + body
 
 
-def write_dataflash(path: Path, s, instances=(0, 1), old_names=False) -> Path:
-    """``s`` (deg/s, m/s^2) as IMU messages; instance i's gyro is scaled by 1 + i / 100."""
-    gyro = np.radians(s.gyro)
+def write_dataflash(path: Path, s, instances=(0, 1), old_names=False, each=None) -> Path:
+    """``s`` (deg/s, m/s^2) as IMU messages; instance i's gyro is scaled by 1 + i / 100.
+    ``each``: {instance: samples (rad/s, m/s^2)}, written as they are instead."""
+    if each is not None:
+        instances = tuple(each)
+    gyro = np.radians(s.gyro) if each is None else None
     out = [_fmt(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns")]
     names = {0: "IMU", 1: "IMU2", 2: "IMU3"}
     if old_names:
         out += [_fmt(131 + i, names[i], OLD_FMT, OLD_COLS) for i in instances]
     else:
         out.append(_fmt(131, "IMU", IMU_FMT, IMU_COLS))
-    for k in range(len(s)):
+    for k in range(len(s) if each is None else min(map(len, each.values()))):
         us = int(round(s.t[k] * 1e6)) + 5_000_000  # 5 s after boot
         for i in instances:
-            g = gyro[k] * (1.0 + i / 100.0)
+            g = gyro[k] * (1.0 + i / 100.0) if each is None else each[i].gyro[k]
+            a = s.accel[k] if each is None else each[i].accel[k]
             if old_names:
-                rec = struct.pack("<" + OLD_FMT, us, *g, *s.accel[k], 0, 0, 31.5)
+                rec = struct.pack("<" + OLD_FMT, us, *g, *a, 0, 0, 31.5)
                 out.append(HEAD + bytes([131 + i]) + rec)
             else:
-                rec = struct.pack("<" + IMU_FMT, us, i, *g, *s.accel[k], 0, 0, 31.5, 1, 1)
+                rec = struct.pack("<" + IMU_FMT, us, i, *g, *a, 0, 0, 31.5, 1, 1)
                 out.append(HEAD + bytes([131]) + rec)
     path.write_bytes(b"".join(out))
     # the reference reader agrees the file is a DataFlash log

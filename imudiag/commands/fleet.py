@@ -104,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the fleet and print where the results are."""
     from ..fleet.runner import REPORT, SUMMARY, require
     from ..fleet.runner import run as run_fleet
+    from ..fleet.trends import label
 
     require()
     check_options(args)
@@ -130,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"{len(records)} logs, {len(records) - errors} diagnosed, {errors} errors")
     for v in summary["vehicles"]:
         if v["look_at"]:
-            why = "; ".join(f"{r['triad']} {r['sensor']} {r['cause']}" for r in v["reasons"])
+            why = "; ".join(label(r) for r in v["reasons"])
             print(f"  LOOK AT {v['vehicle']}: {why}")
     print(f"{Path(args.out) / SUMMARY}\n{Path(args.out) / REPORT}")
     return 0

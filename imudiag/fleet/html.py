@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ..atomic import write_text_atomic
+from .trends import key_of, label
 
 #: Figure size in CSS pixels, and its margins.
 FIG_W, FIG_H, MARGIN_L, MARGIN_R, MARGIN_T, MARGIN_B = 340, 170, 58, 10, 22, 26
@@ -101,8 +102,8 @@ def trend_svg(trend: dict[str, Any], flagged: bool) -> str:
             f"(std {p['std']:.3g})</title></circle>"
         )
     parts += [
-        f'<text x="{MARGIN_L}" y="14">{escape(trend["triad"])} {escape(trend["sensor"])} '
-        f"{escape(trend['cause'])}: estimate - certificate, {unit}</text>",
+        f'<text x="{MARGIN_L}" y="14">{escape(label(trend))}: estimate - certificate, '
+        f"{unit}</text>",
         f'<text x="4" y="{Y(y1 - pad) + 4:.1f}">{_fmt(y1 - pad, 3)}</text>',
         f'<text x="4" y="{Y(y0 + pad) + 4:.1f}">{_fmt(y0 + pad, 3)}</text>',
         f'<text x="{MARGIN_L + pw / 2 - 20:.0f}" y="{FIG_H - 8}">log (time order)</text>',
@@ -112,10 +113,7 @@ def trend_svg(trend: dict[str, Any], flagged: bool) -> str:
 
 
 def _reason_text(reasons: list[dict[str, Any]]) -> str:
-    return "<br>".join(
-        f"{escape(r['triad'])} {escape(r['sensor'])} {escape(r['cause'])}: {escape(r['why'])}"
-        for r in reasons
-    )
+    return "<br>".join(f"{escape(label(r))}: {escape(r['why'])}" for r in reasons)
 
 
 def render(summary: dict[str, Any], records: list[dict[str, Any]]) -> str:
@@ -187,18 +185,18 @@ def render(summary: dict[str, Any], records: list[dict[str, Any]]) -> str:
         "(bars: 2 std), its limit (dashed) and the weighted line of the drift test.</p>"
     )
     for v in vehicles:
-        flagged = {(r["triad"], r["sensor"], r["cause"]) for r in v["reasons"]}
+        flagged = {key_of(r) for r in v["reasons"]}
         out.append(f'<h3 id="v-{escape(v["vehicle"])}">{escape(v["vehicle"])}</h3>')
         figs = sorted(  # the parameters that name the unit first
             (t for t in v["trends"] if t["points"]),
-            key=lambda t: (t["triad"], t["sensor"], t["cause"]) not in flagged,
+            key=lambda t: key_of(t) not in flagged,
         )
         if not figs:
             out.append('<p class="small">No parameter estimated in any log.</p>')
             continue
         out.append('<div class="figs">')
         for t in figs:
-            key = (t["triad"], t["sensor"], t["cause"])
+            key = key_of(t)
             caption = (
                 f"slope {_fmt(t['slope_per_log'])} &plusmn; {_fmt(t['slope_std_per_log'], 2)} "
                 f"{escape(str(t['unit']))}/log"

@@ -80,6 +80,7 @@ _COLUMNS = (
     ("certificate", "string"),
     ("certificate_source", "string"),
     ("samples", "int64"),
+    ("instance", "int64"),
     ("cpu_s", "float64"),
     ("wall_s", "float64"),
 )
@@ -88,7 +89,8 @@ _COLUMNS = (
 def write_table(records: list[dict[str, Any]], directory: str | Path) -> Path:
     """Rebuild ``DIR/logs.parquet`` from ``records`` (atomically): one row per log, the
     scalar keys as columns, ``verdict_accel`` / ``verdict_gyro``, ``parameters`` (a list
-    of estimate structs) and ``report`` (the diagnosis report as JSON text)."""
+    of estimate structs), ``report`` (the diagnosis report as JSON text) and
+    ``instances`` (the other IMU instances' diagnoses as JSON text)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -101,6 +103,7 @@ def write_table(records: list[dict[str, Any]], directory: str | Path) -> Path:
         )
     param = pa.struct(
         [
+            ("instance", pa.int64()),
             ("triad", pa.string()),
             ("sensor", pa.string()),
             ("cause", pa.string()),
@@ -112,11 +115,15 @@ def write_table(records: list[dict[str, Any]], directory: str | Path) -> Path:
         ]
     )
     cols["parameters"] = pa.array(
-        [[{k: p[k] for k in param.names} for p in r.get("parameters") or []] for r in records],
+        [[{k: p.get(k) for k in param.names} for p in r.get("parameters") or []] for r in records],
         pa.list_(param),
     )
     cols["report"] = pa.array(
         [json.dumps(r["report"]) if r.get("report") else None for r in records], pa.string()
+    )
+    cols["instances"] = pa.array(  # the log's other IMU instances (docs/fleet.md), JSON text
+        [json.dumps(r["instances"]) if r.get("instances") else None for r in records],
+        pa.string(),
     )
     path = Path(directory) / TABLE
     with atomic_path(path) as tmp:

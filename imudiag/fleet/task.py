@@ -10,6 +10,7 @@ import os
 import resource
 import time
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -29,6 +30,9 @@ TRIADS = ("accel", "gyro")
 #: carries the moving-base diagnosis (``moving_base``), as ``imudiag diagnose --gnss
 #: FILE``; without one, the log's own GNSS where it has some (``--gnss auto``).
 GNSS_SUFFIXES = (".gnss", ".gnss.gz")
+#: A multi-IMU log's other instances are diagnosed where logged at this fraction of the log's
+#: IMU rate or more (the ULog reader's own rule for raw topics against sensor_combined).
+MIN_INSTANCE_RATE_FRACTION = 0.5
 #: Report keys left out of a record (the per-window estimates: the record keeps each
 #: parameter's best-determined window instead).
 DROPPED_REPORT_KEYS = ("windows",)
@@ -206,6 +210,59 @@ def best_estimates(report: dict[str, Any], cert: Any) -> list[dict[str, Any]]:
     return out
 
 
+def tagged(parameters: list[dict[str, Any]], instance: int | None) -> list[dict[str, Any]]:
+    """``parameters`` (:func:`best_estimates`) each with the IMU ``instance`` they are of."""
+    return [{"instance": instance, **p} for p in parameters]
+
+
+def other_instances(
+    meta: dict[str, Any], cert: Any, diagnose_instance: Callable[[int], dict[str, Any]]
+) -> list[dict[str, Any]]:
+    """The diagnosis of each IMU instance of a multi-IMU log (``meta["imu_instances"]``: a
+    ULog's, a DataFlash log's) other than the one the log's ``report`` is of
+    (``meta["instance"]``): its ``instance``, ``rate_hz``, ``status`` (``ok``, ``error``
+    or ``skipped``: logged at less than :data:`MIN_INSTANCE_RATE_FRACTION` of the log's
+    IMU rate, as PX4's raw topics often are), ``reason``, ``samples``, ``parameters`` and
+    ``report`` (without its windows). ``diagnose_instance(N)``: the report of instance N."""
+    out: list[dict[str, Any]] = []
+    rate = meta.get("sample_rate")
+    for entry in meta.get("imu_instances") or []:
+        number = int(entry["instance"])
+        if number == meta.get("instance"):
+            continue
+        item: dict[str, Any] = {
+            "instance": number,
+            "rate_hz": entry.get("rate_hz"),
+            "status": "error",
+            "reason": None,
+            "samples": None,
+            "parameters": [],
+            "report": None,
+        }
+        out.append(item)
+        if isinstance(rate, int | float) and not (
+            float(entry.get("rate_hz") or 0.0) >= MIN_INSTANCE_RATE_FRACTION * rate
+        ):
+            item["status"] = "skipped"
+            item["reason"] = (
+                f"logged at {entry.get('rate_hz')} Hz, below {MIN_INSTANCE_RATE_FRACTION:g} "
+                f"of the log's IMU rate ({rate:g} Hz): not diagnosed"
+            )
+            continue
+        try:
+            report = diagnose_instance(number)
+        except LogTimeout:
+            raise
+        except ImudiagError as exc:
+            item["reason"] = f"diagnosing instance {number}: {exc}"
+            continue
+        item["parameters"] = tagged(best_estimates(report, cert), number)
+        for key in DROPPED_REPORT_KEYS:
+            report.pop(key, None)
+        item.update(status="ok", samples=report.get("samples"), report=report)
+    return out
+
+
 def gnss_beside(path: str | Path) -> Path | None:
     """The GNSS stream recorded beside a log (:data:`GNSS_SUFFIXES`), or None."""
     for suffix in GNSS_SUFFIXES:
@@ -273,6 +330,8 @@ def diagnose_log(job: Job) -> dict[str, Any]:
         "certificate_sha256": None,
         "worker_pid": os.getpid(),
         "kernels": None,
+        "instance": None,
+        "instances": [],
     }
     stage = "reading the log"
     try:
@@ -326,12 +385,32 @@ def diagnose_log(job: Job) -> dict[str, Any]:
             start = start_from_gnss_clock(report, t0)
             if start is not None:
                 record["start"], record["start_source"] = start, GNSS_CLOCK_START
-        record["parameters"] = best_estimates(report, cert)
+        record["instance"] = meta.get("instance")
+        record["parameters"] = tagged(best_estimates(report, cert), record["instance"])
         for key in DROPPED_REPORT_KEYS:
             report.pop(key, None)
         record["report"] = report
         record["samples"] = report.get("samples")
         record["status"] = "ok"
+        stage = "diagnosing the log's other IMU instances"
+
+        def diagnose_instance(number: int) -> dict[str, Any]:
+            from ..logs import LogOptions
+
+            with kernels.switched(_use_kernels()):
+                return cast(
+                    "dict[str, Any]",
+                    diagnose(
+                        job.path,
+                        cert,
+                        config=job.config or None,
+                        progress=watch,
+                        gnss=str(gnss) if gnss else "auto",
+                        log_options=LogOptions(instance=number),
+                    ),
+                )
+
+        record["instances"] = other_instances(meta, cert, diagnose_instance)
     except LogTimeout as exc:
         record["reason"] = str(exc)
     except ImudiagError as exc:
@@ -360,5 +439,7 @@ __all__ = [
     "choose_certificate",
     "diagnose_log",
     "load_certificate_once",
+    "other_instances",
+    "tagged",
     "warm_up",
 ]

@@ -58,23 +58,54 @@ def _order(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return sorted(records, key=lambda r: (r.get("start") is None, r.get("start") or "", r["path"]))
 
 
-def _faulted(record: dict[str, Any]) -> set[tuple[str, str, str]]:
-    faults = ((record.get("report") or {}).get("verdict") or {}).get("faults") or []
-    return {(f["triad"], f["sensor"], f["cause"]) for f in faults if f.get("cause") != "f0"}
+#: A parameter of a vehicle: (IMU instance or None, triad, sensor, cause).
+Key = tuple[int | None, str, str, str]
 
 
-def parameter_trend(logs: list[dict[str, Any]], key: tuple[str, str, str]) -> dict[str, Any]:
-    """The trend of parameter ``key`` (triad, sensor, cause) over a vehicle's ordered
-    ``logs``: its points (estimate and std per log), slope and slope std per log and per
-    day, significance, and the first log whose diagnosis found it beyond its limit."""
-    triad, sensor, cause = key
+def label(item: dict[str, Any]) -> str:
+    """A trend's or reason's parameter in words: ``IMU 1 gyro gx scale_factor`` (``accel ax
+    bias`` for the one IMU stream of a log, instance None)."""
+    words = f"{item['triad']} {item['sensor']} {item['cause']}"
+    return words if item.get("instance") is None else f"IMU {item['instance']} {words}"
+
+
+def key_of(item: dict[str, Any]) -> Key:
+    """A trend's or reason's :data:`Key`."""
+    return (item.get("instance"), item["triad"], item["sensor"], item["cause"])
+
+
+def _imus(record: dict[str, Any]) -> list[tuple[int | None, list[dict[str, Any]], dict]]:
+    """(instance, parameters, report) of each IMU a record diagnosed: the log's own report
+    (instance None for a log of one IMU stream) and each other instance diagnosed."""
+    out = [(record.get("instance"), record.get("parameters") or [], record.get("report") or {})]
+    for item in record.get("instances") or []:
+        if item.get("status") == "ok":
+            out.append((item["instance"], item.get("parameters") or [], item.get("report") or {}))
+    return out
+
+
+def _faulted(record: dict[str, Any]) -> set[Key]:
+    return {
+        (instance, f["triad"], f["sensor"], f["cause"])
+        for instance, _, report in _imus(record)
+        for f in (report.get("verdict") or {}).get("faults") or []
+        if f.get("cause") != "f0"
+    }
+
+
+def parameter_trend(logs: list[dict[str, Any]], key: Key) -> dict[str, Any]:
+    """The trend of parameter ``key`` (IMU instance, triad, sensor, cause) over a vehicle's
+    ordered ``logs``: its points (estimate and std per log), slope and slope std per log
+    and per day, significance, and the first log whose diagnosis found it beyond its
+    limit."""
+    instance, triad, sensor, cause = key
     points: list[dict[str, Any]] = []
     crosses = None
     n_beyond = 0
     for index, rec in enumerate(logs):
         beyond = key in _faulted(rec)
-        for p in rec.get("parameters") or []:
-            if (p["triad"], p["sensor"], p["cause"]) == key:
+        for p in (p for i, params, _ in _imus(rec) if i == instance for p in params):
+            if (p["triad"], p["sensor"], p["cause"]) == key[1:]:
                 dev = abs(p["estimate"] - p["certificate"])
                 beyond = beyond or (dev > p["limit"] and dev > K_SIGMA * p["std"])
                 points.append(
@@ -94,6 +125,7 @@ def parameter_trend(logs: list[dict[str, Any]], key: tuple[str, str, str]) -> di
         if crosses is None and beyond:
             crosses = {"path": rec["path"], "index": index, "start": rec.get("start")}
     out: dict[str, Any] = {
+        "instance": instance,
         "triad": triad,
         "sensor": sensor,
         "cause": cause,
@@ -141,6 +173,7 @@ def parameter_trend(logs: list[dict[str, Any]], key: tuple[str, str, str]) -> di
 def _reason(trend: dict[str, Any], n_logs: int) -> dict[str, Any]:
     unit = trend["unit"]
     keys = (
+        "instance",
         "triad",
         "sensor",
         "cause",
@@ -184,13 +217,16 @@ def _reason(trend: dict[str, Any], n_logs: int) -> dict[str, Any]:
 def vehicle_summary(vehicle: str, records: list[dict[str, Any]]) -> dict[str, Any]:
     """One vehicle of ``fleet.json``: its logs, trends, reasons and whether to look at it."""
     ok = _order([r for r in records if r.get("status") == "ok"])
-    keys: list[tuple[str, str, str]] = []
+    keys: list[Key] = []
     for rec in ok:
-        for p in rec.get("parameters") or []:
-            k = (p["triad"], p["sensor"], p["cause"])
-            if k not in keys:
-                keys.append(k)
-        for k in sorted(_faulted(rec)):
+        for instance, params, _ in _imus(rec):
+            for p in params:
+                k = (instance, p["triad"], p["sensor"], p["cause"])
+                if k not in keys:
+                    keys.append(k)
+        for k in sorted(
+            _faulted(rec), key=lambda k: (k[0] is not None, k[0] or 0, *map(str, k[1:]))
+        ):
             if k not in keys:
                 keys.append(k)
     trends = [parameter_trend(ok, k) for k in keys]
@@ -260,4 +296,13 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-__all__ = ["DRIFT_Z", "parameter_trend", "summarize", "vehicle_summary", "weighted_slope"]
+__all__ = [
+    "Key",
+    "key_of",
+    "label",
+    "DRIFT_Z",
+    "parameter_trend",
+    "summarize",
+    "vehicle_summary",
+    "weighted_slope",
+]

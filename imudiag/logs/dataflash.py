@@ -164,6 +164,10 @@ class DataFlashReader(ColumnsReader):
         )
         if rate > 0:
             self.meta["sample_rate"] = round(rate, 3)
+        self.meta["instance"] = inst
+        self.meta["imu_instances"] = [
+            {"instance": i, "rate_hz": round(_rate(cols_by_inst[i]["t"]), 3)} for i in have
+        ]
 
     # -- IMU sources ----------------------------------------------------------
 

@@ -75,8 +75,27 @@ class ULogReader(ColumnsReader):
                 "units": {"gyro": "rad/s", "accel": "m/s^2"},
                 "sample_rate": round(_rate_hz(self._cols["t"]), 3),
                 "device": f"PX4 ULog {Path(self.path).name}",
+                "instance": self._instance,
+                "imu_instances": self._instances(topics),
             }
         )
+
+    def _instances(
+        self, topics: dict[tuple[str, int], dict[str, np.ndarray]]
+    ) -> list[dict[str, Any]]:
+        """Every IMU instance ``--instance N`` reads (raw sensor_gyro + sensor_accel, else
+        vehicle_imu) with the rate of its time stamps, Hz."""
+        out = []
+        for i in sorted({i for (name, i) in topics if name in ("sensor_gyro", "vehicle_imu")}):
+            if ("sensor_gyro", i) in topics and ("sensor_accel", i) in topics:
+                stamps = topics[("sensor_gyro", i)]["timestamp"]
+            elif ("vehicle_imu", i) in topics:
+                d = topics[("vehicle_imu", i)]
+                stamps = d.get("timestamp_sample", d["timestamp"])
+            else:
+                continue
+            out.append({"instance": i, "rate_hz": round(_rate_hz(self._time(stamps)), 3)})
+        return out
 
     # -- topic choice ---------------------------------------------------------
 
@@ -89,10 +108,13 @@ class ULogReader(ColumnsReader):
         combined = topics.get(("sensor_combined", 0))
         wanted = self.options.instance
         imus = sorted(i for (name, i) in topics if name == "vehicle_imu")
+        self._instance: int | None = None  # the instance read; None: sensor_combined
         if wanted is not None and wanted not in instances and wanted in imus:
+            self._instance = wanted
             cols = self._vehicle_imu(topics[("vehicle_imu", wanted)])
             return cols, f"vehicle_imu instance {wanted} (--instance), {_rate_hz(cols['t']):.3g} Hz"
         if wanted is None and combined is None and not instances and imus:
+            self._instance = imus[0]
             cols = self._vehicle_imu(topics[("vehicle_imu", imus[0])])
             return cols, (
                 f"vehicle_imu instance {imus[0]} (no sensor_combined nor raw topics; "
@@ -106,6 +128,7 @@ class ULogReader(ColumnsReader):
                     f"--instance {wanted}: no sensor_gyro and sensor_accel of that instance "
                     f"(instances with both: {have})",
                 )
+            self._instance = wanted
             cols = self._raw(topics, wanted)
             return cols, (
                 f"sensor_gyro/sensor_accel instance {wanted} (--instance), "
@@ -120,6 +143,7 @@ class ULogReader(ColumnsReader):
             t = self._time(topics[("sensor_gyro", i)]["timestamp"])
             raw_rate = _rate_hz(t)
             if raw_rate >= 0.5 * comb_rate:
+                self._instance = i
                 cols = self._raw(topics, i)
                 return cols, (
                     f"sensor_gyro/sensor_accel instance {i} ({raw_rate:.3g} Hz raw; "
