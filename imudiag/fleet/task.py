@@ -293,12 +293,18 @@ def _cpu_s() -> float:
 
 
 def _json_safe(meta: dict[str, Any]) -> dict[str, Any]:
+    """A log's metadata as JSON: numbers, text, and lists and objects of them kept (a
+    value not determined as null); anything else as its text."""
+    import json
+
     out = {}
     for k, v in meta.items():
-        if isinstance(v, str | int | float | bool) or v is None:
-            out[str(k)] = v
-        else:
-            out[str(k)] = str(v)
+        v = finite_or_null(v)
+        try:
+            json.dumps(v, allow_nan=False)
+        except (TypeError, ValueError):
+            v = str(v)
+        out[str(k)] = v
     return out
 
 
