@@ -127,3 +127,26 @@ def test_a_value_not_determined_is_null_in_the_record_as_in_diagnose_json(
     alone = json.loads(json_text(imudiag.diagnose(log, cert)))
     assert alone["moving_base"]["gyro_turns"]["forward_axis"] == forward
     assert alone["verdict"] == json.loads(text)["report"]["verdict"]
+
+
+def test_failed_logs_are_grouped_by_their_reason(tmp_path: Path) -> None:
+    """Real logs in SI units against the bundled certificate (counts) fail alike: one kind
+    of reason with the log's path as LOG, counted, the commonest first; the report says it."""
+    for name in ("imucal-ferraris/session.csv.gz", "firm-rocket-launch/flight.csv.gz"):
+        (tmp_path / name).parent.mkdir()
+        shutil.copy(PROJECT_DIR / "tests" / "data" / "real" / name, tmp_path / name)
+    (tmp_path / "bad" / "x.npz").parent.mkdir()
+    (tmp_path / "bad" / "x.npz").write_bytes(b"not a zip")
+    recs = []
+    for log in sorted(tmp_path.rglob("*.*")):
+        st = log.stat()
+        recs.append(diagnose_log(Job(str(log), "-", st.st_size, st.st_mtime_ns, str(tmp_path))))
+    summary = summarize(recs)
+    kinds = summary["error_kinds"]
+    assert [k["logs"] for k in kinds] == [2, 1]
+    units, npz = kinds
+    assert units["reason"].startswith("diagnosing: LOG: units: the gyro outputs are in 'deg/s'")
+    assert units["first"] in {r["path"] for r in recs}
+    assert npz["reason"].startswith("reading the log: LOG: ") and npz["first"].endswith("x.npz")
+    html = render(summary, recs)
+    assert 'id="error-kinds"' in html and "2 x diagnosing: LOG: units:" in html

@@ -129,6 +129,8 @@ def run(args: argparse.Namespace) -> int:
     summary = json.loads((Path(args.out) / SUMMARY).read_text())
     errors = len(summary["errors"])
     print(f"{len(records)} logs, {len(records) - errors} diagnosed, {errors} errors")
+    for kind in summary["error_kinds"]:  # why they failed, the commonest first
+        print(f"  {kind['logs']} x {kind['reason']} (first: {kind['first']})")
     for v in summary["vehicles"]:
         if v["look_at"]:
             why = "; ".join(label(r) for r in v["reasons"])

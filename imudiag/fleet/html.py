@@ -142,6 +142,15 @@ def render(summary: dict[str, Any], records: list[dict[str, Any]]) -> str:
         out.append("</ol>")
     else:
         out.append('<p id="look-at">None: no parameter beyond its limit or drifting toward it.</p>')
+    kinds = summary.get("error_kinds") or []
+    if kinds:  # why logs failed, the commonest first
+        out.append('<h2>Why logs failed</h2><ul id="error-kinds">')
+        for k in kinds:
+            out.append(
+                f"<li>{k['logs']} x {escape(k['reason'])} "
+                f'<span class="small">(first: {escape(k["first"])})</span></li>'
+            )
+        out.append("</ul>")
     out += [
         "<h2>Fleet</h2>",
         '<table id="fleet"><thead><tr><th>vehicle</th><th>logs</th><th>diagnosed</th>'

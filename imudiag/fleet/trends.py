@@ -273,6 +273,18 @@ def attach_unreadable(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+def error_kinds(errors: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The failed logs grouped by their reason with the log's own path said as ``LOG``
+    (a folder of logs in SI units against a certificate in counts is one kind): each
+    ``reason``, its number of ``logs`` and the ``first`` log's path, most logs first."""
+    kinds: dict[str, dict[str, Any]] = {}
+    for e in errors:
+        reason = str(e.get("reason") or "unknown").replace(str(e["path"]), "LOG")
+        kind = kinds.setdefault(reason, {"reason": reason, "logs": 0, "first": e["path"]})
+        kind["logs"] += 1
+    return sorted(kinds.values(), key=lambda k: -k["logs"])
+
+
 def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     """``fleet.json`` from the per-log records (docs/fleet.md): always rebuilt whole."""
     by_vehicle: dict[str, list[dict[str, Any]]] = defaultdict(list)
@@ -290,6 +302,7 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
         "logs": len(records),
         "ok": len(records) - len(errors),
         "errors": errors,
+        "error_kinds": error_kinds(errors),
         "look_at": [v["vehicle"] for v in vehicles if v["look_at"]],
         "drift_z": DRIFT_Z,
         "vehicles": vehicles,
