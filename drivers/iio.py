@@ -429,11 +429,11 @@ class IIOSource(Source):
 
 def _datasheet_key(name: str) -> str | None:
     """The bundled data-sheet certificate of an IIO device name, if there is one."""
-    from imudiag.certificate import CertificateError, datasheet_certificate_path
+    from imudiag.certificate import CertificateError, datasheet_path
 
     key = name.strip().lower()
     try:
-        datasheet_certificate_path(key)
+        datasheet_path(key)
     except CertificateError:
         return None
     return key

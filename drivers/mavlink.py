@@ -61,6 +61,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from imudiag.certificate import FLIGHT_CONTROLLER_DATASHEET
 from imudiag.samples import SampleBlock
 
 from .base import SourceError, SourceURL, register
@@ -102,7 +103,7 @@ KIND_UNITS: dict[str, dict[str, str]] = {
 #: the bundled data-sheet certificate (config/datasheets/) for samples in physical units:
 #: a flight controller's MEMS IMU does not name its part over MAVLink, so one generic
 #: certificate (docs/devices.md); none for RAW_IMU counts (their scale is the board's)
-DATASHEET_PHYSICAL = "mavlink-fc-imu"
+DATASHEET_PHYSICAL = FLIGHT_CONTROLLER_DATASHEET
 SCALED_IDS = {0: MSG_SCALED_IMU, 1: MSG_SCALED_IMU2, 2: MSG_SCALED_IMU3}
 HIGHRES_UPDATED = 0x3F  #: fields_updated bits of xacc..zacc and xgyro..zgyro
 CHOOSE_S = 1.0  #: s of device time ``message=auto`` waits for HIGHRES_IMU

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 from . import validate
-from .certificate import Certificate, load, load_default
+from .certificate import AUTO, Certificate, CertificateError, datasheet_path, load, load_default
 from .diagnosis.calibrate import CalibrationResult
 from .diagnosis.config import CERTIFICATE_NOISE, DiagnosisConfig
 from .diagnosis.inputs import MagnitudeTable
@@ -30,18 +30,57 @@ from .samples import SampleBlock
 if TYPE_CHECKING:
     from .aiding.moving import MovingConfig
 
-#: A certificate argument: a loaded one, a YAML file's path, or None for the bundled one.
+#: A certificate argument: a loaded one, a YAML file's path, ``"auto"`` (the data sheet the
+#: log names), or None for the bundled one.
 CertificateLike = Certificate | str | Path | None
 
 
-def load_certificate(path: str | Path | None = None) -> Certificate:
+def log_datasheet_path(log: Any, log_options: LogOptions | None = None) -> Path:
+    """``--certificate auto`` for a log: the bundled data-sheet certificate its metadata
+    names (``datasheet``: a PX4 ULog's or ArduPilot DataFlash log's IMU, the flight
+    controller class; docs/logs.md). CertificateError naming the log when it names none."""
+    if not isinstance(log, str | Path):
+        raise CertificateError(
+            AUTO, "a data-sheet certificate is named by a log file; give one for samples in memory"
+        )
+    from .logs import open_log
+
+    with open_log(log, block_size=1, options=log_options) as reader:
+        return datasheet_of_log(reader.meta, log)
+
+
+def datasheet_of_log(meta: dict[str, Any], log: str | Path) -> Path:
+    """The bundled data-sheet certificate the metadata ``meta`` of the log ``log`` names
+    (``datasheet``); CertificateError naming the log when it names none."""
+    key = meta.get("datasheet")
+    if not key:
+        raise CertificateError(
+            str(log),
+            "--certificate auto: the log names no data-sheet certificate (autopilot logs do: "
+            "PX4 ULog, ArduPilot DataFlash); give a certificate file (--certificate PATH)",
+        )
+    return datasheet_path(str(key))
+
+
+def load_certificate(
+    path: str | Path | None = None, *, log: Any = None, log_options: LogOptions | None = None
+) -> Certificate:
     """The certificate in the YAML file at ``path`` (None: the bundled one of the simulated
-    board). Raises :class:`~imudiag.errors.CertificateError` naming the key and the reason."""
-    return load_default() if path is None else load(path)
+    board; ``"auto"``: the data sheet the log ``log`` names, :func:`log_datasheet_path`).
+    Raises :class:`~imudiag.errors.CertificateError` naming the key and the reason."""
+    if path is None:
+        return load_default()
+    if str(path) == AUTO:
+        return load(log_datasheet_path(log, log_options))
+    return load(path)
 
 
-def _certificate(cert: CertificateLike) -> Certificate:
-    return cert if isinstance(cert, Certificate) else load_certificate(cert)
+def _certificate(
+    cert: CertificateLike, log: Any = None, log_options: LogOptions | None = None
+) -> Certificate:
+    if isinstance(cert, Certificate):
+        return cert
+    return load_certificate(cert, log=log, log_options=log_options)
 
 
 def _config(config: DiagnosisConfig | dict[str, Any] | None) -> DiagnosisConfig:
@@ -88,9 +127,10 @@ def diagnose(
     diagnosis is then ``report["moving_base"]`` (``moving``: its
     :class:`~imudiag.aiding.moving.MovingConfig`). ``progress(what, fraction, samples)``:
     told how far each pass has got (an exception it raises ends the diagnosis:
-    ``imudiag fleet``'s per-log timeout).
+    ``imudiag fleet``'s per-log timeout). ``certificate``: as :func:`load_certificate`
+    (``"auto"``: the data sheet the log names).
     """
-    cert = _certificate(certificate)
+    cert = _certificate(certificate, data, log_options)
     report: DiagnosisReport = cast(
         DiagnosisReport,
         diagnose_recording(

@@ -781,24 +781,6 @@ def default_certificate_path() -> Path:
     return Path(str(resources.files("imudiag.config").joinpath(DEFAULT_CERTIFICATE_NAME)))
 
 
-DATASHEETS_DIR = "datasheets"  #: bundled data-sheet certificates, ``<key>.yaml``
-
-
-def datasheet_certificate_path(key: str) -> Path:
-    """Path of the bundled data-sheet certificate ``key`` (a device source's
-    ``device_info["datasheet"]``, e.g. ``adis16475-2``); CertificateError if there is none."""
-    from importlib import resources
-
-    folder = Path(str(resources.files("imudiag.config").joinpath(DATASHEETS_DIR)))
-    path = folder / f"{key}.yaml"
-    if not key or "/" in key or not path.is_file():
-        known = sorted(p.stem for p in folder.glob("*.yaml"))
-        raise CertificateError(
-            "(file)", f"no bundled data-sheet certificate {key!r}; known: {', '.join(known)}"
-        )
-    return path
-
-
 def load_default() -> Certificate:
     """The bundled certificate of the simulated ADXRS300/ADXL202 board."""
     return load(default_certificate_path())
@@ -808,6 +790,10 @@ def load_default() -> Certificate:
 #: by the source's ``device_info["datasheet"]`` (docs/devices.md)
 AUTO = "auto"
 DATASHEETS_DIR = "datasheets"  #: bundled data-sheet certificates: config/datasheets/<key>.yaml
+#: The bundled data-sheet certificate of a flight controller's MEMS IMU in physical units: an
+#: autopilot names no IMU part over MAVLink nor in its logs (ULog, DataFlash), so one generic
+#: certificate of the class (config/datasheets/mavlink-fc-imu.yaml, docs/devices.md)
+FLIGHT_CONTROLLER_DATASHEET = "mavlink-fc-imu"
 _DATASHEET_KEY = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
 
 
@@ -841,6 +827,7 @@ def datasheet_of(cert: Certificate) -> str | None:
 
 
 __all__ = [
+    "FLIGHT_CONTROLLER_DATASHEET",
     "FORMAT",
     "Certificate",
     "CertificateError",

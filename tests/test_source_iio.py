@@ -18,7 +18,7 @@ import pytest
 
 from imudiag import units
 from imudiag.bench.fake_iio import Channel, FakeIIODevice, pack_records
-from imudiag.certificate import datasheet_certificate_path, load
+from imudiag.certificate import datasheet_path, load
 from imudiag.drivers.base import open_source
 from imudiag.drivers.iio import ScanType, record_layout
 from imudiag.drivers.reconnect import ReconnectingSource
@@ -156,7 +156,7 @@ def test_repeated_and_missing_time_stamps_are_counted(tree):
 def test_session_reaches_ok_and_names_the_bias_within_the_native_time(tree, tmp_path):
     """The device gives rad/s and m/s^2; the data-sheet certificate is in deg/s and g: the
     daemon converts exactly (imudiag.units) and judges as the native protocol does."""
-    cert = load(datasheet_certificate_path("adis16475-2"))
+    cert = load(datasheet_path("adis16475-2"))
     cert.sample_rate = 200.0
     cert_path = tmp_path / "adis16475-2-200hz.yaml"
     cert.save(cert_path)

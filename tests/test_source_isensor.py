@@ -14,7 +14,7 @@ import pytest
 
 from imudiag.bench.fake_isensor import FakeISensorBoard
 from imudiag.bench.pty import PtyPair
-from imudiag.certificate import datasheet_certificate_path, load
+from imudiag.certificate import datasheet_path, load
 from imudiag.drivers.base import open_source
 from imudiag.drivers.isensor import MODELS
 from imudiag.drivers.reconnect import ReconnectingSource
@@ -83,7 +83,7 @@ def test_identity_configuration_and_values(board):
     assert got.meta["units"] == {"gyro": "deg/s", "accel": "g"}
     assert info["vendor"] == "Analog Devices" and info["product"] == "ADIS16475-2"
     assert info["serial"] == "0A1B" and info["firmware"] == "1.07"
-    assert info["datasheet"] == "adis16475-2" and datasheet_certificate_path("adis16475-2")
+    assert info["datasheet"] == "adis16475-2" and datasheet_path("adis16475-2")
     assert info["board"]["firmware"] == "1.18"
     # the buffered burst capture was configured as the board's documents say
     cmds = fake.commands
@@ -98,14 +98,14 @@ def test_every_supported_part_has_its_table_row_and_certificate():
         names = [m for m in MODELS if m.startswith(part)]
         assert names, part
         for name in names:
-            cert = load(datasheet_certificate_path(name))
+            cert = load(datasheet_path(name))
             assert cert.accel.output_unit == MODELS[name].accel_unit
             assert cert.gyro.output_unit == "deg/s"
 
 
 def test_session_reaches_ok_and_names_the_bias_within_the_native_time(board, tmp_path):
     pair, fake = board
-    cert = load(datasheet_certificate_path("adis16475-2"))
+    cert = load(datasheet_path("adis16475-2"))
     cert.sample_rate = RATE_HZ  # the rate this session runs at (DEC_RATE 9)
     cert_path = tmp_path / "adis16475-2-200hz.yaml"
     cert.save(cert_path)
@@ -218,7 +218,7 @@ def test_unknown_part_and_silent_port_are_refused():
 
 def test_daemon_sends_the_self_test_command(board):
     pair, fake = board
-    cert = str(datasheet_certificate_path("adis16475-2"))
+    cert = str(datasheet_path("adis16475-2"))
     with DaemonThread(f"isensor://{pair.slave_path}?rate=200", cert) as d:
         d.wait_connected()
         fake.queue(lines_of(still(40)))

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from imudiag.bench.pty import BoardWriter, PtyPair, chunked
-from imudiag.certificate import datasheet_certificate_path, load
+from imudiag.certificate import datasheet_path, load
 from imudiag.drivers.base import open_source
 from imudiag.drivers.reconnect import ReconnectingSource
 from imudiag.samples import FLAG_ACCEL_SATURATED, SampleBlock
@@ -75,7 +75,7 @@ def still(n: int, t0: float = 0.0, rate: float = 200.0) -> SampleBlock:
 
 
 def test_session_reaches_ok_and_names_the_bias_within_the_native_time():
-    path = datasheet_certificate_path("witmotion-wt901")
+    path = datasheet_path("witmotion-wt901")
     block = session_samples(load(path))
     frames = encode(block)
     with PtyPair() as pair, DaemonThread(f"witmotion://{pair.slave_path}", str(path)) as d:
@@ -113,7 +113,7 @@ def test_values_units_time_and_identity():
     assert not np.any(np.delete(got.flags, 5) & FLAG_ACCEL_SATURATED)
     assert got.meta["units"] == {"gyro": "deg/s", "accel": "g"}
     assert info["vendor"] == "WitMotion" and info["product"] == "WT901"
-    assert info["datasheet"] == "witmotion-wt901" and datasheet_certificate_path(info["datasheet"])
+    assert info["datasheet"] == "witmotion-wt901" and datasheet_path(info["datasheet"])
     assert {"serial", "firmware"} <= set(info)
 
 
@@ -200,7 +200,7 @@ def test_chunked_is_used_for_frames():
 def test_daemon_says_no_data_while_unplugged_and_recovers(tmp_path):
     link = tmp_path / "wt901"
     first = PtyPair(link=link)
-    path = datasheet_certificate_path("witmotion-wt901")
+    path = datasheet_path("witmotion-wt901")
     try:
         with DaemonThread(f"witmotion://{link}?rate=200", str(path)) as d:
             d.wait_connected()

@@ -110,7 +110,7 @@ def serve(
     """Start serving ``scenario`` on a fake ``device`` (witmotion, isensor, iio); returns
     the fake (PtyPair, FakeISensorBoard or FakeIIODevice) and the feeding thread."""
     key = "witmotion-wt901" if device == "witmotion" else model
-    cert = certmod.load(certmod.datasheet_certificate_path(key))
+    cert = certmod.load(certmod.datasheet_path(key))
     blocks = _paced(scenario_blocks(scenario, cert, rate_hz), scenario.speed, scenario.chunk_s)
     if device == "witmotion":
         assert link is not None, "witmotion needs a link path"

@@ -26,7 +26,6 @@ from ..argtypes import (
     writable_output_path,
 )
 from ..atomic import write_text_atomic
-from ..certificate import Certificate, load, load_default
 from ..diagnosis.config import GYRO_MODES, METHODS, DiagnosisConfig
 from ..diagnosis.known_rate import parse_known_rate
 from ..diagnosis.session import DiagnosisTrace, diagnose_recording
@@ -60,7 +59,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--certificate",
         "-c",
         metavar="CERT",
-        help="certificate to compare with (default: the bundled one)",
+        help="certificate to compare with (default: the bundled one), or 'auto': the bundled "
+        "data-sheet certificate the log names (a PX4 ULog's, an ArduPilot DataFlash log's)",
     )
     p.add_argument(
         "--json",
@@ -214,11 +214,6 @@ def make_config(args: argparse.Namespace, **extra: Any) -> DiagnosisConfig:
         raise BadInput(f"options: {exc}") from None
 
 
-def load_certificate(path: str | None) -> Certificate:
-    """The certificate at ``path`` (CertificateError on a bad one), or the bundled one."""
-    return load(path) if path else load_default()
-
-
 def write_json(report: dict, out: str) -> None:
     """Write ``report`` to ``out`` ('-' for standard output); a value not determined (NaN)
     is ``null``."""
@@ -293,7 +288,9 @@ def run(args: argparse.Namespace) -> int:
     from ..plots.diagnosis import FILES  # the names only: matplotlib is imported to draw
 
     check_plots(args, FILES)
-    cert = load_certificate(args.certificate)
+    from ..api import load_certificate
+
+    cert = load_certificate(args.certificate, log=args.log, log_options=log_options(args))
     if cert.device.get("warning"):
         print(
             f"imudiag diagnose: warning: {cert.source}: {cert.device['warning']}", file=sys.stderr

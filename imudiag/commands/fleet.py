@@ -30,7 +30,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--out", required=True, type=writable_directory, metavar="DIR", help="output folder"
     )
-    p.add_argument("--certificate", "-c", metavar="CERT", help="the certificate of every log")
+    p.add_argument(
+        "--certificate",
+        "-c",
+        metavar="CERT",
+        help="the certificate of every log, or 'auto': the bundled data-sheet certificate "
+        "each log names (PX4 ULog, ArduPilot DataFlash: the flight-controller IMU class)",
+    )
     p.add_argument(
         "--certificates",
         metavar="MAP",

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from ..atomic import write_text_atomic
+from ..certificate import AUTO
 from ..errors import BadInput
 from ..logs.extras import MissingExtra
 from .discovery import describe, expand
@@ -47,7 +48,8 @@ def require() -> None:
 
 def load_certificate_map(path: str) -> dict[str, str]:
     """``--certificates MAP.yaml``: vehicle -> certificate path (relative paths are taken
-    from the map's folder). BadInput naming the file and key otherwise."""
+    from the map's folder; ``auto``: the data sheet each log names). BadInput naming the
+    file and key otherwise."""
     from ..yamlio import YamlError, parse, read_text
 
     try:
@@ -63,6 +65,9 @@ def load_certificate_map(path: str) -> dict[str, str]:
     for vehicle, cert in doc.items():
         if not isinstance(cert, str) or not cert:
             raise BadInput(f"{path}: {vehicle}: expected a certificate file name, got {cert!r}")
+        if cert == AUTO:  # the data sheet each of the vehicle's logs names
+            out[str(vehicle)] = AUTO
+            continue
         p = Path(cert).expanduser()
         p = p if p.is_absolute() else base / p
         if not p.is_file():
@@ -184,7 +189,7 @@ def run(
     require()
     if isinstance(paths, str | os.PathLike):
         paths = [os.fspath(paths)]
-    if certificate:
+    if certificate and certificate != AUTO:
         from ..certificate import load
 
         load(certificate)  # a bad --certificate is bad input, before any work
@@ -223,7 +228,11 @@ def run(
                 size=info.size,
                 mtime_ns=info.mtime_ns,
                 root=str(root),
-                certificate=str(Path(certificate).absolute()) if certificate else None,
+                certificate=(
+                    str(Path(certificate).absolute())
+                    if certificate and certificate != AUTO
+                    else certificate
+                ),
                 certificates=cmap,
                 certificates_source=certificates,
                 timeout_s=timeout_s,

@@ -17,6 +17,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from ..certificate import AUTO
 from ..errors import ImudiagError
 from ..reports import finite_or_null
 
@@ -349,6 +350,12 @@ def diagnose_log(job: Job) -> dict[str, Any]:
         cert_path, cert_source = choose_certificate(job, record["vehicle"], folder)
         record["certificate_source"] = cert_source
         stage = "loading the certificate"
+        if cert_path == AUTO:  # the data sheet the log names (--certificate auto)
+            from ..api import datasheet_of_log
+
+            cert_path = str(datasheet_of_log(meta, job.path))
+            cert_source += ": the log's data sheet"
+            record["certificate_source"] = cert_source
         cert = load_certificate_once(cert_path)
         record["certificate"] = str(cert.source) if cert.source else cert_path
         if cert.source and Path(str(cert.source)).is_file():

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from ..certificate import FLIGHT_CONTROLLER_DATASHEET
 from .base import DEFAULT_BLOCK_SIZE, ColumnsReader, LogError
 from .extras import require
 from .gnss_fixes import GnssFixes, gps_week_ms_to_unix, mode_of_fix_type
@@ -160,6 +161,8 @@ class DataFlashReader(ColumnsReader):
                 f"{listed})",
                 "units": {"gyro": "rad/s", "accel": "m/s^2"},
                 "device": f"ArduPilot DataFlash {Path(self.path).name}",
+                # an autopilot's IMU in SI: the class's data sheet (--certificate auto)
+                "datasheet": FLIGHT_CONTROLLER_DATASHEET,
             }
         )
         if rate > 0:

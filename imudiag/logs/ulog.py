@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from ..certificate import FLIGHT_CONTROLLER_DATASHEET
 from .base import DEFAULT_BLOCK_SIZE, ColumnsReader, LogError
 from .extras import require
 from .gnss_fixes import GnssFixes, mode_of_fix_type
@@ -77,6 +78,8 @@ class ULogReader(ColumnsReader):
                 "device": f"PX4 ULog {Path(self.path).name}",
                 "instance": self._instance,
                 "imu_instances": self._instances(topics),
+                # an autopilot's IMU in SI: the class's data sheet (--certificate auto)
+                "datasheet": FLIGHT_CONTROLLER_DATASHEET,
             }
         )
 
