@@ -146,7 +146,15 @@ def conform_meta(meta: Mapping[str, Any], cert: Certificate, where: str) -> Conv
     (nothing stated: the certificate's units are assumed, as before)."""
     if meta.get("units") is None:
         return NO_CONVERSION
-    return conform(stated_units(meta["units"]), cert, where)
+    try:
+        return conform(stated_units(meta["units"]), cert, where)
+    except BadInput as exc:
+        if not meta.get("datasheet") or cert.device.get("datasheet") == meta["datasheet"]:
+            raise
+        named = meta["datasheet"]  # an autopilot's log: its IMU class's data sheet
+        raise BadInput(
+            f"{exc}; or --certificate auto (the {named!r} data sheet the log names)"
+        ) from None
 
 
 def conform(stated: Mapping[str, str], cert: Certificate, where: str) -> Conversion:

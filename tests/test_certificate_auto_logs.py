@@ -83,3 +83,12 @@ def test_the_fleet_takes_each_logs_data_sheet(tmp_path: Path) -> None:
         f"loading the certificate: {bench['path']}: --certificate auto: the log names no "
         "data-sheet certificate"
     )
+
+
+def test_a_units_refusal_on_an_autopilot_log_points_at_auto(capsys) -> None:
+    """The bundled certificate (counts) against a ULog (SI) is refused as before, and the
+    one line now names the way out the log itself offers."""
+    assert main(["diagnose", str(ULOG)]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"imudiag diagnose: error: {ULOG}: units: the gyro outputs are in")
+    assert line.endswith("; or --certificate auto (the 'mavlink-fc-imu' data sheet the log names)")
