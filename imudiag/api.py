@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 from . import validate
-from .certificate import AUTO, Certificate, CertificateError, datasheet_path, load, load_default
+from .certificate import Certificate
 from .diagnosis.calibrate import CalibrationResult
 from .diagnosis.config import CERTIFICATE_NOISE, DiagnosisConfig
 from .diagnosis.inputs import MagnitudeTable
@@ -24,6 +24,7 @@ from .diagnosis.session import (
     diagnose_recording,
 )
 from .errors import BadInput
+from .logs.datasheet import certificate_for_log
 from .logs.options import LogOptions
 from .samples import SampleBlock
 
@@ -35,44 +36,14 @@ if TYPE_CHECKING:
 CertificateLike = Certificate | str | Path | None
 
 
-def log_datasheet_path(log: Any, log_options: LogOptions | None = None) -> Path:
-    """``--certificate auto`` for a log: the bundled data-sheet certificate its metadata
-    names (``datasheet``: a PX4 ULog's or ArduPilot DataFlash log's IMU, the flight
-    controller class; docs/logs.md). CertificateError naming the log when it names none."""
-    if not isinstance(log, str | Path):
-        raise CertificateError(
-            AUTO, "a data-sheet certificate is named by a log file; give one for samples in memory"
-        )
-    from .logs import open_log
-
-    with open_log(log, block_size=1, options=log_options) as reader:
-        return datasheet_of_log(reader.meta, log)
-
-
-def datasheet_of_log(meta: dict[str, Any], log: str | Path) -> Path:
-    """The bundled data-sheet certificate the metadata ``meta`` of the log ``log`` names
-    (``datasheet``); CertificateError naming the log when it names none."""
-    key = meta.get("datasheet")
-    if not key:
-        raise CertificateError(
-            str(log),
-            "--certificate auto: the log names no data-sheet certificate (autopilot logs do: "
-            "PX4 ULog, ArduPilot DataFlash); give a certificate file (--certificate PATH)",
-        )
-    return datasheet_path(str(key))
-
-
 def load_certificate(
     path: str | Path | None = None, *, log: Any = None, log_options: LogOptions | None = None
 ) -> Certificate:
     """The certificate in the YAML file at ``path`` (None: the bundled one of the simulated
-    board; ``"auto"``: the data sheet the log ``log`` names, :func:`log_datasheet_path`).
-    Raises :class:`~imudiag.errors.CertificateError` naming the key and the reason."""
-    if path is None:
-        return load_default()
-    if str(path) == AUTO:
-        return load(log_datasheet_path(log, log_options))
-    return load(path)
+    board; ``"auto"``: the data sheet the log ``log`` names,
+    :func:`~imudiag.logs.datasheet.log_datasheet_path`). Raises
+    :class:`~imudiag.errors.CertificateError` naming the key and the reason."""
+    return certificate_for_log(path, log, log_options)
 
 
 def _certificate(

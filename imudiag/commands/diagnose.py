@@ -288,9 +288,9 @@ def run(args: argparse.Namespace) -> int:
     from ..plots.diagnosis import FILES  # the names only: matplotlib is imported to draw
 
     check_plots(args, FILES)
-    from ..api import load_certificate
+    from ..logs.datasheet import certificate_for_log
 
-    cert = load_certificate(args.certificate, log=args.log, log_options=log_options(args))
+    cert = certificate_for_log(args.certificate, args.log, log_options(args))
     if cert.device.get("warning"):
         print(
             f"imudiag diagnose: warning: {cert.source}: {cert.device['warning']}", file=sys.stderr

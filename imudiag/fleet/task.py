@@ -351,7 +351,7 @@ def diagnose_log(job: Job) -> dict[str, Any]:
         record["certificate_source"] = cert_source
         stage = "loading the certificate"
         if cert_path == AUTO:  # the data sheet the log names (--certificate auto)
-            from ..api import datasheet_of_log
+            from ..logs.datasheet import datasheet_of_log
 
             cert_path = str(datasheet_of_log(meta, job.path))
             cert_source += ": the log's data sheet"
