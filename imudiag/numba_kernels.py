@@ -1,6 +1,10 @@
-"""The numba kernels of :mod:`.kernels` (imported by it only when they are switched on: this
-module needs numba, the ``fleet`` extra). Module-level functions, so numba's on-disk cache
-(``cache=True``) serves every later process: a fleet worker loads them instead of compiling."""
+"""The numba kernels switched by :mod:`imudiag.kernels` (imported by it only when they are
+loaded: this module needs numba, the ``fleet`` extra): the window fits' loops
+(:mod:`imudiag.diagnosis.kernels`), the GNSS epoch cut (:func:`epoch_cut`) and the still
+detector's trailing extremes (:func:`trailing_extremes`). Module-level functions, so numba's
+on-disk cache (``cache=True``) serves every later process: a fleet worker loads them instead
+of compiling. Plain arithmetic only, in the order of the numpy paths (no fast-math: no
+reassociation, no fused multiply-add)."""
 
 from __future__ import annotations
 
@@ -432,6 +436,148 @@ def predict_kernel(q, sens, dninv, up0):
     return pred, d
 
 
+@jit
+def epoch_cut(accel, fc, gyro, big, big_mid, start, end, rotate, gyro_sums):
+    """Per GNSS epoch k (samples start[k] <= i < end[k], in order), the sums (K, 3) of the
+    samples ``fc`` (3, N) rotated to the epoch's mid time by the rotation vector ``big[:, i]
+    - big_mid[:, k]`` (rad; Rodrigues, as
+    :func:`imudiag.aiding.specific_force._rodrigues_rows`; unrotated when not ``rotate``),
+    of ``accel`` (3, N) and, when ``gyro_sums``, of ``gyro`` (3, N): one pass, each bin
+    summed from 0 in sample order as ``np.bincount`` sums it."""
+    kk = start.shape[0]
+    sums = np.zeros((kk, 3))
+    plain = np.zeros((kk, 3))
+    gsum = np.zeros((kk, 3))
+    for k in range(kk):
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        p0 = 0.0
+        p1 = 0.0
+        p2 = 0.0
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        m0 = 0.0
+        m1 = 0.0
+        m2 = 0.0
+        if rotate:
+            m0 = big_mid[0, k]
+            m1 = big_mid[1, k]
+            m2 = big_mid[2, k]
+        for i in range(start[k], end[k]):
+            x0 = fc[0, i]
+            x1 = fc[1, i]
+            x2 = fc[2, i]
+            if rotate:
+                t0 = big[0, i] - m0
+                t1 = big[1, i] - m1
+                t2 = big[2, i] - m2
+                a2 = t0 * t0
+                a2 += t1 * t1
+                a2 += t2 * t2
+                ang = np.sqrt(a2)
+                if ang < 1e-12:
+                    k0 = 0.0
+                    k1 = 0.0
+                    k2 = 0.0
+                else:
+                    k0 = t0 / ang
+                    k1 = t1 / ang
+                    k2 = t2 / ang
+                c = np.cos(ang)
+                s = np.sin(ang)
+                kd = k0 * x0
+                kd += k1 * x1
+                kd += k2 * x2
+                omc = 1.0 - c
+                r0 = x0 * c
+                r0 += (k1 * x2 - k2 * x1) * s
+                r0 += (k0 * kd) * omc
+                r1 = x1 * c
+                r1 += (k2 * x0 - k0 * x2) * s
+                r1 += (k1 * kd) * omc
+                r2 = x2 * c
+                r2 += (k0 * x1 - k1 * x0) * s
+                r2 += (k2 * kd) * omc
+                s0 += r0
+                s1 += r1
+                s2 += r2
+            else:
+                s0 += x0
+                s1 += x1
+                s2 += x2
+            p0 += accel[0, i]
+            p1 += accel[1, i]
+            p2 += accel[2, i]
+            if gyro_sums:
+                g0 += gyro[0, i]
+                g1 += gyro[1, i]
+                g2 += gyro[2, i]
+        sums[k, 0] = s0
+        sums[k, 1] = s1
+        sums[k, 2] = s2
+        plain[k, 0] = p0
+        plain[k, 1] = p1
+        plain[k, 2] = p2
+        gsum[k, 0] = g0
+        gsum[k, 1] = g1
+        gsum[k, 2] = g2
+    return sums, plain, gsum
+
+
+@jit
+def nan_max(a, b):
+    """``np.maximum`` of two floats: nan when either is."""
+    if a != a or b != b:
+        return a + b
+    return a if a >= b else b
+
+
+@jit
+def nan_min(a, b):
+    """``np.minimum`` of two floats: nan when either is."""
+    if a != a or b != b:
+        return a + b
+    return a if a <= b else b
+
+
+@jit
+def trailing_spread(d_idx, d_val, d_start, d_max, d_min, old, k0, values, start, step, k):
+    """The still detector's trailing spreads (:class:`imudiag.quasistatic.spread.TrailingSpread`,
+    its ``update``), compiled: the extremes (into ``d_max``, ``d_min`` (total, C) from
+    position ``old`` on) of each new kept value's history (its ``k`` last kept values of
+    ``d_val`` (total, >= C) from its first row ``d_start`` on; -inf / inf where none), then
+    each row's spread (M, C) of its last kept value's history and its own ``values`` row,
+    0 where that kept value is before the row's ``start`` or the spread is not finite.
+    Max and min are exact: equal to the numpy path (but for the sign of a zero)."""
+    total = d_idx.shape[0]
+    c = values.shape[1]
+    for at in range(old, total):
+        first = np.searchsorted(d_idx, d_start[at])
+        lo = max(at - k + 1, first)
+        for j in range(c):
+            hi = -np.inf
+            low = np.inf
+            for q in range(lo, at + 1):
+                hi = nan_max(hi, d_val[q, j])
+                low = nan_min(low, d_val[q, j])
+            d_max[at, j] = hi
+            d_min[at, j] = low
+    m = values.shape[0]
+    out = np.zeros((m, c))
+    for r in range(m):
+        p = old + (r - k0) // step
+        if p < 0 or d_idx[p] < start[r]:
+            continue
+        for j in range(c):
+            v = values[r, j]
+            s = nan_max(d_max[p, j], v) - nan_min(d_min[p, j], v)
+            if np.isfinite(s):
+                out[r, j] = s
+    return out
+
+
 def warm_up() -> dict[str, Any]:
     """Run each kernel once (compiling it, or loading it from numba's cache); the kernels by
     name."""
@@ -459,7 +605,19 @@ def warm_up() -> dict[str, Any]:
         predict_kernel(
             np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 3, 3, 3)), dninv, np.ones((1, 3))
         )
+    rows = rng.normal(size=(3, 8))
+    bounds = np.array([0, 3], dtype=np.int64), np.array([3, 8], dtype=np.int64)
+    for rotate in (True, False):
+        epoch_cut(rows, rows, rows, rows, rows[:, :3], *bounds, rotate, rotate)
+    d_idx = np.array([0, 2, 4], dtype=np.int64)
+    d_max = np.zeros((3, 2))
+    trailing_spread(
+        d_idx, rows.T[:3, :4].copy(), d_idx, d_max, d_max.copy(), 0, 0, rows.T[:5, :2].copy(),
+        np.zeros(5, dtype=np.int64), 2, 3,
+    )  # fmt: skip
     return {
+        "epoch_cut": epoch_cut,
+        "trailing_spread": trailing_spread,
         "exact_gauss_newton": gauss_newton,
         "product_sensitivity": product_sensitivity_kernel,
         "ninv_derivatives": ninv_derivatives_kernel,

@@ -1,0 +1,101 @@
+"""The still detector's trailing spreads compiled (issue 28,
+:func:`imudiag.numba_kernels.trailing_spread`, numba from the ``fleet`` extra) against the
+plain numpy :class:`imudiag.quasistatic.spread.TrailingSpread` it replaces where the kernels
+are on: max and min are exact, so the spreads are the same numbers (``==``: the sign of a zero
+aside) and the detector's static flags identical, on seeded random streams (restarts, values
+that are not finite, blocks of 1 row to 20 000 rows: both of the plain path's ways) and on the
+real recordings of tests/data/real (fed in random blocks and in one block)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("numba", reason="numba (the fleet extra) is not installed")
+
+from imudiag import kernels  # noqa: E402
+from imudiag.quasistatic import QuasiStaticDetector, TrailingSpread  # noqa: E402
+from imudiag.samples import SampleBlock  # noqa: E402
+from tests.test_detector_equivalence import REAL_NAMES, _real  # noqa: E402
+
+
+@pytest.fixture
+def switch():
+    """``switch(on)`` turns the kernels on or off; the process's choice restored after."""
+    was = kernels.enabled()
+
+    def turn(on: bool) -> None:
+        assert kernels.enable(on) == on, kernels.status()
+
+    yield turn
+    kernels.enable(was)
+
+
+def stream(seed: int, n: int, columns: int):
+    """Values (n, C) with steps and non-finite rows, and monotone history starts (n,)."""
+    rng = np.random.default_rng(seed)
+    values = np.cumsum(rng.normal(0.0, 0.1, (n, columns)), axis=0)
+    values[rng.random(n) < 0.002] = np.nan
+    values[rng.random(n) < 0.001, 0] = np.inf
+    rows = np.arange(n)
+    span = int(rng.integers(20, 400))
+    restarts = np.maximum.accumulate(np.where(rng.random(n) < 0.003, rows + 5, 0))
+    return values, np.maximum(restarts, rows - span), span
+
+
+def blocks(rng: np.random.Generator, n: int) -> list[int]:
+    """Block sizes summing to n: small reads and big blocks (beyond the repeat threshold)."""
+    out, done = [], 0
+    while done < n:
+        size = int(rng.choice([rng.integers(1, 8), rng.integers(8, 500), 20_000]))
+        out.append(min(size, n - done))
+        done += out[-1]
+    return out
+
+
+@pytest.mark.filterwarnings("ignore:invalid value:RuntimeWarning")  # inf - inf, plain path
+@pytest.mark.parametrize("seed", range(8))
+def test_trailing_spread_kernel_equals_plain(seed, switch):
+    values, start, span = stream(seed, 60_000, 1 + seed % 4)
+    step = 1 + seed % 5 * 3
+    results, states = [], []
+    for on in (False, True):
+        switch(on)
+        spread = TrailingSpread(values.shape[1], step, span)
+        rng = np.random.default_rng(100 + seed)
+        out, first = [], 0
+        for size in blocks(rng, values.shape[0]):
+            out.append(
+                spread.update(first, values[first : first + size], start[first : first + size])
+            )
+            first += size
+        results.append(np.concatenate(out))
+        states.append((spread._idx, spread._val, spread._start, spread._max, spread._min))
+    plain, fast = results
+    assert np.any(plain > 0)
+    np.testing.assert_array_equal(fast, plain)
+    for a, b in zip(states[1], states[0], strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def flags(block: SampleBlock, cert, sizes: list[int] | None) -> np.ndarray:
+    det = QuasiStaticDetector(cert, rate_hz=cert.sample_rate)
+    if sizes is None:
+        return det.update(block)
+    out, first = [], 0
+    for size in sizes:
+        out.append(det.update(block.slice(first, first + size)))
+        first += size
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("name", REAL_NAMES)
+def test_detector_flags_with_the_kernel_equal_plain_on_real_recordings(name, switch):
+    block, cert = _real(name)
+    sizes = blocks(np.random.default_rng(7), len(block))
+    for how in (sizes, None):
+        switch(False)
+        plain = flags(block, cert, how)
+        switch(True)
+        fast = flags(block, cert, how)
+        np.testing.assert_array_equal(fast, plain)
