@@ -578,6 +578,33 @@ def trailing_spread(d_idx, d_val, d_start, d_max, d_min, old, k0, values, start,
     return out
 
 
+@jit
+def beyond_counts(x, bounds, ends, w):
+    """The counts of :func:`imudiag.trailing.median_side`: per window ``x[e - w : e]`` (``e``
+    in ``ends``, P) and column of ``x`` (R, C), how many values exceed each of ``bounds``
+    (B, C) and how many are nan: (P, B + 1, C) int32, from prefix counts made in one pass
+    (the same comparisons: exact)."""
+    r = x.shape[0]
+    c = x.shape[1]
+    nb = bounds.shape[0]
+    pre = np.empty((r + 1, nb + 1, c), dtype=np.int32)
+    pre[0] = 0
+    for i in range(r):
+        for j in range(c):
+            v = x[i, j]
+            for b in range(nb):
+                pre[i + 1, b, j] = pre[i, b, j] + (1 if v > bounds[b, j] else 0)
+            pre[i + 1, nb, j] = pre[i, nb, j] + (1 if v != v else 0)
+    p = ends.shape[0]
+    out = np.empty((p, nb + 1, c), dtype=np.int32)
+    for q in range(p):
+        e = ends[q]
+        for b in range(nb + 1):
+            for j in range(c):
+                out[q, b, j] = pre[e, b, j] - pre[e - w, b, j]
+    return out
+
+
 def warm_up() -> dict[str, Any]:
     """Run each kernel once (compiling it, or loading it from numba's cache); the kernels by
     name."""
@@ -615,7 +642,11 @@ def warm_up() -> dict[str, Any]:
         d_idx, rows.T[:3, :4].copy(), d_idx, d_max, d_max.copy(), 0, 0, rows.T[:5, :2].copy(),
         np.zeros(5, dtype=np.int64), 2, 3,
     )  # fmt: skip
+    x = rng.normal(size=(12, 6))
+    for layout in (x, x.T.copy().T):  # C-contiguous and strided (a transposed view)
+        beyond_counts(layout, np.zeros((4, 6)), np.array([3, 12], dtype=np.int64), 3)
     return {
+        "beyond_counts": beyond_counts,
         "epoch_cut": epoch_cut,
         "trailing_spread": trailing_spread,
         "exact_gauss_newton": gauss_newton,
