@@ -581,27 +581,38 @@ def trailing_spread(d_idx, d_val, d_start, d_max, d_min, old, k0, values, start,
 @jit
 def beyond_counts(x, bounds, ends, w):
     """The counts of :func:`imudiag.trailing.median_side`: per window ``x[e - w : e]`` (``e``
-    in ``ends``, P) and column of ``x`` (R, C), how many values exceed each of ``bounds``
-    (B, C) and how many are nan: (P, B + 1, C) int32, from prefix counts made in one pass
-    (the same comparisons: exact)."""
+    in ``ends``, P, non-decreasing, each at least ``w``) and column of ``x`` (R, C), how many
+    values exceed each of ``bounds`` (B, C) and how many are nan: (P, B + 1, C) int32, the
+    running counts taken at each window's two ends in one pass (the same comparisons and
+    integers as the numpy path's prefix counts: exact)."""
     r = x.shape[0]
     c = x.shape[1]
     nb = bounds.shape[0]
-    pre = np.empty((r + 1, nb + 1, c), dtype=np.int32)
-    pre[0] = 0
-    for i in range(r):
+    p = ends.shape[0]
+    out = np.zeros((p, nb + 1, c), dtype=np.int32)
+    cnt = np.zeros((nb + 1, c), dtype=np.int32)
+    lo = 0  # the next window whose start is still ahead
+    hi = 0  # the next window whose end is still ahead
+    for i in range(r + 1):
+        while lo < p and ends[lo] - w == i:
+            for b in range(nb + 1):
+                for j in range(c):
+                    out[lo, b, j] -= cnt[b, j]
+            lo += 1
+        while hi < p and ends[hi] == i:
+            for b in range(nb + 1):
+                for j in range(c):
+                    out[hi, b, j] += cnt[b, j]
+            hi += 1
+        if i == r or hi == p:
+            break
         for j in range(c):
             v = x[i, j]
             for b in range(nb):
-                pre[i + 1, b, j] = pre[i, b, j] + (1 if v > bounds[b, j] else 0)
-            pre[i + 1, nb, j] = pre[i, nb, j] + (1 if v != v else 0)
-    p = ends.shape[0]
-    out = np.empty((p, nb + 1, c), dtype=np.int32)
-    for q in range(p):
-        e = ends[q]
-        for b in range(nb + 1):
-            for j in range(c):
-                out[q, b, j] = pre[e, b, j] - pre[e - w, b, j]
+                if v > bounds[b, j]:
+                    cnt[b, j] += 1
+            if v != v:
+                cnt[nb, j] += 1
     return out
 
 

@@ -241,9 +241,12 @@ def median_side(
     thr = np.asarray(thresholds, dtype=float)
     k = thr.shape[0]
     bounds = np.concatenate([thr * (1.0 + MEDIAN_SIDE_MARGIN), thr * (1.0 - MEDIAN_SIDE_MARGIN)])
+    ends = np.asarray(ends)
     compiled = kernel("beyond_counts")  # the same counts in one compiled pass (exact)
-    if compiled is not None:
-        counts = compiled(x, bounds, np.asarray(ends, dtype=np.int64), int(w))
+    if compiled is not None and (
+        ends.size == 0 or (ends[0] >= w and bool(np.all(np.diff(ends) >= 0)))
+    ):
+        counts = compiled(x, bounds, ends.astype(np.int64), int(w))
     else:
         beyond = np.empty((x.shape[0] + 1, 2 * k + 1, x.shape[1]), dtype=np.int32)
         beyond[0] = 0
