@@ -616,6 +616,56 @@ def beyond_counts(x, bounds, ends, w):
     return out
 
 
+@jit
+def sorted_median(x):
+    """The median of ``x`` (n >= 1, numbers), as ``np.median``: the middle value, or the mean
+    of the two middle values ((lower + upper) / 2)."""
+    s = np.sort(x)
+    n = s.shape[0]
+    h = n // 2
+    if n % 2:
+        return s[h]
+    return (s[h - 1] + s[h]) / 2.0
+
+
+@jit
+def robust_excess(a, nv, target):
+    """The bracketing of :func:`imudiag.diagnosis.robust._robust_excess` after its first
+    median test, compiled: ``a`` (n,) = u / m, ``nv`` (n,), the chi^2_1 median ``target``; the
+    same trial values, medians (order statistics: exact; nan where a row holds one) and
+    comparisons, so the same e."""
+    n = a.shape[0]
+    mx = a[0] * nv[0]
+    for i in range(1, n):
+        v = a[i] * nv[i]
+        if v > mx or v != v:
+            mx = v
+    lo = 0.0
+    hi = mx + 1e-300
+    inv_nv = 1.0 / nv
+    row = np.empty(n)
+    for _ in range(40):
+        span = hi - lo
+        k = 15  # the first trial whose median is at or below the target (15: none)
+        for q in range(15):
+            trial = lo + span * ((q + 1) / 16.0)
+            nan = False
+            for i in range(n):
+                row[i] = a[i] / (1.0 + trial * inv_nv[i])
+                if row[i] != row[i]:
+                    nan = True
+            if not nan and sorted_median(row) <= target:
+                k = q
+                break
+        new_lo = lo + span * (k / 16.0) if k > 0 else lo
+        if k < 15:
+            hi = lo + span * ((k + 1) / 16.0)
+        lo = new_lo
+        if hi - lo <= 1e-10 * hi:
+            break
+    return hi
+
+
 def warm_up() -> dict[str, Any]:
     """Run each kernel once (compiling it, or loading it from numba's cache); the kernels by
     name."""
@@ -656,8 +706,10 @@ def warm_up() -> dict[str, Any]:
     x = rng.normal(size=(12, 6))
     for layout in (x, x.T.copy().T):  # C-contiguous and strided (a transposed view)
         beyond_counts(layout, np.zeros((4, 6)), np.array([3, 12], dtype=np.int64), 3)
+    robust_excess(np.array([3.0, 1.0, 2.0, 5.0]), np.ones(4), 0.45)
     return {
         "beyond_counts": beyond_counts,
+        "robust_excess": robust_excess,
         "epoch_cut": epoch_cut,
         "trailing_spread": trailing_spread,
         "exact_gauss_newton": gauss_newton,
