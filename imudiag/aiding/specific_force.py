@@ -41,6 +41,7 @@ import numpy as np
 
 from ..earth import coriolis_term, normal_gravity
 from ..kernels import kernel
+from ..rotations import skew
 from .tpv import GnssTrack
 
 #: Reasons an epoch is not used, in the order they are tested.
@@ -485,6 +486,7 @@ class ImuSeries:
         self._gyro_rows: np.ndarray | None = None
         self._gyro_integral: np.ndarray | None = None  #: (3, N) rad, up to each t_i
         self._wdot: np.ndarray | None = None
+        self._centripetal: np.ndarray | None = None
         if self.gyro_si is not None:
             self._gyro_rows = np.ascontiguousarray(self.gyro_si.T)
         if self.gyro_si is not None and n > 1:
@@ -517,6 +519,29 @@ class ImuSeries:
         values = np.full(2 * kk + 1, kk, dtype=np.intp)
         values[1::2] = np.arange(kk)
         return np.repeat(values, np.diff(bounds))
+
+    def bins(
+        self, t0: np.ndarray, t1: np.ndarray, latency_s: float = 0.0
+    ) -> tuple[np.ndarray, int, int, np.ndarray]:
+        """(epoch index of each sample lo <= i < hi, K for none; lo; hi; samples per epoch
+        (K,)) of the GNSS epochs [t0, t1] - ``latency_s`` (s): the samples of every epoch
+        lie in lo..hi, each in the epoch :func:`imu_epochs` puts it in."""
+        a = np.asarray(t0, dtype=float) - latency_s
+        b = np.asarray(t1, dtype=float) - latency_s
+        start, end = self._bounds(a, b)
+        lo = int(start[0]) if a.shape[0] else 0
+        hi = int(end[-1]) if a.shape[0] else 0
+        return self._bins(start, end, lo, hi), lo, hi, end - start
+
+    def centripetal(self) -> np.ndarray | None:
+        """[w]x [w]x per sample (N, 9, row-major 3x3), rad^2/s^2, made once (the lever-arm
+        rows at every latency tried); None without gyro."""
+        if self.gyro_si is None:
+            return None
+        if self._centripetal is None:
+            sw = skew(self.gyro_si)
+            self._centripetal = (sw @ sw).reshape(-1, 9)
+        return self._centripetal
 
     def epochs(
         self,
