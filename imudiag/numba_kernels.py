@@ -666,6 +666,114 @@ def robust_excess(a, nv, target):
     return hi
 
 
+@jit
+def pairwise_block(a, lo, n):
+    """``np.sum`` of ``a[lo : lo + n]``, n <= 128, in numpy's order (:func:`pairwise_sum`)."""
+    if n < 8:
+        res = -0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0 = a[lo]
+    r1 = a[lo + 1]
+    r2 = a[lo + 2]
+    r3 = a[lo + 3]
+    r4 = a[lo + 4]
+    r5 = a[lo + 5]
+    r6 = a[lo + 6]
+    r7 = a[lo + 7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@jit
+def pairwise_sum(a, lo, n):
+    """``np.sum`` of ``a[lo : lo + n]`` (float64) in numpy's order: its pairwise summation
+    (below 8 values one by one from -0.0; up to 128 in eight interleaved partial sums joined
+    as ((0+1)+(2+3))+((4+5)+(6+7)) and the rest one by one; above, the sum of two halves split
+    at a multiple of 8, here walked with a stack: numba's cache does not load recursive
+    functions). Held to ``np.sum`` bit for bit by tests/test_fit_bookkeeping_kernels.py."""
+    if n <= 128:
+        return pairwise_block(a, lo, n)
+    s_lo = np.empty(64, dtype=np.int64)
+    s_n = np.empty(64, dtype=np.int64)
+    s_state = np.zeros(64, dtype=np.int64)  # 0 new, 1 left half pending, 2 right pending
+    s_left = np.empty(64)
+    sp = 0
+    s_lo[0] = lo
+    s_n[0] = n
+    while True:
+        cn = s_n[sp]
+        if cn > 128 and s_state[sp] == 0:
+            n2 = cn // 2
+            n2 -= n2 % 8
+            s_state[sp] = 1
+            sp += 1
+            s_lo[sp] = s_lo[sp - 1]
+            s_n[sp] = n2
+            s_state[sp] = 0
+            continue
+        val = pairwise_block(a, s_lo[sp], cn)
+        while True:  # hand the value up
+            if sp == 0:
+                return val
+            sp -= 1
+            if s_state[sp] == 1:  # the left half: now the right one
+                s_left[sp] = val
+                s_state[sp] = 2
+                n2 = s_n[sp] // 2
+                n2 -= n2 % 8
+                sp += 1
+                s_lo[sp] = s_lo[sp - 1] + n2
+                s_n[sp] = s_n[sp - 1] - n2
+                s_state[sp] = 0
+                break
+            val = s_left[sp] + val  # both halves
+
+
+@jit
+def excess_variance(r, sig2, dof):
+    """:func:`imudiag.diagnosis.scalar_fit._excess_variance` compiled: the variance e added to
+    every point making sum r^2 / (sig2 + e) equal ``dof``, by the same halvings of the same
+    bracket, each sum in numpy's order (:func:`pairwise_sum`): the same e."""
+    n = r.shape[0]
+    r2 = r * r
+    mx = r2[0]
+    for i in range(1, n):
+        if r2[i] > mx or r2[i] != r2[i]:
+            mx = r2[i]
+    lo = 0.0
+    hi = mx * n + 1e-300
+    tmp = np.empty(n)
+    for _ in range(100):
+        b_lo = lo
+        b_hi = hi
+        mid = 0.5 * (lo + hi)
+        for i in range(n):
+            tmp[i] = r2[i] / (sig2[i] + mid)
+        if pairwise_sum(tmp, 0, n) > dof:
+            lo = mid
+        else:
+            hi = mid
+        if lo == b_lo and hi == b_hi:
+            break
+    return hi
+
+
 def warm_up() -> dict[str, Any]:
     """Run each kernel once (compiling it, or loading it from numba's cache); the kernels by
     name."""
@@ -707,8 +815,11 @@ def warm_up() -> dict[str, Any]:
     for layout in (x, x.T.copy().T):  # C-contiguous and strided (a transposed view)
         beyond_counts(layout, np.zeros((4, 6)), np.array([3, 12], dtype=np.int64), 3)
     robust_excess(np.array([3.0, 1.0, 2.0, 5.0]), np.ones(4), 0.45)
+    excess_variance(rng.normal(size=300), np.ones(300), 100.0)
     return {
         "beyond_counts": beyond_counts,
+        "excess_variance": excess_variance,
+        "pairwise_sum": pairwise_sum,
         "robust_excess": robust_excess,
         "epoch_cut": epoch_cut,
         "trailing_spread": trailing_spread,

@@ -132,6 +132,7 @@ __all__ = [
     "enable",
     "enabled",
     "exact_gauss_newton",
+    "kernel",
     "load",
     "ninv_derivatives",
     "predict_directions",
