@@ -774,6 +774,37 @@ def excess_variance(r, sig2, dof):
     return hi
 
 
+@jit
+def jump_test(sums, back_w, back_2w, still, sigma2, w, limit, first):
+    """The still detector's jump test (:meth:`imudiag.quasistatic.QuasiStaticDetector._jump`)
+    compiled: per window (M,) of the prefix-sum differences ``sums``, ``back_w``,
+    ``back_2w`` (M, 13), the same element-wise operations and three-term sums in numpy's
+    order (one by one), so the same flags."""
+    m = sums.shape[0]
+    out = np.zeros(m, dtype=np.bool_)
+    thr = 12.0 * limit
+    for i in range(m):
+        if not still[i] or (first + 1 + i < 2 * w):
+            continue
+        acc = 0.0
+        for c in range(3):
+            p1 = back_w[i, 3 + c] - back_2w[i, 3 + c]
+            step = (sums[i, 3 + c] - p1) / w
+            v = step * step / sigma2[c]
+            acc = v if c == 0 else acc + v
+        if not acc > thr:
+            continue
+        acc = 0.0
+        for c in range(3):
+            p1 = back_w[i, 3 + c] - back_2w[i, 3 + c]
+            p_mean = p1 / w
+            pv = nan_max((back_w[i, 9 + c] - back_2w[i, 9 + c] - p1 * p_mean) / (w - 1), 0.0)
+            v = pv / sigma2[c]
+            acc = v if c == 0 else acc + v
+        out[i] = acc <= limit
+    return out
+
+
 def warm_up() -> dict[str, Any]:
     """Run each kernel once (compiling it, or loading it from numba's cache); the kernels by
     name."""
@@ -816,8 +847,12 @@ def warm_up() -> dict[str, Any]:
         beyond_counts(layout, np.zeros((4, 6)), np.array([3, 12], dtype=np.int64), 3)
     robust_excess(np.array([3.0, 1.0, 2.0, 5.0]), np.ones(4), 0.45)
     excess_variance(rng.normal(size=300), np.ones(300), 100.0)
+    x13 = rng.normal(size=(6, 13))
+    jump_test(x13, x13 * 0.5, x13 * 0.25, np.ones(6, dtype=np.bool_), np.ones(3), 2, 3.0, 10)
+    jump_test(x13, x13[:, :], x13.T.copy().T, np.ones(6, dtype=np.bool_), np.ones(3), 2, 3.0, 0)
     return {
         "beyond_counts": beyond_counts,
+        "jump_test": jump_test,
         "excess_variance": excess_variance,
         "pairwise_sum": pairwise_sum,
         "robust_excess": robust_excess,

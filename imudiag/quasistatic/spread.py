@@ -5,7 +5,7 @@ long blocks). ``tests/test_quasistatic_paths.py`` checks it against the plain de
 (:func:`plain_spread`). Where the compiled kernels are on (:mod:`imudiag.kernels`) the
 extremes and the rows' spreads are one compiled pass
 (:func:`imudiag.numba_kernels.trailing_spread`): max and min are exact, so the spreads are
-the same numbers and the detector's flags the same (tests/test_spread_kernel.py)."""
+the same numbers and the detector's flags the same (tests/test_detector_kernels.py)."""
 
 from __future__ import annotations
 

@@ -1,10 +1,16 @@
-"""The still detector's trailing spreads compiled (issue 28,
-:func:`imudiag.numba_kernels.trailing_spread`, numba from the ``fleet`` extra) against the
-plain numpy :class:`imudiag.quasistatic.spread.TrailingSpread` it replaces where the kernels
-are on: max and min are exact, so the spreads are the same numbers (``==``: the sign of a zero
-aside) and the detector's static flags identical, on seeded random streams (restarts, values
-that are not finite, blocks of 1 row to 20 000 rows: both of the plain path's ways) and on the
-real recordings of tests/data/real (fed in random blocks and in one block)."""
+"""The still detector's compiled parts (issue 28, numba from the ``fleet`` extra) against the
+plain numpy they replace where the kernels are on:
+
+- the trailing spreads (:func:`imudiag.numba_kernels.trailing_spread` behind
+  :class:`imudiag.quasistatic.spread.TrailingSpread`): max and min are exact, so the spreads
+  are the same numbers (``==``: the sign of a zero aside), on seeded random streams
+  (restarts, values that are not finite, blocks of 1 row to 20 000 rows: both of the plain
+  path's ways);
+- the jump test (:func:`imudiag.numba_kernels.jump_test`): the same element-wise operations
+  and three-term sums in numpy's order, so the same flags, on random window sums with
+  noise variances of very different sizes (where the order of a sum shows);
+- the detector's static flags, identical on the real recordings of tests/data/real (fed in
+  random blocks and in one block)."""
 
 from __future__ import annotations
 
@@ -99,3 +105,31 @@ def test_detector_flags_with_the_kernel_equal_plain_on_real_recordings(name, swi
         switch(True)
         fast = flags(block, cert, how)
         np.testing.assert_array_equal(fast, plain)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_jump_test_kernel_equals_plain(seed, switch):
+    from imudiag.certificate import load_default
+
+    det = QuasiStaticDetector(load_default(), rate_hz=100.0)
+    w = det.window
+    rng = np.random.default_rng(70 + seed)
+    jumps = 0
+    for case in range(100):
+        m = int(rng.integers(1, 3000))
+        sums = rng.normal(size=(m, 13)) * 10 ** rng.uniform(-3, 3) * w
+        back_w = rng.normal(size=(m, 13)) * 10 ** rng.uniform(-3, 3) * w
+        back_2w = back_w - rng.normal(size=(m, 13)) * w * rng.uniform(0.0, 3.0)
+        back_w[:, 9:12] = back_2w[:, 9:12] + np.abs(rng.normal(size=(m, 3))) * w * rng.uniform(0, 5)
+        if case % 5 == 0:
+            sums[rng.integers(0, m)] = np.nan
+        still = rng.random(m) < 0.8
+        sigma2 = 10.0 ** rng.uniform(-8.0, 8.0, 3) if case % 2 else rng.uniform(0.1, 3.0, 3)
+        first = int(rng.integers(0, 300))
+        out = []
+        for on in (False, True):
+            switch(on)
+            out.append(det._jump(first, sums, back_w, back_2w, still, sigma2))
+        np.testing.assert_array_equal(out[1], out[0])
+        jumps += int(out[0].sum())
+    assert jumps > 1000
