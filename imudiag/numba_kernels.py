@@ -805,6 +805,24 @@ def jump_test(sums, back_w, back_2w, still, sigma2, w, limit, first):
     return out
 
 
+@jit
+def window_moments(sums, w, ref):
+    """The still detector's window means and variances (:class:`imudiag.quasistatic.WindowStats`)
+    compiled: from the window sums (M, >= 12: outputs 0-5 centred on ``ref`` (6,), their
+    squares 6-11) of ``w`` rows, the variances max((S2 - S1 (S1 / w)) / (w - 1), 0) and the
+    means S1 / w + ref (M, 6) each, element by element as numpy: the same numbers."""
+    m = sums.shape[0]
+    var = np.empty((m, 6))
+    mean = np.empty((m, 6))
+    for i in range(m):
+        for j in range(6):
+            s1 = sums[i, j]
+            mc = s1 / w
+            var[i, j] = nan_max((sums[i, 6 + j] - s1 * mc) / (w - 1), 0.0)
+            mean[i, j] = mc + ref[j]
+    return var, mean
+
+
 def warm_up() -> dict[str, Any]:
     """Run each kernel once (compiling it, or loading it from numba's cache); the kernels by
     name."""
@@ -850,8 +868,11 @@ def warm_up() -> dict[str, Any]:
     x13 = rng.normal(size=(6, 13))
     jump_test(x13, x13 * 0.5, x13 * 0.25, np.ones(6, dtype=np.bool_), np.ones(3), 2, 3.0, 10)
     jump_test(x13, x13[:, :], x13.T.copy().T, np.ones(6, dtype=np.bool_), np.ones(3), 2, 3.0, 0)
+    window_moments(x13, 2, np.zeros(6))
+    window_moments(x13[1:], 2, np.zeros(6))
     return {
         "beyond_counts": beyond_counts,
+        "window_moments": window_moments,
         "jump_test": jump_test,
         "excess_variance": excess_variance,
         "pairwise_sum": pairwise_sum,

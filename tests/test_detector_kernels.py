@@ -133,3 +133,34 @@ def test_jump_test_kernel_equals_plain(seed, switch):
         np.testing.assert_array_equal(out[1], out[0])
         jumps += int(out[0].sum())
     assert jumps > 1000
+
+
+def test_window_moments_kernel_equals_plain(switch):
+    """The windows' variances and means (:class:`imudiag.quasistatic.WindowStats`), compiled
+    and plain, element for element, on a random stream with non-finite samples and whole
+    ADC counts, in small and big blocks."""
+    from imudiag.certificate import load_default
+
+    cert = load_default()
+    rng = np.random.default_rng(90)
+    n = 70_000
+    gyro = np.rint(rng.normal(0.0, 30.0, (n, 3)))
+    accel = rng.normal(0.0, 1e-3, (n, 3)) + [0.0, 0.0, 1.0]
+    accel[rng.random(n) < 0.001] = np.nan
+    block = SampleBlock(t=np.arange(n) / 100.0, gyro=gyro, accel=accel)
+    sizes = blocks(np.random.default_rng(91), n)
+    got = []
+    for on in (False, True):
+        switch(on)
+        stage = QuasiStaticDetector(cert, rate_hz=100.0)._stage
+        var, mean, first = [], [], 0
+        for size in sizes:
+            st = stage.run(block.slice(first, first + size))
+            first += size
+            if st.skip < size:
+                var.append(st.var)
+                mean.append(st.mean)
+        got.append((np.concatenate(var), np.concatenate(mean)))
+    for a, b in zip(got[1], got[0], strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert np.all(np.isfinite(got[0][0]))
