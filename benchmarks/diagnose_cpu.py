@@ -15,9 +15,10 @@ Options: ``--samples 1e5,1e6`` (sizes), ``--rates 100,1000`` (Hz), ``--cases`` (
 ``--runs CASE:RATE:SAMPLES,...`` (explicit runs instead of the product of the three;
 ``--runs fleet`` is issue 28's three: a 10^6-sample multi-position board log, a 20-min drive
 with GNSS and a 5-min short log, all at 100 Hz),
-``--kernels auto|plain|numba`` (the window-fit loops: ``auto`` as a fleet worker, the
-compiled ones where numba is installed), ``--repeat N`` (best of N, default 1), ``--profile
-N`` (cProfile of the last run of each case, top N functions by ``--sort``, internal time).
+``--kernels auto|plain|numba`` (the compiled kernels, :mod:`imudiag.kernels`: ``auto`` as a
+fleet worker, the compiled ones where numba is installed), ``--repeat N`` (best of N,
+default 1), ``--profile N`` (cProfile of the last run of each case, top N functions by
+``--sort``, internal time).
 Prints one line per case: CPU s, samples, CPU s per 10^6 samples. No assertion:
 docs/benchmarks.md holds the figures.
 """
@@ -96,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         "--kernels",
         choices=("auto", "plain", "numba"),
         default="auto",
-        help="window-fit loops: the fleet worker's choice (numba where installed), or forced",
+        help="compiled kernels: the fleet worker's choice (numba where installed), or forced",
     )
     ap.add_argument("--sort", default="tottime", help="cProfile order (tottime, cumulative)")
     ap.add_argument("--seed", type=int, default=5)
@@ -132,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
         kernels.enable(_use_kernels())
     print(
         f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}, "
-        f"window-fit loops: {kernels.status() if kernels else 'plain (no kernels)'}",
+        f"kernels: {kernels.status() if kernels else 'plain (no kernels)'}",
         flush=True,
     )
     with tempfile.TemporaryDirectory() as tmp:

@@ -1,11 +1,14 @@
 """Trailing-window sums over a stream of rows, carried across blocks (running sums), and
-where a window's median is certainly above or below a threshold (counts, no sorting)."""
+where a window's median is certainly above or below a threshold (counts, no sorting; the
+counts compiled where the kernels are on, :mod:`imudiag.kernels`: the same integers)."""
 
 from __future__ import annotations
 
 import copy
 
 import numpy as np
+
+from .kernels import kernel
 
 #: rows between exact re-summations of the window (bounds the running sum's rounding drift)
 _RESUM_ROWS = 1 << 16
@@ -238,11 +241,18 @@ def median_side(
     thr = np.asarray(thresholds, dtype=float)
     k = thr.shape[0]
     bounds = np.concatenate([thr * (1.0 + MEDIAN_SIDE_MARGIN), thr * (1.0 - MEDIAN_SIDE_MARGIN)])
-    beyond = np.empty((x.shape[0] + 1, 2 * k + 1, x.shape[1]), dtype=np.int32)
-    beyond[0] = 0
-    np.cumsum(x[:, None, :] > bounds[None], axis=0, out=beyond[1:, : 2 * k])
-    np.cumsum(np.isnan(x), axis=0, out=beyond[1:, 2 * k])
-    counts = beyond[ends] - beyond[ends - w]  # (P, 2 k + 1, C)
+    ends = np.asarray(ends)
+    compiled = kernel("beyond_counts")  # the same counts in one compiled pass (exact)
+    if compiled is not None and (
+        ends.size == 0 or (ends[0] >= w and bool(np.all(np.diff(ends) >= 0)))
+    ):
+        counts = compiled(x, bounds, ends.astype(np.int64), int(w))
+    else:
+        beyond = np.empty((x.shape[0] + 1, 2 * k + 1, x.shape[1]), dtype=np.int32)
+        beyond[0] = 0
+        np.cumsum(x[:, None, :] > bounds[None], axis=0, out=beyond[1:, : 2 * k])
+        np.cumsum(np.isnan(x), axis=0, out=beyond[1:, 2 * k])
+        counts = beyond[ends] - beyond[ends - w]  # (P, 2 k + 1, C)
     clean = (counts[:, 2 * k] == 0)[:, None, :]
     above = (counts[:, :k] >= w // 2 + 1) & clean
     below = (counts[:, k : 2 * k] <= (w - 1) // 2) & clean

@@ -124,3 +124,33 @@ def test_moving_base_report_equals_the_plain_cuts(drive, monkeypatch):
     assert json.dumps(fast, sort_keys=True, default=str) == json.dumps(
         plain, sort_keys=True, default=str
     )
+
+
+def test_lever_arm_rows_from_the_series_equal_plain(drive):
+    """The lever-arm rows with the series' epoch samples and [w]x [w]x made once equal the
+    plain ones bit for bit (on the drive at several latencies, and on random records with
+    gaps, empty, overlapping and out-of-record epochs)."""
+    from imudiag.aiding.lever_arm import lever_arm_rows
+
+    block, track, f, w = drive
+    ep = gnss_epochs(track, GateConfig(), span=5)
+    series = ImuSeries(block.t, f, w)
+    for latency in (-0.4, 0.0, 0.123):
+        mean = series.epochs(ep.t0, ep.t1, latency_s=latency).mean_si
+        plain = lever_arm_rows(block.t, w, ep.t0, ep.t1, mean, latency)
+        fast = lever_arm_rows(block.t, w, ep.t0, ep.t1, mean, latency, series=series)
+        assert np.isfinite(plain).any()
+        np.testing.assert_array_equal(fast, plain)
+    for seed in range(4):
+        rng = np.random.default_rng(50 + seed)
+        n = int(rng.integers(2, 3000))
+        dt = rng.uniform(0.004, 0.006, n)
+        dt[rng.random(n) < 0.01] = 0.5
+        t = 100.0 + np.cumsum(dt)
+        gyro = rng.normal(0.0, 0.4, (n, 3))
+        t0 = np.sort(rng.uniform(t[0] - 2.0, t[-1] + 2.0, int(rng.integers(1, 60))))
+        t1 = t0 + rng.uniform(0.0, 1.5, t0.size)
+        mean = rng.normal(0.0, 3.0, (t0.size, 3)) + [0.0, 0.0, 9.8]
+        s = ImuSeries(t, np.zeros((n, 3)), gyro)
+        plain = lever_arm_rows(t, gyro, t0, t1, mean, 0.05)
+        np.testing.assert_array_equal(lever_arm_rows(t, gyro, t0, t1, mean, 0.05, series=s), plain)

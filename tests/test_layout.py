@@ -30,7 +30,7 @@ PACKAGE_DIRS = {
 #: new module gets its floor here and its place in that table.
 FLOORS: list[tuple[str, ...]] = [
     # 0 ground: errors, the YAML loader, atomic files, bundled configuration, value checks,
-    # the Earth model
+    # the Earth model, the switch of the optional compiled kernels and the kernels
     (
         "imudiag.errors",
         "imudiag.units",
@@ -42,6 +42,8 @@ FLOORS: list[tuple[str, ...]] = [
         "imudiag.argtypes",
         "imudiag.validate",
         "imudiag.earth",
+        "imudiag.kernels",
+        "imudiag.numba_kernels",
     ),
     # 1 data: samples with units, the certificate model, rotations, arithmetic on rows
     ("imudiag.samples", "imudiag.certificate", "imudiag.rotations", "imudiag.rowwise"),

@@ -228,7 +228,7 @@ def estimate_latency(
     def correlate(indices: np.ndarray) -> None:
         for i in indices[~done[indices]]:
             done[i] = True
-            im = series.epochs(use.t0, use.t1, latency_s=float(lags[i]))
+            im = series.epochs(use.t0, use.t1, latency_s=float(lags[i]), gyro_means=False)
             ok = np.isfinite(im.mag) & im.covered
             if np.sum(ok) < min_epochs:
                 continue

@@ -119,13 +119,21 @@ def solve_latency_lever(
         sig = sigma_sample_si
         im = series.epochs(epochs.t0, epochs.t1, sigma_sample_si=sig, latency_s=tau)
         hi = series.epochs(
-            epochs.t0, epochs.t1, sigma_sample_si=sig, latency_s=tau + DERIVATIVE_STEP_S
+            epochs.t0,
+            epochs.t1,
+            sigma_sample_si=sig,
+            latency_s=tau + DERIVATIVE_STEP_S,
+            gyro_means=False,  # only |f| and the coverage are used
         )
         lo = series.epochs(
-            epochs.t0, epochs.t1, sigma_sample_si=sig, latency_s=tau - DERIVATIVE_STEP_S
+            epochs.t0,
+            epochs.t1,
+            sigma_sample_si=sig,
+            latency_s=tau - DERIVATIVE_STEP_S,
+            gyro_means=False,  # only |f| and the coverage are used
         )
         d = (hi.mag - lo.mag) / (2.0 * DERIVATIVE_STEP_S)
-        rows = lever_arm_rows(t, gyro_si, epochs.t0, epochs.t1, im.mean_si, tau)
+        rows = lever_arm_rows(t, gyro_si, epochs.t0, epochs.t1, im.mean_si, tau, series=series)
         y = epochs.mag - im.mag
         var = epochs.sigma_mag**2 + im.sigma_mag**2
         ok = (

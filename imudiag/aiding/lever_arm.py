@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..rotations import skew
+from .specific_force import ImuSeries
 
 
 @dataclass
@@ -78,6 +79,7 @@ def lever_arm_rows(
     t1: np.ndarray,
     imu_mean_si: np.ndarray,
     latency_s: float = 0.0,
+    series: ImuSeries | None = None,
 ) -> np.ndarray:
     """Regressor rows u^T mean(A) (K, 3), s^-2, of the epochs [t0, t1) - latency (s):
     t (N,) s, gyro_si (N, 3) rad/s corrected, imu_mean_si (K, 3) the IMU's epoch means
@@ -85,19 +87,26 @@ def lever_arm_rows(
     samples; the angular acceleration is the central difference of the neighbouring
     epochs' mean rates (the derivative of single MEMS samples is mostly noise, and a
     noisy regressor pulls the estimate towards 0). Epochs without samples or without
-    both neighbours (contiguous) get NaN rows."""
+    both neighbours (contiguous) get NaN rows. ``series``: the record of t and gyro_si made
+    once (:class:`.ImuSeries`), its epochs' samples and [w]x [w]x reused (the same sums)."""
     t = np.asarray(t, dtype=float)
     w = np.asarray(gyro_si, dtype=float)
     a = np.asarray(t0, dtype=float) - latency_s
     b = np.asarray(t1, dtype=float) - latency_s
     kk = a.shape[0]
-    j = np.searchsorted(a, t, side="right") - 1
-    inside = (j >= 0) & (j < kk)
-    inside[inside] &= t[inside] < b[j[inside]]
-    idx = np.where(inside, j, kk)
-    count = np.bincount(idx, minlength=kk + 1)[:kk]
-    sw = skew(w)
-    cen = (sw @ sw).reshape(-1, 9)
+    cen = series.centripetal() if series is not None else None
+    if series is not None and cen is not None:
+        # only the samples from the first epoch's to the last one's, each in its epoch
+        idx, lo, hi, count = series.bins(t0, t1, latency_s)
+        cen, w = cen[lo:hi], w[lo:hi]
+    else:
+        j = np.searchsorted(a, t, side="right") - 1
+        inside = (j >= 0) & (j < kk)
+        inside[inside] &= t[inside] < b[j[inside]]
+        idx = np.where(inside, j, kk)
+        count = np.bincount(idx, minlength=kk + 1)[:kk]
+        sw = skew(w)
+        cen = (sw @ sw).reshape(-1, 9)
     sums = np.stack([np.bincount(idx, cen[:, c], minlength=kk + 1)[:kk] for c in range(9)], 1)
     wsum = np.stack([np.bincount(idx, w[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -208,7 +208,7 @@ def moving_base_diagnosis(
         ep.t0, ep.t1, accel_raw=block.accel, sigma_sample_si=sig_si, latency_s=latency
     )
     gyro_sig_si = gyro_noise_si(block.gyro, gyr, rate)  # once: lever rows, joint, turns
-    est = estimate_lever_arm(t, w_si, gyro_sig_si, ep, plain, latency, rate)
+    est = estimate_lever_arm(t, w_si, gyro_sig_si, ep, plain, latency, rate, series)
     if cfg.latency_s is None and cfg.lever_arm_m is None and math.isfinite(lat.std_s):
         latency, est, joint = solve_jointly(
             t, f_si, w_si, gyro_sig_si, ep, sig_si, rate, latency, est, cfg.max_latency_s,
@@ -266,12 +266,14 @@ def estimate_lever_arm(
     plain: ImuEpochs,
     latency_s: float,
     rate_hz: float,
+    series: ImuSeries | None = None,
 ) -> LeverArmEstimate:
     """The lever arm from the epochs' |f| mismatch (:mod:`.lever_arm`): ``plain`` the IMU
     epochs without a lever arm; ``gyro_sigma_si`` (3,) the gyro noise, rad/s per sample
-    (:func:`gyro_noise_si`: the larger of the certificate's and the measured one)."""
+    (:func:`gyro_noise_si`: the larger of the certificate's and the measured one);
+    ``series`` the record made once, when the caller has it."""
     use = ep.valid & plain.covered & np.isfinite(plain.mag)
-    rows = lever_arm_rows(t, w_si, ep.t0, ep.t1, plain.mean_si, latency_s)
+    rows = lever_arm_rows(t, w_si, ep.t0, ep.t1, plain.mean_si, latency_s, series=series)
     rv = lever_row_noise(gyro_sigma_si, ep, rate_hz)
     with np.errstate(invalid="ignore", divide="ignore"):
         u = plain.mean_si / plain.mag[:, None]

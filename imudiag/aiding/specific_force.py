@@ -40,6 +40,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..earth import coriolis_term, normal_gravity
+from ..kernels import kernel
+from ..rotations import skew
 from .tpv import GnssTrack
 
 #: Reasons an epoch is not used, in the order they are tested.
@@ -260,22 +262,24 @@ class ImuEpochs:
 
 
 def _running_integral(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(x[0], trapezoid integral (N, 3) of x - x[0] from t[0] to each t_i), for
-    :func:`_mean_of_integral`; t (N,) s with N >= 2."""
+    """(x[0], trapezoid integral of x - x[0] from t[0] to each t_i, components in
+    contiguous rows (3, N)), for :func:`_mean_of_integral`; t (N,) s with N >= 2."""
     ref = x[0]
     xc = x - ref  # keeps the running integral small (raw counts are ~3e4)
     steps = 0.5 * (xc[1:] + xc[:-1]) * np.diff(t)[:, None]
-    return ref, np.vstack([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+    big = np.vstack([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+    return ref, np.ascontiguousarray(big.T)  # np.interp reads a contiguous row uncopied
 
 
 def _mean_of_integral(
     t: np.ndarray, ref: np.ndarray, big: np.ndarray, a: np.ndarray, b: np.ndarray
 ) -> np.ndarray:
-    """Mean over [a, b] (K,) from a :func:`_running_integral` of samples at instants t."""
+    """Mean over [a, b] (K,) from a :func:`_running_integral` (rows (3, N)) of samples at
+    instants t."""
     out = np.empty((a.shape[0], 3))
     for c in range(3):
-        fa = np.interp(a, t, big[:, c])
-        fb = np.interp(b, t, big[:, c])
+        fa = np.interp(a, t, big[c])
+        fb = np.interp(b, t, big[c])
         out[:, c] = (fb - fa) / (b - a)
     return out + ref
 
@@ -336,12 +340,15 @@ def imu_epochs(
     sigma_sample_si: np.ndarray | float = 0.0,
     latency_s: float = 0.0,
     lever_arm_m: np.ndarray | None = None,
+    gyro_means: bool = True,
 ) -> ImuEpochs:
     """Mean IMU specific force over the GNSS epochs [t0, t1] - ``latency_s`` (see module doc).
 
     t (N,) s increasing; accel_si (N, 3) m/s^2 corrected; gyro_si (N, 3)
     rad/s corrected (rotation compensation and lever arm need it);
-    sigma_sample_si (3,) or scalar m/s^2: white-noise std of one sample.
+    sigma_sample_si (3,) or scalar m/s^2: white-noise std of one sample;
+    ``gyro_means``: the epochs' mean rates too (``gyro_mean``; the latency search needs
+    only |f|).
     """
     t = np.asarray(t, dtype=float)
     f = np.asarray(accel_si, dtype=float)
@@ -361,9 +368,10 @@ def imu_epochs(
         w = np.asarray(gyro_si, dtype=float)
         dt = np.diff(t, append=t[-1] + (t[-1] - t[-2]))
         big = np.cumsum(w * dt[:, None], axis=0) - w * dt[:, None]  # integral up to t_i
-        gsum = np.stack([np.bincount(idx, w[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            gyro_mean = gsum / count[:, None]
+        if gyro_means:
+            gsum = np.stack([np.bincount(idx, w[:, c], minlength=kk + 1)[:kk] for c in range(3)], 1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                gyro_mean = gsum / count[:, None]
         if lever_arm_m is not None and np.any(lever_arm_m):
             lev = np.asarray(lever_arm_m, dtype=float)
             wdot = np.gradient(w, t, axis=0)
@@ -478,6 +486,7 @@ class ImuSeries:
         self._gyro_rows: np.ndarray | None = None
         self._gyro_integral: np.ndarray | None = None  #: (3, N) rad, up to each t_i
         self._wdot: np.ndarray | None = None
+        self._centripetal: np.ndarray | None = None
         if self.gyro_si is not None:
             self._gyro_rows = np.ascontiguousarray(self.gyro_si.T)
         if self.gyro_si is not None and n > 1:
@@ -489,22 +498,50 @@ class ImuSeries:
     def __len__(self) -> int:
         return int(self.t.shape[0])
 
-    def _bins(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(epoch index per sample, kk for none (N,); first sample (K,); end (K,)): epoch k
-        holds samples start_k <= i < end_k, a_k <= t_i < b_k, a sample in two overlapping
-        epochs in the later one (as :func:`imu_epochs`)."""
-        t, n, kk = self.t, len(self), a.shape[0]
-        start = np.searchsorted(t, a, side="left")
-        end = np.searchsorted(t, b, side="left")
-        if kk > 1:
+    def _bounds(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(first sample (K,), end (K,)): epoch k holds samples start_k <= i < end_k,
+        a_k <= t_i < b_k, a sample in two overlapping epochs in the later one (as
+        :func:`imu_epochs`)."""
+        start = np.searchsorted(self.t, a, side="left")
+        end = np.searchsorted(self.t, b, side="left")
+        if a.shape[0] > 1:
             end[:-1] = np.minimum(end[:-1], start[1:])
-        end = np.maximum(end, start)
+        return start, np.maximum(end, start)
+
+    @staticmethod
+    def _bins(start: np.ndarray, end: np.ndarray, lo: int, hi: int) -> np.ndarray:
+        """The epoch index (kk for none) of each sample lo <= i < hi, from the epochs'
+        :meth:`_bounds` (lo <= start_0, end_{K-1} <= hi)."""
+        kk = start.shape[0]
         bounds = np.empty(2 * kk + 2, dtype=np.intp)
-        bounds[0], bounds[-1] = 0, n
+        bounds[0], bounds[-1] = lo, hi
         bounds[1:-1:2], bounds[2:-1:2] = start, end
         values = np.full(2 * kk + 1, kk, dtype=np.intp)
         values[1::2] = np.arange(kk)
-        return np.repeat(values, np.diff(bounds)), start, end
+        return np.repeat(values, np.diff(bounds))
+
+    def bins(
+        self, t0: np.ndarray, t1: np.ndarray, latency_s: float = 0.0
+    ) -> tuple[np.ndarray, int, int, np.ndarray]:
+        """(epoch index of each sample lo <= i < hi, K for none; lo; hi; samples per epoch
+        (K,)) of the GNSS epochs [t0, t1] - ``latency_s`` (s): the samples of every epoch
+        lie in lo..hi, each in the epoch :func:`imu_epochs` puts it in."""
+        a = np.asarray(t0, dtype=float) - latency_s
+        b = np.asarray(t1, dtype=float) - latency_s
+        start, end = self._bounds(a, b)
+        lo = int(start[0]) if a.shape[0] else 0
+        hi = int(end[-1]) if a.shape[0] else 0
+        return self._bins(start, end, lo, hi), lo, hi, end - start
+
+    def centripetal(self) -> np.ndarray | None:
+        """[w]x [w]x per sample (N, 9, row-major 3x3), rad^2/s^2, made once (the lever-arm
+        rows at every latency tried); None without gyro."""
+        if self.gyro_si is None:
+            return None
+        if self._centripetal is None:
+            sw = skew(self.gyro_si)
+            self._centripetal = (sw @ sw).reshape(-1, 9)
+        return self._centripetal
 
     def epochs(
         self,
@@ -514,40 +551,78 @@ class ImuSeries:
         sigma_sample_si: np.ndarray | float = 0.0,
         latency_s: float = 0.0,
         lever_arm_m: np.ndarray | None = None,
+        gyro_means: bool = True,
     ) -> ImuEpochs:
-        """:func:`imu_epochs` of this record over the GNSS epochs [t0, t1] - ``latency_s``."""
+        """:func:`imu_epochs` of this record over the GNSS epochs [t0, t1] - ``latency_s``.
+
+        Only the samples from the first epoch's first to the last epoch's end are cut (the
+        rest fall in no epoch). Where the compiled kernels are on (:mod:`imudiag.kernels`)
+        the per-sample work (rotation vector, Rodrigues rotation, binned sums) is one
+        compiled pass (:func:`imudiag.numba_kernels.epoch_cut`): the same operations in the
+        same order, each bin summed in sample order as ``np.bincount`` does, so equal to
+        the plain path but for the last bit of a sine or cosine where numba's libm and
+        numpy's differ (tests/test_epoch_kernel.py)."""
         t, f, w = self.t, self.accel_si, self.gyro_si
         a = np.asarray(t0, dtype=float) - latency_s
         b = np.asarray(t1, dtype=float) - latency_s
         kk, n = a.shape[0], len(self)
-        idx, start, end = self._bins(a, b)
-        inside = idx < kk
+        start, end = self._bounds(a, b)
+        lo = int(start[0]) if kk else 0
+        hi = int(end[-1]) if kk else 0
         count = end - start
         fc = self._accel_rows
         gyro_mean = None
         big = self._gyro_integral
         w_rows = self._gyro_rows
-        if w is not None and w_rows is not None and big is not None:
-            gsum = _binned_sums(idx, w_rows, kk)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                gyro_mean = gsum / count[:, None]
-            if lever_arm_m is not None and np.any(lever_arm_m):
-                lev = np.asarray(lever_arm_m, dtype=float)
-                if self._wdot is None:
-                    self._wdot = np.gradient(w, t, axis=0)
-                lever = f + np.cross(self._wdot, lev) + np.cross(w, np.cross(w, lev))
-                fc = np.ascontiguousarray(lever.T)
+        rotate = w is not None and w_rows is not None and big is not None
+        if rotate and lever_arm_m is not None and np.any(lever_arm_m):
+            assert w is not None
+            lev = np.asarray(lever_arm_m, dtype=float)
+            if self._wdot is None:
+                self._wdot = np.gradient(w, t, axis=0)
+            lever = f + np.cross(self._wdot, lev) + np.cross(w, np.cross(w, lev))
+            fc = np.ascontiguousarray(lever.T)
+        big_mid = None
+        if rotate:
+            assert big is not None
             # rotation vector from the epoch's mid time (interpolated) to each sample
             mid = 0.5 * (a + b)
-            theta = np.empty((3, n))
+            big_mid = np.zeros((3, kk + 1))
             for c in range(3):
-                big_mid = np.zeros(kk + 1)
-                big_mid[:kk] = np.interp(mid, t, big[c])
-                np.subtract(big[c], big_mid[idx], out=theta[c])
-            theta[:, ~inside] = 0.0
-            fc = _rodrigues_rows(theta, fc)
-        sums = _binned_sums(idx, fc, kk)
-        plain = _binned_sums(idx, self._accel_rows, kk)
+                big_mid[c, :kk] = np.interp(mid, t, big[c])
+        cut = kernel("epoch_cut")
+        if cut is not None:
+            empty = np.zeros((3, 0))
+            sums, plain, gsum = cut(
+                self._accel_rows,
+                fc,
+                w_rows if rotate and w_rows is not None else empty,
+                big if rotate and big is not None else empty,
+                big_mid if big_mid is not None else empty,
+                start.astype(np.int64),
+                end.astype(np.int64),
+                rotate,
+                rotate and gyro_means,
+            )
+            if rotate and gyro_means:
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    gyro_mean = gsum / count[:, None]
+        else:
+            idx = self._bins(start, end, lo, hi)
+            if rotate and gyro_means and w_rows is not None:
+                gsum = _binned_sums(idx, w_rows[:, lo:hi], kk)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    gyro_mean = gsum / count[:, None]
+            if rotate and big is not None and big_mid is not None:
+                theta = np.empty((3, hi - lo))
+                for c in range(3):
+                    np.subtract(big[c, lo:hi], big_mid[c][idx], out=theta[c])
+                theta[:, idx == kk] = 0.0
+                rotated = _rodrigues_rows(theta, fc[:, lo:hi])
+            else:
+                rotated = fc[:, lo:hi]
+            sums = _binned_sums(idx, rotated, kk)
+            plain = _binned_sums(idx, self._accel_rows[:, lo:hi], kk)
         with np.errstate(invalid="ignore", divide="ignore"):
             if self._accel_integral is None:
                 interval_mean = np.full((kk, 3), np.nan)

@@ -36,6 +36,7 @@ from typing import TypeVar
 
 import numpy as np
 
+from ..kernels import kernel
 from ..noise_estimate import medians
 
 T = TypeVar("T")
@@ -162,6 +163,15 @@ def _robust_excess(u: np.ndarray, nv: np.ndarray, m: np.ndarray) -> float:
     a = u / m
     if float(np.median(a)) <= _CHI2_1_MEDIAN:
         return 0.0
+    compiled = kernel("robust_excess")  # the same brackets compiled (exact: order statistics)
+    if compiled is not None:
+        return float(
+            compiled(
+                np.ascontiguousarray(a, dtype=float),
+                np.ascontiguousarray(nv, dtype=float),
+                _CHI2_1_MEDIAN,
+            )
+        )
     # the median falls as e grows: bracket the crossing, 15 trial values per round in one
     # median call (16x narrower a round), to 1e-10 of the answer (was 80 medians one by one)
     lo, hi = 0.0, float(np.max(a * nv)) + 1e-300

@@ -418,7 +418,17 @@ def robust_exact_fit_and_plain(
 
 
 def _excess_variance(r: np.ndarray, sig2: np.ndarray, dof: float) -> float:
-    """Variance e added to every point that makes sum r^2 / (sig2 + e) equal ``dof``."""
+    """Variance e added to every point that makes sum r^2 / (sig2 + e) equal ``dof``
+    (compiled where the kernels are on: the same halvings and sums, the same e)."""
+    compiled = kernels.kernel("excess_variance")
+    if compiled is not None and r.shape[0] > 0:
+        return float(
+            compiled(
+                np.ascontiguousarray(r, dtype=float),
+                np.ascontiguousarray(np.broadcast_to(sig2, r.shape), dtype=float),
+                float(dof),
+            )
+        )
     lo, hi = 0.0, float(np.max(r * r)) * len(r) + 1e-300
     r2 = r * r
     for _ in range(100):

@@ -93,6 +93,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..certificate import Certificate
+from ..kernels import kernel
 from ..samples import SampleBlock
 from .sharing import RunReader
 from .spread import TrailingSpread
@@ -531,6 +532,13 @@ class QuasiStaticDetector:
         ``sigma2``: the accelerometers' noise variance (output units^2)."""
         w = self.window
         limit = self.variance_ratio_limit
+        compiled = kernel("jump_test")  # the same operations and sums compiled: same flags
+        if compiled is not None:
+            out: np.ndarray = compiled(
+                sums, back_w, back_2w, np.ascontiguousarray(still, dtype=bool),
+                np.ascontiguousarray(sigma2, dtype=float), int(w), float(limit), int(first),
+            )  # fmt: skip
+            return out
         p1 = back_w[:, 3:6] - back_2w[:, 3:6]  # the window before the window
         step = (sums[:, 3:6] - p1) / w
         jump = still & (np.sum(step * step / sigma2, axis=1) > 12.0 * limit)

@@ -2,11 +2,18 @@
 restart: the drift tests of the still detector (:mod:`imudiag.quasistatic.detector`), kept
 cheap per call (one comparison per row between kept values, a sparse table of maxima on
 long blocks). ``tests/test_quasistatic_paths.py`` checks it against the plain definition
-(:func:`plain_spread`)."""
+(:func:`plain_spread`). Where the compiled kernels are on (:mod:`imudiag.kernels`) the
+extremes and the rows' spreads are one compiled pass
+(:func:`imudiag.numba_kernels.trailing_spread`): max and min are exact, so the spreads are
+the same numbers and the detector's flags the same (tests/test_detector_kernels.py)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+
+from ..kernels import kernel
 
 #: block rows from which :class:`TrailingSpread` repeats each kept value's extremes over its
 #: rows instead of gathering them (the same values; a gather costs more on long blocks)
@@ -84,6 +91,9 @@ class TrailingSpread:
         step, k, c = self.step, self.k, self.columns
         old = self._idx.shape[0]
         k0 = -first % step  # block row of the first kept value
+        compiled = kernel("trailing_spread")
+        if compiled is not None:
+            return self._update_compiled(compiled, first, values, start)
         if k0 < m:
             kept = values[k0::step]
             d_idx = np.concatenate([self._idx, np.arange(first + k0, first + m, step)])
@@ -129,6 +139,45 @@ class TrailingSpread:
         if m >= _REPEAT_ROWS and have.all() and finite.all():
             return spread
         return np.where(have[:, None] & finite, spread, 0.0)
+
+    def _update_compiled(
+        self, compiled: Any, first: int, values: np.ndarray, start: np.ndarray
+    ) -> np.ndarray:
+        """:meth:`update` by the compiled kernel: the same kept values and state."""
+        m = values.shape[0]
+        step, k, c = self.step, self.k, self.columns
+        old = self._idx.shape[0]
+        k0 = -first % step
+        values = np.ascontiguousarray(values, dtype=float)
+        if k0 < m:
+            kept = values[k0::step]
+            d_idx = np.concatenate([self._idx, np.arange(first + k0, first + m, step)])
+            d_val = np.concatenate([self._val, np.concatenate([kept, -kept], axis=1)])
+            d_start = np.concatenate([self._start, start[k0::step]])
+            new = d_idx.shape[0] - old
+            d_max = np.concatenate([self._max, np.empty((new, c))])
+            d_min = np.concatenate([self._min, np.empty((new, c))])
+        else:
+            d_idx, d_val, d_start, d_max, d_min = (
+                self._idx, self._val, self._start, self._max, self._min
+            )  # fmt: skip
+        out: np.ndarray = compiled(
+            d_idx.astype(np.int64, copy=False),
+            d_val,
+            d_start.astype(np.int64, copy=False),
+            d_max,
+            d_min,
+            old,
+            k0,
+            values,
+            np.ascontiguousarray(start, dtype=np.int64),
+            step,
+            k,
+        )
+        keep = slice(max(0, d_idx.shape[0] - k), None)
+        self._idx, self._val, self._start = d_idx[keep], d_val[keep], d_start[keep]
+        self._max, self._min = d_max[keep], d_min[keep]
+        return out
 
 
 def plain_spread(

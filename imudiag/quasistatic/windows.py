@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..certificate import Certificate
+from ..kernels import kernel
 from ..samples import (
     FLAG_ACCEL_SATURATED,
     FLAG_ADC_ERROR,
@@ -60,12 +61,16 @@ class WindowStats:
         self.sums = sums[sl]  #: (M, 13) the window's sums
         self.long_sums = long_sums[sl]  #: (M, 13) the sums over rate_window rows
         self.back_w, self.back_2w = back_w[sl], back_2w[sl]  #: P one and two windows back
-        s1 = self.sums[:, :6]
-        mean_c = s1 / w
-        #: (M, 6) window variances, output units^2
-        self.var = np.maximum((self.sums[:, 6:12] - s1 * mean_c) / (w - 1), 0.0)
         assert stage.ref is not None
-        self.mean = mean_c + stage.ref  #: (M, 6) window means, output units
+        compiled = kernel("window_moments")  # the same element-wise operations, compiled
+        if compiled is not None:
+            self.var, self.mean = compiled(self.sums, int(w), np.asarray(stage.ref, dtype=float))
+        else:
+            s1 = self.sums[:, :6]
+            mean_c = s1 / w
+            #: (M, 6) window variances, output units^2
+            self.var = np.maximum((self.sums[:, 6:12] - s1 * mean_c) / (w - 1), 0.0)
+            self.mean = mean_c + stage.ref  #: (M, 6) window means, output units
         self._stage = stage
         self._rates: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 

@@ -1,6 +1,10 @@
-"""The numba kernels of :mod:`.kernels` (imported by it only when they are switched on: this
-module needs numba, the ``fleet`` extra). Module-level functions, so numba's on-disk cache
-(``cache=True``) serves every later process: a fleet worker loads them instead of compiling."""
+"""The numba kernels switched by :mod:`imudiag.kernels` (imported by it only when they are
+loaded: this module needs numba, the ``fleet`` extra): the window fits' loops
+(:mod:`imudiag.diagnosis.kernels`), the GNSS epoch cut (:func:`epoch_cut`) and the still
+detector's trailing extremes (:func:`trailing_extremes`). Module-level functions, so numba's
+on-disk cache (``cache=True``) serves every later process: a fleet worker loads them instead
+of compiling. Plain arithmetic only, in the order of the numpy paths (no fast-math: no
+reassociation, no fused multiply-add)."""
 
 from __future__ import annotations
 
@@ -432,6 +436,393 @@ def predict_kernel(q, sens, dninv, up0):
     return pred, d
 
 
+@jit
+def epoch_cut(accel, fc, gyro, big, big_mid, start, end, rotate, gyro_sums):
+    """Per GNSS epoch k (samples start[k] <= i < end[k], in order), the sums (K, 3) of the
+    samples ``fc`` (3, N) rotated to the epoch's mid time by the rotation vector ``big[:, i]
+    - big_mid[:, k]`` (rad; Rodrigues, as
+    :func:`imudiag.aiding.specific_force._rodrigues_rows`; unrotated when not ``rotate``),
+    of ``accel`` (3, N) and, when ``gyro_sums``, of ``gyro`` (3, N): one pass, each bin
+    summed from 0 in sample order as ``np.bincount`` sums it."""
+    kk = start.shape[0]
+    sums = np.zeros((kk, 3))
+    plain = np.zeros((kk, 3))
+    gsum = np.zeros((kk, 3))
+    for k in range(kk):
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        p0 = 0.0
+        p1 = 0.0
+        p2 = 0.0
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        m0 = 0.0
+        m1 = 0.0
+        m2 = 0.0
+        if rotate:
+            m0 = big_mid[0, k]
+            m1 = big_mid[1, k]
+            m2 = big_mid[2, k]
+        for i in range(start[k], end[k]):
+            x0 = fc[0, i]
+            x1 = fc[1, i]
+            x2 = fc[2, i]
+            if rotate:
+                t0 = big[0, i] - m0
+                t1 = big[1, i] - m1
+                t2 = big[2, i] - m2
+                a2 = t0 * t0
+                a2 += t1 * t1
+                a2 += t2 * t2
+                ang = np.sqrt(a2)
+                if ang < 1e-12:
+                    k0 = 0.0
+                    k1 = 0.0
+                    k2 = 0.0
+                else:
+                    k0 = t0 / ang
+                    k1 = t1 / ang
+                    k2 = t2 / ang
+                c = np.cos(ang)
+                s = np.sin(ang)
+                kd = k0 * x0
+                kd += k1 * x1
+                kd += k2 * x2
+                omc = 1.0 - c
+                r0 = x0 * c
+                r0 += (k1 * x2 - k2 * x1) * s
+                r0 += (k0 * kd) * omc
+                r1 = x1 * c
+                r1 += (k2 * x0 - k0 * x2) * s
+                r1 += (k1 * kd) * omc
+                r2 = x2 * c
+                r2 += (k0 * x1 - k1 * x0) * s
+                r2 += (k2 * kd) * omc
+                s0 += r0
+                s1 += r1
+                s2 += r2
+            else:
+                s0 += x0
+                s1 += x1
+                s2 += x2
+            p0 += accel[0, i]
+            p1 += accel[1, i]
+            p2 += accel[2, i]
+            if gyro_sums:
+                g0 += gyro[0, i]
+                g1 += gyro[1, i]
+                g2 += gyro[2, i]
+        sums[k, 0] = s0
+        sums[k, 1] = s1
+        sums[k, 2] = s2
+        plain[k, 0] = p0
+        plain[k, 1] = p1
+        plain[k, 2] = p2
+        gsum[k, 0] = g0
+        gsum[k, 1] = g1
+        gsum[k, 2] = g2
+    return sums, plain, gsum
+
+
+@jit
+def nan_max(a, b):
+    """``np.maximum`` of two floats: nan when either is."""
+    if a != a or b != b:
+        return a + b
+    return a if a >= b else b
+
+
+@jit
+def nan_min(a, b):
+    """``np.minimum`` of two floats: nan when either is."""
+    if a != a or b != b:
+        return a + b
+    return a if a <= b else b
+
+
+@jit
+def trailing_spread(d_idx, d_val, d_start, d_max, d_min, old, k0, values, start, step, k):
+    """The still detector's trailing spreads (:class:`imudiag.quasistatic.spread.TrailingSpread`,
+    its ``update``), compiled: the extremes (into ``d_max``, ``d_min`` (total, C) from
+    position ``old`` on) of each new kept value's history (its ``k`` last kept values of
+    ``d_val`` (total, >= C) from its first row ``d_start`` on; -inf / inf where none), then
+    each row's spread (M, C) of its last kept value's history and its own ``values`` row,
+    0 where that kept value is before the row's ``start`` or the spread is not finite.
+    Max and min are exact: equal to the numpy path (but for the sign of a zero)."""
+    total = d_idx.shape[0]
+    c = values.shape[1]
+    for at in range(old, total):
+        first = np.searchsorted(d_idx, d_start[at])
+        lo = max(at - k + 1, first)
+        for j in range(c):
+            hi = -np.inf
+            low = np.inf
+            for q in range(lo, at + 1):
+                hi = nan_max(hi, d_val[q, j])
+                low = nan_min(low, d_val[q, j])
+            d_max[at, j] = hi
+            d_min[at, j] = low
+    m = values.shape[0]
+    out = np.zeros((m, c))
+    for r in range(m):
+        p = old + (r - k0) // step
+        if p < 0 or d_idx[p] < start[r]:
+            continue
+        for j in range(c):
+            v = values[r, j]
+            s = nan_max(d_max[p, j], v) - nan_min(d_min[p, j], v)
+            if np.isfinite(s):
+                out[r, j] = s
+    return out
+
+
+@jit
+def beyond_counts(x, bounds, ends, w):
+    """The counts of :func:`imudiag.trailing.median_side`: per window ``x[e - w : e]`` (``e``
+    in ``ends``, P, non-decreasing, each at least ``w``) and column of ``x`` (R, C), how many
+    values exceed each of ``bounds`` (B, C) and how many are nan: (P, B + 1, C) int32, the
+    running counts taken at each window's two ends in one pass (the same comparisons and
+    integers as the numpy path's prefix counts: exact)."""
+    r = x.shape[0]
+    c = x.shape[1]
+    nb = bounds.shape[0]
+    p = ends.shape[0]
+    out = np.zeros((p, nb + 1, c), dtype=np.int32)
+    cnt = np.zeros((nb + 1, c), dtype=np.int32)
+    lo = 0  # the next window whose start is still ahead
+    hi = 0  # the next window whose end is still ahead
+    for i in range(r + 1):
+        while lo < p and ends[lo] - w == i:
+            for b in range(nb + 1):
+                for j in range(c):
+                    out[lo, b, j] -= cnt[b, j]
+            lo += 1
+        while hi < p and ends[hi] == i:
+            for b in range(nb + 1):
+                for j in range(c):
+                    out[hi, b, j] += cnt[b, j]
+            hi += 1
+        if i == r or hi == p:
+            break
+        for j in range(c):
+            v = x[i, j]
+            for b in range(nb):
+                if v > bounds[b, j]:
+                    cnt[b, j] += 1
+            if v != v:
+                cnt[nb, j] += 1
+    return out
+
+
+@jit
+def sorted_median(x):
+    """The median of ``x`` (n >= 1, numbers), as ``np.median``: the middle value, or the mean
+    of the two middle values ((lower + upper) / 2)."""
+    s = np.sort(x)
+    n = s.shape[0]
+    h = n // 2
+    if n % 2:
+        return s[h]
+    return (s[h - 1] + s[h]) / 2.0
+
+
+@jit
+def robust_excess(a, nv, target):
+    """The bracketing of :func:`imudiag.diagnosis.robust._robust_excess` after its first
+    median test, compiled: ``a`` (n,) = u / m, ``nv`` (n,), the chi^2_1 median ``target``; the
+    same trial values, medians (order statistics: exact; nan where a row holds one) and
+    comparisons, so the same e."""
+    n = a.shape[0]
+    mx = a[0] * nv[0]
+    for i in range(1, n):
+        v = a[i] * nv[i]
+        if v > mx or v != v:
+            mx = v
+    lo = 0.0
+    hi = mx + 1e-300
+    inv_nv = 1.0 / nv
+    row = np.empty(n)
+    for _ in range(40):
+        span = hi - lo
+        k = 15  # the first trial whose median is at or below the target (15: none)
+        for q in range(15):
+            trial = lo + span * ((q + 1) / 16.0)
+            nan = False
+            for i in range(n):
+                row[i] = a[i] / (1.0 + trial * inv_nv[i])
+                if row[i] != row[i]:
+                    nan = True
+            if not nan and sorted_median(row) <= target:
+                k = q
+                break
+        new_lo = lo + span * (k / 16.0) if k > 0 else lo
+        if k < 15:
+            hi = lo + span * ((k + 1) / 16.0)
+        lo = new_lo
+        if hi - lo <= 1e-10 * hi:
+            break
+    return hi
+
+
+@jit
+def pairwise_block(a, lo, n):
+    """``np.sum`` of ``a[lo : lo + n]``, n <= 128, in numpy's order (:func:`pairwise_sum`)."""
+    if n < 8:
+        res = -0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0 = a[lo]
+    r1 = a[lo + 1]
+    r2 = a[lo + 2]
+    r3 = a[lo + 3]
+    r4 = a[lo + 4]
+    r5 = a[lo + 5]
+    r6 = a[lo + 6]
+    r7 = a[lo + 7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@jit
+def pairwise_sum(a, lo, n):
+    """``np.sum`` of ``a[lo : lo + n]`` (float64) in numpy's order: its pairwise summation
+    (below 8 values one by one from -0.0; up to 128 in eight interleaved partial sums joined
+    as ((0+1)+(2+3))+((4+5)+(6+7)) and the rest one by one; above, the sum of two halves split
+    at a multiple of 8, here walked with a stack: numba's cache does not load recursive
+    functions). Held to ``np.sum`` bit for bit by tests/test_fit_bookkeeping_kernels.py."""
+    if n <= 128:
+        return pairwise_block(a, lo, n)
+    s_lo = np.empty(64, dtype=np.int64)
+    s_n = np.empty(64, dtype=np.int64)
+    s_state = np.zeros(64, dtype=np.int64)  # 0 new, 1 left half pending, 2 right pending
+    s_left = np.empty(64)
+    sp = 0
+    s_lo[0] = lo
+    s_n[0] = n
+    while True:
+        cn = s_n[sp]
+        if cn > 128 and s_state[sp] == 0:
+            n2 = cn // 2
+            n2 -= n2 % 8
+            s_state[sp] = 1
+            sp += 1
+            s_lo[sp] = s_lo[sp - 1]
+            s_n[sp] = n2
+            s_state[sp] = 0
+            continue
+        val = pairwise_block(a, s_lo[sp], cn)
+        while True:  # hand the value up
+            if sp == 0:
+                return val
+            sp -= 1
+            if s_state[sp] == 1:  # the left half: now the right one
+                s_left[sp] = val
+                s_state[sp] = 2
+                n2 = s_n[sp] // 2
+                n2 -= n2 % 8
+                sp += 1
+                s_lo[sp] = s_lo[sp - 1] + n2
+                s_n[sp] = s_n[sp - 1] - n2
+                s_state[sp] = 0
+                break
+            val = s_left[sp] + val  # both halves
+
+
+@jit
+def excess_variance(r, sig2, dof):
+    """:func:`imudiag.diagnosis.scalar_fit._excess_variance` compiled: the variance e added to
+    every point making sum r^2 / (sig2 + e) equal ``dof``, by the same halvings of the same
+    bracket, each sum in numpy's order (:func:`pairwise_sum`): the same e."""
+    n = r.shape[0]
+    r2 = r * r
+    mx = r2[0]
+    for i in range(1, n):
+        if r2[i] > mx or r2[i] != r2[i]:
+            mx = r2[i]
+    lo = 0.0
+    hi = mx * n + 1e-300
+    tmp = np.empty(n)
+    for _ in range(100):
+        b_lo = lo
+        b_hi = hi
+        mid = 0.5 * (lo + hi)
+        for i in range(n):
+            tmp[i] = r2[i] / (sig2[i] + mid)
+        if pairwise_sum(tmp, 0, n) > dof:
+            lo = mid
+        else:
+            hi = mid
+        if lo == b_lo and hi == b_hi:
+            break
+    return hi
+
+
+@jit
+def jump_test(sums, back_w, back_2w, still, sigma2, w, limit, first):
+    """The still detector's jump test (:meth:`imudiag.quasistatic.QuasiStaticDetector._jump`)
+    compiled: per window (M,) of the prefix-sum differences ``sums``, ``back_w``,
+    ``back_2w`` (M, 13), the same element-wise operations and three-term sums in numpy's
+    order (one by one), so the same flags."""
+    m = sums.shape[0]
+    out = np.zeros(m, dtype=np.bool_)
+    thr = 12.0 * limit
+    for i in range(m):
+        if not still[i] or (first + 1 + i < 2 * w):
+            continue
+        acc = 0.0
+        for c in range(3):
+            p1 = back_w[i, 3 + c] - back_2w[i, 3 + c]
+            step = (sums[i, 3 + c] - p1) / w
+            v = step * step / sigma2[c]
+            acc = v if c == 0 else acc + v
+        if not acc > thr:
+            continue
+        acc = 0.0
+        for c in range(3):
+            p1 = back_w[i, 3 + c] - back_2w[i, 3 + c]
+            p_mean = p1 / w
+            pv = nan_max((back_w[i, 9 + c] - back_2w[i, 9 + c] - p1 * p_mean) / (w - 1), 0.0)
+            v = pv / sigma2[c]
+            acc = v if c == 0 else acc + v
+        out[i] = acc <= limit
+    return out
+
+
+@jit
+def window_moments(sums, w, ref):
+    """The still detector's window means and variances (:class:`imudiag.quasistatic.WindowStats`)
+    compiled: from the window sums (M, >= 12: outputs 0-5 centred on ``ref`` (6,), their
+    squares 6-11) of ``w`` rows, the variances max((S2 - S1 (S1 / w)) / (w - 1), 0) and the
+    means S1 / w + ref (M, 6) each, element by element as numpy: the same numbers."""
+    m = sums.shape[0]
+    var = np.empty((m, 6))
+    mean = np.empty((m, 6))
+    for i in range(m):
+        for j in range(6):
+            s1 = sums[i, j]
+            mc = s1 / w
+            var[i, j] = nan_max((sums[i, 6 + j] - s1 * mc) / (w - 1), 0.0)
+            mean[i, j] = mc + ref[j]
+    return var, mean
+
+
 def warm_up() -> dict[str, Any]:
     """Run each kernel once (compiling it, or loading it from numba's cache); the kernels by
     name."""
@@ -459,7 +850,35 @@ def warm_up() -> dict[str, Any]:
         predict_kernel(
             np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 3, 3, 3)), dninv, np.ones((1, 3))
         )
+    rows = rng.normal(size=(3, 8))
+    bounds = np.array([0, 3], dtype=np.int64), np.array([3, 8], dtype=np.int64)
+    for rotate in (True, False):
+        epoch_cut(rows, rows, rows, rows, rows[:, :3], *bounds, rotate, rotate)
+    d_idx = np.array([0, 2, 4], dtype=np.int64)
+    d_max = np.zeros((3, 2))
+    trailing_spread(
+        d_idx, rows.T[:3, :4].copy(), d_idx, d_max, d_max.copy(), 0, 0, rows.T[:5, :2].copy(),
+        np.zeros(5, dtype=np.int64), 2, 3,
+    )  # fmt: skip
+    x = rng.normal(size=(12, 6))
+    for layout in (x, x.T.copy().T):  # C-contiguous and strided (a transposed view)
+        beyond_counts(layout, np.zeros((4, 6)), np.array([3, 12], dtype=np.int64), 3)
+    robust_excess(np.array([3.0, 1.0, 2.0, 5.0]), np.ones(4), 0.45)
+    excess_variance(rng.normal(size=300), np.ones(300), 100.0)
+    x13 = rng.normal(size=(6, 13))
+    jump_test(x13, x13 * 0.5, x13 * 0.25, np.ones(6, dtype=np.bool_), np.ones(3), 2, 3.0, 10)
+    jump_test(x13, x13[:, :], x13.T.copy().T, np.ones(6, dtype=np.bool_), np.ones(3), 2, 3.0, 0)
+    window_moments(x13, 2, np.zeros(6))
+    window_moments(x13[1:], 2, np.zeros(6))
     return {
+        "beyond_counts": beyond_counts,
+        "window_moments": window_moments,
+        "jump_test": jump_test,
+        "excess_variance": excess_variance,
+        "pairwise_sum": pairwise_sum,
+        "robust_excess": robust_excess,
+        "epoch_cut": epoch_cut,
+        "trailing_spread": trailing_spread,
         "exact_gauss_newton": gauss_newton,
         "product_sensitivity": product_sensitivity_kernel,
         "ninv_derivatives": ninv_derivatives_kernel,

@@ -1,0 +1,166 @@
+"""The still detector's compiled parts (issue 28, numba from the ``fleet`` extra) against the
+plain numpy they replace where the kernels are on:
+
+- the trailing spreads (:func:`imudiag.numba_kernels.trailing_spread` behind
+  :class:`imudiag.quasistatic.spread.TrailingSpread`): max and min are exact, so the spreads
+  are the same numbers (``==``: the sign of a zero aside), on seeded random streams
+  (restarts, values that are not finite, blocks of 1 row to 20 000 rows: both of the plain
+  path's ways);
+- the jump test (:func:`imudiag.numba_kernels.jump_test`): the same element-wise operations
+  and three-term sums in numpy's order, so the same flags, on random window sums with
+  noise variances of very different sizes (where the order of a sum shows);
+- the detector's static flags, identical on the real recordings of tests/data/real (fed in
+  random blocks and in one block)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("numba", reason="numba (the fleet extra) is not installed")
+
+from imudiag import kernels  # noqa: E402
+from imudiag.quasistatic import QuasiStaticDetector, TrailingSpread  # noqa: E402
+from imudiag.samples import SampleBlock  # noqa: E402
+from tests.test_detector_equivalence import REAL_NAMES, _real  # noqa: E402
+
+
+@pytest.fixture
+def switch():
+    """``switch(on)`` turns the kernels on or off; the process's choice restored after."""
+    was = kernels.enabled()
+
+    def turn(on: bool) -> None:
+        assert kernels.enable(on) == on, kernels.status()
+
+    yield turn
+    kernels.enable(was)
+
+
+def stream(seed: int, n: int, columns: int):
+    """Values (n, C) with steps and non-finite rows, and monotone history starts (n,)."""
+    rng = np.random.default_rng(seed)
+    values = np.cumsum(rng.normal(0.0, 0.1, (n, columns)), axis=0)
+    values[rng.random(n) < 0.002] = np.nan
+    values[rng.random(n) < 0.001, 0] = np.inf
+    rows = np.arange(n)
+    span = int(rng.integers(20, 400))
+    restarts = np.maximum.accumulate(np.where(rng.random(n) < 0.003, rows + 5, 0))
+    return values, np.maximum(restarts, rows - span), span
+
+
+def blocks(rng: np.random.Generator, n: int) -> list[int]:
+    """Block sizes summing to n: small reads and big blocks (beyond the repeat threshold)."""
+    out, done = [], 0
+    while done < n:
+        size = int(rng.choice([rng.integers(1, 8), rng.integers(8, 500), 20_000]))
+        out.append(min(size, n - done))
+        done += out[-1]
+    return out
+
+
+@pytest.mark.filterwarnings("ignore:invalid value:RuntimeWarning")  # inf - inf, plain path
+@pytest.mark.parametrize("seed", range(8))
+def test_trailing_spread_kernel_equals_plain(seed, switch):
+    values, start, span = stream(seed, 60_000, 1 + seed % 4)
+    step = 1 + seed % 5 * 3
+    results, states = [], []
+    for on in (False, True):
+        switch(on)
+        spread = TrailingSpread(values.shape[1], step, span)
+        rng = np.random.default_rng(100 + seed)
+        out, first = [], 0
+        for size in blocks(rng, values.shape[0]):
+            out.append(
+                spread.update(first, values[first : first + size], start[first : first + size])
+            )
+            first += size
+        results.append(np.concatenate(out))
+        states.append((spread._idx, spread._val, spread._start, spread._max, spread._min))
+    plain, fast = results
+    assert np.any(plain > 0)
+    np.testing.assert_array_equal(fast, plain)
+    for a, b in zip(states[1], states[0], strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def flags(block: SampleBlock, cert, sizes: list[int] | None) -> np.ndarray:
+    det = QuasiStaticDetector(cert, rate_hz=cert.sample_rate)
+    if sizes is None:
+        return det.update(block)
+    out, first = [], 0
+    for size in sizes:
+        out.append(det.update(block.slice(first, first + size)))
+        first += size
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("name", REAL_NAMES)
+def test_detector_flags_with_the_kernel_equal_plain_on_real_recordings(name, switch):
+    block, cert = _real(name)
+    sizes = blocks(np.random.default_rng(7), len(block))
+    for how in (sizes, None):
+        switch(False)
+        plain = flags(block, cert, how)
+        switch(True)
+        fast = flags(block, cert, how)
+        np.testing.assert_array_equal(fast, plain)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_jump_test_kernel_equals_plain(seed, switch):
+    from imudiag.certificate import load_default
+
+    det = QuasiStaticDetector(load_default(), rate_hz=100.0)
+    w = det.window
+    rng = np.random.default_rng(70 + seed)
+    jumps = 0
+    for case in range(100):
+        m = int(rng.integers(1, 3000))
+        sums = rng.normal(size=(m, 13)) * 10 ** rng.uniform(-3, 3) * w
+        back_w = rng.normal(size=(m, 13)) * 10 ** rng.uniform(-3, 3) * w
+        back_2w = back_w - rng.normal(size=(m, 13)) * w * rng.uniform(0.0, 3.0)
+        back_w[:, 9:12] = back_2w[:, 9:12] + np.abs(rng.normal(size=(m, 3))) * w * rng.uniform(0, 5)
+        if case % 5 == 0:
+            sums[rng.integers(0, m)] = np.nan
+        still = rng.random(m) < 0.8
+        sigma2 = 10.0 ** rng.uniform(-8.0, 8.0, 3) if case % 2 else rng.uniform(0.1, 3.0, 3)
+        first = int(rng.integers(0, 300))
+        out = []
+        for on in (False, True):
+            switch(on)
+            out.append(det._jump(first, sums, back_w, back_2w, still, sigma2))
+        np.testing.assert_array_equal(out[1], out[0])
+        jumps += int(out[0].sum())
+    assert jumps > 1000
+
+
+def test_window_moments_kernel_equals_plain(switch):
+    """The windows' variances and means (:class:`imudiag.quasistatic.WindowStats`), compiled
+    and plain, element for element, on a random stream with non-finite samples and whole
+    ADC counts, in small and big blocks."""
+    from imudiag.certificate import load_default
+
+    cert = load_default()
+    rng = np.random.default_rng(90)
+    n = 70_000
+    gyro = np.rint(rng.normal(0.0, 30.0, (n, 3)))
+    accel = rng.normal(0.0, 1e-3, (n, 3)) + [0.0, 0.0, 1.0]
+    accel[rng.random(n) < 0.001] = np.nan
+    block = SampleBlock(t=np.arange(n) / 100.0, gyro=gyro, accel=accel)
+    sizes = blocks(np.random.default_rng(91), n)
+    got = []
+    for on in (False, True):
+        switch(on)
+        stage = QuasiStaticDetector(cert, rate_hz=100.0)._stage
+        var, mean, first = [], [], 0
+        for size in sizes:
+            st = stage.run(block.slice(first, first + size))
+            first += size
+            if st.skip < size:
+                var.append(st.var)
+                mean.append(st.mean)
+        got.append((np.concatenate(var), np.concatenate(mean)))
+    for a, b in zip(got[1], got[0], strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert np.all(np.isfinite(got[0][0]))
