@@ -61,18 +61,38 @@ class _Steps:
         return self.x0 + sum(d for _, _, d in self.steps)
 
     def eval(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Value, first and second derivative at times t."""
-        x = np.full(t.shape, self.x0)
+        """Value, first and second derivative at times t.
+
+        A step over before the first time (tau >= 1 throughout) adds exactly ``delta`` and
+        nothing to the derivatives, one not begun by the last (tau <= 0) adds nothing, so
+        only the steps that overlap ``t`` are evaluated on the array; the finished ones are
+        summed in the same order while the value is still one number, and the result is
+        bit for bit that of evaluating every step (a block of a long drive overlaps one or
+        two of its hundreds of steps)."""
+        lo, hi = (float(t.min()), float(t.max())) if t.size else (0.0, 0.0)
+        x0 = self.x0
+        x: np.ndarray | None = None
         dx = np.zeros(t.shape)
         ddx = np.zeros(t.shape)
         for t0, dur, delta in self.steps:
+            if t.size and dur > 0:
+                if (lo - t0) / dur >= 1.0:  # over at every t: s = 1, ds = 0, no ddx
+                    if x is None:
+                        x0 += delta
+                    else:
+                        x += delta
+                    continue
+                if (hi - t0) / dur <= 0.0:  # not begun at any t: s = ds = 0
+                    continue
+            if x is None:
+                x = np.full(t.shape, x0)
             tau = (t - t0) / dur
             s, ds = smooth_step(tau)
             x += delta * s
             dx += delta * ds / dur
             inside = (tau > 0) & (tau < 1)
             ddx += np.where(inside, delta * 2 * math.pi * np.sin(2 * math.pi * tau) / dur**2, 0)
-        return x, dx, ddx
+        return (np.full(t.shape, x0) if x is None else x), dx, ddx
 
 
 class DriveMotion(Motion):
