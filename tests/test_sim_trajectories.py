@@ -199,8 +199,8 @@ def test_attitude_with_up_and_rotation_vector():
 @pytest.mark.parametrize("scenario", ["urban", "hilly", "aircraft"])
 def test_drive_steps_evaluated_per_block_are_the_sum_of_every_step(scenario: str) -> None:
     """A drive's speed, heading and grade profiles, evaluated on blocks (the simulator's
-    reads), equal bit for bit the sum over every raised-cosine step, the definition
-    (``_Steps.eval`` evaluates only the steps that overlap a block)."""
+    reads, and a whole drive), equal bit for bit the sum over every raised-cosine step, the
+    definition (``_Steps.eval`` evaluates each step only on the times it spans)."""
     from imudiag.sim.drive import drive_motion
     from imudiag.sim.trajectories import smooth_step
 
@@ -212,7 +212,8 @@ def test_drive_steps_evaluated_per_block_are_the_sum_of_every_step(scenario: str
     blocks = [a + np.arange(int(rng.integers(1, 200))) / 100.0 for a in starts]
     # blocks beginning exactly at a step's start and end
     blocks += [np.array([t0, t0 + dur]) for p in profiles for t0, dur, _ in p.steps[:5]]
-    blocks.append(np.arange(0.0, motion.duration_s, 0.05))
+    blocks.append(np.arange(0.0, motion.duration_s, 0.05))  # a whole drive
+    blocks.append(rng.uniform(0.0, motion.duration_s, 50))  # out of order
     for steps in profiles:
         for t in blocks:
             x, dx, ddx = np.full(t.shape, steps.x0), np.zeros(t.shape), np.zeros(t.shape)

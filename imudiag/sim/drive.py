@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -63,36 +64,86 @@ class _Steps:
     def eval(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Value, first and second derivative at times t.
 
-        A step over before the first time (tau >= 1 throughout) adds exactly ``delta`` and
-        nothing to the derivatives, one not begun by the last (tau <= 0) adds nothing, so
-        only the steps that overlap ``t`` are evaluated on the array; the finished ones are
-        summed in the same order while the value is still one number, and the result is
-        bit for bit that of evaluating every step (a block of a long drive overlaps one or
-        two of its hundreds of steps)."""
-        lo, hi = (float(t.min()), float(t.max())) if t.size else (0.0, 0.0)
-        x0 = self.x0
-        x: np.ndarray | None = None
+        The definition is the sum over every step of ``delta * s(tau)`` (and its derivatives),
+        tau = (t - t0) / dur: a step over at a time (tau >= 1) adds exactly ``delta`` there and
+        nothing to the derivatives, one not begun (tau <= 0) adds nothing. So on sorted times
+        (every simulator read) each step is evaluated only on the times it spans, the times
+        between steps take the running sum of the deltas, in the steps' order, and the result
+        is bit for bit the definition's (tests/test_sim_trajectories.py); times out of order,
+        or steps that overlap, take the definition's loop."""
+        t = np.asarray(t, dtype=float)
+        fast = _sorted_spans(self.steps, t)
+        if fast is None:
+            return self._eval_every_step(t)
+        x = np.empty(t.shape)
+        dx = np.zeros(t.shape)
+        ddx = np.zeros(t.shape)
+        c = self.x0
+        pos = 0
+        for (t0, dur, delta), (a, b) in zip(self.steps, fast, strict=True):
+            x[pos:a] = c
+            if b > a:
+                tau = (t[a:b] - t0) / dur
+                s, ds = smooth_step(tau)
+                x[a:b] = c + delta * s
+                # 0.0 + ...: the definition's sum from zeros (no -0.0 where it has +0.0)
+                dx[a:b] = 0.0 + delta * ds / dur
+                ddx[a:b] = 0.0 + delta * 2 * math.pi * np.sin(2 * math.pi * tau) / dur**2
+            c += delta
+            pos = b
+        x[pos:] = c
+        return x, dx, ddx
+
+    def _eval_every_step(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`eval` by its definition: every step on every time."""
+        x = np.full(t.shape, self.x0)
         dx = np.zeros(t.shape)
         ddx = np.zeros(t.shape)
         for t0, dur, delta in self.steps:
-            if t.size and dur > 0:
-                if (lo - t0) / dur >= 1.0:  # over at every t: s = 1, ds = 0, no ddx
-                    if x is None:
-                        x0 += delta
-                    else:
-                        x += delta
-                    continue
-                if (hi - t0) / dur <= 0.0:  # not begun at any t: s = ds = 0
-                    continue
-            if x is None:
-                x = np.full(t.shape, x0)
             tau = (t - t0) / dur
             s, ds = smooth_step(tau)
             x += delta * s
             dx += delta * ds / dur
             inside = (tau > 0) & (tau < 1)
             ddx += np.where(inside, delta * 2 * math.pi * np.sin(2 * math.pi * tau) / dur**2, 0)
-        return (np.full(t.shape, x0) if x is None else x), dx, ddx
+        return x, dx, ddx
+
+
+def _sorted_spans(
+    steps: list[tuple[float, float, float]], t: np.ndarray
+) -> list[tuple[int, int]] | None:
+    """For sorted 1-D times ``t``: per step the index range [a, b) where 0 < tau < 1, found
+    with the same float expression ``(t - t0) / dur`` as the definition (monotone in t);
+    None when ``t`` is not sorted, a duration is not positive, or two steps' ranges
+    overlap (then :meth:`_Steps.eval` takes the definition's loop)."""
+    if t.ndim != 1 or (t.size > 1 and not bool(np.all(t[1:] >= t[:-1]))):
+        return None
+    n = t.shape[0]
+    spans: list[tuple[int, int]] = []
+    pos = 0
+    for t0, dur, _ in steps:
+        if not dur > 0:
+            return None
+        a = _first(t, t0, dur, int(np.searchsorted(t, t0, side="right")), lambda v: v > 0.0)
+        b = _first(t, t0, dur, int(np.searchsorted(t, t0 + dur, side="left")), lambda v: v >= 1.0)
+        b = max(a, b)
+        if a < pos:  # overlaps the step before
+            return None
+        spans.append((a, b))
+        pos = b
+    return spans if pos <= n else None
+
+
+def _first(t: np.ndarray, t0: float, dur: float, guess: int, cond: Callable[[float], bool]) -> int:
+    """The first index i of sorted ``t`` with ``cond((t[i] - t0) / dur)`` (a condition that,
+    once true, stays true along t), from a nearby ``guess``."""
+    n = t.shape[0]
+    i = min(max(guess, 0), n)
+    while i < n and not cond((float(t[i]) - t0) / dur):
+        i += 1
+    while i > 0 and cond((float(t[i - 1]) - t0) / dur):
+        i -= 1
+    return i
 
 
 class DriveMotion(Motion):
