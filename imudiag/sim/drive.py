@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -54,6 +53,10 @@ class _Steps:
 
     x0: float = 0.0
     steps: list[tuple[float, float, float]] = field(default_factory=list)
+    _table_n: int = field(default=-1, repr=False, compare=False)
+    _table: tuple[np.ndarray, np.ndarray] = field(
+        default=(np.zeros(0), np.zeros(0)), repr=False, compare=False
+    )
 
     def add(self, t0: float, dur: float, delta: float) -> None:
         self.steps.append((float(t0), float(dur), float(delta)))
@@ -72,7 +75,11 @@ class _Steps:
         is bit for bit the definition's (tests/test_sim_trajectories.py); times out of order,
         or steps that overlap, take the definition's loop."""
         t = np.asarray(t, dtype=float)
-        fast = _sorted_spans(self.steps, t)
+        if len(self.steps) != self._table_n:  # (start, duration) of every step, as arrays
+            table = np.array(self.steps, dtype=float).reshape(-1, 3)
+            self._table = (table[:, 0].copy(), table[:, 1].copy())
+            self._table_n = len(self.steps)
+        fast = _sorted_spans(*self._table, t)
         if fast is None:
             return self._eval_every_step(t)
         x = np.empty(t.shape)
@@ -81,7 +88,8 @@ class _Steps:
         c = self.x0
         pos = 0
         for (t0, dur, delta), (a, b) in zip(self.steps, fast, strict=True):
-            x[pos:a] = c
+            if a > pos:
+                x[pos:a] = c
             if b > a:
                 tau = (t[a:b] - t0) / dur
                 s, ds = smooth_step(tau)
@@ -109,41 +117,45 @@ class _Steps:
         return x, dx, ddx
 
 
-def _sorted_spans(
-    steps: list[tuple[float, float, float]], t: np.ndarray
-) -> list[tuple[int, int]] | None:
-    """For sorted 1-D times ``t``: per step the index range [a, b) where 0 < tau < 1, found
-    with the same float expression ``(t - t0) / dur`` as the definition (monotone in t);
-    None when ``t`` is not sorted, a duration is not positive, or two steps' ranges
-    overlap (then :meth:`_Steps.eval` takes the definition's loop)."""
+def _sorted_spans(t0: np.ndarray, dur: np.ndarray, t: np.ndarray) -> list[tuple[int, int]] | None:
+    """For sorted 1-D times ``t``: per step (start ``t0``, duration ``dur``, s) the index
+    range [a, b) where 0 < tau < 1, found with the same float expression ``(t - t0) / dur``
+    as the definition (monotone in t); None when ``t`` is not sorted, a duration is not
+    positive, or two steps' ranges overlap (then :meth:`_Steps.eval` takes the definition's
+    loop)."""
     if t.ndim != 1 or (t.size > 1 and not bool(np.all(t[1:] >= t[:-1]))):
         return None
-    n = t.shape[0]
-    spans: list[tuple[int, int]] = []
-    pos = 0
-    for t0, dur, _ in steps:
-        if not dur > 0:
-            return None
-        a = _first(t, t0, dur, int(np.searchsorted(t, t0, side="right")), lambda v: v > 0.0)
-        b = _first(t, t0, dur, int(np.searchsorted(t, t0 + dur, side="left")), lambda v: v >= 1.0)
-        b = max(a, b)
-        if a < pos:  # overlaps the step before
-            return None
-        spans.append((a, b))
-        pos = b
-    return spans if pos <= n else None
+    if not bool(np.all(dur > 0)):
+        return None
+    if t.size == 0:
+        return [(0, 0)] * t0.shape[0]
+    a = _first(t, t0, dur, np.searchsorted(t, t0, side="right"), 0.0, False)
+    b = np.maximum(a, _first(t, t0, dur, np.searchsorted(t, t0 + dur, side="left"), 1.0, True))
+    if bool(np.any(a[1:] < b[:-1])):  # two steps overlap
+        return None
+    return list(zip(a.tolist(), b.tolist(), strict=True))
 
 
-def _first(t: np.ndarray, t0: float, dur: float, guess: int, cond: Callable[[float], bool]) -> int:
-    """The first index i of sorted ``t`` with ``cond((t[i] - t0) / dur)`` (a condition that,
-    once true, stays true along t), from a nearby ``guess``."""
+def _first(
+    t: np.ndarray, t0: np.ndarray, dur: np.ndarray, guess: np.ndarray, edge: float, closed: bool
+) -> np.ndarray:
+    """Per step, the first index i of sorted, non-empty ``t`` with tau = (t[i] - t0) / dur
+    beyond ``edge`` (``>=`` if ``closed``, else ``>``; once true it stays true along t),
+    from the ``searchsorted`` guess, corrected where rounding puts it off."""
     n = t.shape[0]
-    i = min(max(guess, 0), n)
-    while i < n and not cond((float(t[i]) - t0) / dur):
-        i += 1
-    while i > 0 and cond((float(t[i - 1]) - t0) / dur):
-        i -= 1
-    return i
+
+    def beyond(i: np.ndarray) -> np.ndarray:
+        tau = (t[i] - t0) / dur
+        return tau >= edge if closed else tau > edge
+
+    i = guess
+    while True:
+        # forward while i < n and tau(i) is not beyond; back while tau(i - 1) is beyond
+        fwd = (i < n) & ~beyond(np.minimum(i, n - 1))
+        back = (i > 0) & beyond(np.maximum(i - 1, 0))
+        if not (fwd.any() or back.any()):
+            return i
+        i = i + fwd - back
 
 
 class DriveMotion(Motion):
