@@ -29,6 +29,7 @@ reports with white velocity noise, a latency (time tags late by it), outages
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import dataclass, field
@@ -434,8 +435,13 @@ class GnssSimConfig:
 def iso_time(unix_s: float) -> str:
     """gpsd's ISO 8601 time with milliseconds, rounded (not truncated)."""
     ms = int(round(unix_s * 1000.0))
-    base = datetime.fromtimestamp(ms // 1000, UTC).strftime("%Y-%m-%dT%H:%M:%S")
-    return f"{base}.{ms % 1000:03d}Z"
+    return f"{_iso_second(ms // 1000)}.{ms % 1000:03d}Z"
+
+
+@functools.lru_cache(maxsize=1024)
+def _iso_second(unix_s: int) -> str:
+    """The whole second ``unix_s`` as gpsd writes it (a drive's fixes share each second)."""
+    return datetime.fromtimestamp(unix_s, UTC).strftime("%Y-%m-%dT%H:%M:%S")
 
 
 def gnss_reports(
