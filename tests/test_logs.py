@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_imudiag_in_process
 
 from imudiag.logs import LogError, open_log, open_writer, read_log, write_log
 from imudiag.samples import SampleBlock
@@ -444,8 +445,10 @@ def test_convert_chain_round_trips(tmp_path: Path, real_data_dir: Path, imudiag_
     src = real_data_dir / "imucal-ferraris" / "session.csv.gz"
     original = read_log(src)
     steps = [src, tmp_path / "a.npz", tmp_path / "b.csv", tmp_path / "c.csv.gz"]
-    for a, b in zip(steps, steps[1:], strict=False):
-        proc = imudiag_cli("convert", str(a), str(b), "--block-size", "4096")
+    for i, (a, b) in enumerate(zip(steps, steps[1:], strict=False)):
+        # the first as a real subprocess, the others through cli.main in this process
+        run = imudiag_cli if i == 0 else run_imudiag_in_process
+        proc = run("convert", str(a), str(b), "--block-size", "4096")
         assert proc.returncode == 0, proc.stderr
         assert f"{len(original)} samples" in proc.stdout
     back = read_log(steps[-1])

@@ -1,4 +1,8 @@
-"""``imudiag simulate`` and ``imudiag allan`` as real subprocesses, and the benchmark script."""
+"""``imudiag simulate`` and ``imudiag allan`` as real subprocesses, and the benchmark script.
+
+A parametrized check runs one of its cases as a real subprocess (the CLI is the contract)
+and the others through the command's entry point in this process
+(:func:`conftest.run_imudiag_in_process`, the same exit status and output)."""
 
 from __future__ import annotations
 
@@ -10,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_imudiag, run_imudiag_in_process
 
 from imudiag.certificate import load
 from imudiag.logs import open_log, read_log
@@ -20,9 +25,10 @@ PROJECT_DIR = Path(__file__).parent.parent
 
 
 @pytest.mark.parametrize("ext", [".csv", ".csv.gz", ".npz", ".bin"])
-def test_simulate_writes_every_format(tmp_path, imudiag_cli, default_certificate, ext):
+def test_simulate_writes_every_format(tmp_path, default_certificate, ext):
     out = tmp_path / f"session{ext}"
-    r = imudiag_cli(
+    run = run_imudiag if ext == ".bin" else run_imudiag_in_process  # module docstring
+    r = run(
         "simulate",
         "multiposition",
         "--seed",
@@ -116,9 +122,10 @@ def test_simulate_true_certificate_and_duration(tmp_path, imudiag_cli, default_c
         ),
     ],
 )
-def test_simulate_bad_input_exit_2(tmp_path, imudiag_cli, args, msg):
+def test_simulate_bad_input_exit_2(tmp_path, args, msg):
+    run = run_imudiag if msg == "unknown effect" else run_imudiag_in_process  # module docstring
     args = [a if a not in ("x.csv", "x.txt") else str(tmp_path / a) for a in args]
-    r = imudiag_cli("simulate", *args)
+    r = run("simulate", *args)
     assert r.returncode == 2, (r.stdout, r.stderr)
     assert msg in r.stderr
     assert not (tmp_path / "x.csv").exists()
@@ -231,7 +238,7 @@ def test_benchmark_script_runs():
 
 
 @pytest.mark.parametrize("ext", ["csv", "csv.gz", "npz", "bin"])
-def test_simulate_refuses_a_session_larger_than_the_free_space(tmp_path, imudiag_cli, ext):
+def test_simulate_refuses_a_session_larger_than_the_free_space(tmp_path, ext):
     """1e9 s at the bundled 200 Hz is 2e11 samples: terabytes in every format, more than the
     real filesystem of tmp_path holds; refused before anything is written."""
     out = tmp_path / f"huge.{ext}"
@@ -239,7 +246,8 @@ def test_simulate_refuses_a_session_larger_than_the_free_space(tmp_path, imudiag
     from imudiag.logs import lookup
 
     assert lookup(out).bytes_per_sample * 2e11 > free  # the premise, on this machine
-    r = imudiag_cli("simulate", "static", "--duration", "1e9", "--out", str(out))
+    run = run_imudiag if ext == "csv" else run_imudiag_in_process  # module docstring
+    r = run("simulate", "static", "--duration", "1e9", "--out", str(out))
     assert r.returncode == 2, (r.stdout, r.stderr)
     line = r.stderr.strip()
     assert len(line.splitlines()) == 1 and "Traceback" not in line
@@ -248,13 +256,15 @@ def test_simulate_refuses_a_session_larger_than_the_free_space(tmp_path, imudiag
     assert list(tmp_path.iterdir()) == []  # not even a temporary part file
 
 
-def test_simulate_free_space_estimate_is_near_what_is_written(tmp_path, imudiag_cli):
-    """The per-format estimate is within a factor 1.5 of the real size of a written log."""
+def test_simulate_free_space_estimate_is_near_what_is_written(tmp_path):
+    """The per-format estimate is within a factor 1.5 of the real size of a written log
+    (the command in this process: test_simulate_writes_every_format runs it as a real
+    subprocess)."""
     from imudiag.logs import lookup
 
     for ext in ("csv", "csv.gz", "npz", "bin"):
         out = tmp_path / f"s.{ext}"
-        r = imudiag_cli("simulate", "static", "--duration", "10", "--out", str(out))
+        r = run_imudiag_in_process("simulate", "static", "--duration", "10", "--out", str(out))
         assert r.returncode == 0, r.stderr
         per_sample = out.stat().st_size / 2000
         estimate = lookup(out).bytes_per_sample
@@ -272,9 +282,10 @@ def test_simulate_free_space_estimate_is_near_what_is_written(tmp_path, imudiag_
         ("bias:ax:30:150", False),
     ],
 )
-def test_simulate_refuses_a_fault_at_or_after_the_end(tmp_path, imudiag_cli, fault, refused):
+def test_simulate_refuses_a_fault_at_or_after_the_end(tmp_path, fault, refused):
     out = tmp_path / "f.npz"
-    r = imudiag_cli("simulate", "static", "--duration", "60", "--out", str(out), "--fault", fault)
+    run = run_imudiag if fault == "bias:ax:60:150" else run_imudiag_in_process  # module doc
+    r = run("simulate", "static", "--duration", "60", "--out", str(out), "--fault", fault)
     if not refused:
         assert r.returncode == 0, r.stderr
         return

@@ -194,3 +194,35 @@ def test_attitude_with_up_and_rotation_vector():
         r,
         atol=1e-9,
     )
+
+
+@pytest.mark.parametrize("scenario", ["urban", "hilly", "aircraft"])
+def test_drive_steps_evaluated_per_block_are_the_sum_of_every_step(scenario: str) -> None:
+    """A drive's speed, heading and grade profiles, evaluated on blocks (the simulator's
+    reads, and a whole drive), equal bit for bit the sum over every raised-cosine step, the
+    definition (``_Steps.eval`` evaluates each step only on the times it spans)."""
+    from imudiag.sim.drive import drive_motion
+    from imudiag.sim.trajectories import smooth_step
+
+    motion = drive_motion(scenario, 300.0, seed=2)
+    profiles = (motion.speed, motion.heading, motion.grade)
+    assert sum(len(p.steps) for p in profiles) > 5
+    rng = np.random.default_rng(7)
+    starts = rng.uniform(-2.0, motion.duration_s + 2.0, 40)
+    blocks = [a + np.arange(int(rng.integers(1, 200))) / 100.0 for a in starts]
+    # blocks beginning exactly at a step's start and end
+    blocks += [np.array([t0, t0 + dur]) for p in profiles for t0, dur, _ in p.steps[:5]]
+    blocks.append(np.arange(0.0, motion.duration_s, 0.05))  # a whole drive
+    blocks.append(rng.uniform(0.0, motion.duration_s, 50))  # out of order
+    for steps in profiles:
+        for t in blocks:
+            x, dx, ddx = np.full(t.shape, steps.x0), np.zeros(t.shape), np.zeros(t.shape)
+            for t0, dur, delta in steps.steps:
+                tau = (t - t0) / dur
+                s, ds = smooth_step(tau)
+                x += delta * s
+                dx += delta * ds / dur
+                inside = (tau > 0) & (tau < 1)
+                ddx += np.where(inside, delta * 2 * math.pi * np.sin(2 * math.pi * tau) / dur**2, 0)
+            for got, want in zip(steps.eval(t), (x, dx, ddx), strict=True):
+                np.testing.assert_array_equal(got, want)

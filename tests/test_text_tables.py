@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_imudiag_in_process
 
 from imudiag.errors import BadInput
 from imudiag.logs import LogError, LogOptions, open_log, read_log
@@ -184,12 +185,16 @@ def _same(a, b, where: str = "") -> None:
 
 def test_log_options_refuse_bad_values_with_exit_2(session, imudiag_cli) -> None:
     d, _ = session
-    for args, text in (
-        (["--columns", "t,gx,gy,gz,ax,ay,bogus"], "unknown column 'bogus'"),
-        (["--units", "gyro=furlong/s"], "furlong"),
-        (["--time-unit", "fortnight"], "--time-unit"),
+    for i, (args, text) in enumerate(
+        (
+            (["--columns", "t,gx,gy,gz,ax,ay,bogus"], "unknown column 'bogus'"),
+            (["--units", "gyro=furlong/s"], "furlong"),
+            (["--time-unit", "fortnight"], "--time-unit"),
+        )
     ):
-        r = imudiag_cli("diagnose", str(d / "session.csv"), *args)
+        # the first as a real subprocess, the others through cli.main in this process
+        run = imudiag_cli if i == 0 else run_imudiag_in_process
+        r = run("diagnose", str(d / "session.csv"), *args)
         assert r.returncode == 2 and text in r.stderr, (args, r.stderr)
         assert "Traceback" not in r.stderr
 

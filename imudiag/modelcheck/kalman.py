@@ -382,7 +382,10 @@ def _innovations(
     rows = np.flatnonzero(use)
     m = rows.shape[0]
     P = st.P
+    # the diagonals of P as a view where P is C-contiguous (as _new_state makes it): the
+    # same additions as P[:, diag, diag] += ..., without fancy indexing every row
     diag = np.arange(d)
+    p_diag = P.reshape(b, d * d)[:, :: d + 1] if P.flags.c_contiguous and P.size else None
     S = np.empty((b, m))
     hph = np.empty((b, m))
     gains = np.empty((b, m, d))
@@ -394,7 +397,10 @@ def _innovations(
         dt = tl[i] - t_prev
         t_prev = tl[i]
         if dt > 0:
-            P[:, diag, diag] += q * dt
+            if p_diag is not None:
+                p_diag += q * dt
+            else:
+                P[:, diag, diag] += q * dt
         if not used[i]:
             continue
         h = H[i]

@@ -29,6 +29,7 @@ reports with white velocity noise, a latency (time tags late by it), outages
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import dataclass, field
@@ -53,6 +54,10 @@ class _Steps:
 
     x0: float = 0.0
     steps: list[tuple[float, float, float]] = field(default_factory=list)
+    _table_n: int = field(default=-1, repr=False, compare=False)
+    _table: tuple[np.ndarray, np.ndarray] = field(
+        default=(np.zeros(0), np.zeros(0)), repr=False, compare=False
+    )
 
     def add(self, t0: float, dur: float, delta: float) -> None:
         self.steps.append((float(t0), float(dur), float(delta)))
@@ -61,7 +66,45 @@ class _Steps:
         return self.x0 + sum(d for _, _, d in self.steps)
 
     def eval(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Value, first and second derivative at times t."""
+        """Value, first and second derivative at times t.
+
+        The definition is the sum over every step of ``delta * s(tau)`` (and its derivatives),
+        tau = (t - t0) / dur: a step over at a time (tau >= 1) adds exactly ``delta`` there and
+        nothing to the derivatives, one not begun (tau <= 0) adds nothing. So on sorted times
+        (every simulator read) each step is evaluated only on the times it spans, the times
+        between steps take the running sum of the deltas, in the steps' order, and the result
+        is bit for bit the definition's (tests/test_sim_trajectories.py); times out of order,
+        or steps that overlap, take the definition's loop."""
+        t = np.asarray(t, dtype=float)
+        if len(self.steps) != self._table_n:  # (start, duration) of every step, as arrays
+            table = np.array(self.steps, dtype=float).reshape(-1, 3)
+            self._table = (table[:, 0].copy(), table[:, 1].copy())
+            self._table_n = len(self.steps)
+        fast = _sorted_spans(*self._table, t)
+        if fast is None:
+            return self._eval_every_step(t)
+        x = np.empty(t.shape)
+        dx = np.zeros(t.shape)
+        ddx = np.zeros(t.shape)
+        c = self.x0
+        pos = 0
+        for (t0, dur, delta), (a, b) in zip(self.steps, fast, strict=True):
+            if a > pos:
+                x[pos:a] = c
+            if b > a:
+                tau = (t[a:b] - t0) / dur
+                s, ds = smooth_step(tau)
+                x[a:b] = c + delta * s
+                # 0.0 + ...: the definition's sum from zeros (no -0.0 where it has +0.0)
+                dx[a:b] = 0.0 + delta * ds / dur
+                ddx[a:b] = 0.0 + delta * 2 * math.pi * np.sin(2 * math.pi * tau) / dur**2
+            c += delta
+            pos = b
+        x[pos:] = c
+        return x, dx, ddx
+
+    def _eval_every_step(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`eval` by its definition: every step on every time."""
         x = np.full(t.shape, self.x0)
         dx = np.zeros(t.shape)
         ddx = np.zeros(t.shape)
@@ -73,6 +116,47 @@ class _Steps:
             inside = (tau > 0) & (tau < 1)
             ddx += np.where(inside, delta * 2 * math.pi * np.sin(2 * math.pi * tau) / dur**2, 0)
         return x, dx, ddx
+
+
+def _sorted_spans(t0: np.ndarray, dur: np.ndarray, t: np.ndarray) -> list[tuple[int, int]] | None:
+    """For sorted 1-D times ``t``: per step (start ``t0``, duration ``dur``, s) the index
+    range [a, b) where 0 < tau < 1, found with the same float expression ``(t - t0) / dur``
+    as the definition (monotone in t); None when ``t`` is not sorted, a duration is not
+    positive, or two steps' ranges overlap (then :meth:`_Steps.eval` takes the definition's
+    loop)."""
+    if t.ndim != 1 or (t.size > 1 and not bool(np.all(t[1:] >= t[:-1]))):
+        return None
+    if not bool(np.all(dur > 0)):
+        return None
+    if t.size == 0:
+        return [(0, 0)] * t0.shape[0]
+    a = _first(t, t0, dur, np.searchsorted(t, t0, side="right"), 0.0, False)
+    b = np.maximum(a, _first(t, t0, dur, np.searchsorted(t, t0 + dur, side="left"), 1.0, True))
+    if bool(np.any(a[1:] < b[:-1])):  # two steps overlap
+        return None
+    return list(zip(a.tolist(), b.tolist(), strict=True))
+
+
+def _first(
+    t: np.ndarray, t0: np.ndarray, dur: np.ndarray, guess: np.ndarray, edge: float, closed: bool
+) -> np.ndarray:
+    """Per step, the first index i of sorted, non-empty ``t`` with tau = (t[i] - t0) / dur
+    beyond ``edge`` (``>=`` if ``closed``, else ``>``; once true it stays true along t),
+    from the ``searchsorted`` guess, corrected where rounding puts it off."""
+    n = t.shape[0]
+
+    def beyond(i: np.ndarray) -> np.ndarray:
+        tau = (t[i] - t0) / dur
+        return tau >= edge if closed else tau > edge
+
+    i = guess
+    while True:
+        # forward while i < n and tau(i) is not beyond; back while tau(i - 1) is beyond
+        fwd = (i < n) & ~beyond(np.minimum(i, n - 1))
+        back = (i > 0) & beyond(np.maximum(i - 1, 0))
+        if not (fwd.any() or back.any()):
+            return i
+        i = i + fwd - back
 
 
 class DriveMotion(Motion):
@@ -351,8 +435,13 @@ class GnssSimConfig:
 def iso_time(unix_s: float) -> str:
     """gpsd's ISO 8601 time with milliseconds, rounded (not truncated)."""
     ms = int(round(unix_s * 1000.0))
-    base = datetime.fromtimestamp(ms // 1000, UTC).strftime("%Y-%m-%dT%H:%M:%S")
-    return f"{base}.{ms % 1000:03d}Z"
+    return f"{_iso_second(ms // 1000)}.{ms % 1000:03d}Z"
+
+
+@functools.lru_cache(maxsize=1024)
+def _iso_second(unix_s: int) -> str:
+    """The whole second ``unix_s`` as gpsd writes it (a drive's fixes share each second)."""
+    return datetime.fromtimestamp(unix_s, UTC).strftime("%Y-%m-%dT%H:%M:%S")
 
 
 def gnss_reports(
