@@ -373,24 +373,32 @@ def diagnose_log(job: Job) -> dict[str, Any]:
 
         gnss = gnss_beside(job.path)
         from ..diagnosis import kernels
+        from ..logs import LogOptions
 
-        # the compiled window fits in this task's thread only (docs/fleet.md)
-        with kernels.switched(_use_kernels()) as compiled:
-            record["kernels"] = (
-                "numba"
-                if compiled
-                else ("plain (IMUDIAG_KERNELS=plain)" if not _use_kernels() else kernels.status())
-            )
-            report: dict[str, Any] = cast(
-                "dict[str, Any]",
-                diagnose(
-                    job.path,
-                    cert,
-                    config=job.config or None,
-                    progress=watch,
-                    gnss=str(gnss) if gnss else "auto",
-                ),
-            )
+        def diagnose_instance(number: int | None) -> dict[str, Any]:
+            """The log's report (of IMU instance ``number``; None: the reader's choice),
+            with the compiled window fits in this task's thread only (docs/fleet.md)."""
+            with kernels.switched(_use_kernels()) as compiled:
+                record["kernels"] = (
+                    "numba"
+                    if compiled
+                    else (
+                        "plain (IMUDIAG_KERNELS=plain)" if not _use_kernels() else kernels.status()
+                    )
+                )
+                return cast(
+                    "dict[str, Any]",
+                    diagnose(
+                        job.path,
+                        cert,
+                        config=job.config or None,
+                        progress=watch,
+                        gnss=str(gnss) if gnss else "auto",
+                        log_options=None if number is None else LogOptions(instance=number),
+                    ),
+                )
+
+        report = diagnose_instance(None)
         record["gnss"] = (
             str(gnss) if gnss else ("the log's own" if "moving_base" in report else None)
         )
@@ -406,23 +414,6 @@ def diagnose_log(job: Job) -> dict[str, Any]:
         record["samples"] = report.get("samples")
         record["status"] = "ok"
         stage = "diagnosing the log's other IMU instances"
-
-        def diagnose_instance(number: int) -> dict[str, Any]:
-            from ..logs import LogOptions
-
-            with kernels.switched(_use_kernels()):
-                return cast(
-                    "dict[str, Any]",
-                    diagnose(
-                        job.path,
-                        cert,
-                        config=job.config or None,
-                        progress=watch,
-                        gnss=str(gnss) if gnss else "auto",
-                        log_options=LogOptions(instance=number),
-                    ),
-                )
-
         record["instances"] = other_instances(meta, cert, diagnose_instance)
     except LogTimeout as exc:
         record["reason"] = str(exc)
