@@ -216,6 +216,15 @@ def tagged(parameters: list[dict[str, Any]], instance: int | None) -> list[dict[
     return [{"instance": instance, **p} for p in parameters]
 
 
+def kept(report: dict[str, Any], cert: Any, instance: int | None) -> list[dict[str, Any]]:
+    """The parameters a record keeps of the ``report`` of IMU ``instance`` (its best
+    estimates, :func:`tagged`); the report loses :data:`DROPPED_REPORT_KEYS` in place."""
+    parameters = tagged(best_estimates(report, cert), instance)
+    for key in DROPPED_REPORT_KEYS:
+        report.pop(key, None)
+    return parameters
+
+
 def other_instances(
     meta: dict[str, Any], cert: Any, diagnose_instance: Callable[[int], dict[str, Any]]
 ) -> list[dict[str, Any]]:
@@ -257,9 +266,7 @@ def other_instances(
         except ImudiagError as exc:
             item["reason"] = f"diagnosing instance {number}: {exc}"
             continue
-        item["parameters"] = tagged(best_estimates(report, cert), number)
-        for key in DROPPED_REPORT_KEYS:
-            report.pop(key, None)
+        item["parameters"] = kept(report, cert, number)
         item.update(status="ok", samples=report.get("samples"), report=report)
     return out
 
@@ -407,9 +414,7 @@ def diagnose_log(job: Job) -> dict[str, Any]:
             if start is not None:
                 record["start"], record["start_source"] = start, GNSS_CLOCK_START
         record["instance"] = meta.get("instance")
-        record["parameters"] = tagged(best_estimates(report, cert), record["instance"])
-        for key in DROPPED_REPORT_KEYS:
-            report.pop(key, None)
+        record["parameters"] = kept(report, cert, record["instance"])
         record["report"] = report
         record["samples"] = report.get("samples")
         record["status"] = "ok"
@@ -439,6 +444,7 @@ __all__ = [
     "WARM_MODULES",
     "Job",
     "LogTimeout",
+    "kept",
     "best_estimates",
     "choose_certificate",
     "diagnose_log",
