@@ -127,3 +127,26 @@ def test_raw_instances_logged_far_below_the_imu_rate_are_skipped_with_the_reason
             f"logged at {item['rate_hz']} Hz, below 0.5 of the log's IMU rate (204.583 Hz): "
             "not diagnosed"
         )
+
+
+def test_an_instance_past_the_time_limit_keeps_the_logs_own_report() -> None:
+    """The per-log time limit running out while another IMU instance is diagnosed makes
+    that instance an error with the reason; the log's report, made before, stays (the
+    whole record used to become a timeout error)."""
+    from imudiag.fleet.task import LogTimeout, other_instances
+
+    meta = {
+        "instance": 0,
+        "sample_rate": 100.0,
+        "imu_instances": [{"instance": i, "rate_hz": 100.0} for i in (0, 1, 2)],
+    }
+
+    def late(number: int) -> dict:
+        raise LogTimeout("timeout: the diagnosis ran past 60 s (while fitting windows)")
+
+    items = other_instances(meta, load(CERT), late)
+    assert [(i["instance"], i["status"]) for i in items] == [(1, "error"), (2, "error")]
+    assert items[0]["reason"] == (
+        "instance 1: timeout: the diagnosis ran past 60 s (while fitting windows)"
+    )
+    assert items[0]["report"] is None and items[0]["parameters"] == []

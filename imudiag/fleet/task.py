@@ -233,7 +233,9 @@ def other_instances(
     (``meta["instance"]``): its ``instance``, ``rate_hz``, ``status`` (``ok``, ``error``
     or ``skipped``: logged at less than :data:`MIN_INSTANCE_RATE_FRACTION` of the log's
     IMU rate, as PX4's raw topics often are), ``reason``, ``samples``, ``parameters`` and
-    ``report`` (without its windows). ``diagnose_instance(N)``: the report of instance N."""
+    ``report`` (without its windows). ``diagnose_instance(N)``: the report of instance N.
+    An instance that fails, or runs past the log's time limit, is an ``error`` item with
+    the reason: the log's own report, already made, is never lost to it."""
     out: list[dict[str, Any]] = []
     rate = meta.get("sample_rate")
     for entry in meta.get("imu_instances") or []:
@@ -261,8 +263,9 @@ def other_instances(
             continue
         try:
             report = diagnose_instance(number)
-        except LogTimeout:
-            raise
+        except LogTimeout as exc:  # the log's own report is kept: this instance ran late
+            item["reason"] = f"instance {number}: {exc}"
+            continue
         except ImudiagError as exc:
             item["reason"] = f"diagnosing instance {number}: {exc}"
             continue
