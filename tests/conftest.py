@@ -74,13 +74,21 @@ def run_imudiag_in_process(*args: str) -> subprocess.CompletedProcess[str]:
     check of what a command writes or refuses, beside one real subprocess run per
     behaviour (the CLI is the contract): a subprocess costs an interpreter start and the
     command's imports (about 0.3 s on the 2-core machine). The signal handlers the command
-    installs are put back."""
+    installs are put back; the compiled kernels are on or off as a new process would have
+    them (``IMUDIAG_KERNELS``), whatever an earlier test in this worker chose."""
+    from imudiag import kernels
     from imudiag.cli import main
 
     out, err = io.StringIO(), io.StringIO()
     handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    fresh = os.environ.get("IMUDIAG_KERNELS", "").strip().lower() == "numba"
     try:
-        with contextlib.chdir(PROJECT_DIR), redirect_stdout(out), redirect_stderr(err):
+        with (
+            contextlib.chdir(PROJECT_DIR),
+            redirect_stdout(out),
+            redirect_stderr(err),
+            kernels.switched(fresh),
+        ):
             try:
                 code = main(list(args))
             except SystemExit as exc:  # argparse: --help, --version, a bad option
@@ -117,6 +125,13 @@ def run_imudiag_without(module: str, *args: str) -> subprocess.CompletedProcess[
 def imudiag_cli():
     """The :func:`run_imudiag` helper: ``imudiag_cli("convert", a, b).returncode``."""
     return run_imudiag
+
+
+@pytest.fixture
+def imudiag_in_process():
+    """The :func:`run_imudiag_in_process` helper, for the cases of a behaviour that one real
+    subprocess run already covers."""
+    return run_imudiag_in_process
 
 
 #: programs that are real-time processes whatever their arguments

@@ -225,7 +225,12 @@ def own_runs() -> dict[tuple[str, ...], subprocess.CompletedProcess[str]]:
     REAL_CASES,
     ids=[f"{c[0].split('/')[0]}-{c[2][0]}{c[2][1]}" for c in REAL_CASES],
 )
-def test_real_recording(recording, like, perturbed, options, real_dir, own_runs, imudiag_cli):
+def test_real_recording(
+    recording, like, perturbed, options, real_dir, own_runs, imudiag_in_process
+):
+    # the commands' own entry point in this process: test_calibration_recovers_the_true_board
+    # runs calibrate and diagnose as real subprocesses
+    imudiag_cli = imudiag_in_process
     cert_path, summary = _calibrate(recording, like, real_dir, imudiag_cli)
     spread = summary["accel_norm_spread"]
     # |a| over the still intervals: at least tenfold tighter after calibration

@@ -4,7 +4,9 @@ Files in tests/data/interop (SOURCE.md there): the tools' own example files wher
 one, else files written exactly as the tool's writer writes them. Each import is checked
 against the tool's own model equations (written out here from the tool's source), each
 export-import round trip to float precision, and the acceptance path on the real Xsens
-recording through real subprocesses: calibrate, export to imu_tk, import, diagnose.
+recording through real subprocesses: calibrate, export to imu_tk, import, diagnose. The other
+command cases (refusals, the iKalibr frame rotation, the CLI import of each tool's file but
+Kalibr's) run the command's entry point in this process (``conftest.run_imudiag_in_process``).
 """
 
 from __future__ import annotations
@@ -386,13 +388,13 @@ def test_a_frame_rotation_kept_by_gauge_tool_changes_no_verdict(xsens_cal, tmp_p
     """Through iKalibr (triangular: both triads re-framed, 11.8 mrad) and back with --gauge
     tool, the certificate holds the rotation; the diagnosis sees only P: still no fault."""
     out = tmp_path / "intri.yaml"
-    r = run_imudiag(
+    r = run_imudiag_in_process(
         "certificate", "export", str(xsens_cal), "--format", "ikalibr", "--out", str(out)
     )
     assert r.returncode == 0, r.stderr
     assert "re-framed by 1.1" in r.stdout
     back = tmp_path / "back.yaml"
-    r = run_imudiag(
+    r = run_imudiag_in_process(
         "certificate", "import", str(out), "--format", "ikalibr", "--like", str(xsens_cal),
         "--gauge", "tool", "--out", str(back),
     )  # fmt: skip
@@ -457,7 +459,9 @@ GOOD_ACC = (IO / "imu_tk_xsens_acc.calib").read_text()
 def test_bad_imu_tk_files_exit_2_naming_file_and_key(case, text, needle, tmp_path):
     prefix = _imu_tk_pair(tmp_path, text)
     out = tmp_path / "c.yaml"
-    r = run_imudiag("certificate", "import", str(prefix), "--format", "imu_tk", "--out", str(out))
+    r = run_imudiag_in_process(
+        "certificate", "import", str(prefix), "--format", "imu_tk", "--out", str(out)
+    )
     assert r.returncode == 2, (case, r.stderr)
     assert needle in r.stderr and str(tmp_path / "bad_acc.calib") in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
@@ -492,7 +496,9 @@ def _bad_ikalibr(tmp: Path) -> Path:
 def test_bad_tool_files_exit_2_naming_file_and_key(fmt, make, needle, tmp_path):
     src = make(tmp_path)
     out = tmp_path / "c.yaml"
-    r = run_imudiag("certificate", "import", str(src), "--format", fmt, "--out", str(out))
+    r = run_imudiag_in_process(
+        "certificate", "import", str(src), "--format", fmt, "--out", str(out)
+    )
     assert r.returncode == 2, r.stderr
     assert f"{src}: {needle}" in r.stderr, r.stderr
     assert not out.exists()

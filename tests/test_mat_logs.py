@@ -6,15 +6,13 @@ One simulated session as the spec CSV and as .mat: diagnose gives the same repor
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import h5py  # the [test] extra installs both
 import numpy as np
 import pytest
 import scipy.io as scipy_io
-from conftest import run_imudiag_without
+from conftest import run_imudiag_in_process, run_imudiag_without
 
 from imudiag.logs import LogError, LogOptions, open_log, read_log
 
@@ -47,12 +45,9 @@ def session(tmp_path_factory):
 
 
 def _report(*args: str) -> dict:
-    r = subprocess.run(
-        [sys.executable, "-m", "imudiag", "diagnose", *args, "--json", "-", "--no-windows"],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    """``imudiag diagnose ARGS --json - --no-windows`` by the command's entry point in this
+    process (a missing extra below runs it as a real subprocess)."""
+    r = run_imudiag_in_process("diagnose", *args, "--json", "-", "--no-windows")
     assert r.returncode == 0, r.stderr
     report = json.loads(r.stdout)
     report.pop("log", None)

@@ -1,6 +1,9 @@
 """``--plots DIR`` of ``imudiag diagnose``, ``calibrate`` and ``model-check``: real commands
-in subprocesses on the shipped Xsens MTi recording (tests/data/real/xsens-mti-multiposition,
-SOURCE.md there) with its --like certificate; real PNG files written by matplotlib."""
+on the shipped Xsens MTi recording (tests/data/real/xsens-mti-multiposition, SOURCE.md
+there) with its --like certificate; real PNG files written by matplotlib. ``diagnose`` and
+``calibrate`` with figures run as real subprocesses (the module's fixtures; ``model-check``'s
+in tests/test_modelcheck.py), the other cases by the command's entry point in this process
+(``conftest.run_imudiag_in_process``)."""
 
 from __future__ import annotations
 
@@ -10,7 +13,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import DATA_DIR, REAL_DATA_DIR, run_imudiag, run_imudiag_without
+from conftest import (
+    DATA_DIR,
+    REAL_DATA_DIR,
+    run_imudiag,
+    run_imudiag_in_process,
+    run_imudiag_without,
+)
 
 from imudiag.monitor import F0Trace
 
@@ -155,7 +164,9 @@ def test_plots_dir_that_is_a_file_is_exit_2_before_any_work(command, tmp_path):
     blocker.write_text("not a directory\n")
     args = [a.replace("OUT", str(tmp_path)) for a in command]
     for plots, why in ((blocker, "not a directory"), (blocker / "sub", "is not a directory")):
-        res = run_imudiag(*args, "--plots", str(plots), "--json", str(tmp_path / "r.json"))
+        res = run_imudiag_in_process(
+            *args, "--plots", str(plots), "--json", str(tmp_path / "r.json")
+        )
         assert res.returncode == 2, res.stderr
         lines = res.stderr.strip().splitlines()
         assert len(lines) == 1 and str(plots) in lines[0] and why in lines[0], lines
@@ -166,7 +177,7 @@ def test_plots_dir_that_is_a_file_is_exit_2_before_any_work(command, tmp_path):
 def test_plots_file_that_is_an_input_is_refused(tmp_path):
     log = tmp_path / "f0_trace.png"  # the log where a figure would go
     log.write_bytes(LOG.read_bytes())
-    res = run_imudiag("diagnose", str(log), "-c", str(LIKE), "--plots", str(tmp_path))
+    res = run_imudiag_in_process("diagnose", str(log), "-c", str(LIKE), "--plots", str(tmp_path))
     assert res.returncode == 2
     assert "refusing to overwrite an input" in res.stderr and str(log) in res.stderr
     assert log.read_bytes() == LOG.read_bytes()
@@ -200,11 +211,11 @@ def test_missing_matplotlib_is_exit_2_with_the_pip_command(command, tmp_path):
 def test_model_check_lists_its_plots(tmp_path):
     """model-check shares the checks and the Agg setup, and now lists its figures too."""
     sim = tmp_path / "multiposition.csv"
-    res = run_imudiag("simulate", "multiposition", "--duration", "20", "--seed", "2",
+    res = run_imudiag_in_process("simulate", "multiposition", "--duration", "20", "--seed", "2",
                       "--param", "n=6", "--out", str(sim))  # fmt: skip
     assert res.returncode == 0, res.stderr
     out = tmp_path / "mc.json"
-    res = run_imudiag(
+    res = run_imudiag_in_process(
         "model-check", str(sim), "--certificate", "config/default-certificate.yaml",
         "--plots", str(tmp_path / "p"), "--json", str(out),
     )  # fmt: skip
@@ -226,7 +237,7 @@ def test_known_rate_calibration_draws_the_plateau_residuals(tmp_path):
     _session(log, _truth().gyro, seed=4)
     load_default().save(like)
     js = tmp_path / "cal.json"
-    res = run_imudiag(
+    res = run_imudiag_in_process(
         "calibrate", str(log), "--like", str(like), "--known-rate", "33.333333rpm",
         "--out", str(tmp_path / "cal.yaml"), "--plots", str(tmp_path / "p"), "--json", str(js),
     )  # fmt: skip

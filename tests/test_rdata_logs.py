@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_imudiag_without
+from conftest import run_imudiag_in_process, run_imudiag_without
 
 from imudiag.logs import LogError, LogOptions, lookup, open_log, read_log
 from imudiag.samples import SampleBlock
@@ -30,12 +30,9 @@ def _read(path: Path, options: LogOptions | None = None) -> SampleBlock:
 
 
 def _report(*args: str) -> dict:
-    r = subprocess.run(
-        [sys.executable, "-m", "imudiag", "diagnose", *args, "--json", "-"],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    """``imudiag diagnose ARGS --json -`` by the command's entry point in this process (the
+    unreadable files below run it as a real subprocess)."""
+    r = run_imudiag_in_process("diagnose", *args, "--json", "-")
     assert r.returncode == 0, r.stderr
     report = json.loads(r.stdout)
     report.pop("log", None)
@@ -135,12 +132,7 @@ def test_convert_rda_to_csv(tmp_path: Path) -> None:
     src = tmp_path / "session.RData"
     shutil.copy(DATA / "session_named.RData", src)
     out = tmp_path / "out.csv"
-    r = subprocess.run(
-        [sys.executable, "-m", "imudiag", "convert", str(src), str(out)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    r = run_imudiag_in_process("convert", str(src), str(out))
     assert r.returncode == 0, r.stderr
     np.testing.assert_array_equal(read_log(out).accel, read_log(CSV).slice(0, 500).accel)
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import run_imudiag
+from conftest import run_imudiag, run_imudiag_in_process
 
 from imudiag.certificate import load
 from imudiag.diagnosis.params import certificate_vector, limit_vector
@@ -71,7 +71,7 @@ def xsens_calibrations(tmp_path_factory):
     for factor in (1.0, 0.5, 3.0):
         like = _like_with_noise(tmp, factor)
         cert, summary = tmp / f"cal-x{factor}.yaml", tmp / f"cal-x{factor}.json"
-        r = run_imudiag(
+        r = run_imudiag_in_process(
             "calibrate", str(XSENS), "--like", str(like), "--out", str(cert), "--json", str(summary)
         )
         assert r.returncode == 0, r.stderr
@@ -105,7 +105,9 @@ def test_wrong_certificate_noise_gives_the_same_calibration(xsens_calibrations, 
     assert ref_sum["noise"]["accel"]["disagrees"] is False
 
 
-def test_certificate_noise_option_trusts_a_wrong_figure_and_says_so(tmp_path, imudiag_cli):
+def test_certificate_noise_option_trusts_a_wrong_figure_and_says_so(tmp_path, imudiag_in_process):
+    # in this process: calibrate runs as a real subprocess in test_an_absurd_finite_value_...
+    imudiag_cli = imudiag_in_process
     like = _like_with_noise(tmp_path, 0.5)
     r = imudiag_cli(
         "calibrate",
@@ -131,7 +133,10 @@ def _cut(tmp: Path, seconds: float) -> Path:
     return out
 
 
-def test_short_session_pins_what_it_cannot_determine(tmp_path, imudiag_cli, xsens_calibrations):
+def test_short_session_pins_what_it_cannot_determine(
+    tmp_path, imudiag_in_process, xsens_calibrations
+):
+    imudiag_cli = imudiag_in_process
     """120 s of the session: what it cannot determine is listed, and what it writes lies near
     the whole session's calibration, not at --like.
 
@@ -232,7 +237,7 @@ def test_replay_with_the_calibrated_certificate_raises_no_noise_fault(tmp_path, 
 
     log = DATA / "real" / recording
     cert_path = tmp_path / "cal.yaml"
-    r = run_imudiag(
+    r = run_imudiag_in_process(
         "calibrate", str(log), "--like", str(DATA / "diagnosis" / like), "--out", str(cert_path)
     )
     assert r.returncode == 0, r.stderr

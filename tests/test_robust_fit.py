@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_imudiag
+from conftest import run_imudiag, run_imudiag_in_process
 
 from imudiag.certificate import load, load_default
 from imudiag.diagnosis.intervals import IntervalCollector
@@ -164,9 +164,10 @@ def test_real_session_with_an_offset_hold(tmp_path):
     (about 0.9 % of g): the hold is rejected and named, the calibration is the clean one
     within its std, and diagnose with the clean calibration raises no fault (the windows
     reject it where they can tell, see docs/diagnosis.md; no single interval can make a
-    fault)."""
+    fault). The calibrations run by the command's entry point in this process, the diagnosis
+    as a real subprocess."""
     clean_cert, clean_json = tmp_path / "clean.yaml", tmp_path / "clean.json"
-    r = run_imudiag(
+    r = run_imudiag_in_process(
         "calibrate",
         str(XSENS),
         "--like",
@@ -180,7 +181,7 @@ def test_real_session_with_an_offset_hold(tmp_path):
     assert json.loads(clean_json.read_text())["rejected"] == []
     log, (t0, t1) = _xsens_with_offset_hold(tmp_path, 15.0)
     cal, js = tmp_path / "cal.yaml", tmp_path / "cal.json"
-    r = run_imudiag(
+    r = run_imudiag_in_process(
         "calibrate", str(log), "--like", str(LIKE), "--out", str(cal), "--json", str(js)
     )
     assert r.returncode == 0, r.stderr

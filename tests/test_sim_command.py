@@ -133,7 +133,7 @@ def test_simulate_bad_input_exit_2(tmp_path, args, msg):
 
 def test_allan_command_identifies_noise(tmp_path, imudiag_cli, default_certificate):
     log = tmp_path / "still.npz"
-    r = imudiag_cli(
+    r = run_imudiag_in_process(
         "simulate",
         "still",
         "--duration",
@@ -162,13 +162,14 @@ def test_allan_command_identifies_noise(tmp_path, imudiag_cli, default_certifica
     assert abs(rep["sensors"]["gy"]["random_walk"] / 2.0 - 1) < 0.2
     assert len(rep["sensors"]["gx"]["allan"]["tau"]) == len(rep["sensors"]["gx"]["allan"]["adev"])
     # --json - writes only JSON on stdout
-    r = imudiag_cli("allan", str(log), "--json", "-", "--sensors", "ax", "--stop", "600")
+    r = run_imudiag_in_process("allan", str(log), "--json", "-", "--sensors", "ax", "--stop", "600")
     assert r.returncode == 0
     rep2 = json.loads(r.stdout)
     assert list(rep2["sensors"]) == ["ax"] and rep2["samples"] == 30001
 
 
-def test_allan_bad_input(tmp_path, imudiag_cli):
+def test_allan_bad_input(tmp_path, imudiag_in_process):
+    imudiag_cli = imudiag_in_process  # module docstring: allan runs as a subprocess above
     r = imudiag_cli("allan", str(tmp_path / "none.csv"))
     assert r.returncode == 2 and "none.csv" in r.stderr
     bad = tmp_path / "bad.csv"
