@@ -16,14 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import atomic
-from ..plots import available, pyplot
+from ..plots import available, save, subplots
 from .check import ALL_SENSORS, ModelCheckResult
+
+#: Resolution of the model check's PNG files, dots per inch (its figures are small)
+DPI = 90
 
 
 def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
     """Write the figures into ``directory`` (created); returns the files written."""
-    plt = pyplot()
     out_dir = Path(directory)
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
@@ -33,7 +34,7 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
         _t2, adev_e, _i2 = meas.allan("extended")
         sims = result.simulated
         for j, s in enumerate(ALL_SENSORS):
-            fig, ax = plt.subplots(figsize=(6, 4))
+            fig, ax = subplots(figsize=(6, 4), dpi=DPI)
             ok = ind >= 4
             ax.loglog(tau[ok], adev_m[ok, j], "k.-", label="measured")
             if sims.get("baseline"):
@@ -52,11 +53,7 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
             ax.set_title(f"{s}")
             ax.grid(True, which="both", alpha=0.3)
             ax.legend(fontsize=7)
-            path = out_dir / f"allan_{s}.png"
-            fig.tight_layout()
-            atomic.save_figure(fig, path, dpi=90)
-            plt.close(fig)
-            written.append(path)
+            written.append(save(fig, out_dir, f"allan_{s}.png", dpi=DPI))
         for half in (0, 1):
             f, p, k = meas.psd("baseline", half)
             if k == 0:
@@ -65,7 +62,7 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
                 lines = [ln for ln in result.lines if ln.sensor == s]
                 if half == 1 and not lines:
                     continue
-                fig, ax = plt.subplots(figsize=(6, 4))
+                fig, ax = subplots(figsize=(6, 4), dpi=DPI)
                 ax.semilogy(f[1:], p[1:, j], "k-", lw=0.7, label=f"measured, half {half + 1}")
                 for ln in lines:
                     ax.axvline(
@@ -78,11 +75,7 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
                 ax.set_ylabel("PSD [output units^2/Hz]")
                 ax.set_title(s)
                 ax.legend(fontsize=7)
-                path = out_dir / f"psd_{s}_half{half + 1}.png"
-                fig.tight_layout()
-                atomic.save_figure(fig, path, dpi=90)
-                plt.close(fig)
-                written.append(path)
+                written.append(save(fig, out_dir, f"psd_{s}_half{half + 1}.png", dpi=DPI))
     nm = result.report.get("noise_model") or {}
     for s, entry in (nm.get("sensors") or {}).items():
         if "allan" not in entry:  # untestable: the output did not vary
@@ -91,8 +84,8 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
         tau = np.asarray(allan["tau"])
         if tau.shape[0] == 0:
             continue
-        fig, (ax, ax2) = plt.subplots(
-            2, 1, figsize=(6, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1]}
+        fig, (ax, ax2) = subplots(
+            2, 1, figsize=(6, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1]}, dpi=DPI
         )
         adev = np.asarray(allan["measured"])
         err = np.asarray(allan["relative_error"])
@@ -111,15 +104,11 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
         ax.grid(True, which="both", alpha=0.3)
         ax2.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
-        path = out_dir / f"noise_model_{s}.png"
-        fig.tight_layout()
-        atomic.save_figure(fig, path, dpi=90)
-        plt.close(fig)
-        written.append(path)
+        written.append(save(fig, out_dir, f"noise_model_{s}.png", dpi=DPI))
     c = result.session.chunks
     for res in result.channels:
         ch = res.channel
-        fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+        fig, axes = subplots(1, 2, figsize=(10, 4), dpi=DPI)
         y = ch.y * ch.to_input
         after = y
         if res.selected:
@@ -153,11 +142,7 @@ def write_plots(result: ModelCheckResult, directory: str | Path) -> list[Path]:
             axes[1].plot(x, after, "g.", ms=2, label="after the named effects")
         axes[1].set_xlabel(xlabel)
         axes[1].set_title(ch.label)
-        path = out_dir / f"residuals_{ch.label}.png"
-        fig.tight_layout()
-        atomic.save_figure(fig, path, dpi=90)
-        plt.close(fig)
-        written.append(path)
+        written.append(save(fig, out_dir, f"residuals_{ch.label}.png", dpi=DPI))
     return written
 
 

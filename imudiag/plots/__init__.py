@@ -20,6 +20,9 @@ from ..logs.extras import MissingExtra
 EXTRA = "plots"
 #: Resolution of the PNG files, dots per inch (figure sizes are in inches).
 DPI = 100
+#: :func:`save`'s layout box for a figure with a title over its axes (``suptitle``): the
+#: top 3 % left to it (figure fractions: left, bottom, right, top)
+TITLE_ROOM = (0.0, 0.0, 1.0, 0.97)
 
 
 def available() -> bool:
@@ -75,8 +78,24 @@ def pyplot() -> Any:
     return plt
 
 
-def save(fig: Any, directory: str | os.PathLike[str], name: str, dpi: int = DPI) -> Path:
-    """Save ``fig`` as ``directory/name`` atomically (the directory created) and close it."""
+def subplots(*args: Any, dpi: int = DPI, **kwargs: Any) -> tuple[Any, Any]:
+    """``pyplot.subplots(...)`` of a figure made at ``dpi``, the resolution :func:`save`
+    writes it at (figure sizes in inches): the layout pass of :func:`save` and the drawing
+    then measure each text at one resolution, so matplotlib's text caches serve the second
+    (a model check's 17 figures: about a fifth less time)."""
+    return pyplot().subplots(*args, dpi=dpi, **kwargs)
+
+
+def save(
+    fig: Any,
+    directory: str | os.PathLike[str],
+    name: str,
+    dpi: int = DPI,
+    rect: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 1.0),
+) -> Path:
+    """Lay ``fig`` out (``tight_layout`` in ``rect``, figure fractions: room left for a
+    title or a note), save it as ``directory/name`` at ``dpi`` atomically (the directory
+    created) and close it. Make the figure with :func:`subplots` at the same ``dpi``."""
     out_dir = Path(directory)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -84,10 +103,24 @@ def save(fig: Any, directory: str | os.PathLike[str], name: str, dpi: int = DPI)
         raise BadInput(f"{out_dir}: cannot create the directory: {exc.strerror or exc}") from None
     path = out_dir / name
     try:
+        fig.tight_layout(rect=rect)
+        # the layout is done: without an engine left on the figure, savefig draws it once
+        # (with one, it draws it a first time to lay it out again)
+        fig.set_layout_engine(None)
         atomic.save_figure(fig, path, dpi=dpi)
     finally:
         pyplot().close(fig)
     return path
 
 
-__all__ = ["DPI", "EXTRA", "available", "check_directory", "pyplot", "require", "save"]
+__all__ = [
+    "DPI",
+    "EXTRA",
+    "TITLE_ROOM",
+    "available",
+    "check_directory",
+    "pyplot",
+    "require",
+    "save",
+    "subplots",
+]

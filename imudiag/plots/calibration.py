@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..diagnosis.calibrate import CalibrationResult
-from . import pyplot, save
+from . import TITLE_ROOM, save, subplots
 
 #: The files that may be written, in order (each only when its residuals exist).
 FILES = ("accel_norm_residuals.png", "rotation_residuals.png", "gyro_norm_residuals.png")
@@ -54,12 +54,11 @@ _KINDS: dict[str, tuple[str, str, str, float, str, str]] = {
 
 
 def _figure(kind: str, data: dict[str, np.ndarray], like_name: str) -> Any:
-    plt = pyplot()
     _file, point, ylabel, k, unit, title = _KINDS[kind]
     before = np.asarray(data["before"], dtype=float) * k
     after = np.asarray(data["after"], dtype=float) * k
     x = np.arange(1, before.size + 1)
-    fig, axes = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
+    fig, axes = subplots(2, 1, figsize=(11, 7), sharex=True)
     for ax, values, label, colour in (
         (axes[0], before, f"before: certificate {like_name} (--like)", "tab:orange"),
         (axes[1], after, "after: the calibrated certificate", "tab:blue"),
@@ -78,7 +77,6 @@ def _figure(kind: str, data: dict[str, np.ndarray], like_name: str) -> Any:
         span = f"{t[0]:.6g} .. {t[-1]:.6g} s of the log's time"
         axes[1].annotate(span, (1.0, -0.16), xycoords="axes fraction", ha="right", fontsize=8)
     fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0, 1, 0.97))
     return fig
 
 
@@ -92,7 +90,7 @@ def write_calibration_plots(
         data = result.residuals.get(kind)
         if data is None or not len(data["before"]):
             continue
-        written.append(save(_figure(kind, data, like_name), directory, file))
+        written.append(save(_figure(kind, data, like_name), directory, file, rect=TITLE_ROOM))
     return written
 
 

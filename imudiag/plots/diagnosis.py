@@ -19,7 +19,7 @@ import numpy as np
 from ..certificate import MISALIGNMENT_PAIRS, SENSOR_NAMES, Certificate, TriadModel
 from ..diagnosis.params import certificate_vector, limit_vector
 from ..diagnosis.session import DiagnosisTrace
-from . import pyplot, save
+from . import TITLE_ROOM, pyplot, save, subplots
 
 #: The files written, in order.
 FILES = ("estimates_accel.png", "estimates_gyro.png", "f0_trace.png")
@@ -46,6 +46,11 @@ def _time(t: np.ndarray, t0: float) -> np.ndarray:
     return t - t0 if np.isfinite(t0) else t
 
 
+#: :func:`~imudiag.plots.save`'s layout box of the estimates figure: its title on top, its
+#: legend below the axes (figure fractions: left, bottom, right, top)
+ESTIMATES_ROOM = (0.0, 0.04, 1.0, 0.97)
+
+
 def _estimates_figure(trace: DiagnosisTrace, triad: TriadModel, cert_source: str) -> Any:
     plt = pyplot()
     fits = [w.fit(triad.name) for w in trace.windows]
@@ -55,7 +60,7 @@ def _estimates_figure(trace: DiagnosisTrace, triad: TriadModel, cert_source: str
     det = np.array([f.determined for f in fits], dtype=bool).reshape(-1, 9)
     cert = certificate_vector(triad)
     lim = limit_vector(triad)
-    fig, axes = plt.subplots(3, 3, figsize=(13, 9.5), sharex=True)
+    fig, axes = subplots(3, 3, figsize=(13, 9.5), sharex=True)
     for i, (title, ylabel, k) in enumerate(_labels(triad)):
         ax = axes[i // 3, i % 3]
         c, lo, hi = cert[i] * k, (cert[i] - lim[i]) * k, (cert[i] + lim[i]) * k
@@ -126,13 +131,11 @@ def _estimates_figure(trace: DiagnosisTrace, triad: TriadModel, cert_source: str
         f"({cert_source})" + ("" if n else ": no window could be diagnosed"),
         fontsize=12,
     )
-    fig.tight_layout(rect=(0, 0.04, 1, 0.97))
     return fig
 
 
 def _f0_figure(trace: DiagnosisTrace) -> Any:
-    plt = pyplot()
-    fig, axes = plt.subplots(2, 1, figsize=(13, 7.5), sharex=True)
+    fig, axes = subplots(2, 1, figsize=(13, 7.5), sharex=True)
     for ax, name in zip(axes, ("accel", "gyro"), strict=True):
         tr = trace.f0.get(name)
         if tr is None:
@@ -175,7 +178,6 @@ def _f0_figure(trace: DiagnosisTrace) -> Any:
         ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.005, 1.0))
     axes[-1].set_xlabel("time since the log's first sample [s]")
     fig.suptitle("Per-check F0 against the certificate's F0 limit (quasi-static samples only)")
-    fig.tight_layout(rect=(0, 0, 1, 0.97))
     return fig
 
 
@@ -185,10 +187,15 @@ def write_diagnosis_plots(
     """Write :data:`FILES` into ``directory`` (created); returns the paths written."""
     source = cert.source or "bundled certificate"
     written = [
-        save(_estimates_figure(trace, cert.triad(name), Path(source).name), directory, file)
+        save(
+            _estimates_figure(trace, cert.triad(name), Path(source).name),
+            directory,
+            file,
+            rect=ESTIMATES_ROOM,
+        )
         for name, file in (("accel", FILES[0]), ("gyro", FILES[1]))
     ]
-    written.append(save(_f0_figure(trace), directory, FILES[2]))
+    written.append(save(_f0_figure(trace), directory, FILES[2], rect=TITLE_ROOM))
     return written
 
 
