@@ -823,6 +823,67 @@ def window_moments(sums, w, ref):
     return var, mean
 
 
+@jit
+def window_rows(gyro, accel, flags, bad_bits, cols, ref, rows):
+    """The still detector's rows (N, 13) of a block (:meth:`imudiag.quasistatic.windows.
+    WindowStage.run`): outputs centred on ``ref`` (0-5, a value that is not finite as 0), their
+    squares (6-11) and whether the sample is bad (12: a ``bad_bits`` flag, or a value that is
+    not finite in a column of ``cols`` (6,) bool); ``flags`` (N,) int64 or (0,): none. The same
+    subtraction and product per element as numpy: the same rows."""
+    n = gyro.shape[0]
+    has_flags = flags.shape[0] == n
+    for i in range(n):
+        bad = has_flags and (flags[i] & bad_bits) != 0
+        for j in range(6):
+            x = gyro[i, j] if j < 3 else accel[i, j - 3]
+            if not np.isfinite(x):
+                if cols[j]:
+                    bad = True
+                x = 0.0
+            xc = x - ref[j]
+            rows[i, j] = xc
+            rows[i, 6 + j] = xc * xc
+        rows[i, 12] = 1.0 if bad else 0.0
+
+
+@jit
+def window_rates(mean, long_sums, count, ref, g_bias, g_scale, g_ninvt, a_bias, a_scale, a_ninvt):
+    """The still detector's rates (:meth:`imudiag.quasistatic.windows.WindowStats.rates`) for a
+    certificate without temperature or nonlinearity terms: the gyro rate about the vertical
+    (the corrected accelerometer window mean) of the window means and of the longer means
+    (``long_sums`` (M, 13) over ``count`` (M,) rows), and the window means' rate magnitude,
+    (M,) each, gyro input units. The certificate's inverse and the projections element by
+    element: equal to numpy's to rounding (the rate band's comparisons: docs/benchmarks.md)."""
+    m = mean.shape[0]
+    vertical = np.empty(m)
+    vertical_long = np.empty(m)
+    magnitude = np.empty(m)
+    r = np.empty(3)
+    rl = np.empty(3)
+    d = np.empty(3)
+    for i in range(m):
+        for j in range(3):
+            r[j] = (mean[i, j] - g_bias[j]) / g_scale[j]
+            rl[j] = ((long_sums[i, j] / count[i] + ref[j]) - g_bias[j]) / g_scale[j]
+            d[j] = (mean[i, 3 + j] - a_bias[j]) / a_scale[j]
+        rate0 = r[0] * g_ninvt[0, 0] + r[1] * g_ninvt[1, 0] + r[2] * g_ninvt[2, 0]
+        rate1 = r[0] * g_ninvt[0, 1] + r[1] * g_ninvt[1, 1] + r[2] * g_ninvt[2, 1]
+        rate2 = r[0] * g_ninvt[0, 2] + r[1] * g_ninvt[1, 2] + r[2] * g_ninvt[2, 2]
+        long0 = rl[0] * g_ninvt[0, 0] + rl[1] * g_ninvt[1, 0] + rl[2] * g_ninvt[2, 0]
+        long1 = rl[0] * g_ninvt[0, 1] + rl[1] * g_ninvt[1, 1] + rl[2] * g_ninvt[2, 1]
+        long2 = rl[0] * g_ninvt[0, 2] + rl[1] * g_ninvt[1, 2] + rl[2] * g_ninvt[2, 2]
+        down0 = d[0] * a_ninvt[0, 0] + d[1] * a_ninvt[1, 0] + d[2] * a_ninvt[2, 0]
+        down1 = d[0] * a_ninvt[0, 1] + d[1] * a_ninvt[1, 1] + d[2] * a_ninvt[2, 1]
+        down2 = d[0] * a_ninvt[0, 2] + d[1] * a_ninvt[1, 2] + d[2] * a_ninvt[2, 2]
+        norm = np.sqrt(down0 * down0 + down1 * down1 + down2 * down2)
+        if not norm > 0:
+            norm = 1.0
+        vertical[i] = (rate0 * down0 + rate1 * down1 + rate2 * down2) / norm
+        vertical_long[i] = (long0 * down0 + long1 * down1 + long2 * down2) / norm
+        magnitude[i] = np.sqrt(rate0 * rate0 + rate1 * rate1 + rate2 * rate2)
+    return vertical, vertical_long, magnitude
+
+
 #: Largest 1-norm condition number of the information matrix (with its prior) the exact fit's
 #: kernel inverts itself (Cholesky); above it the plain path (``np.linalg.pinv``, whose
 #: cut-off at 1e-15 of the largest singular value may then matter) runs the fit.
@@ -1232,7 +1293,19 @@ def warm_up() -> dict[str, Any]:
             np.ones(9), 20, 0.5, 1e-14, True, 0.99, 0.45, v[:probes].copy(),
             np.full((probes, 3), 1e-8), np.ones(probes),
         )  # fmt: skip
+    g6 = rng.normal(size=(5, 3))
+    rows6 = np.empty((5, 13))
+    g12 = rng.normal(size=(5, 12))
+    for fl in (np.zeros(5, dtype=np.int64), np.zeros(0, dtype=np.int64)):
+        for gy, ac in ((g6, g6.copy()), (g12[:, 0:3], g12[:, 6:9])):  # C and strided
+            window_rows(gy, ac, fl, 7, np.ones(6, dtype=np.bool_), np.zeros(6), rows6)
+    window_rates(
+        x13[:, :6].copy(), x13, np.ones(6), np.zeros(6), np.zeros(3), np.ones(3), q_c,
+        np.zeros(3), np.ones(3), q_c,
+    )  # fmt: skip
     return {
+        "window_rows": window_rows,
+        "window_rates": window_rates,
         "exact_fit": exact_fit_kernel,
         "beyond_counts": beyond_counts,
         "window_moments": window_moments,
