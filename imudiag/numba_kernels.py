@@ -884,6 +884,51 @@ def window_rates(mean, long_sums, count, ref, g_bias, g_scale, g_ninvt, a_bias, 
     return vertical, vertical_long, magnitude
 
 
+@jit
+def variance_test(var, var_ref, limit, checked, missing, to_si2, settle_var, ok):
+    """The still detector's variance test (:meth:`imudiag.quasistatic.QuasiStaticDetector.
+    _update`) compiled: per window of ``var`` (M, 6) the sums over each triad's axes of
+    var_j / var_ref_j (M, 2) in numpy's order (one by one), whether each is within ``limit``
+    (M, 2), ``ok`` (M,) cleared in place where a triad of ``checked`` (2,) bool is not (all of
+    it when ``missing``), and whether the accelerometer variance in SI units exceeds
+    ``settle_var`` (M,): the same numbers and flags as the numpy path."""
+    m = var.shape[0]
+    ratio = np.empty((m, 2))
+    still = np.empty((m, 2), dtype=np.bool_)
+    settle = np.empty(m, dtype=np.bool_)
+    for i in range(m):
+        for c in range(2):
+            b = 3 * c
+            acc = var[i, b] / var_ref[b]
+            acc = acc + var[i, b + 1] / var_ref[b + 1]
+            acc = acc + var[i, b + 2] / var_ref[b + 2]
+            ratio[i, c] = acc
+            still[i, c] = acc <= limit
+        if missing:
+            ok[i] = False
+        for c in range(2):
+            if checked[c] and not still[i, c]:
+                ok[i] = False
+        s = var[i, 3] * to_si2[0]
+        s = s + var[i, 4] * to_si2[1]
+        s = s + var[i, 5] * to_si2[2]
+        settle[i] = s > settle_var
+    return ratio, still, settle
+
+
+@jit
+def drift_within(spread, to_si, limit, ok):
+    """``ok`` (M,) cleared in place where the norm of the drift ``spread`` (M, 3) times
+    ``to_si`` exceeds ``limit``, the norm's squares summed as ``np.einsum`` sums three terms
+    here ((0 + 2) + 1)."""
+    for i in range(spread.shape[0]):
+        a0 = spread[i, 0] * to_si[0]
+        a1 = spread[i, 1] * to_si[1]
+        a2 = spread[i, 2] * to_si[2]
+        if not np.sqrt((a0 * a0 + a2 * a2) + a1 * a1) <= limit:
+            ok[i] = False
+
+
 #: Largest 1-norm condition number of the information matrix (with its prior) the exact fit's
 #: kernel inverts itself (Cholesky); above it the plain path (``np.linalg.pinv``, whose
 #: cut-off at 1e-15 of the largest singular value may then matter) runs the fit.
@@ -1303,7 +1348,12 @@ def warm_up() -> dict[str, Any]:
         x13[:, :6].copy(), x13, np.ones(6), np.zeros(6), np.zeros(3), np.ones(3), q_c,
         np.zeros(3), np.ones(3), q_c,
     )  # fmt: skip
+    ok6 = np.ones(6, dtype=np.bool_)
+    variance_test(x13[:, :6].copy(), np.ones(6), 3.0, ok6[:2].copy(), False, np.ones(3), 1.0, ok6)
+    drift_within(x13[:, :3].copy(), np.ones(3), 1.0, ok6)
     return {
+        "variance_test": variance_test,
+        "drift_within": drift_within,
         "window_rows": window_rows,
         "window_rates": window_rates,
         "exact_fit": exact_fit_kernel,

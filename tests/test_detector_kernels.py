@@ -232,3 +232,44 @@ def test_detector_flags_with_the_kernels_equal_plain_on_random_streams(seed, swi
         fast = flags(block, cert, how)
         assert plain.any() and not plain.all()
         np.testing.assert_array_equal(fast, plain)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_variance_test_and_drift_norm_kernels_equal_numpy(seed):
+    """The variance test's ratios (three-term sums one by one, as ``np.sum`` over an axis of
+    3), its flags, the settle test and the drift norms (``np.einsum``'s three-term order on
+    this machine, (0 + 2) + 1) compiled against the numpy expressions of the detector, on
+    values of very different sizes (where the order of a sum shows): the same numbers."""
+    from imudiag import numba_kernels as nk
+
+    rng = np.random.default_rng(500 + seed)
+    m = 50_000
+    var = rng.uniform(0.0, 1.0, (m, 6)) * 10 ** rng.uniform(-6, 6, (m, 6))
+    var_ref = 10 ** rng.uniform(-4, 4, 6)
+    limit = float(np.median((var / var_ref).reshape(m, 2, 3).sum(axis=2)))
+    to_si2 = 10 ** rng.uniform(-3, 3, 3)
+    settle_var = float(np.median(np.sum(var[:, 3:6] * to_si2, axis=1)))
+    for checked, missing in (((0, 1), False), ((1,), False), ((0, 1), True)):
+        ok0 = rng.random(m) < 0.9
+        ratio = (var / var_ref).reshape(m, 2, 3).sum(axis=2)
+        still = ratio <= limit
+        ok_plain = ok0 & ~missing
+        for c in checked:
+            ok_plain &= still[:, c]
+        mask = np.zeros(2, dtype=bool)
+        mask[list(checked)] = True
+        ok = ok0.copy()
+        r, s, settle = nk.variance_test(var, var_ref, limit, mask, missing, to_si2, settle_var, ok)
+        np.testing.assert_array_equal(r, ratio)
+        np.testing.assert_array_equal(s, still)
+        np.testing.assert_array_equal(ok, ok_plain)
+        np.testing.assert_array_equal(settle, np.sum(var[:, 3:6] * to_si2, axis=1) > settle_var)
+    spread = rng.normal(size=(m, 3)) * 10 ** rng.uniform(-5, 5, (m, 3))
+    spread[rng.random(m) < 0.01] = np.nan
+    to_si = 10 ** rng.uniform(-2, 2, 3)
+    s_si = spread * to_si
+    norm = np.sqrt(np.einsum("ij,ij->i", s_si, s_si))
+    drift_limit = float(np.nanmedian(norm))
+    ok = np.ones(m, dtype=bool)
+    nk.drift_within(spread, to_si, drift_limit, ok)
+    np.testing.assert_array_equal(ok, norm <= drift_limit)
