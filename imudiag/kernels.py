@@ -6,8 +6,9 @@ the window fits (the exact fit after its set-up in one call, :mod:`imudiag.diagn
 scalar_fit`; the rotation fit's products, wrapped by :mod:`imudiag.diagnosis.kernels`), the
 GNSS epoch cut of the moving-base diagnosis
 (:meth:`imudiag.aiding.specific_force.ImuSeries.epochs`) and the still detector's rows, rate
-band, variance, jump and drift tests and trailing spreads (:mod:`imudiag.quasistatic`). This switch sits on
-the ground floor (tests/test_layout.py) so that every floor that has a kernel can ask it.
+band, variance, jump and drift tests and trailing spreads (:mod:`imudiag.quasistatic`). This
+switch sits on the ground floor (tests/test_layout.py) so that every floor that has a kernel
+can ask it.
 
 The plain numpy paths stay the reference and the default. :func:`enable` switches the
 kernels on in this process where numba is installed, :func:`switched` in one thread for a

@@ -1,12 +1,13 @@
 """The numba kernels switched by :mod:`imudiag.kernels` (imported by it only when they are
-loaded: this module needs numba, the ``fleet`` extra): the window fits (:func:`exact_fit_kernel`,
-the loops of :mod:`imudiag.diagnosis.kernels`), the GNSS epoch cut (:func:`epoch_cut`) and the
-still detector's passes (:func:`window_rows`, :func:`window_rates`, :func:`variance_test`,
-:func:`jump_test`, :func:`drift_within`, :func:`trailing_spread`). Module-level functions, so numba's
-on-disk cache (``cache=True``) serves every later process: a fleet worker loads them instead
-of compiling. Plain arithmetic only, in the order of the numpy paths (no fast-math: no
-reassociation, no fused multiply-add); where a kernel solves otherwise (the exact fit's
-Cholesky and Jacobi SVD for LAPACK's), it is equal to rounding and says so."""
+loaded: this module needs numba, the ``fleet`` extra): the window fits
+(:func:`exact_fit_kernel`, the loops of :mod:`imudiag.diagnosis.kernels`), the GNSS epoch cut
+(:func:`epoch_cut`) and the still detector's passes (:func:`window_rows`,
+:func:`window_rates`, :func:`variance_test`, :func:`jump_test`, :func:`drift_within`,
+:func:`trailing_spread`). Module-level functions, so numba's on-disk cache
+(``cache=True``) serves every later process: a fleet worker loads them instead of compiling.
+Plain arithmetic only, in the order of the numpy paths (no fast-math: no reassociation, no
+fused multiply-add); where a kernel solves otherwise (the exact fit's Cholesky and Jacobi
+SVD for LAPACK's), it is equal to rounding and says so."""
 
 from __future__ import annotations
 
