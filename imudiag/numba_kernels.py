@@ -1312,9 +1312,12 @@ def warm_up() -> dict[str, Any]:
     q_c = np.eye(3)
     for npar, frame in ((6, False), (9, True)):
         ninv, dninv = ninv_derivatives_kernel(np.zeros(6), q_c, np.full(npar, 1e-3), frame)
-        predict_kernel(
-            np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 3, 3, 3)), dninv, np.ones((1, 3))
-        )
+        frozen = dninv.copy()
+        frozen.setflags(write=False)  # the rotation fit's cached derivatives are read-only
+        for d in (dninv, frozen):
+            predict_kernel(
+                np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 3, 3, 3)), d, np.ones((1, 3))
+            )
     rows = rng.normal(size=(3, 8))
     bounds = np.array([0, 3], dtype=np.int64), np.array([3, 8], dtype=np.int64)
     for rotate in (True, False):
@@ -1335,6 +1338,10 @@ def warm_up() -> dict[str, Any]:
     jump_test(x13, x13[:, :], x13.T.copy().T, np.ones(6, dtype=np.bool_), np.ones(3), 2, 3.0, 0)
     window_moments(x13, 2, np.zeros(6))
     window_moments(x13[1:], 2, np.zeros(6))
+    x26 = rng.normal(size=(6, 26))
+    window_moments(x26[:, ::2], 2, np.zeros(6))  # strided (diagnose's prefix-sum views)
+    jump_test(x26[:, ::2], x26[:, 1::2], x26[:, ::2], np.ones(6, dtype=np.bool_), np.ones(3), 2,
+              3.0, 0)  # fmt: skip
     for start, probes in ((True, 0), (False, 1)):
         exact_fit_kernel(
             np.zeros(9), start, v, np.full((12, 3), 1e-8), np.ones(12), np.zeros(9),

@@ -94,8 +94,12 @@ class WindowStats:
                 self._rates = compiled(
                     np.ascontiguousarray(mean), np.ascontiguousarray(self.long_sums),
                     np.ascontiguousarray(np.broadcast_to(count, (m, 1))[:, 0], dtype=float),
-                    stage.ref, g.bias, g.scale_factor, stage.n_inv_t["gyro"], a.bias,
-                    a.scale_factor, stage.n_inv_t["accel"],
+                    stage.ref, np.ascontiguousarray(g.bias, dtype=float),
+                    np.ascontiguousarray(g.scale_factor, dtype=float),
+                    np.ascontiguousarray(stage.n_inv_t["gyro"]),  # (N^-1)^T: F order
+                    np.ascontiguousarray(a.bias, dtype=float),
+                    np.ascontiguousarray(a.scale_factor, dtype=float),
+                    np.ascontiguousarray(stage.n_inv_t["accel"]),
                 )  # fmt: skip
                 return self._rates
             gyro_long = self.long_sums[:, 0:3] / count + stage.ref[0:3]
