@@ -2,10 +2,13 @@
 
 The kernels themselves are in :mod:`imudiag.numba_kernels` (module-level, so numba's disk
 cache serves every later process: about 1 s of CPU to load them against 11-20 s to compile):
-the window fits' loops (wrapped by :mod:`imudiag.diagnosis.kernels`), the GNSS epoch cut of
-the moving-base diagnosis (:meth:`imudiag.aiding.specific_force.ImuSeries.epochs`) and the
-still detector's trailing spreads (:mod:`imudiag.quasistatic.spread`). This switch sits on
-the ground floor (tests/test_layout.py) so that every floor that has a kernel can ask it.
+the window fits (the exact fit after its set-up in one call, :mod:`imudiag.diagnosis.
+scalar_fit`; the rotation fit's products, wrapped by :mod:`imudiag.diagnosis.kernels`), the
+GNSS epoch cut of the moving-base diagnosis
+(:meth:`imudiag.aiding.specific_force.ImuSeries.epochs`) and the still detector's rows, rate
+band, variance, jump and drift tests and trailing spreads (:mod:`imudiag.quasistatic`). This
+switch sits on the ground floor (tests/test_layout.py) so that every floor that has a kernel
+can ask it.
 
 The plain numpy paths stay the reference and the default. :func:`enable` switches the
 kernels on in this process where numba is installed, :func:`switched` in one thread for a

@@ -1,10 +1,13 @@
 """The numba kernels switched by :mod:`imudiag.kernels` (imported by it only when they are
-loaded: this module needs numba, the ``fleet`` extra): the window fits' loops
-(:mod:`imudiag.diagnosis.kernels`), the GNSS epoch cut (:func:`epoch_cut`) and the still
-detector's trailing extremes (:func:`trailing_extremes`). Module-level functions, so numba's
-on-disk cache (``cache=True``) serves every later process: a fleet worker loads them instead
-of compiling. Plain arithmetic only, in the order of the numpy paths (no fast-math: no
-reassociation, no fused multiply-add)."""
+loaded: this module needs numba, the ``fleet`` extra): the window fits
+(:func:`exact_fit_kernel`, the loops of :mod:`imudiag.diagnosis.kernels`), the GNSS epoch cut
+(:func:`epoch_cut`) and the still detector's passes (:func:`window_rows`,
+:func:`window_rates`, :func:`variance_test`, :func:`jump_test`, :func:`drift_within`,
+:func:`trailing_spread`). Module-level functions, so numba's on-disk cache
+(``cache=True``) serves every later process: a fleet worker loads them instead of compiling.
+Plain arithmetic only, in the order of the numpy paths (no fast-math: no reassociation, no
+fused multiply-add); where a kernel solves otherwise (the exact fit's Cholesky and Jacobi
+SVD for LAPACK's), it is equal to rounding and says so."""
 
 from __future__ import annotations
 
@@ -823,6 +826,468 @@ def window_moments(sums, w, ref):
     return var, mean
 
 
+@jit
+def window_rows(gyro, accel, flags, bad_bits, cols, ref, rows):
+    """The still detector's rows (N, 13) of a block (:meth:`imudiag.quasistatic.windows.
+    WindowStage.run`): outputs centred on ``ref`` (0-5, a value that is not finite as 0), their
+    squares (6-11) and whether the sample is bad (12: a ``bad_bits`` flag, or a value that is
+    not finite in a column of ``cols`` (6,) bool); ``flags`` (N,) int64 or (0,): none. The same
+    subtraction and product per element as numpy: the same rows."""
+    n = gyro.shape[0]
+    has_flags = flags.shape[0] == n
+    for i in range(n):
+        bad = has_flags and (flags[i] & bad_bits) != 0
+        for j in range(6):
+            x = gyro[i, j] if j < 3 else accel[i, j - 3]
+            if not np.isfinite(x):
+                if cols[j]:
+                    bad = True
+                x = 0.0
+            xc = x - ref[j]
+            rows[i, j] = xc
+            rows[i, 6 + j] = xc * xc
+        rows[i, 12] = 1.0 if bad else 0.0
+
+
+@jit
+def window_rates(mean, long_sums, count, ref, g_bias, g_scale, g_ninvt, a_bias, a_scale, a_ninvt):
+    """The still detector's rates (:meth:`imudiag.quasistatic.windows.WindowStats.rates`) for a
+    certificate without temperature or nonlinearity terms: the gyro rate about the vertical
+    (the corrected accelerometer window mean) of the window means and of the longer means
+    (``long_sums`` (M, 13) over ``count`` (M,) rows), and the window means' rate magnitude,
+    (M,) each, gyro input units. The certificate's inverse and the projections element by
+    element: equal to numpy's to rounding (the rate band's comparisons: docs/benchmarks.md)."""
+    m = mean.shape[0]
+    vertical = np.empty(m)
+    vertical_long = np.empty(m)
+    magnitude = np.empty(m)
+    r = np.empty(3)
+    rl = np.empty(3)
+    d = np.empty(3)
+    for i in range(m):
+        for j in range(3):
+            r[j] = (mean[i, j] - g_bias[j]) / g_scale[j]
+            rl[j] = ((long_sums[i, j] / count[i] + ref[j]) - g_bias[j]) / g_scale[j]
+            d[j] = (mean[i, 3 + j] - a_bias[j]) / a_scale[j]
+        rate0 = r[0] * g_ninvt[0, 0] + r[1] * g_ninvt[1, 0] + r[2] * g_ninvt[2, 0]
+        rate1 = r[0] * g_ninvt[0, 1] + r[1] * g_ninvt[1, 1] + r[2] * g_ninvt[2, 1]
+        rate2 = r[0] * g_ninvt[0, 2] + r[1] * g_ninvt[1, 2] + r[2] * g_ninvt[2, 2]
+        long0 = rl[0] * g_ninvt[0, 0] + rl[1] * g_ninvt[1, 0] + rl[2] * g_ninvt[2, 0]
+        long1 = rl[0] * g_ninvt[0, 1] + rl[1] * g_ninvt[1, 1] + rl[2] * g_ninvt[2, 1]
+        long2 = rl[0] * g_ninvt[0, 2] + rl[1] * g_ninvt[1, 2] + rl[2] * g_ninvt[2, 2]
+        down0 = d[0] * a_ninvt[0, 0] + d[1] * a_ninvt[1, 0] + d[2] * a_ninvt[2, 0]
+        down1 = d[0] * a_ninvt[0, 1] + d[1] * a_ninvt[1, 1] + d[2] * a_ninvt[2, 1]
+        down2 = d[0] * a_ninvt[0, 2] + d[1] * a_ninvt[1, 2] + d[2] * a_ninvt[2, 2]
+        norm = np.sqrt(down0 * down0 + down1 * down1 + down2 * down2)
+        if not norm > 0:
+            norm = 1.0
+        vertical[i] = (rate0 * down0 + rate1 * down1 + rate2 * down2) / norm
+        vertical_long[i] = (long0 * down0 + long1 * down1 + long2 * down2) / norm
+        magnitude[i] = np.sqrt(rate0 * rate0 + rate1 * rate1 + rate2 * rate2)
+    return vertical, vertical_long, magnitude
+
+
+@jit
+def variance_test(var, var_ref, limit, checked, missing, to_si2, settle_var, ok):
+    """The still detector's variance test (:meth:`imudiag.quasistatic.QuasiStaticDetector.
+    _update`) compiled: per window of ``var`` (M, 6) the sums over each triad's axes of
+    var_j / var_ref_j (M, 2) in numpy's order (one by one), whether each is within ``limit``
+    (M, 2), ``ok`` (M,) cleared in place where a triad of ``checked`` (2,) bool is not (all of
+    it when ``missing``), and whether the accelerometer variance in SI units exceeds
+    ``settle_var`` (M,): the same numbers and flags as the numpy path."""
+    m = var.shape[0]
+    ratio = np.empty((m, 2))
+    still = np.empty((m, 2), dtype=np.bool_)
+    settle = np.empty(m, dtype=np.bool_)
+    for i in range(m):
+        for c in range(2):
+            b = 3 * c
+            acc = var[i, b] / var_ref[b]
+            acc = acc + var[i, b + 1] / var_ref[b + 1]
+            acc = acc + var[i, b + 2] / var_ref[b + 2]
+            ratio[i, c] = acc
+            still[i, c] = acc <= limit
+        if missing:
+            ok[i] = False
+        for c in range(2):
+            if checked[c] and not still[i, c]:
+                ok[i] = False
+        s = var[i, 3] * to_si2[0]
+        s = s + var[i, 4] * to_si2[1]
+        s = s + var[i, 5] * to_si2[2]
+        settle[i] = s > settle_var
+    return ratio, still, settle
+
+
+@jit
+def drift_within(spread, to_si, limit, ok):
+    """``ok`` (M,) cleared in place where the norm of the drift ``spread`` (M, 3) times
+    ``to_si`` exceeds ``limit``, the norm's squares summed as ``np.einsum`` sums three terms
+    here ((0 + 2) + 1)."""
+    for i in range(spread.shape[0]):
+        a0 = spread[i, 0] * to_si[0]
+        a1 = spread[i, 1] * to_si[1]
+        a2 = spread[i, 2] * to_si[2]
+        if not np.sqrt((a0 * a0 + a2 * a2) + a1 * a1) <= limit:
+            ok[i] = False
+
+
+#: Largest 1-norm condition number of the information matrix (with its prior) the exact fit's
+#: kernel inverts itself (Cholesky); above it the plain path (``np.linalg.pinv``, whose
+#: cut-off at 1e-15 of the largest singular value may then matter) runs the fit.
+COV_CONDITION = 1e12
+
+
+@jit
+def spd_inverse(a, out):
+    """The inverse of the symmetric positive definite ``a`` (m, m) into ``out``, by Cholesky
+    of the Jacobi-scaled D^-1/2 a D^-1/2; False (``out`` undefined) when ``a`` is not
+    positive definite, not numbers, or its 1-norm condition exceeds :data:`COV_CONDITION`."""
+    m = a.shape[0]
+    s = np.empty(m)
+    for i in range(m):
+        if not (a[i, i] > 0.0 and a[i, i] < np.inf):
+            return False
+        s[i] = 1.0 / np.sqrt(a[i, i])
+    lo = np.zeros((m, m))
+    for j in range(m):
+        acc = a[j, j] * s[j] * s[j]
+        for q in range(j):
+            acc -= lo[j, q] * lo[j, q]
+        if not acc > 0.0:
+            return False
+        d = np.sqrt(acc)
+        lo[j, j] = d
+        for i in range(j + 1, m):
+            acc = a[i, j] * s[i] * s[j]
+            for q in range(j):
+                acc -= lo[i, q] * lo[j, q]
+            lo[i, j] = acc / d
+    li = np.zeros((m, m))  # L^-1, lower triangular
+    for j in range(m):
+        li[j, j] = 1.0 / lo[j, j]
+        for i in range(j + 1, m):
+            acc = 0.0
+            for q in range(j, i):
+                acc -= lo[i, q] * li[q, j]
+            li[i, j] = acc / lo[i, i]
+    for i in range(m):
+        for j in range(i + 1):
+            acc = 0.0
+            for q in range(i, m):
+                acc += li[q, i] * li[q, j]
+            out[i, j] = acc * s[i] * s[j]
+            out[j, i] = out[i, j]
+    norm_a = 0.0
+    norm_inv = 0.0
+    for j in range(m):
+        ca = 0.0
+        ci = 0.0
+        for i in range(m):
+            ca += abs(a[i, j])
+            ci += abs(out[i, j])
+        norm_a = max(norm_a, ca)
+        norm_inv = max(norm_inv, ci)
+    return norm_a * norm_inv <= COV_CONDITION
+
+
+@jit
+def lstsq_min_norm(h, z, rcond, out):
+    """``np.linalg.lstsq(h, z, rcond)[0]`` into ``out``: the minimum-norm least-squares
+    solution, singular values at or below ``rcond`` times the largest treated as zero, by a
+    one-sided Jacobi SVD (Hestenes) of ``h`` (k, n) instead of LAPACK's divide and conquer;
+    False when its sweeps did not converge or the data are not numbers."""
+    k, n = h.shape
+    a = h.copy()
+    vm = np.eye(n)
+    # a column rotated down to rounding noise (rank below n) is left alone: its singular
+    # value is far below any rcond cut-off, and rotating noise against noise never settles
+    tiny = 0.0
+    for i in range(k):
+        for j in range(n):
+            tiny += a[i, j] * a[i, j]
+    tiny *= 1e-30
+    converged = False
+    for _sweep in range(60):
+        rotated = False
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                alpha = 0.0
+                beta = 0.0
+                gamma = 0.0
+                for i in range(k):
+                    alpha += a[i, p] * a[i, p]
+                    beta += a[i, q] * a[i, q]
+                    gamma += a[i, p] * a[i, q]
+                if alpha <= tiny or beta <= tiny or not abs(gamma) > 1e-15 * np.sqrt(alpha * beta):
+                    continue
+                rotated = True
+                zeta = (beta - alpha) / (2.0 * gamma)
+                t = 1.0 / (abs(zeta) + np.sqrt(1.0 + zeta * zeta))
+                if zeta < 0.0:
+                    t = -t
+                c = 1.0 / np.sqrt(1.0 + t * t)
+                sn = c * t
+                for i in range(k):
+                    ap = a[i, p]
+                    aq = a[i, q]
+                    a[i, p] = c * ap - sn * aq
+                    a[i, q] = sn * ap + c * aq
+                for i in range(n):
+                    vp = vm[i, p]
+                    vq = vm[i, q]
+                    vm[i, p] = c * vp - sn * vq
+                    vm[i, q] = sn * vp + c * vq
+        if not rotated:
+            converged = True
+            break
+    if not converged:
+        return False
+    sv = np.empty(n)
+    big = 0.0
+    for j in range(n):
+        acc = 0.0
+        for i in range(k):
+            acc += a[i, j] * a[i, j]
+        sv[j] = np.sqrt(acc)
+        if not sv[j] < np.inf:
+            return False
+        big = max(big, sv[j])
+    for i in range(n):
+        out[i] = 0.0
+    for j in range(n):
+        if sv[j] > rcond * big:
+            acc = 0.0
+            for i in range(k):
+                acc += a[i, j] * z[i]
+            coef = acc / (sv[j] * sv[j])
+            for i in range(n):
+                out[i] += coef * vm[i, j]
+    return True
+
+
+@jit
+def linear_start(theta_c, v, mu, out):
+    """:func:`imudiag.diagnosis.scalar_fit._linear_start` into ``out`` (the deviation from
+    the certificate by the linearised model): the certificate-corrected outputs, the 9
+    regressors over mu^2 and the minimum-norm solution (:func:`lstsq_min_norm`, rcond 1e-10);
+    False when that failed."""
+    k = v.shape[0]
+    p = np.empty((3, 3))
+    p[0, 0], p[1, 1], p[2, 2] = 1.0 + theta_c[3], 1.0 + theta_c[4], 1.0 + theta_c[5]
+    p[0, 1] = p[1, 0] = 0.5 * theta_c[6]
+    p[0, 2] = p[2, 0] = 0.5 * theta_c[7]
+    p[1, 2] = p[2, 1] = 0.5 * theta_c[8]
+    pinv = inv3(p)
+    h = np.empty((k, 9))
+    z = np.empty(k)
+    for n in range(k):
+        a0 = v[n, 0] - theta_c[0]
+        a1 = v[n, 1] - theta_c[1]
+        a2 = v[n, 2] - theta_c[2]
+        y0 = a0 * pinv[0, 0] + a1 * pinv[0, 1] + a2 * pinv[0, 2]
+        y1 = a0 * pinv[1, 0] + a1 * pinv[1, 1] + a2 * pinv[1, 2]
+        y2 = a0 * pinv[2, 0] + a1 * pinv[2, 1] + a2 * pinv[2, 2]
+        m2 = mu[n] * mu[n]
+        h[n, 0] = y0 / m2
+        h[n, 1] = y1 / m2
+        h[n, 2] = y2 / m2
+        h[n, 3] = y0 * y0 / m2
+        h[n, 4] = y1 * y1 / m2
+        h[n, 5] = y2 * y2 / m2
+        h[n, 6] = y0 * y1 / m2
+        h[n, 7] = y0 * y2 / m2
+        h[n, 8] = y1 * y2 / m2
+        z[n] = 0.5 * ((y0 * y0 + y1 * y1 + y2 * y2) / m2 - 1.0)
+    return lstsq_min_norm(h, z, 1e-10, out)
+
+
+@jit
+def weighted_info(jac, wgt, prior_prec, info, hess):
+    """J^T diag(wgt) J (9, 9) into ``info`` and the same plus diag(prior_prec) into ``hess``."""
+    k = jac.shape[0]
+    for i in range(9):
+        for j in range(i + 1):
+            acc = 0.0
+            for n in range(k):
+                acc += jac[n, i] * (jac[n, j] * wgt[n])
+            info[i, j] = acc
+            info[j, i] = acc
+    for i in range(9):
+        for j in range(9):
+            hess[i, j] = info[i, j]
+        hess[i, i] += prior_prec[i]
+
+
+@jit
+def _failed(k, npred):
+    """The result of :func:`exact_fit_kernel` when it gave up (ok False, the rest unused)."""
+    e9 = np.empty(9)
+    e99 = np.empty((9, 9))
+    ek = np.empty(k)
+    return False, e9, ek, e99, e99, 0.0, 0.0, 0.0, 0.0, np.empty((k, 9)), ek, 0.0, np.empty(npred)
+
+
+@jit
+def exact_fit_kernel(
+    theta0, linear, v, var_v, mu, theta_c, prior_prec, max_iter, max_shape, floor2,
+    scale_by_residual, max_leverage, chi2_median, pv, pvar, pmu,
+):  # fmt: skip
+    """The exact fit of :func:`imudiag.diagnosis.scalar_fit.exact_fit` after its set-up, in
+    one call: the linear start (``linear``; else ``theta0``), the damped Gauss-Newton loop
+    (:func:`gauss_newton`) with the excess-variance refits, the covariance (Cholesky,
+    :func:`spd_inverse`, for ``np.linalg.pinv``), chi^2, dof and the Birge ratio, the
+    one-row deletion figures of :func:`imudiag.diagnosis.robust.point_diagnostics` with their
+    robust excess, and the prediction errors of the points ``pv`` (J, 3), ``pvar``, ``pmu``
+    not in the fit (J = 0: none). Returns (ok, theta, r, info, cov, dof, cov_scale,
+    extra_used, rms, shift, z, robust excess, predicted z); ok False when a solve broke
+    down (the caller runs the plain path)."""
+    k = v.shape[0]
+    theta = theta0.copy()
+    if linear:
+        lin = np.empty(9)
+        if not linear_start(theta_c, v, mu, lin):
+            return _failed(k, pv.shape[0])
+        finite = True
+        far = 0.0
+        for i in range(9):
+            if not np.isfinite(lin[i]):
+                finite = False
+            if i >= 3:
+                far = max(far, abs(lin[i]))
+        if finite and far <= max_shape:
+            for i in range(9):
+                theta[i] = theta_c[i] + lin[i]
+    extra = 0.0
+    extra_used = 0.0
+    info = np.empty((9, 9))
+    hess = np.empty((9, 9))
+    cov = np.empty((9, 9))
+    wgt = np.empty(k)
+    chi2 = 0.0
+    dof = 0.0
+    n_outer = 4 if scale_by_residual else 1
+    ok, th, r, jac, sig2 = gauss_newton(
+        theta.copy(), extra, v, mu, var_v, prior_prec, theta_c, max_iter, max_shape, floor2
+    )
+    for outer in range(n_outer):
+        if outer > 0:
+            ok, th, r, jac, sig2 = gauss_newton(
+                theta.copy(), extra, v, mu, var_v, prior_prec, theta_c, max_iter, max_shape,
+                floor2,
+            )  # fmt: skip
+        if not ok:
+            return _failed(k, pv.shape[0])
+        for n in range(k):
+            wgt[n] = 1.0 / sig2[n]
+        weighted_info(jac, wgt, prior_prec, info, hess)
+        if not spd_inverse(hess, cov):
+            return _failed(k, pv.shape[0])
+        extra_used = extra
+        chi2 = 0.0
+        for n in range(k):
+            chi2 += r[n] * r[n] * wgt[n]
+        tr = 0.0
+        for i in range(9):
+            for j in range(9):
+                tr += cov[i, j] * info[j, i]
+        dof = k - tr
+        if not scale_by_residual or dof < 1.0 or chi2 <= 1.5 * dof:
+            break
+        noise = np.empty(k)
+        for n in range(k):
+            noise[n] = sig2[n] - extra
+        extra = excess_variance(r, noise, dof)
+    cov_scale = 1.0
+    cov_out = cov.copy()
+    if dof > 0.5 and scale_by_residual:
+        cov_scale = max(1.0, chi2 / dof)
+        for i in range(9):
+            for j in range(9):
+                cov_out[i, j] = cov[i, j] * cov_scale
+    acc = 0.0
+    for n in range(k):
+        acc += r[n] * r[n]
+    rms = np.sqrt(acc / k)
+    # the deletion figures, one row per point (robust.point_diagnostics without groups)
+    shift = np.empty((k, 9))
+    u = np.empty(k)
+    nv_mean = np.empty(k)
+    noise_var = np.empty(k)
+    ac = np.empty(9)
+    for n in range(k):
+        noise_var[n] = sig2[n] - extra_used
+        sw = np.sqrt(wgt[n])
+        for j in range(9):
+            acc = 0.0
+            for i in range(9):
+                acc += jac[n, i] * sw * cov[i, j]
+            ac[j] = acc
+        h = 0.0
+        for j in range(9):
+            h += ac[j] * (jac[n, j] * sw)
+        s_n = sw * r[n]
+        if h <= max_leverage:
+            sol = s_n / (1.0 - h)
+            u[n] = s_n * sol / (noise_var[n] * wgt[n])
+            nv_mean[n] = noise_var[n]
+        else:
+            sol = np.nan
+            u[n] = np.nan
+            nv_mean[n] = 1.0
+        for j in range(9):
+            shift[n, j] = ac[j] * sol
+    count = 0
+    for n in range(k):
+        if np.isfinite(u[n]):
+            count += 1
+    excess = 0.0
+    if count >= 3:
+        a_ok = np.empty(count)
+        nv_ok = np.empty(count)
+        c = 0
+        for n in range(k):
+            if np.isfinite(u[n]):
+                a_ok[c] = u[n]
+                nv_ok[c] = nv_mean[n]
+                c += 1
+        if sorted_median(a_ok) > chi2_median:
+            excess = robust_excess(a_ok, nv_ok, chi2_median)
+    z = np.empty(k)
+    for n in range(k):
+        z[n] = np.sqrt(u[n] / (1.0 + excess / nv_mean[n]))
+    # prediction errors of the points left out (the robust fit's probes)
+    npred = pv.shape[0]
+    zp = np.empty(npred)
+    if npred:
+        w_rob = np.empty(k)
+        for n in range(k):
+            w_rob[n] = 1.0 / (noise_var[n] + excess)
+        info_rob = np.empty((9, 9))
+        hess_rob = np.empty((9, 9))
+        cov_rob = np.empty((9, 9))
+        weighted_info(jac, w_rob, prior_prec, info_rob, hess_rob)
+        if not spd_inverse(hess_rob, cov_rob):
+            return _failed(k, npred)
+        rp = np.empty(npred)
+        xp = np.empty((npred, 3))
+        wp = np.empty((npred, 3))
+        sp = np.empty(npred)
+        jp = np.empty((npred, 9))
+        residuals(th, pv, pmu, pvar, prior_prec, theta_c, 0.0, floor2, rp, xp, wp, sp)
+        jacobian(xp, wp, jp)
+        for n in range(npred):
+            par = 0.0
+            for i in range(9):
+                acc = 0.0
+                for j in range(9):
+                    acc += cov_rob[i, j] * jp[n, j]
+                par += jp[n, i] * acc
+            total = sp[n] + excess + max(par, 0.0)
+            zp[n] = abs(rp[n]) / np.sqrt(total)
+    return True, th, r, info, cov_out, dof, cov_scale, extra_used, rms, shift, z, excess, zp
+
+
 def warm_up() -> dict[str, Any]:
     """Run each kernel once (compiling it, or loading it from numba's cache); the kernels by
     name."""
@@ -847,9 +1312,12 @@ def warm_up() -> dict[str, Any]:
     q_c = np.eye(3)
     for npar, frame in ((6, False), (9, True)):
         ninv, dninv = ninv_derivatives_kernel(np.zeros(6), q_c, np.full(npar, 1e-3), frame)
-        predict_kernel(
-            np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 3, 3, 3)), dninv, np.ones((1, 3))
-        )
+        frozen = dninv.copy()
+        frozen.setflags(write=False)  # the rotation fit's cached derivatives are read-only
+        for d in (dninv, frozen):
+            predict_kernel(
+                np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 3, 3, 3)), d, np.ones((1, 3))
+            )
     rows = rng.normal(size=(3, 8))
     bounds = np.array([0, 3], dtype=np.int64), np.array([3, 8], dtype=np.int64)
     for rotate in (True, False):
@@ -870,7 +1338,35 @@ def warm_up() -> dict[str, Any]:
     jump_test(x13, x13[:, :], x13.T.copy().T, np.ones(6, dtype=np.bool_), np.ones(3), 2, 3.0, 0)
     window_moments(x13, 2, np.zeros(6))
     window_moments(x13[1:], 2, np.zeros(6))
+    x26 = rng.normal(size=(6, 26))
+    window_moments(x26[:, ::2], 2, np.zeros(6))  # strided (diagnose's prefix-sum views)
+    jump_test(x26[:, ::2], x26[:, 1::2], x26[:, ::2], np.ones(6, dtype=np.bool_), np.ones(3), 2,
+              3.0, 0)  # fmt: skip
+    for start, probes in ((True, 0), (False, 1)):
+        exact_fit_kernel(
+            np.zeros(9), start, v, np.full((12, 3), 1e-8), np.ones(12), np.zeros(9),
+            np.ones(9), 20, 0.5, 1e-14, True, 0.99, 0.45, v[:probes].copy(),
+            np.full((probes, 3), 1e-8), np.ones(probes),
+        )  # fmt: skip
+    g6 = rng.normal(size=(5, 3))
+    rows6 = np.empty((5, 13))
+    g12 = rng.normal(size=(5, 12))
+    for fl in (np.zeros(5, dtype=np.int64), np.zeros(0, dtype=np.int64)):
+        for gy, ac in ((g6, g6.copy()), (g12[:, 0:3], g12[:, 6:9])):  # C and strided
+            window_rows(gy, ac, fl, 7, np.ones(6, dtype=np.bool_), np.zeros(6), rows6)
+    window_rates(
+        x13[:, :6].copy(), x13, np.ones(6), np.zeros(6), np.zeros(3), np.ones(3), q_c,
+        np.zeros(3), np.ones(3), q_c,
+    )  # fmt: skip
+    ok6 = np.ones(6, dtype=np.bool_)
+    variance_test(x13[:, :6].copy(), np.ones(6), 3.0, ok6[:2].copy(), False, np.ones(3), 1.0, ok6)
+    drift_within(x13[:, :3].copy(), np.ones(3), 1.0, ok6)
     return {
+        "variance_test": variance_test,
+        "drift_within": drift_within,
+        "window_rows": window_rows,
+        "window_rates": window_rates,
+        "exact_fit": exact_fit_kernel,
         "beyond_counts": beyond_counts,
         "window_moments": window_moments,
         "jump_test": jump_test,

@@ -164,3 +164,112 @@ def test_window_moments_kernel_equals_plain(switch):
     for a, b in zip(got[1], got[0], strict=True):
         np.testing.assert_array_equal(a, b)
     assert np.all(np.isfinite(got[0][0]))
+
+
+def random_board_stream(seed: int, n: int) -> SampleBlock:
+    """A seeded board stream in the bundled certificate's counts: still holds, turns about
+    random axes, values that are not finite and flagged samples (saturation, ADC errors)."""
+    from imudiag.certificate import load_default
+    from imudiag.sim import multi_position, simulate
+
+    cert = load_default()
+    traj = multi_position(n_attitudes=8, dwell_s=6.0, turn_s=2.0, rate_hz=100, seed=seed)
+    block = simulate(cert, traj, seed=seed + 1).samples.slice(0, n)
+    rng = np.random.default_rng(seed)
+    gyro, accel = block.gyro.copy(), block.accel.copy()
+    gyro[rng.random(len(block)) < 0.001, rng.integers(0, 3)] = np.nan
+    accel[rng.random(len(block)) < 0.0005, 1] = np.inf
+    flags = np.where(rng.random(len(block)) < 0.001, 1 << int(rng.integers(0, 4)), 0)
+    return SampleBlock(t=block.t, gyro=gyro, accel=accel, flags=flags.astype(np.uint32))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_window_rows_and_rates_kernels_equal_plain(seed, switch):
+    """The block's rows (:func:`imudiag.numba_kernels.window_rows`: the same subtraction and
+    product per element, so the window sums are the same numbers) and the windows' rates
+    (:func:`imudiag.numba_kernels.window_rates`: the certificate's inverse and projections
+    element by element, equal to rounding), in small and big blocks."""
+    from imudiag.certificate import load_default
+
+    cert = load_default()
+    block = random_board_stream(seed, 30_000)
+    sizes = blocks(np.random.default_rng(200 + seed), len(block))
+    got = []
+    for on in (False, True):
+        switch(on)
+        stage = QuasiStaticDetector(cert, rate_hz=100.0)._stage
+        sums, rates, first = [], [], 0
+        for size in sizes:
+            st = stage.run(block.slice(first, first + size))
+            first += size
+            if st.skip < size:
+                sums.append(np.hstack([st.sums, st.long_sums, st.back_w, st.back_2w]))
+                rates.append(np.column_stack(st.rates()))
+        got.append((np.concatenate(sums), np.concatenate(rates)))
+    np.testing.assert_array_equal(got[1][0], got[0][0])
+    plain, fast = got[0][1], got[1][1]
+    scale = np.max(np.abs(plain), axis=0)
+    np.testing.assert_array_equal(np.isnan(fast), np.isnan(plain))
+    off = np.abs(fast - plain) > 1e-12 * np.abs(plain) + 1e-13 * scale
+    assert not off.any(), (fast[off][:5], plain[off][:5], np.argwhere(off)[:5])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_detector_flags_with_the_kernels_equal_plain_on_random_streams(seed, switch):
+    """The static flags with every detector kernel on against the plain path on seeded
+    streams with turns, restarts, non-finite and flagged samples: a rate-band or drift
+    comparison could in principle flip on a rounding difference of the compiled rates; none
+    does here (nor on the real recordings above)."""
+    from imudiag.certificate import load_default
+
+    cert = load_default()
+    block = random_board_stream(10 + seed, 40_000)
+    sizes = blocks(np.random.default_rng(300 + seed), len(block))
+    for how in (sizes, None):
+        switch(False)
+        plain = flags(block, cert, how)
+        switch(True)
+        fast = flags(block, cert, how)
+        assert plain.any() and not plain.all()
+        np.testing.assert_array_equal(fast, plain)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_variance_test_and_drift_norm_kernels_equal_numpy(seed):
+    """The variance test's ratios (three-term sums one by one, as ``np.sum`` over an axis of
+    3), its flags, the settle test and the drift norms (``np.einsum``'s three-term order on
+    this machine, (0 + 2) + 1) compiled against the numpy expressions of the detector, on
+    values of very different sizes (where the order of a sum shows): the same numbers."""
+    from imudiag import numba_kernels as nk
+
+    rng = np.random.default_rng(500 + seed)
+    m = 50_000
+    var = rng.uniform(0.0, 1.0, (m, 6)) * 10 ** rng.uniform(-6, 6, (m, 6))
+    var_ref = 10 ** rng.uniform(-4, 4, 6)
+    limit = float(np.median((var / var_ref).reshape(m, 2, 3).sum(axis=2)))
+    to_si2 = 10 ** rng.uniform(-3, 3, 3)
+    settle_var = float(np.median(np.sum(var[:, 3:6] * to_si2, axis=1)))
+    for checked, missing in (((0, 1), False), ((1,), False), ((0, 1), True)):
+        ok0 = rng.random(m) < 0.9
+        ratio = (var / var_ref).reshape(m, 2, 3).sum(axis=2)
+        still = ratio <= limit
+        ok_plain = ok0 & ~missing
+        for c in checked:
+            ok_plain &= still[:, c]
+        mask = np.zeros(2, dtype=bool)
+        mask[list(checked)] = True
+        ok = ok0.copy()
+        r, s, settle = nk.variance_test(var, var_ref, limit, mask, missing, to_si2, settle_var, ok)
+        np.testing.assert_array_equal(r, ratio)
+        np.testing.assert_array_equal(s, still)
+        np.testing.assert_array_equal(ok, ok_plain)
+        np.testing.assert_array_equal(settle, np.sum(var[:, 3:6] * to_si2, axis=1) > settle_var)
+    spread = rng.normal(size=(m, 3)) * 10 ** rng.uniform(-5, 5, (m, 3))
+    spread[rng.random(m) < 0.01] = np.nan
+    to_si = 10 ** rng.uniform(-2, 2, 3)
+    s_si = spread * to_si
+    norm = np.sqrt(np.einsum("ij,ij->i", s_si, s_si))
+    drift_limit = float(np.nanmedian(norm))
+    ok = np.ones(m, dtype=bool)
+    nk.drift_within(spread, to_si, drift_limit, ok)
+    np.testing.assert_array_equal(ok, norm <= drift_limit)

@@ -150,3 +150,51 @@ def test_failed_logs_are_grouped_by_their_reason(tmp_path: Path) -> None:
     assert npz["reason"].startswith("reading the log: LOG: ") and npz["first"].endswith("x.npz")
     html = render(summary, recs)
     assert 'id="error-kinds"' in html and "2 x diagnosing: LOG: units:" in html
+
+
+def _every_real_recording() -> dict[str, tuple[Path, Path]]:
+    """The real recordings shipped, each with its certificate (tests/test_exact_fit_kernel.py's
+    table, that of tests/test_one_answer.py with the MPU-6050's still hold)."""
+    pytest.importorskip("numba", reason="numba (the fleet extra) is not installed")
+    from tests.test_exact_fit_kernel import REAL_LOGS
+
+    return REAL_LOGS
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "gnss-imu-drive", "xsens", "imucal", "mpu6050-calibration", "mpu6050-rot90x",
+        "mpu6050-static", "px4-ulog", "ardupilot-dataflash", "firm-rocket", "x-io-ngimu",
+        "x-io-ximu3",
+    ],
+)  # fmt: skip
+def test_the_fleet_task_with_the_kernels_agrees_with_diagnose(name: str) -> None:
+    """Issue 28: the fleet's per-log task runs the compiled kernels (its record says so),
+    ``imudiag diagnose`` the plain loops; on every real recording with its certificate the
+    record's report (windows dropped) equals the plain report within the reports'
+    cross-processor tolerance, the verdicts, named faults and causes identical, and its kept
+    parameters are the plain report's. (The 12th, the MT Manager export, needs read options
+    a fleet job has no place for: tests/test_exact_fit_kernel.py diagnoses it both ways.)"""
+    import json
+
+    from imudiag import kernels
+    from imudiag.fleet.task import kept
+    from imudiag.reports import json_text
+    from tests.test_exact_fit_kernel import assert_reports_agree
+
+    log, cert = _every_real_recording()[name]
+    st = log.stat()
+    job = Job(str(log), "-", st.st_size, st.st_mtime_ns, str(log.parent), certificate=str(cert))
+    rec = json.loads(json.dumps(diagnose_log(job), allow_nan=False))
+    assert rec["status"] == "ok", rec["reason"]
+    assert rec["kernels"] == "numba"
+    with kernels.switched(False):
+        loaded = imudiag.api.load_certificate(str(cert))
+        alone = json.loads(json_text(imudiag.diagnose(log, loaded)))
+    params = kept(alone, loaded, rec["instance"])  # drops the windows, as the record did
+    assert_reports_agree(rec["report"], alone)
+    verdict = {"verdict": alone["verdict"]}
+    assert_reports_agree(
+        {"parameters": rec["parameters"], **verdict}, {"parameters": params, **verdict}
+    )

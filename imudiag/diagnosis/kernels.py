@@ -14,6 +14,11 @@ loop runs the fit instead. ``tests/test_fit_kernels.py`` holds the two to each o
 whole reports made with the kernels to the frozen ones within the cross-processor tolerance
 (the rounding of a near-singular window differs there as between processors).
 
+Beyond the loop, :func:`imudiag.numba_kernels.exact_fit_kernel` runs the whole exact fit after
+its set-up in one call (linear start, the loop with its excess-variance refits, covariance,
+deletion figures, predictions: :func:`.scalar_fit.exact_fit` calls it where the kernels are on
+and falls back to the plain path where it gives up); ``tests/test_exact_fit_kernel.py``.
+
 The gyro rotation fit evaluates each motion's rotation and its sensitivity to N^-1
 (:func:`imudiag.rotations.segmented_product_sensitivity`, a pairwise product tree in numpy)
 once per try; :func:`product_sensitivity` is the same figures compiled, the products taken

@@ -58,7 +58,7 @@ MAX_REJECT_FRACTION = 0.25
 #: which the predicates do not let hold a fault back).
 MAX_LEVERAGE = 0.99
 #: Median of a chi^2 variable with one degree of freedom.
-_CHI2_1_MEDIAN = 0.454936423119572
+CHI2_1_MEDIAN = 0.454936423119572
 
 
 @dataclass
@@ -161,7 +161,7 @@ def _robust_excess(u: np.ndarray, nv: np.ndarray, m: np.ndarray) -> float:
     u, nv, m = u[ok], nv[ok], m[ok]
 
     a = u / m
-    if float(np.median(a)) <= _CHI2_1_MEDIAN:
+    if float(np.median(a)) <= CHI2_1_MEDIAN:
         return 0.0
     compiled = kernel("robust_excess")  # the same brackets compiled (exact: order statistics)
     if compiled is not None:
@@ -169,7 +169,7 @@ def _robust_excess(u: np.ndarray, nv: np.ndarray, m: np.ndarray) -> float:
             compiled(
                 np.ascontiguousarray(a, dtype=float),
                 np.ascontiguousarray(nv, dtype=float),
-                _CHI2_1_MEDIAN,
+                CHI2_1_MEDIAN,
             )
         )
     # the median falls as e grows: bracket the crossing, 15 trial values per round in one
@@ -179,7 +179,7 @@ def _robust_excess(u: np.ndarray, nv: np.ndarray, m: np.ndarray) -> float:
     inv_nv = 1.0 / nv
     for _ in range(40):
         trial = lo + (hi - lo) * steps
-        below = medians(a / (1.0 + trial[:, None] * inv_nv)) <= _CHI2_1_MEDIAN
+        below = medians(a / (1.0 + trial[:, None] * inv_nv)) <= CHI2_1_MEDIAN
         k = int(np.argmax(below)) if below.any() else trial.size
         if k > 0:
             lo = float(trial[k - 1])

@@ -30,7 +30,7 @@ from ..certificate import TriadModel
 from . import kernels
 from .gauge import p_matrix
 from .params import TriadFit, TriadForm, std_above_limit, triad_form
-from .robust import point_diagnostics, reject_outliers
+from .robust import CHI2_1_MEDIAN, MAX_LEVERAGE, point_diagnostics, reject_outliers
 
 #: Floor of the standard deviation of a normalised residual (model resolution).
 RESIDUAL_FLOOR = 1e-7
@@ -220,9 +220,17 @@ def exact_fit(
     prior_diag = np.diag(prior_prec)
     shape_c = theta_c[3:]
 
+    if isinstance(start, str) and start not in ("linear", "certificate"):
+        raise ValueError(f"start must be linear, certificate or a vector, got {start!r}")
+    if k and max_iter > 0 and np.all(np.isfinite(pf)) and kernels.enabled():
+        # the whole fit compiled (fleet workers); None where one of its solves gave up
+        compiled = _compiled_fit(
+            triad, method, m0, v, var_v, mu, theta_c, lim, prior_prec, start, max_iter,
+            determined_std_ratio, scale_by_residual, predict,
+        )  # fmt: skip
+        if compiled is not None:
+            return compiled
     if isinstance(start, str):
-        if start not in ("linear", "certificate"):
-            raise ValueError(f"start must be linear, certificate or a vector, got {start!r}")
         theta = theta_c.copy()
         if start == "linear":
             lin = _linear_start(theta_c, v, mu)
@@ -353,6 +361,84 @@ def exact_fit(
         parvar = np.maximum(np.einsum("ki,ij,kj->k", jp, cov_rob, jp), 0.0)
         total = nvp + RESIDUAL_FLOOR**2 + e_rob + parvar
         fit.extra["predicted_z"] = [float(x) for x in np.abs(rp) / np.sqrt(total)]
+    return fit
+
+
+def _compiled_fit(
+    triad: TriadForm,
+    method: str,
+    m0: float,
+    v: np.ndarray,
+    var_v: np.ndarray,
+    mu: np.ndarray,
+    theta_c: np.ndarray,
+    lim: np.ndarray,
+    prior_prec: np.ndarray,
+    start: np.ndarray | str,
+    max_iter: int,
+    determined_std_ratio: float,
+    scale_by_residual: bool,
+    predict: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+) -> TriadFit | None:
+    """:func:`exact_fit` after its set-up in one compiled call
+    (:func:`imudiag.numba_kernels.exact_fit_kernel`: linear start, Gauss-Newton with the
+    excess-variance refits, covariance, deletion figures, predictions), for a fit of at
+    least one point with a finite prior on every parameter; None when the kernels are off
+    or a solve gave up (the plain path then runs the fit). Equal to the plain path within
+    rounding (tests/test_exact_fit_kernel.py)."""
+    fit_kernel = kernels.kernel("exact_fit")
+    if fit_kernel is None:
+        return None
+    linear = isinstance(start, str) and start == "linear"
+    theta0 = theta_c if isinstance(start, str) else np.asarray(start, dtype=float)
+    s = triad.scale_factor
+    if predict is not None:
+        pm, pv, pmag = (np.asarray(x, dtype=float) for x in predict)
+        p_v = pm.reshape(-1, 3) / (s * m0)
+        p_var = pv.reshape(-1, 3) / (s * m0) ** 2
+        p_mu = np.atleast_1d(pmag) / m0
+    else:
+        p_v, p_var, p_mu = np.empty((0, 3)), np.empty((0, 3)), np.empty(0)
+    ok, theta, _r, info, cov, dof, cov_scale, extra_used, rms, shift, z, _e, zp = fit_kernel(
+        np.ascontiguousarray(theta0, dtype=float),
+        linear,
+        np.ascontiguousarray(v),
+        np.ascontiguousarray(var_v),
+        np.ascontiguousarray(mu, dtype=float),
+        np.ascontiguousarray(theta_c),
+        np.ascontiguousarray(prior_prec),
+        int(max_iter),
+        MAX_SHAPE,
+        RESIDUAL_FLOOR**2,
+        bool(scale_by_residual),
+        MAX_LEVERAGE,
+        CHI2_1_MEDIAN,
+        np.ascontiguousarray(p_v),
+        np.ascontiguousarray(p_var),
+        np.ascontiguousarray(p_mu, dtype=float),
+    )
+    if not ok:
+        return None
+    null = np.zeros(9, dtype=bool)  # a finite prior: no direction without information
+    fit = _finish(
+        triad,
+        method,
+        m0,
+        theta - theta_c,
+        cov,
+        null,
+        determined_std_ratio,
+        _scaled_condition(info, lim),
+        v.shape[0],
+        float(rms),
+    )
+    fit.dof = float(dof)
+    fit.cov_scale = float(cov_scale)
+    fit.excess_var = float(extra_used)
+    fit.loo_deviation = ((theta - theta_c)[None, :] + shift) * triad.scale(m0)[None, :]
+    fit.point_z = z
+    if predict is not None:
+        fit.extra["predicted_z"] = [float(x) for x in zp]
     return fit
 
 

@@ -443,15 +443,27 @@ class QuasiStaticDetector:
                 self._update_noise_estimate(name, v[ok] if ok.any() else v[:0])
         lim = self._limits()
         limit = self.variance_ratio_limit
-        # sum over each triad's axes of var_j / sigma_j^2
-        ratio = (var / lim.var_ref).reshape(m, 2, 3).sum(axis=2)
-        still = ratio <= limit
-        if not lim.missing:
-            self._note_windows(ratio / limit, still)
-        if lim.missing:
-            ok[:] = False
-        for c in lim.checked:
-            ok &= still[:, c]
+        compiled = kernel("variance_test")
+        settle_c = None
+        if compiled is not None:  # the same sums and comparisons compiled: the same flags
+            checked = np.zeros(2, dtype=bool)
+            checked[list(lim.checked)] = True
+            ratio, still, settle_c = compiled(
+                np.ascontiguousarray(var), lim.var_ref, float(limit), checked,
+                bool(lim.missing), self._to_si2, float(self._settle_var_si), ok,
+            )  # fmt: skip
+            if not lim.missing:
+                self._note_windows(ratio / limit, still)
+        else:
+            # sum over each triad's axes of var_j / sigma_j^2
+            ratio = (var / lim.var_ref).reshape(m, 2, 3).sum(axis=2)
+            still = ratio <= limit
+            if not lim.missing:
+                self._note_windows(ratio / limit, still)
+            if lim.missing:
+                ok[:] = False
+            for c in lim.checked:
+                ok &= still[:, c]
         if not self.drift_enabled or lim.band is None:
             if lim.band is not None:
                 ok &= self._rate_band(st)[0]
@@ -469,7 +481,11 @@ class QuasiStaticDetector:
         jump = settle = np.zeros(m, dtype=bool)
         if 1 in lim.checked:
             # a re-orientation by a large angle inside one window (by hand)
-            settle = np.sum(var[:, 3:6] * self._to_si2, axis=1) > self._settle_var_si
+            settle = (
+                settle_c
+                if settle_c is not None
+                else np.sum(var[:, 3:6] * self._to_si2, axis=1) > self._settle_var_si
+            )
             jump = self._jump(first, sums, st.back_w, st.back_2w, still[:, 1], lim.var_ref[3:6])
         if (short_mark | jump | settle).any():
             start_short = self._starts(
@@ -483,8 +499,13 @@ class QuasiStaticDetector:
             start_long = np.maximum(idx - self._long_span, self._restart[1])
         # the drift tests (module doc): the accelerometer window mean over the short history
         accel_mean = mean[:, 3:6]
-        spread = self._drift[0].update(first, accel_mean, start_short) * self._to_si
-        ok &= np.sqrt(np.einsum("ij,ij->i", spread, spread)) <= lim.drift_limit
+        within = kernel("drift_within")
+        if within is not None:  # the same products and sums compiled, in place
+            spread = self._drift[0].update(first, accel_mean, start_short)
+            within(np.ascontiguousarray(spread), self._to_si, float(lim.drift_limit), ok)
+        else:
+            spread = self._drift[0].update(first, accel_mean, start_short) * self._to_si
+            ok &= np.sqrt(np.einsum("ij,ij->i", spread, spread)) <= lim.drift_limit
         # a curve: the rate about the vertical and the specific force changed together
         values = np.column_stack([accel_mean, vertical_long])
         spread = self._drift[1].update(first, values, start_long)

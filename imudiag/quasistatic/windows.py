@@ -88,6 +88,20 @@ class WindowStats:
             else:
                 count = np.minimum(np.arange(first + 1, first + 1 + m), rate_window)[:, None]
             assert stage.ref is not None
+            compiled = kernel("window_rates") if getattr(stage, "simple_inverse", False) else None
+            if compiled is not None:  # the same figures compiled, equal to rounding
+                g, a = cert.gyro, cert.accel
+                self._rates = compiled(
+                    np.ascontiguousarray(mean), np.ascontiguousarray(self.long_sums),
+                    np.ascontiguousarray(np.broadcast_to(count, (m, 1))[:, 0], dtype=float),
+                    stage.ref, np.ascontiguousarray(g.bias, dtype=float),
+                    np.ascontiguousarray(g.scale_factor, dtype=float),
+                    np.ascontiguousarray(stage.n_inv_t["gyro"]),  # (N^-1)^T: F order
+                    np.ascontiguousarray(a.bias, dtype=float),
+                    np.ascontiguousarray(a.scale_factor, dtype=float),
+                    np.ascontiguousarray(stage.n_inv_t["accel"]),
+                )  # fmt: skip
+                return self._rates
             gyro_long = self.long_sums[:, 0:3] / count + stage.ref[0:3]
             # the window means and the longer means in one pass (gyro input units)
             rates = cert.gyro.inverse(
@@ -122,7 +136,15 @@ class WindowStage:
         self.certificate = certificate
         self.window, self.rate_window = window, rate_window
         self.cols, self.n_inv_t = cols, n_inv_t
+        self.col_mask = np.zeros(6, dtype=bool)  #: ``cols`` as a mask (the compiled rows)
+        self.col_mask[np.asarray(cols, dtype=np.intp)] = True
         self.prefix = PrefixSums(13, max(rate_window, 2 * window))
+        #: the certificate's inverse is (u - bias) / scale then N^-1 (no temperature or
+        #: nonlinearity terms): the compiled rates apply (:meth:`WindowStats.rates`)
+        self.simple_inverse = all(
+            t.nonlinearity is None and t.temperature is None
+            for t in (certificate.gyro, certificate.accel)
+        )
         self.offsets = np.array([window, rate_window, 2 * window])
         self.ref: np.ndarray | None = None  #: the stream's first sample, the sums' origin
 
@@ -139,6 +161,19 @@ class WindowStage:
     def run(self, block: SampleBlock) -> WindowStats:
         """The window statistics of a block (N >= 1 samples), the stream's next."""
         n = len(block)
+        compiled = kernel("window_rows")
+        if compiled is not None:  # the same rows compiled (the same operations: exact)
+            if self.ref is None:
+                x0 = np.concatenate([block.gyro[0], block.accel[0]])
+                self.ref = np.where(np.isfinite(x0), x0, 0.0).astype(float)
+            rows = np.empty((n, 13))
+            flags = np.zeros(0, dtype=np.int64) if block.flags is None else block.flags
+            compiled(
+                np.asarray(block.gyro, dtype=float), np.asarray(block.accel, dtype=float),
+                np.ascontiguousarray(flags, dtype=np.int64), int(BAD_FLAGS),
+                self.col_mask, self.ref, rows,
+            )  # fmt: skip
+            return self._stats(n, rows)
         x_new = np.concatenate([block.gyro, block.accel], axis=1)
         bad_new = None
         if block.flags is not None:
@@ -157,6 +192,10 @@ class WindowStage:
         xc = np.subtract(x_new, self.ref, out=rows[:, :6])
         np.multiply(xc, xc, out=rows[:, 6:12])
         rows[:, 12] = 0.0 if bad_new is None else bad_new
+        return self._stats(n, rows)
+
+    def _stats(self, n: int, rows: np.ndarray) -> WindowStats:
+        """The window statistics of a block's ``rows`` (N, 13) (:meth:`run`)."""
         # P at each row and one window, rate_window rows and two windows back: the sums of
         # the window (``sums``) and of the rate_window rows (``long_sums``: the gyro means)
         if self.prefix.whole(n):  # diagnose-sized: slices of one array, no gathers
