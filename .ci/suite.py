@@ -27,7 +27,12 @@ Warm-up beside the style gates: mypy runs on one core, so while it runs a
 ignored: the tier reports its own collection errors) imports every test module once on the
 other core, which writes the rewritten test modules and imudiag's bytecode. In a fresh
 clone each of the tier's two workers otherwise rewrote and compiled all of them itself
-(about 12 s of collection each on the 2-core machine, against 3.5 s warm).
+(about 12 s of collection each on the 2-core machine, against 3.5 s warm). Beside it the
+optional compiled kernels (numba, :mod:`imudiag.kernels`) are compiled once into numba's
+cache (``imudiag/__pycache__``, git-ignored): in a fresh clone the first test of each
+tier worker that used them compiled them itself (48 s of CPU, and both workers at once),
+where a developer's later runs load them from the cache (about 1.4 s). Each warm-up
+process's end is printed after the style step (the tiers wait for both).
 
 Every step runs, whatever the one before gave; the exit status is 0 only when all three
 passed. Each step's wall time is printed (a figure, not a bound). Extra arguments are
@@ -57,6 +62,27 @@ ENV = {
 }
 
 
+#: the warm-up beside the style gates (module docstring): its processes' arguments after the
+#: interpreter, their output discarded and their exit status ignored (the tiers report their
+#: own errors)
+WARM_UP = {
+    # every test module imported once: rewritten test modules and imudiag's bytecode written
+    "collection": [
+        "-m",
+        "pytest",
+        "-q",
+        "--collect-only",
+        "-m",
+        "not realtime",
+        "-p",
+        "no:cacheprovider",
+    ],
+    # the compiled kernels (numba's cache in imudiag/__pycache__): a fresh clone compiles
+    # them once here instead of in each tier worker whose tests use them
+    "kernels": ["-c", "from imudiag import kernels; kernels.load()"],
+}
+
+
 def _step(name: str, argv: list[str]) -> tuple[str, int, float]:
     print(f"== {name}: {' '.join(argv[1:])}", flush=True)
     start = time.monotonic()
@@ -74,25 +100,17 @@ def main(argv: list[str]) -> int:
         del argv[i : i + 2]
     py = sys.executable
     # the warm-up (module docstring): started before the style gates, awaited after them
-    warm = subprocess.Popen(
-        [
-            py,
-            "-m",
-            "pytest",
-            "-q",
-            "--collect-only",
-            "-m",
-            "not realtime",
-            "-p",
-            "no:cacheprovider",
-        ],
-        cwd=ROOT,
-        env=ENV,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    started = time.monotonic()
+    warm = {
+        name: subprocess.Popen(
+            [py, *args], cwd=ROOT, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        )
+        for name, args in WARM_UP.items()
+    }
     style = _step("style", [py, str(ROOT / ".ci" / "style.py")])
-    warm.wait()
+    for name, proc in warm.items():
+        proc.wait()
+        print(f"== warm-up: {name} done {time.monotonic() - started:.0f} s after the start")
     steps = [
         style,
         _step(
