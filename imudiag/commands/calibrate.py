@@ -15,10 +15,10 @@ import argparse
 import sys
 
 from ..argtypes import writable_directory, writable_output_path
-from ..certificate import load
 from ..diagnosis.config import SHORT_HOLDS
 from ..diagnosis.session import calibrate_recording
 from ..errors import BadInput
+from ..logs.datasheet import certificate_for_log
 from ..logs.options import log_options
 from ..progress import for_command
 from .diagnose import add_common_arguments, check_plots, make_config, plot_lines, write_json
@@ -38,7 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--like",
         required=True,
         metavar="CERT",
-        help="certificate giving scale factors, units, limits and starting values",
+        help="certificate giving scale factors, units, limits and starting values; 'auto': "
+        "the data sheet an autopilot's log names (PX4 ULog, ArduPilot DataFlash: the flight "
+        "controller's IMU)",
     )
     p.add_argument(
         "--out",
@@ -83,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     from ..plots.calibration import FILES  # the names only: matplotlib is imported to draw
 
     check_plots(args, FILES)
-    like = load(args.like)
+    like = certificate_for_log(args.like, args.log, log_options(args), "--like")
     short = args.short_holds or ("never" if args.min_interval is not None else "auto")
     cfg = make_config(args, short_holds=short)
     with for_command("calibrate", args.quiet) as progress:

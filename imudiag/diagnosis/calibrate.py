@@ -806,16 +806,28 @@ def _calibration_note(
     cfg: DiagnosisConfig,
     rotations: int,
 ) -> dict[str, Any]:
-    """The new certificate's ``device``: ``like``'s, with the date and how it was made."""
-    device = dict(like.device)
-    device["calibrated"] = _dt.date.today().isoformat()
-    device["calibration"] = (
+    """The new certificate's ``device`` (:func:`calibrated_device`) after a multi-position
+    calibration."""
+    return _calibrated_device(
+        like,
         f"imudiag calibrate --method {method}"
         + (f" from {source}" if source else "")
         + f": {len(intervals)} quasi-static intervals, "
         f"{distinct_attitudes(np.array([iv.up for iv in intervals]), cfg.attitude_separation_deg)}"
-        f" attitudes, {rotations} rotations"
+        f" attitudes, {rotations} rotations",
     )
+
+
+def _calibrated_device(like: Certificate, how: str) -> dict[str, Any]:
+    """The ``device`` of a certificate calibrated from ``like``: ``like``'s, with the date
+    and ``how`` it was made (``calibration``). A data-sheet ``like`` (``--like auto`` on an
+    autopilot's log, or a file of config/datasheets) gives a calibration of this unit, no
+    longer the part's typical figures: its ``datasheet`` key is dropped (the status would
+    call the certificate a data sheet) and named in ``calibration``."""
+    device = dict(like.device)
+    sheet = device.pop("datasheet", None)
+    device["calibrated"] = _dt.date.today().isoformat()
+    device["calibration"] = how + (f"; like the data sheet {sheet}" if sheet else "")
     return device
 
 
@@ -947,14 +959,12 @@ def calibrate_known_rate(
         "(centripetal acceleration; the log may have none)",
     )
     unit = gyr_like.input_unit
-    device = dict(like.device)
-    device["calibrated"] = _dt.date.today().isoformat()
-    device["calibration"] = (
+    new.device = _calibrated_device(
+        like,
         f"imudiag calibrate --known-rate {rate_in:.6g} {unit}"
         + (f" from {source}" if source else "")
-        + f": {len(plateaus)} plateaus ({len(set_aside)} set aside)"
+        + f": {len(plateaus)} plateaus ({len(set_aside)} set aside)",
     )
-    new.device = device
     new.source = None
     used = gmeans[kept]
     known = {

@@ -11,20 +11,23 @@ from ..certificate import AUTO, Certificate, CertificateError, datasheet_path, l
 from .options import LogOptions
 
 
-def datasheet_of_log(meta: dict[str, Any], log: str | Path) -> Path:
+def datasheet_of_log(meta: dict[str, Any], log: str | Path, option: str = "--certificate") -> Path:
     """The bundled data-sheet certificate the metadata ``meta`` of the log ``log`` names
-    (``datasheet``); CertificateError naming the log when it names none."""
+    (``datasheet``); CertificateError naming the log and the ``option`` that asked for it
+    when it names none."""
     key = meta.get("datasheet")
     if not key:
         raise CertificateError(
             str(log),
-            "--certificate auto: the log names no data-sheet certificate (autopilot logs do: "
-            "PX4 ULog, ArduPilot DataFlash); give a certificate file (--certificate PATH)",
+            f"{option} auto: the log names no data-sheet certificate (autopilot logs do: "
+            f"PX4 ULog, ArduPilot DataFlash); give a certificate file ({option} PATH)",
         )
     return datasheet_path(str(key))
 
 
-def log_datasheet_path(log: Any, log_options: LogOptions | None = None) -> Path:
+def log_datasheet_path(
+    log: Any, log_options: LogOptions | None = None, option: str = "--certificate"
+) -> Path:
     """:func:`datasheet_of_log` of the log file ``log`` (its metadata read from its first
     block); CertificateError when ``log`` is not a file's path (samples in memory)."""
     if not isinstance(log, str | Path):
@@ -34,18 +37,22 @@ def log_datasheet_path(log: Any, log_options: LogOptions | None = None) -> Path:
     from . import open_log
 
     with open_log(log, block_size=1, options=log_options) as reader:
-        return datasheet_of_log(reader.meta, log)
+        return datasheet_of_log(reader.meta, log, option)
 
 
 def certificate_for_log(
-    path: str | Path | None, log: Any = None, log_options: LogOptions | None = None
+    path: str | Path | None,
+    log: Any = None,
+    log_options: LogOptions | None = None,
+    option: str = "--certificate",
 ) -> Certificate:
     """The certificate in the YAML file at ``path`` (None: the bundled one of the simulated
-    board; ``"auto"``: the data sheet the log ``log`` names, :func:`log_datasheet_path`)."""
+    board; ``"auto"``: the data sheet the log ``log`` names, :func:`log_datasheet_path`;
+    ``option`` names where the ``auto`` came from in a refusal)."""
     if path is None:
         return load_default()
     if str(path) == AUTO:
-        return load(log_datasheet_path(log, log_options))
+        return load(log_datasheet_path(log, log_options, option))
     return load(path)
 
 
