@@ -827,6 +827,43 @@ def window_moments(sums, w, ref):
 
 
 @jit
+def chunked_cumsum(rows, last, chunk, out):
+    """The prefix sums of :meth:`imudiag.trailing.PrefixSums.update_views`, compiled: ``rows``
+    (N, k) summed down the rows chunk by chunk (``chunk`` rows each), each chunk's running
+    sum then plus the last prefix sum before it (``last`` (k,), then each chunk's last row),
+    into ``out`` (N, k). The same additions in the same order as ``np.cumsum`` of a chunk
+    then ``+= last``: equal bit for bit."""
+    n = rows.shape[0]
+    k = rows.shape[1]
+    base = last.copy()
+    acc = np.empty(k)
+    for a in range(0, n, chunk):
+        b = min(n, a + chunk)
+        for j in range(k):
+            acc[j] = rows[a, j]
+            out[a, j] = acc[j] + base[j]
+        for i in range(a + 1, b):
+            for j in range(k):
+                acc[j] = acc[j] + rows[i, j]
+                out[i, j] = acc[j] + base[j]
+        for j in range(k):
+            base[j] = out[b - 1, j]
+
+
+@jit
+def stack_backs(ext, reach, offsets, out):
+    """``out[i, j] = ext[reach - offsets[j] + i]`` (N, J, k): the prefix sums ``offsets`` rows
+    back of :meth:`imudiag.trailing.PrefixSums.update` stacked (copies: exact)."""
+    n = out.shape[0]
+    k = out.shape[2]
+    for i in range(n):
+        for j in range(offsets.shape[0]):
+            r = reach - offsets[j] + i
+            for c in range(k):
+                out[i, j, c] = ext[r, c]
+
+
+@jit
 def window_rows(gyro, accel, flags, bad_bits, cols, ref, rows):
     """The still detector's rows (N, 13) of a block (:meth:`imudiag.quasistatic.windows.
     WindowStage.run`): outputs centred on ``ref`` (0-5, a value that is not finite as 0), their
@@ -1361,7 +1398,12 @@ def warm_up() -> dict[str, Any]:
     ok6 = np.ones(6, dtype=np.bool_)
     variance_test(x13[:, :6].copy(), np.ones(6), 3.0, ok6[:2].copy(), False, np.ones(3), 1.0, ok6)
     drift_within(x13[:, :3].copy(), np.ones(3), 1.0, ok6)
+    ext = np.zeros((9, 13))
+    chunked_cumsum(x13, x13[0].copy(), 4, ext[3:])  # C rows into a C slice of ext
+    stack_backs(ext, 3, np.array([1, 3], dtype=np.int64), np.empty((6, 2, 13)))
     return {
+        "chunked_cumsum": chunked_cumsum,
+        "stack_backs": stack_backs,
         "variance_test": variance_test,
         "drift_within": drift_within,
         "window_rows": window_rows,

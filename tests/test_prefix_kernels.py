@@ -1,0 +1,86 @@
+"""The prefix sums' compiled pass (issue 28, numba from the ``fleet`` extra) against the plain
+numpy it replaces where the kernels are on (:class:`imudiag.trailing.PrefixSums`):
+:func:`imudiag.numba_kernels.chunked_cumsum` makes the same additions in the same order as
+the plain chunk-by-chunk ``np.cumsum`` then ``+= last``, and
+:func:`imudiag.numba_kernels.stack_backs` the same copies as ``np.stack``, so the prefix sums,
+the sums ``offsets`` rows back and the carried state are equal **bit for bit** (``==`` on the
+bytes, not a tolerance), on seeded random streams cut into random blocks (rows of 1 to 40 000:
+the chunked, the gathered and the one-pass ways, across the shift back to zero every 2^20
+rows), with values of very different sizes (where the order of a sum shows)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("numba", reason="numba (the fleet extra) is not installed")
+
+from imudiag import kernels  # noqa: E402
+from imudiag.trailing import PrefixSums  # noqa: E402
+
+
+def _blocks(rng: np.random.Generator, n: int) -> list[int]:
+    """Block sizes summing to n: single rows, reads, and blocks beyond the buffer's span."""
+    out, done = [], 0
+    while done < n:
+        size = int(rng.choice([rng.integers(1, 8), rng.integers(8, 3000), 40_000]))
+        out.append(min(size, n - done))
+        done += out[-1]
+    return out
+
+
+def _feed(on: bool, rows: np.ndarray, sizes: list[int], width: int, reach: int,
+          offsets: np.ndarray, views: bool) -> list[np.ndarray]:  # fmt: skip
+    """Every output of a PrefixSums fed ``rows`` in ``sizes`` with the kernels ``on``, and
+    its state after each block."""
+    out: list[np.ndarray] = []
+    with kernels.switched(on) as got:
+        assert got == on, kernels.status()
+        ps = PrefixSums(width, reach)
+        a = 0
+        for size in sizes:
+            block = rows[a : a + size]
+            a += size
+            if views:
+                now, backs, idx = ps.update_views(block, offsets)
+                out += [now, *backs, idx]
+            else:
+                now, back, idx = ps.update(block, offsets)
+                out += [now, back, idx]
+            out += [ps._p.copy(), ps._last.copy()]
+    return out
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("views", [True, False])
+def test_prefix_sums_bit_for_bit(seed: int, views: bool) -> None:
+    rng = np.random.default_rng(1000 + seed)
+    width = int(rng.choice([1, 5, 13]))
+    reach = int(rng.integers(3, 600))
+    n = 1_200_000 if seed == 0 else int(rng.integers(50_000, 200_000))  # seed 0: the rebase
+    # values of very different sizes per column (ADC counts, squares, flags)
+    scale = 10.0 ** rng.uniform(-6, 6, width)
+    rows = rng.normal(0.0, 1.0, (n, width)) * scale + rng.normal(0.0, 1.0, width) * scale
+    rows[:, -1] = rng.random(n) < 0.01  # a 0/1 column, as the bad-sample counts
+    offsets = np.unique(rng.integers(1, reach + 1, 3)).astype(np.int64)
+    sizes = _blocks(rng, n)
+    plain = _feed(False, rows, sizes, width, reach, offsets, views)
+    compiled = _feed(True, rows, sizes, width, reach, offsets, views)
+    assert len(plain) == len(compiled)
+    for p, c in zip(plain, compiled, strict=True):
+        assert p.shape == c.shape
+        assert p.tobytes() == c.tobytes()  # bit for bit (the sign of a zero included)
+
+
+def test_compiled_pass_is_used() -> None:
+    """The compiled pass runs on a block beyond the buffer's span (not only the plain one)."""
+    with kernels.switched(True) as on:
+        assert on, kernels.status()
+        assert kernels.kernel("chunked_cumsum") is not None
+        assert kernels.kernel("stack_backs") is not None
+        ps = PrefixSums(2, 10)
+        assert ps.whole(5000)
+        rows = np.ones((5000, 2))
+        now, back, _ = ps.update(rows, np.array([1, 10]))
+        assert now[-1].tolist() == [5000.0, 5000.0]
+        assert back[-1, 1].tolist() == [4990.0, 4990.0]
