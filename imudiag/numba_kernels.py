@@ -864,6 +864,32 @@ def stack_backs(ext, reach, offsets, out):
 
 
 @jit
+def highpass_squares(full, n, h, to_si, out):
+    """The vibration meter's high-passed squares (:meth:`imudiag.vibration.VibrationMeter.
+    update`), compiled: for each of the last ``n`` rows of ``full`` (M, 6) (finite), the row
+    minus the mean of the ``h`` rows ending at it (fewer at the stream's start) from the
+    prefix sums of the rows centred on the first, times ``to_si`` (6,), squared, into ``out``
+    (N, 6). The same operations in the same order as the numpy path: equal bit for bit."""
+    m = full.shape[0]
+    k = full.shape[1]
+    c = np.empty((m + 1, k))
+    for j in range(k):
+        c[0, j] = 0.0
+        c[1, j] = full[0, j] - full[0, j]
+    for i in range(1, m):
+        for j in range(k):
+            c[i + 1, j] = c[i, j] + (full[i, j] - full[0, j])
+    for r in range(n):
+        e = m - n + 1 + r
+        s = max(e - h, 0)
+        d = float(e - s)
+        for j in range(k):
+            mean = (c[e, j] - c[s, j]) / d + full[0, j]
+            hp = (full[m - n + r, j] - mean) * to_si[j]
+            out[r, j] = hp * hp
+
+
+@jit
 def window_rows(gyro, accel, flags, bad_bits, cols, ref, rows):
     """The still detector's rows (N, 13) of a block (:meth:`imudiag.quasistatic.windows.
     WindowStage.run`): outputs centred on ``ref`` (0-5, a value that is not finite as 0), their
@@ -1401,9 +1427,11 @@ def warm_up() -> dict[str, Any]:
     ext = np.zeros((9, 13))
     chunked_cumsum(x13, x13[0].copy(), 4, ext[3:])  # C rows into a C slice of ext
     stack_backs(ext, 3, np.array([1, 3], dtype=np.int64), np.empty((6, 2, 13)))
+    highpass_squares(x13[:, :6].copy(), 4, 3, np.ones(6), np.empty((4, 6)))
     return {
         "chunked_cumsum": chunked_cumsum,
         "stack_backs": stack_backs,
+        "highpass_squares": highpass_squares,
         "variance_test": variance_test,
         "drift_within": drift_within,
         "window_rows": window_rows,
