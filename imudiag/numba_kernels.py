@@ -890,6 +890,38 @@ def highpass_squares(full, n, h, to_si, out):
 
 
 @jit
+def stuck_scan(raw, last):
+    """The stuck check's scan of a block (:meth:`imudiag.monitor.stuck.StuckCheck.update`),
+    compiled: per channel of ``raw`` (6, N) after its ``last`` output (6,), the smallest
+    nonzero finite |change| between consecutive outputs (inf: none), the index of the last
+    change in the block (-1: none; a non-finite step counts as a change), and how many steps
+    are finite and how many are zero. Differences, minima and counts: exact."""
+    c = raw.shape[0]
+    n = raw.shape[1]
+    smallest = np.full(c, np.inf)
+    last_change = np.full(c, -1, dtype=np.int64)
+    n_valid = np.zeros(c, dtype=np.int64)
+    n_same = np.zeros(c, dtype=np.int64)
+    for j in range(c):
+        prev = last[j]
+        for i in range(n):
+            x = raw[j, i]
+            step = x - prev
+            prev = x
+            if step == 0.0:
+                n_same[j] += 1
+                n_valid[j] += 1
+                continue
+            last_change[j] = i
+            if np.isfinite(step):
+                n_valid[j] += 1
+                a = abs(step)
+                if a < smallest[j]:
+                    smallest[j] = a
+    return smallest, last_change, n_valid, n_same
+
+
+@jit
 def window_rows(gyro, accel, flags, bad_bits, cols, ref, rows):
     """The still detector's rows (N, 13) of a block (:meth:`imudiag.quasistatic.windows.
     WindowStage.run`): outputs centred on ``ref`` (0-5, a value that is not finite as 0), their
@@ -1428,10 +1460,13 @@ def warm_up() -> dict[str, Any]:
     chunked_cumsum(x13, x13[0].copy(), 4, ext[3:])  # C rows into a C slice of ext
     stack_backs(ext, 3, np.array([1, 3], dtype=np.int64), np.empty((6, 2, 13)))
     highpass_squares(x13[:, :6].copy(), 4, 3, np.ones(6), np.empty((4, 6)))
+    stuck_scan(x13[:, :6].T.copy(), np.full(6, np.nan))  # a C-contiguous (6, N) block
+    stuck_scan(np.empty((6, 9))[:, 2:], np.full(6, np.nan))  # a slice after the history
     return {
         "chunked_cumsum": chunked_cumsum,
         "stack_backs": stack_backs,
         "highpass_squares": highpass_squares,
+        "stuck_scan": stuck_scan,
         "variance_test": variance_test,
         "drift_within": drift_within,
         "window_rows": window_rows,

@@ -1,12 +1,17 @@
-"""The prefix sums' compiled pass (issue 28, numba from the ``fleet`` extra) against the plain
-numpy it replaces where the kernels are on (:class:`imudiag.trailing.PrefixSums`):
-:func:`imudiag.numba_kernels.chunked_cumsum` makes the same additions in the same order as
-the plain chunk-by-chunk ``np.cumsum`` then ``+= last``, and
-:func:`imudiag.numba_kernels.stack_backs` the same copies as ``np.stack``, so the prefix sums,
-the sums ``offsets`` rows back and the carried state are equal **bit for bit** (``==`` on the
-bytes, not a tolerance), on seeded random streams cut into random blocks (rows of 1 to 40 000:
-the chunked, the gathered and the one-pass ways, across the shift back to zero every 2^20
-rows), with values of very different sizes (where the order of a sum shows)."""
+"""The stream passes compiled for the fleet (issue 28, numba from the ``fleet`` extra)
+against the plain numpy they replace where the kernels are on, all equal bit for bit
+(``==`` on the bytes, not a tolerance):
+
+- the prefix sums (:class:`imudiag.trailing.PrefixSums`, the still detector's window sums
+  and the monitor's gyro sums): :func:`imudiag.numba_kernels.chunked_cumsum` makes the same
+  additions in the same order as the plain chunk-by-chunk ``np.cumsum`` then ``+= last``,
+  and :func:`imudiag.numba_kernels.stack_backs` the same copies as ``np.stack``: the prefix
+  sums, the sums ``offsets`` rows back and the carried state, on seeded random streams cut
+  into random blocks (rows of 1 to 40 000: the chunked, the gathered and the one-pass ways,
+  across the shift back to zero every 2^20 rows), with columns of very different sizes
+  (where the order of a sum shows);
+- the vibration meter's high-pass (:func:`imudiag.numba_kernels.highpass_squares`);
+- the stuck check's scan (:func:`imudiag.numba_kernels.stuck_scan`)."""
 
 from __future__ import annotations
 
@@ -122,3 +127,48 @@ def test_vibration_meter_bit_for_bit(seed: int) -> None:
             states.append(out)
     assert meter.windows > 10
     assert states[0] == states[1]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_stuck_check_identical(seed: int) -> None:
+    """The stuck check's scan (:func:`imudiag.numba_kernels.stuck_scan`): differences, minima
+    and counts, so the runs, quantisation steps, repeat counts, times in force and the stuck
+    channels are identical, on seeded streams of counts and of quantised and float physical
+    outputs with stuck runs and non-finite values, fed as the monitor feeds it (a slice of a
+    wider array after the noise history) in random blocks."""
+    from imudiag.monitor.stuck import StuckCheck
+
+    rng = np.random.default_rng(3000 + seed)
+    n = int(rng.integers(20_000, 80_000))
+    raw = np.round(rng.normal(0.0, 3.0, (6, n)))  # counts
+    raw[1] = np.round(rng.normal(0.0, 0.4, n))  # counts with many repeats
+    raw[4] = np.round(rng.normal(9.81, 0.02, n) / 0.0012) * 0.0012  # a quantised output
+    raw[5] = rng.normal(0.0, 0.01, n)  # a float output
+    raw[rng.random((6, n)) < 1e-4] = np.nan
+    raw[rng.random((6, n)) < 2e-5] = np.inf
+    for _ in range(12):  # stuck runs, short and long (over the non-finite values)
+        j, a = int(rng.integers(0, 6)), int(rng.integers(0, n - 1))
+        length = int(rng.choice([rng.integers(5, 100), rng.integers(100, 20_000)]))
+        raw[j, a : a + length] = raw[j, a]
+    t = np.arange(n) / 100.0
+    sizes = _blocks(rng, n)
+    counts = np.array([True, True, True, True, False, False])
+    states = []
+    for on in (False, True):
+        with kernels.switched(on) as got:
+            assert got == on, kernels.status()
+            check = StuckCheck((np.full(3, 3.0), np.full(3, 0.02)), 1.0, 50, counts, 200, 0.5)
+            out = []
+            a, seen = 0, 0
+            for size in sizes:
+                wide = np.empty((6, 7 + size))  # the monitor's slice after its history
+                wide[:, 7:] = raw[:, a : a + size]
+                active = check.update(wide[:, 7:], t[a : a + size])
+                a += size
+                seen += int(active.any())
+                parts = (active, check.run, check.quantum, check.pairs, check.repeats,
+                         check.t_first, check.last, check.enabled)  # fmt: skip
+                out += [p.tobytes() for p in parts]
+            states.append(out)
+    assert states[0] == states[1]
+    assert seen > 0  # some blocks end stuck
