@@ -3,7 +3,9 @@ loaded: this module needs numba, the ``fleet`` extra): the window fits
 (:func:`exact_fit_kernel`, the loops of :mod:`imudiag.diagnosis.kernels`), the GNSS epoch cut
 (:func:`epoch_cut`) and the still detector's passes (:func:`window_rows`,
 :func:`window_rates`, :func:`variance_test`, :func:`jump_test`, :func:`drift_within`,
-:func:`trailing_spread`). Module-level functions, so numba's on-disk cache
+:func:`trailing_spread`), the prefix sums' pass (:func:`chunked_cumsum`, :func:`stack_backs`)
+and the monitor's vibration high-pass and stuck scan (:func:`highpass_squares`,
+:func:`stuck_scan`). Module-level functions, so numba's on-disk cache
 (``cache=True``) serves every later process: a fleet worker loads them instead of compiling.
 Plain arithmetic only, in the order of the numpy paths (no fast-math: no reassociation, no
 fused multiply-add); where a kernel solves otherwise (the exact fit's Cholesky and Jacobi
@@ -546,16 +548,11 @@ def nan_min(a, b):
 
 
 @jit
-def trailing_spread(d_idx, d_val, d_start, d_max, d_min, old, k0, values, start, step, k):
-    """The still detector's trailing spreads (:class:`imudiag.quasistatic.spread.TrailingSpread`,
-    its ``update``), compiled: the extremes (into ``d_max``, ``d_min`` (total, C) from
-    position ``old`` on) of each new kept value's history (its ``k`` last kept values of
-    ``d_val`` (total, >= C) from its first row ``d_start`` on; -inf / inf where none), then
-    each row's spread (M, C) of its last kept value's history and its own ``values`` row,
-    0 where that kept value is before the row's ``start`` or the spread is not finite.
-    Max and min are exact: equal to the numpy path (but for the sign of a zero)."""
+def _history_extremes_scan(d_idx, d_val, d_start, d_max, d_min, old, k, c):
+    """Each history's extremes by scanning it (:func:`trailing_spread`): per new kept value
+    ``at`` the running ``nan_max`` / ``nan_min`` of its history, the earliest of equal
+    values kept (tests/test_stream_kernels.py holds :func:`_history_extremes` to it)."""
     total = d_idx.shape[0]
-    c = values.shape[1]
     for at in range(old, total):
         first = np.searchsorted(d_idx, d_start[at])
         lo = max(at - k + 1, first)
@@ -567,6 +564,85 @@ def trailing_spread(d_idx, d_val, d_start, d_max, d_min, old, k0, values, start,
                 low = nan_min(low, d_val[q, j])
             d_max[at, j] = hi
             d_min[at, j] = low
+
+
+@jit
+def _history_extremes(d_idx, d_val, d_start, d_max, d_min, old, k, c):
+    """:func:`_history_extremes_scan` in time proportional to the kept values, not to them
+    times the history: per column a queue of the history's candidates for its maximum
+    (values in non-increasing order, the earliest of equal values first) and one for its
+    minimum, and the last nan's position (a history holding a nan has nan extremes). A
+    history whose first value moves back (a start that is not monotone) rebuilds the
+    queues from it. The same elements as the scan's: equal bit for bit."""
+    total = d_idx.shape[0]
+    qmax = np.empty(total, dtype=np.int64)
+    qmin = np.empty(total, dtype=np.int64)
+    los = np.empty(total, dtype=np.int64)
+    for at in range(old, total):
+        first = np.searchsorted(d_idx, d_start[at])
+        los[at] = max(at - k + 1, first)
+    for j in range(c):
+        hmax = 0
+        tmax = 0
+        hmin = 0
+        tmin = 0
+        last_nan = -1
+        prev_lo = -1  # the last history's first value (-1: none yet)
+        nxt = 0  # the next kept value to enter the queues
+        for at in range(old, total):
+            lo = los[at]
+            if prev_lo < 0 or lo < prev_lo:  # (re)build from this history's first value
+                hmax = 0
+                tmax = 0
+                hmin = 0
+                tmin = 0
+                last_nan = -1
+                nxt = lo
+            elif nxt < lo:
+                nxt = lo
+            prev_lo = lo
+            for q in range(nxt, at + 1):
+                v = d_val[q, j]
+                if v != v:
+                    last_nan = q
+                    continue
+                while tmax > hmax and d_val[qmax[tmax - 1], j] < v:
+                    tmax -= 1
+                qmax[tmax] = q
+                tmax += 1
+                while tmin > hmin and d_val[qmin[tmin - 1], j] > v:
+                    tmin -= 1
+                qmin[tmin] = q
+                tmin += 1
+            if at + 1 > nxt:
+                nxt = at + 1
+            while hmax < tmax and qmax[hmax] < lo:
+                hmax += 1
+            while hmin < tmin and qmin[hmin] < lo:
+                hmin += 1
+            if last_nan >= lo:
+                d_max[at, j] = np.nan
+                d_min[at, j] = np.nan
+            else:
+                d_max[at, j] = d_val[qmax[hmax], j] if hmax < tmax else -np.inf
+                d_min[at, j] = d_val[qmin[hmin], j] if hmin < tmin else np.inf
+
+
+@jit
+def trailing_spread(d_idx, d_val, d_start, d_max, d_min, old, k0, values, start, step, k):
+    """The still detector's trailing spreads (:class:`imudiag.quasistatic.spread.TrailingSpread`,
+    its ``update``), compiled: the extremes (into ``d_max``, ``d_min`` (total, C) from
+    position ``old`` on) of each new kept value's history (its ``k`` last kept values of
+    ``d_val`` (total, >= C) from its first row ``d_start`` on; -inf / inf where none), then
+    each row's spread (M, C) of its last kept value's history and its own ``values`` row,
+    0 where that kept value is before the row's ``start`` or the spread is not finite.
+    Max and min are exact: equal to the numpy path (but for the sign of a zero).
+    The histories' extremes by monotonic queues (:func:`_history_extremes`): the same
+    values as the scan of each history (:func:`_history_extremes_scan`), bit for bit."""
+    total = d_idx.shape[0]
+    c = values.shape[1]
+    if old < total:
+        _history_extremes(d_idx, d_val, d_start, d_max, d_min, old, k, c)
     m = values.shape[0]
     out = np.zeros((m, c))
     for r in range(m):

@@ -172,3 +172,38 @@ def test_stuck_check_identical(seed: int) -> None:
             states.append(out)
     assert states[0] == states[1]
     assert seen > 0  # some blocks end stuck
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_history_extremes_queues_equal_the_scan(seed: int) -> None:
+    """The trailing spreads' history extremes by monotonic queues
+    (:func:`imudiag.numba_kernels._history_extremes`) against the scan of each history they
+    replace (:func:`imudiag.numba_kernels._history_extremes_scan`): equal bit for bit where
+    finite (the same element: the earliest of equal values, so the sign of a zero too), nan
+    at the same places, on seeded kept values with ties, signed zeros, infinities and nans,
+    histories of 1 to 300 values, starts that restart forwards and (seed 0, 3) move back."""
+    from imudiag import numba_kernels as nk
+
+    rng = np.random.default_rng(4000 + seed)
+    total, c = int(rng.integers(200, 3000)), int(rng.integers(1, 5))
+    d_val = np.round(rng.normal(0.0, 2.0, (total, 2 * c)))  # many ties
+    d_val[rng.random((total, 2 * c)) < 0.05] = -0.0
+    d_val[rng.random((total, 2 * c)) < 0.01] = np.nan
+    d_val[rng.random((total, 2 * c)) < 0.005] = np.inf
+    d_val[rng.random((total, 2 * c)) < 0.005] = -np.inf
+    step = int(rng.integers(1, 6))
+    d_idx = np.arange(total, dtype=np.int64) * step
+    restarts = np.where(rng.random(total) < 0.02, d_idx + step * rng.integers(0, 20, total), 0)
+    d_start = np.maximum.accumulate(restarts).astype(np.int64)
+    if seed % 3 == 0:  # starts that move back
+        d_start = np.where(rng.random(total) < 0.05, d_start // 2, d_start).astype(np.int64)
+    k = int(rng.integers(1, 300))
+    for old in (0, int(rng.integers(1, total))):
+        got = [np.full((total, c), 7.0) for _ in range(2)]
+        want = [np.full((total, c), 7.0) for _ in range(2)]
+        nk._history_extremes(d_idx, d_val, d_start, got[0], got[1], old, k, c)
+        nk._history_extremes_scan(d_idx, d_val, d_start, want[0], want[1], old, k, c)
+        for g, w in zip(got, want, strict=True):
+            assert np.array_equal(np.isnan(g), np.isnan(w))
+            fin = ~np.isnan(w)
+            assert g[fin].tobytes() == w[fin].tobytes()
