@@ -8,7 +8,8 @@ GNSS epoch cut of the moving-base diagnosis
 (:meth:`imudiag.aiding.specific_force.ImuSeries.epochs`), the still detector's rows, rate
 band, variance, jump and drift tests and trailing spreads (:mod:`imudiag.quasistatic`), the
 prefix sums of :class:`imudiag.trailing.PrefixSums` (the detector's and the monitor's), the
-vibration meter's high-pass and the stuck check's scan (bit for bit). This
+vibration meter's high-pass, the stuck check's scan and the noise judge's second
+differences (bit for bit). This
 switch sits on the ground floor (tests/test_layout.py) so that every floor that has a kernel
 can ask it.
 

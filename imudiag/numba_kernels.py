@@ -4,9 +4,10 @@ loaded: this module needs numba, the ``fleet`` extra): the window fits
 (:func:`epoch_cut`) and the still detector's passes (:func:`window_rows`,
 :func:`window_rates`, :func:`variance_test`, :func:`jump_test`, :func:`drift_within`,
 :func:`trailing_spread`), the prefix sums' pass (:func:`chunked_cumsum`, :func:`stack_backs`)
-and the monitor's vibration high-pass and stuck scan (:func:`highpass_squares`,
-:func:`stuck_scan`). Module-level functions, so numba's on-disk cache
-(``cache=True``) serves every later process: a fleet worker loads them instead of compiling.
+and the monitor's vibration high-pass, stuck scan and noise differences
+(:func:`highpass_squares`, :func:`stuck_scan`, :func:`second_diff_squares`). Module-level
+functions, so numba's on-disk cache (``cache=True``) serves every later process: a fleet
+worker loads them instead of compiling.
 Plain arithmetic only, in the order of the numpy paths (no fast-math: no reassociation, no
 fused multiply-add); where a kernel solves otherwise (the exact fit's Cholesky and Jacobi
 SVD for LAPACK's), it is equal to rounding and says so."""
@@ -998,6 +999,22 @@ def stuck_scan(raw, last):
 
 
 @jit
+def second_diff_squares(chan):
+    """The noise judge's squared second differences (:meth:`imudiag.monitor.noise.NoiseCheck.
+    judge`), compiled: per row of ``chan`` (C, M), ``((x[i+2] - x[i+1]) - (x[i+1] - x[i]))^2``
+    (C, M - 2), the differences of the differences as ``np.diff(n=2)`` takes them: equal bit
+    for bit."""
+    c = chan.shape[0]
+    m = chan.shape[1]
+    out = np.empty((c, max(m - 2, 0)))
+    for j in range(c):
+        for i in range(m - 2):
+            d = (chan[j, i + 2] - chan[j, i + 1]) - (chan[j, i + 1] - chan[j, i])
+            out[j, i] = d * d
+    return out
+
+
+@jit
 def window_rows(gyro, accel, flags, bad_bits, cols, ref, rows):
     """The still detector's rows (N, 13) of a block (:meth:`imudiag.quasistatic.windows.
     WindowStage.run`): outputs centred on ``ref`` (0-5, a value that is not finite as 0), their
@@ -1537,12 +1554,14 @@ def warm_up() -> dict[str, Any]:
     stack_backs(ext, 3, np.array([1, 3], dtype=np.int64), np.empty((6, 2, 13)))
     highpass_squares(x13[:, :6].copy(), 4, 3, np.ones(6), np.empty((4, 6)))
     stuck_scan(x13[:, :6].T.copy(), np.full(6, np.nan))  # a C-contiguous (6, N) block
+    second_diff_squares(x13[:, :6].T.copy())
     stuck_scan(np.empty((6, 9))[:, 2:], np.full(6, np.nan))  # a slice after the history
     return {
         "chunked_cumsum": chunked_cumsum,
         "stack_backs": stack_backs,
         "highpass_squares": highpass_squares,
         "stuck_scan": stuck_scan,
+        "second_diff_squares": second_diff_squares,
         "variance_test": variance_test,
         "drift_within": drift_within,
         "window_rows": window_rows,

@@ -207,3 +207,25 @@ def test_history_extremes_queues_equal_the_scan(seed: int) -> None:
             assert np.array_equal(np.isnan(g), np.isnan(w))
             fin = ~np.isnan(w)
             assert g[fin].tobytes() == w[fin].tobytes()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_noise_second_differences_bit_for_bit(seed: int) -> None:
+    """The noise judge's squared second differences
+    (:func:`imudiag.numba_kernels.second_diff_squares`) against ``np.diff(n=2)`` squared, as
+    the judge takes them, bit for bit: counts, physical outputs of very different sizes,
+    non-finite values, a slice of a wider array and a row too short for a difference."""
+    rng = np.random.default_rng(5000 + seed)
+    m = int(rng.integers(3, 50_000))
+    chan = rng.normal(0.0, 1.0, (6, m)) * 10.0 ** rng.uniform(-6, 6, (6, 1))
+    chan[:3] = np.round(chan[:3] * 1e3)
+    chan[rng.random((6, m)) < 1e-3] = np.nan
+    chan[rng.random((6, m)) < 1e-4] = -np.inf
+    compiled = kernels.load() and kernels._KERNELS["second_diff_squares"]
+    assert compiled, kernels.status()
+    for x in (chan, np.ascontiguousarray(chan[:, 1:]), chan[:, :2].copy()):
+        want = np.diff(x, n=2, axis=1)
+        np.square(want, out=want)
+        got = compiled(x)
+        assert got.shape == want.shape
+        assert got.tobytes() == want.tobytes()
