@@ -1509,7 +1509,9 @@ def warm_up() -> dict[str, Any]:
     rows = rng.normal(size=(3, 8))
     bounds = np.array([0, 3], dtype=np.int64), np.array([3, 8], dtype=np.int64)
     for rotate in (True, False):
-        epoch_cut(rows, rows, rows, rows, rows[:, :3], *bounds, rotate, rotate)
+        # the epochs' mid rotations as a slice and as an array of their own (a drive's)
+        for mid in (rows[:, :3], rows[:, :3].copy()):
+            epoch_cut(rows, rows, rows, rows, mid, *bounds, rotate, rotate)
     d_idx = np.array([0, 2, 4], dtype=np.int64)
     d_max = np.zeros((3, 2))
     trailing_spread(

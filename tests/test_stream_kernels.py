@@ -15,6 +15,8 @@ against the plain numpy they replace where the kernels are on, all equal bit for
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -229,3 +231,34 @@ def test_noise_second_differences_bit_for_bit(seed: int) -> None:
         got = compiled(x)
         assert got.shape == want.shape
         assert got.tobytes() == want.tobytes()
+
+
+def test_the_warm_up_covers_what_diagnose_passes(tmp_path: Path) -> None:
+    """After the kernels' warm-up (:func:`imudiag.numba_kernels.warm_up`, a fleet worker's)
+    a diagnosis with the kernels on compiles nothing more: no kernel gets a specialisation
+    (an array layout) the warm-up did not run, on a simulated board log (the fleet task's
+    path) and a simulated drive with its GNSS track (the moving-base part; its epochs' mid
+    rotations were an array of their own, compiled inside the first drive's task before)."""
+    import imudiag
+    from imudiag.aiding.tpv import parse_tpv, track_from_reports
+    from imudiag.certificate import load_default
+    from imudiag.fleet.simulate import write_flight
+    from imudiag.fleet.task import Job, diagnose_log
+    from imudiag.sim.drive import simulate_drive
+
+    assert kernels.load(), kernels.status()
+    compiled = {k: f for k, f in kernels._KERNELS.items() if hasattr(f, "signatures")}
+    before = {k: len(f.signatures) for k, f in compiled.items()}
+    cert = load_default()
+    log = tmp_path / "board.npz"
+    write_flight(log, cert, "multiposition", 600.0, 100.0, [], 5, {"sample_rate": 100.0})
+    res, reports, _ = simulate_drive("urban", 300.0, cert, 3, 100.0)
+    track = track_from_reports([parse_tpv(r) for r in reports])
+    with kernels.switched(True):
+        st = log.stat()
+        record = diagnose_log(Job(str(log), "-", st.st_size, st.st_mtime_ns, str(tmp_path)))
+        assert record["status"] == "ok", record
+        report = imudiag.diagnose(res.samples, None, gnss=track)
+        assert report.get("moving_base")
+    after = {k: len(f.signatures) for k, f in compiled.items()}
+    assert after == before
