@@ -5,8 +5,11 @@ cache serves every later process: about 1 s of CPU to load them against 11-20 s 
 the window fits (the exact fit after its set-up in one call, :mod:`imudiag.diagnosis.
 scalar_fit`; the rotation fit's products, wrapped by :mod:`imudiag.diagnosis.kernels`), the
 GNSS epoch cut of the moving-base diagnosis
-(:meth:`imudiag.aiding.specific_force.ImuSeries.epochs`) and the still detector's rows, rate
-band, variance, jump and drift tests and trailing spreads (:mod:`imudiag.quasistatic`). This
+(:meth:`imudiag.aiding.specific_force.ImuSeries.epochs`), the still detector's rows, rate
+band, variance, jump and drift tests and trailing spreads (:mod:`imudiag.quasistatic`), the
+prefix sums of :class:`imudiag.trailing.PrefixSums` (the detector's and the monitor's), the
+vibration meter's high-pass, the stuck check's scan and the noise judge's second
+differences (bit for bit). This
 switch sits on the ground floor (tests/test_layout.py) so that every floor that has a kernel
 can ask it.
 

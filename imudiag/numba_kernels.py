@@ -3,8 +3,11 @@ loaded: this module needs numba, the ``fleet`` extra): the window fits
 (:func:`exact_fit_kernel`, the loops of :mod:`imudiag.diagnosis.kernels`), the GNSS epoch cut
 (:func:`epoch_cut`) and the still detector's passes (:func:`window_rows`,
 :func:`window_rates`, :func:`variance_test`, :func:`jump_test`, :func:`drift_within`,
-:func:`trailing_spread`). Module-level functions, so numba's on-disk cache
-(``cache=True``) serves every later process: a fleet worker loads them instead of compiling.
+:func:`trailing_spread`), the prefix sums' pass (:func:`chunked_cumsum`, :func:`stack_backs`)
+and the monitor's vibration high-pass, stuck scan and noise differences
+(:func:`highpass_squares`, :func:`stuck_scan`, :func:`second_diff_squares`). Module-level
+functions, so numba's on-disk cache (``cache=True``) serves every later process: a fleet
+worker loads them instead of compiling.
 Plain arithmetic only, in the order of the numpy paths (no fast-math: no reassociation, no
 fused multiply-add); where a kernel solves otherwise (the exact fit's Cholesky and Jacobi
 SVD for LAPACK's), it is equal to rounding and says so."""
@@ -546,16 +549,11 @@ def nan_min(a, b):
 
 
 @jit
-def trailing_spread(d_idx, d_val, d_start, d_max, d_min, old, k0, values, start, step, k):
-    """The still detector's trailing spreads (:class:`imudiag.quasistatic.spread.TrailingSpread`,
-    its ``update``), compiled: the extremes (into ``d_max``, ``d_min`` (total, C) from
-    position ``old`` on) of each new kept value's history (its ``k`` last kept values of
-    ``d_val`` (total, >= C) from its first row ``d_start`` on; -inf / inf where none), then
-    each row's spread (M, C) of its last kept value's history and its own ``values`` row,
-    0 where that kept value is before the row's ``start`` or the spread is not finite.
-    Max and min are exact: equal to the numpy path (but for the sign of a zero)."""
+def _history_extremes_scan(d_idx, d_val, d_start, d_max, d_min, old, k, c):
+    """Each history's extremes by scanning it (:func:`trailing_spread`): per new kept value
+    ``at`` the running ``nan_max`` / ``nan_min`` of its history, the earliest of equal
+    values kept (tests/test_stream_kernels.py holds :func:`_history_extremes` to it)."""
     total = d_idx.shape[0]
-    c = values.shape[1]
     for at in range(old, total):
         first = np.searchsorted(d_idx, d_start[at])
         lo = max(at - k + 1, first)
@@ -567,6 +565,85 @@ def trailing_spread(d_idx, d_val, d_start, d_max, d_min, old, k0, values, start,
                 low = nan_min(low, d_val[q, j])
             d_max[at, j] = hi
             d_min[at, j] = low
+
+
+@jit
+def _history_extremes(d_idx, d_val, d_start, d_max, d_min, old, k, c):
+    """:func:`_history_extremes_scan` in time proportional to the kept values, not to them
+    times the history: per column a queue of the history's candidates for its maximum
+    (values in non-increasing order, the earliest of equal values first) and one for its
+    minimum, and the last nan's position (a history holding a nan has nan extremes). A
+    history whose first value moves back (a start that is not monotone) rebuilds the
+    queues from it. The same elements as the scan's: equal bit for bit."""
+    total = d_idx.shape[0]
+    qmax = np.empty(total, dtype=np.int64)
+    qmin = np.empty(total, dtype=np.int64)
+    los = np.empty(total, dtype=np.int64)
+    for at in range(old, total):
+        first = np.searchsorted(d_idx, d_start[at])
+        los[at] = max(at - k + 1, first)
+    for j in range(c):
+        hmax = 0
+        tmax = 0
+        hmin = 0
+        tmin = 0
+        last_nan = -1
+        prev_lo = -1  # the last history's first value (-1: none yet)
+        nxt = 0  # the next kept value to enter the queues
+        for at in range(old, total):
+            lo = los[at]
+            if prev_lo < 0 or lo < prev_lo:  # (re)build from this history's first value
+                hmax = 0
+                tmax = 0
+                hmin = 0
+                tmin = 0
+                last_nan = -1
+                nxt = lo
+            elif nxt < lo:
+                nxt = lo
+            prev_lo = lo
+            for q in range(nxt, at + 1):
+                v = d_val[q, j]
+                if v != v:
+                    last_nan = q
+                    continue
+                while tmax > hmax and d_val[qmax[tmax - 1], j] < v:
+                    tmax -= 1
+                qmax[tmax] = q
+                tmax += 1
+                while tmin > hmin and d_val[qmin[tmin - 1], j] > v:
+                    tmin -= 1
+                qmin[tmin] = q
+                tmin += 1
+            if at + 1 > nxt:
+                nxt = at + 1
+            while hmax < tmax and qmax[hmax] < lo:
+                hmax += 1
+            while hmin < tmin and qmin[hmin] < lo:
+                hmin += 1
+            if last_nan >= lo:
+                d_max[at, j] = np.nan
+                d_min[at, j] = np.nan
+            else:
+                d_max[at, j] = d_val[qmax[hmax], j] if hmax < tmax else -np.inf
+                d_min[at, j] = d_val[qmin[hmin], j] if hmin < tmin else np.inf
+
+
+@jit
+def trailing_spread(d_idx, d_val, d_start, d_max, d_min, old, k0, values, start, step, k):
+    """The still detector's trailing spreads (:class:`imudiag.quasistatic.spread.TrailingSpread`,
+    its ``update``), compiled: the extremes (into ``d_max``, ``d_min`` (total, C) from
+    position ``old`` on) of each new kept value's history (its ``k`` last kept values of
+    ``d_val`` (total, >= C) from its first row ``d_start`` on; -inf / inf where none), then
+    each row's spread (M, C) of its last kept value's history and its own ``values`` row,
+    0 where that kept value is before the row's ``start`` or the spread is not finite.
+    Max and min are exact: equal to the numpy path (but for the sign of a zero).
+    The histories' extremes by monotonic queues (:func:`_history_extremes`): the same
+    values as the scan of each history (:func:`_history_extremes_scan`), bit for bit."""
+    total = d_idx.shape[0]
+    c = values.shape[1]
+    if old < total:
+        _history_extremes(d_idx, d_val, d_start, d_max, d_min, old, k, c)
     m = values.shape[0]
     out = np.zeros((m, c))
     for r in range(m):
@@ -824,6 +901,117 @@ def window_moments(sums, w, ref):
             var[i, j] = nan_max((sums[i, 6 + j] - s1 * mc) / (w - 1), 0.0)
             mean[i, j] = mc + ref[j]
     return var, mean
+
+
+@jit
+def chunked_cumsum(rows, last, chunk, out):
+    """The prefix sums of :meth:`imudiag.trailing.PrefixSums.update_views`, compiled: ``rows``
+    (N, k) summed down the rows chunk by chunk (``chunk`` rows each), each chunk's running
+    sum then plus the last prefix sum before it (``last`` (k,), then each chunk's last row),
+    into ``out`` (N, k). The same additions in the same order as ``np.cumsum`` of a chunk
+    then ``+= last``: equal bit for bit."""
+    n = rows.shape[0]
+    k = rows.shape[1]
+    base = last.copy()
+    acc = np.empty(k)
+    for a in range(0, n, chunk):
+        b = min(n, a + chunk)
+        for j in range(k):
+            acc[j] = rows[a, j]
+            out[a, j] = acc[j] + base[j]
+        for i in range(a + 1, b):
+            for j in range(k):
+                acc[j] = acc[j] + rows[i, j]
+                out[i, j] = acc[j] + base[j]
+        for j in range(k):
+            base[j] = out[b - 1, j]
+
+
+@jit
+def stack_backs(ext, reach, offsets, out):
+    """``out[i, j] = ext[reach - offsets[j] + i]`` (N, J, k): the prefix sums ``offsets`` rows
+    back of :meth:`imudiag.trailing.PrefixSums.update` stacked (copies: exact)."""
+    n = out.shape[0]
+    k = out.shape[2]
+    for i in range(n):
+        for j in range(offsets.shape[0]):
+            r = reach - offsets[j] + i
+            for c in range(k):
+                out[i, j, c] = ext[r, c]
+
+
+@jit
+def highpass_squares(full, n, h, to_si, out):
+    """The vibration meter's high-passed squares (:meth:`imudiag.vibration.VibrationMeter.
+    update`), compiled: for each of the last ``n`` rows of ``full`` (M, 6) (finite), the row
+    minus the mean of the ``h`` rows ending at it (fewer at the stream's start) from the
+    prefix sums of the rows centred on the first, times ``to_si`` (6,), squared, into ``out``
+    (N, 6). The same operations in the same order as the numpy path: equal bit for bit."""
+    m = full.shape[0]
+    k = full.shape[1]
+    c = np.empty((m + 1, k))
+    for j in range(k):
+        c[0, j] = 0.0
+        c[1, j] = full[0, j] - full[0, j]
+    for i in range(1, m):
+        for j in range(k):
+            c[i + 1, j] = c[i, j] + (full[i, j] - full[0, j])
+    for r in range(n):
+        e = m - n + 1 + r
+        s = max(e - h, 0)
+        d = float(e - s)
+        for j in range(k):
+            mean = (c[e, j] - c[s, j]) / d + full[0, j]
+            hp = (full[m - n + r, j] - mean) * to_si[j]
+            out[r, j] = hp * hp
+
+
+@jit
+def stuck_scan(raw, last):
+    """The stuck check's scan of a block (:meth:`imudiag.monitor.stuck.StuckCheck.update`),
+    compiled: per channel of ``raw`` (6, N) after its ``last`` output (6,), the smallest
+    nonzero finite |change| between consecutive outputs (inf: none), the index of the last
+    change in the block (-1: none; a non-finite step counts as a change), and how many steps
+    are finite and how many are zero. Differences, minima and counts: exact."""
+    c = raw.shape[0]
+    n = raw.shape[1]
+    smallest = np.full(c, np.inf)
+    last_change = np.full(c, -1, dtype=np.int64)
+    n_valid = np.zeros(c, dtype=np.int64)
+    n_same = np.zeros(c, dtype=np.int64)
+    for j in range(c):
+        prev = last[j]
+        for i in range(n):
+            x = raw[j, i]
+            step = x - prev
+            prev = x
+            if step == 0.0:
+                n_same[j] += 1
+                n_valid[j] += 1
+                continue
+            last_change[j] = i
+            if np.isfinite(step):
+                n_valid[j] += 1
+                a = abs(step)
+                if a < smallest[j]:
+                    smallest[j] = a
+    return smallest, last_change, n_valid, n_same
+
+
+@jit
+def second_diff_squares(chan):
+    """The noise judge's squared second differences (:meth:`imudiag.monitor.noise.NoiseCheck.
+    judge`), compiled: per row of ``chan`` (C, M), ``((x[i+2] - x[i+1]) - (x[i+1] - x[i]))^2``
+    (C, M - 2), the differences of the differences as ``np.diff(n=2)`` takes them: equal bit
+    for bit."""
+    c = chan.shape[0]
+    m = chan.shape[1]
+    out = np.empty((c, max(m - 2, 0)))
+    for j in range(c):
+        for i in range(m - 2):
+            d = (chan[j, i + 2] - chan[j, i + 1]) - (chan[j, i + 1] - chan[j, i])
+            out[j, i] = d * d
+    return out
 
 
 @jit
@@ -1321,7 +1509,9 @@ def warm_up() -> dict[str, Any]:
     rows = rng.normal(size=(3, 8))
     bounds = np.array([0, 3], dtype=np.int64), np.array([3, 8], dtype=np.int64)
     for rotate in (True, False):
-        epoch_cut(rows, rows, rows, rows, rows[:, :3], *bounds, rotate, rotate)
+        # the epochs' mid rotations as a slice and as an array of their own (a drive's)
+        for mid in (rows[:, :3], rows[:, :3].copy()):
+            epoch_cut(rows, rows, rows, rows, mid, *bounds, rotate, rotate)
     d_idx = np.array([0, 2, 4], dtype=np.int64)
     d_max = np.zeros((3, 2))
     trailing_spread(
@@ -1361,7 +1551,19 @@ def warm_up() -> dict[str, Any]:
     ok6 = np.ones(6, dtype=np.bool_)
     variance_test(x13[:, :6].copy(), np.ones(6), 3.0, ok6[:2].copy(), False, np.ones(3), 1.0, ok6)
     drift_within(x13[:, :3].copy(), np.ones(3), 1.0, ok6)
+    ext = np.zeros((9, 13))
+    chunked_cumsum(x13, x13[0].copy(), 4, ext[3:])  # C rows into a C slice of ext
+    stack_backs(ext, 3, np.array([1, 3], dtype=np.int64), np.empty((6, 2, 13)))
+    highpass_squares(x13[:, :6].copy(), 4, 3, np.ones(6), np.empty((4, 6)))
+    stuck_scan(x13[:, :6].T.copy(), np.full(6, np.nan))  # a C-contiguous (6, N) block
+    second_diff_squares(x13[:, :6].T.copy())
+    stuck_scan(np.empty((6, 9))[:, 2:], np.full(6, np.nan))  # a slice after the history
     return {
+        "chunked_cumsum": chunked_cumsum,
+        "stack_backs": stack_backs,
+        "highpass_squares": highpass_squares,
+        "stuck_scan": stuck_scan,
+        "second_diff_squares": second_diff_squares,
         "variance_test": variance_test,
         "drift_within": drift_within,
         "window_rows": window_rows,

@@ -132,6 +132,16 @@ class PrefixSums:
         if not self.whole(n):
             now, back, idx = self.update(rows, offsets)
             return now, tuple(back[:, j] for j in range(back.shape[1])), idx
+        ext, idx = self._whole(rows)
+        reach = self.reach
+        backs = tuple(ext[reach - off : reach - off + n] for off in offsets.tolist())
+        return ext[reach:], backs, idx
+
+    def _whole(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The one pass of :meth:`update_views` over a block (``whole``): ``ext`` (reach + N,
+        k), the ``reach`` prefix sums before the block then the block's, and the stream index
+        of each new row (N,)."""
+        n = rows.shape[0]
         first = self._rows
         reach, depth, mask = self.reach, self.depth, self.depth - 1
         # ext[reach + i]: P at new row i; ext[reach - off + i]: P ``off`` rows before it
@@ -146,12 +156,16 @@ class PrefixSums:
         # the cumulative sums in the chunks the buffer allows, so every value is rounded as
         # the chunked update rounds it (the sum of a chunk, then the last P added)
         chunk = depth - reach - 1
-        last = self._last
-        for a in range(0, n, chunk):
-            seg = ext[reach + a : reach + min(n, a + chunk)]
-            np.cumsum(rows[a : a + chunk], axis=0, out=seg)
-            seg += last
-            last = seg[-1]
+        compiled = kernel("chunked_cumsum")  # the same additions in one pass: bit for bit
+        if compiled is not None:
+            compiled(np.ascontiguousarray(rows, dtype=float), self._last, chunk, ext[reach:])
+        else:
+            last = self._last
+            for a in range(0, n, chunk):
+                seg = ext[reach + a : reach + min(n, a + chunk)]
+                np.cumsum(rows[a : a + chunk], axis=0, out=seg)
+                seg += last
+                last = seg[-1]
         # the buffer keeps the last ``depth`` rows' P in their slots
         keep = min(n, depth)
         s = (first + n - keep) & mask
@@ -160,8 +174,7 @@ class PrefixSums:
         self._p[: keep - (e - s)] = ext[reach + n - keep + e - s :]
         self._last = ext[-1].copy()
         self._rows = first + n
-        backs = tuple(ext[reach - off : reach - off + n] for off in offsets.tolist())
-        return ext[reach:], backs, np.arange(first, first + n)
+        return ext, np.arange(first, first + n)
 
     def whole(self, n: int) -> bool:
         """Whether a block of ``n`` rows goes through :meth:`update_views`' one pass: longer
@@ -179,8 +192,14 @@ class PrefixSums:
         chunk = self.depth - self.reach - 1
         if n > chunk:  # keep every slot a window reaches unwritten until it is read
             if self.whole(n):
-                now, backs, idx = self.update_views(rows, offsets)
-                return now, np.stack(backs, axis=1), idx
+                stack = kernel("stack_backs")  # the same copies compiled
+                if stack is None:
+                    now, backs, idx = self.update_views(rows, offsets)
+                    return now, np.stack(backs, axis=1), idx
+                ext, idx = self._whole(rows)
+                back = np.empty((n, len(offsets), self.width))
+                stack(ext, self.reach, np.asarray(offsets, dtype=np.int64), back)
+                return ext[self.reach :], back, idx
             parts = [self.update(rows[i : i + chunk], offsets) for i in range(0, n, chunk)]
             return (
                 np.concatenate([p[0] for p in parts]),

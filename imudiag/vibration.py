@@ -26,6 +26,7 @@ import numpy as np
 
 from . import units
 from .certificate import Certificate, VibrationLimits
+from .kernels import kernel
 from .samples import FLAG_ACCEL_SATURATED, FLAG_GYRO_SATURATED, SampleBlock
 
 #: What high vibration prevents, said in the status and the report beside the state.
@@ -149,6 +150,16 @@ class VibrationMeter:
                 np.where(bad, 0.0, full).sum(axis=0), count, out=np.zeros(6), where=count > 0
             )
             full = np.where(bad, fill, full)
+        compiled = kernel("highpass_squares")  # the same operations in one pass: bit for bit
+        if compiled is not None:
+            sq = np.empty((n, 6))
+            compiled(full, n, h, self._to_si, sq)
+            self._tail = full[-(h - 1) :].copy() if h > 1 else np.zeros((0, 6))
+            if not np.isfinite(sq).all():
+                sq = np.nan_to_num(sq, nan=0.0, posinf=0.0, neginf=0.0)
+            self._add_squares(sq)
+            self.seen += n
+            return
         x = full[self._tail.shape[0] :]
         # each sample minus the mean of the h samples ending at it (fewer at the stream's
         # start), from prefix sums of the samples centred on the first

@@ -10,6 +10,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from ..certificate import TRIADS, Certificate
+from ..kernels import kernel
 from ..noise_estimate import medians
 from ..rowwise import rows_where
 from ..trailing import median_side
@@ -70,8 +71,12 @@ class NoiseCheck:
         back = chan.shape[1] - t.shape[0]
         # channel by channel, each channel's values contiguous: column c, row r ends at
         # chan column r + 2
-        d2sq = np.diff(chan, n=2, axis=1)
-        np.square(d2sq, out=d2sq)
+        compiled = kernel("second_diff_squares")  # the same differences: bit for bit
+        if compiled is not None:
+            d2sq = compiled(np.ascontiguousarray(chan, dtype=float))
+        else:
+            d2sq = np.diff(chan, n=2, axis=1)
+            np.square(d2sq, out=d2sq)
         ends = pos + back - 2 + 1  # d2sq rows end (exclusive) at each check sample
         # a check fails when sqrt(median / (0.4549 * 6)) / sigma exceeds a ratio: where the
         # counts of values beyond that median settle it (nearly everywhere), no median is

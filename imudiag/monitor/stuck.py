@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..kernels import kernel
+
 
 class StuckCheck:
     """Run length of identical raw outputs per channel (6: gyro then accel), carried across
@@ -58,6 +60,14 @@ class StuckCheck:
         units), gyro then accel, channel by channel, at sample times ``t`` (s; None: the
         times in force are not kept)."""
         n = raw.shape[1]
+        compiled = kernel("stuck_scan")  # the same differences, minima and counts: exact
+        if compiled is not None:
+            scan = compiled(np.asarray(raw, dtype=float), self.last)
+            smallest, last_change, n_valid, n_same = scan
+            if (smallest < self.quantum).any():
+                np.minimum(self.quantum, smallest, out=self.quantum)
+            run = np.where(last_change < 0, self.run + n, n - 1 - last_change)
+            return self._runs(raw, t, run, n_valid, n_same)
         step = np.empty(raw.shape)
         np.subtract(raw[:, 0], self.last, out=step[:, 0])
         np.subtract(raw[:, 1:], raw[:, :-1], out=step[:, 1:])
@@ -78,6 +88,25 @@ class StuckCheck:
             last_change = n - 1 - np.argmax(changed[:, ::-1], axis=1)
             last_change[~changed.any(axis=1)] = -1
             run = np.where(last_change < 0, self.run + n, n - 1 - last_change)
+        return self._runs(
+            raw,
+            t,
+            run,
+            np.count_nonzero(valid, axis=1),
+            np.count_nonzero(same_prev, axis=1),
+        )
+
+    def _runs(
+        self,
+        raw: np.ndarray,
+        t: np.ndarray | None,
+        run: np.ndarray,
+        n_valid: np.ndarray,
+        n_same: np.ndarray,
+    ) -> np.ndarray:
+        """The stuck channels (6,) after a block (:meth:`update`), from each channel's run
+        (samples, excluding its first) and its finite and zero steps in the block."""
+        n = raw.shape[1]
         # samples in the current run of equal values, excluding its first
         self.run = run.astype(np.int64)
         self.last = raw[:, -1].astype(float)
@@ -93,8 +122,8 @@ class StuckCheck:
         # the repeat rate of the channels not stuck now (a stuck run must not make the
         # channel look like one that repeats by nature, or its fault would clear)
         free = ~active
-        self.pairs[free] += np.count_nonzero(valid[free], axis=1)
-        self.repeats[free] += np.count_nonzero(same_prev[free], axis=1)
+        self.pairs[free] += n_valid[free]
+        self.repeats[free] += n_same[free]
         self.enabled = self._enabled()
         return active
 
