@@ -105,6 +105,7 @@ class _Format:
     format: str
     columns: list[str]
     offsets: list[int] = field(default_factory=list)
+    dtype: np.dtype | None = None  #: the payload as a numpy record (:func:`_dtype`)
 
 
 def _null_term(b: bytes) -> str:
@@ -133,7 +134,7 @@ def _dtype(fmt: _Format) -> np.dtype:
 def _decode(data: np.ndarray, fmt: _Format) -> dict[str, np.ndarray]:
     """The numeric columns (float64, pymavlink's values) of the messages of ``fmt`` at its
     offsets in the bytes ``data``."""
-    dt = _dtype(fmt)
+    dt = fmt.dtype if fmt.dtype is not None else _dtype(fmt)
     at = np.asarray(fmt.offsets, dtype=np.int64)
     # each message's payload a row of a sliding view over the bytes: one copy of the rows
     body = np.lib.stride_tricks.sliding_window_view(data, fmt.length - 3)[at + 3]
@@ -207,7 +208,7 @@ def _scan(path: str | Path, names: set[str] | list[str]) -> Messages:
                 fm = _Format(_null_term(name), flen, _null_term(fmt), _null_term(cols).split(","))
                 if fm.columns == [""]:
                     fm.columns = []
-                _dtype(fm)  # pymavlink could not unpack it: ScanError, read by pymavlink
+                fm.dtype = _dtype(fm)  # pymavlink could not unpack it: ScanError
                 if ftype in defined and defined[ftype] != body:
                     raise ScanError(f"type {ftype} redefined by the FMT at byte {p}")
                 if ftype == FMT_TYPE and (flen, fm.format) != (FMT_LENGTH, "BBnNZ"):
@@ -229,24 +230,13 @@ def _scan(path: str | Path, names: set[str] | list[str]) -> Messages:
         if raw.find(bytes((HEAD1, HEAD2)), p) == -1:
             break  # bytes after the last message (a block log's padding): the end
         raise ScanError(f"bytes at byte {p} that do not start a message, then more messages")
+    # one definition per wanted name (else ScanError above), its offsets in walk order
     data = np.frombuffer(raw, dtype=np.uint8)
-    parts: dict[str, list[tuple[np.ndarray, dict[str, np.ndarray]]]] = {}
+    out = Messages()
     for fm in formats:
         if fm.offsets:
-            parts.setdefault(fm.name, []).append((np.asarray(fm.offsets), _decode(data, fm)))
-    return _merged(parts)
-
-
-def _merged(parts: dict[str, list[tuple[np.ndarray, dict[str, np.ndarray]]]]) -> Messages:
-    """One table per name from its parts (types of one name), in file order (the columns
-    the parts share)."""
-    out = Messages()
-    for name, chunks in parts.items():
-        at = np.concatenate([c[0] for c in chunks]).astype(np.int64)
-        order = np.argsort(at, kind="stable")
-        shared = [c for c in chunks[0][1] if all(c in ch[1] for ch in chunks)]
-        out.offsets[name] = at[order]
-        out.columns[name] = {c: np.concatenate([ch[1][c] for ch in chunks])[order] for c in shared}
+            out.offsets[fm.name] = np.asarray(fm.offsets, dtype=np.int64)
+            out.columns[fm.name] = _decode(data, fm)
     return out
 
 
@@ -275,12 +265,11 @@ def pymavlink_messages(path: str | Path, names: set[str] | list[str]) -> Message
             log.data_map.close()
         with contextlib.suppress(AttributeError, OSError):
             log.filehandle.close()
-    parts: dict[str, list[tuple[np.ndarray, dict[str, np.ndarray]]]] = {}
+    out = Messages()  # pymavlink reads in file order
     for name, got in rows.items():
-        at = np.array([r[0] for r in got], dtype=np.int64)
-        cols = {c: np.array([r[1][c] for r in got]) for c in got[0][1]}
-        parts[name] = [(at, cols)]
-    return _merged(parts)
+        out.offsets[name] = np.array([r[0] for r in got], dtype=np.int64)
+        out.columns[name] = {c: np.array([r[1][c] for r in got]) for c in got[0][1]}
+    return out
 
 
 __all__ = [
