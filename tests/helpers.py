@@ -1,8 +1,10 @@
-"""Helpers shared by the transport and daemon tests."""
+"""Helpers shared by the tests: transports and the daemon, block cuts of a stream."""
 
 from __future__ import annotations
 
 import time
+
+import numpy as np
 
 from imudiag.drivers.base import Source
 from imudiag.samples import SampleBlock
@@ -40,3 +42,14 @@ class CollectSink:
 
     def close(self) -> None:
         pass
+
+
+def random_blocks(rng: np.random.Generator, n: int, read_max: int, big: int) -> list[int]:
+    """Block sizes summing to ``n`` (samples), each drawn from single rows (1-7), reads
+    (8 to ``read_max`` - 1) or a big block of ``big``: how a stream may be cut."""
+    out, done = [], 0
+    while done < n:
+        size = int(rng.choice([rng.integers(1, 8), rng.integers(8, read_max), big]))
+        out.append(min(size, n - done))
+        done += out[-1]
+    return out

@@ -20,8 +20,10 @@ import pytest
 pytest.importorskip("numba", reason="numba (the fleet extra) is not installed")
 
 from imudiag import kernels  # noqa: E402
+from imudiag.certificate import Certificate  # noqa: E402
 from imudiag.quasistatic import QuasiStaticDetector, TrailingSpread  # noqa: E402
 from imudiag.samples import SampleBlock  # noqa: E402
+from tests.helpers import random_blocks  # noqa: E402
 from tests.test_detector_equivalence import REAL_NAMES, _real  # noqa: E402
 
 
@@ -51,12 +53,7 @@ def stream(seed: int, n: int, columns: int):
 
 def blocks(rng: np.random.Generator, n: int) -> list[int]:
     """Block sizes summing to n: small reads and big blocks (beyond the repeat threshold)."""
-    out, done = [], 0
-    while done < n:
-        size = int(rng.choice([rng.integers(1, 8), rng.integers(8, 500), 20_000]))
-        out.append(min(size, n - done))
-        done += out[-1]
-    return out
+    return random_blocks(rng, n, 500, 20_000)
 
 
 @pytest.mark.filterwarnings("ignore:invalid value:RuntimeWarning")  # inf - inf, plain path
@@ -149,21 +146,28 @@ def test_window_moments_kernel_equals_plain(switch):
     accel[rng.random(n) < 0.001] = np.nan
     block = SampleBlock(t=np.arange(n) / 100.0, gyro=gyro, accel=accel)
     sizes = blocks(np.random.default_rng(91), n)
-    got = []
-    for on in (False, True):
-        switch(on)
-        stage = QuasiStaticDetector(cert, rate_hz=100.0)._stage
-        var, mean, first = [], [], 0
-        for size in sizes:
-            st = stage.run(block.slice(first, first + size))
-            first += size
-            if st.skip < size:
-                var.append(st.var)
-                mean.append(st.mean)
-        got.append((np.concatenate(var), np.concatenate(mean)))
+    got = [
+        stage_outputs(block, cert, sizes, on, switch, lambda st: (st.var, st.mean))
+        for on in (False, True)
+    ]
     for a, b in zip(got[1], got[0], strict=True):
         np.testing.assert_array_equal(a, b)
     assert np.all(np.isfinite(got[0][0]))
+
+
+def stage_outputs(block: SampleBlock, cert: Certificate, sizes: list[int], on: bool, switch,
+                  pick) -> tuple[np.ndarray, ...]:  # fmt: skip
+    """``pick(stage)``'s arrays of every block the detector's window stage ran on (the
+    kernels ``on`` or off) fed ``block`` in ``sizes``, each concatenated over the blocks."""
+    switch(on)
+    stage = QuasiStaticDetector(cert, rate_hz=100.0)._stage
+    parts, first = [], 0
+    for size in sizes:
+        st = stage.run(block.slice(first, first + size))
+        first += size
+        if st.skip < size:
+            parts.append(pick(st))
+    return tuple(np.concatenate(column) for column in zip(*parts, strict=True))
 
 
 def random_board_stream(seed: int, n: int) -> SampleBlock:
@@ -194,18 +198,12 @@ def test_window_rows_and_rates_kernels_equal_plain(seed, switch):
     cert = load_default()
     block = random_board_stream(seed, 30_000)
     sizes = blocks(np.random.default_rng(200 + seed), len(block))
-    got = []
-    for on in (False, True):
-        switch(on)
-        stage = QuasiStaticDetector(cert, rate_hz=100.0)._stage
-        sums, rates, first = [], [], 0
-        for size in sizes:
-            st = stage.run(block.slice(first, first + size))
-            first += size
-            if st.skip < size:
-                sums.append(np.hstack([st.sums, st.long_sums, st.back_w, st.back_2w]))
-                rates.append(np.column_stack(st.rates()))
-        got.append((np.concatenate(sums), np.concatenate(rates)))
+
+    def rows_and_rates(st):
+        sums = np.hstack([st.sums, st.long_sums, st.back_w, st.back_2w])
+        return sums, np.column_stack(st.rates())
+
+    got = [stage_outputs(block, cert, sizes, on, switch, rows_and_rates) for on in (False, True)]
     np.testing.assert_array_equal(got[1][0], got[0][0])
     plain, fast = got[0][1], got[1][1]
     scale = np.max(np.abs(plain), axis=0)

@@ -24,16 +24,12 @@ pytest.importorskip("numba", reason="numba (the fleet extra) is not installed")
 
 from imudiag import kernels  # noqa: E402
 from imudiag.trailing import PrefixSums  # noqa: E402
+from tests.helpers import random_blocks  # noqa: E402
 
 
 def _blocks(rng: np.random.Generator, n: int) -> list[int]:
     """Block sizes summing to n: single rows, reads, and blocks beyond the buffer's span."""
-    out, done = [], 0
-    while done < n:
-        size = int(rng.choice([rng.integers(1, 8), rng.integers(8, 3000), 40_000]))
-        out.append(min(size, n - done))
-        done += out[-1]
-    return out
+    return random_blocks(rng, n, 3000, 40_000)
 
 
 def _feed(on: bool, rows: np.ndarray, sizes: list[int], width: int, reach: int,
