@@ -79,7 +79,7 @@ class DataFlashReader(ColumnsReader):
         head = self._read_head(len(DATAFLASH_MAGIC))  # refused before the library's import
         if not is_dataflash(head):
             raise LogError(self.path, "not a DataFlash log (no FMT message at the start)")
-        # pymavlink: the reference reader, read with where the scan cannot (ScanError)
+        # pymavlink: the reference, and the reader of what the scan leaves (ScanError)
         require("pymavlink.DFReader", "ardupilot", "ArduPilot DataFlash logs")
         try:
             try:
