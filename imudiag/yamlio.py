@@ -1,6 +1,7 @@
 """The one YAML loader: certificates, the daemon configuration and bench scenarios.
 
-Safe YAML (PyYAML's SafeLoader) with two rules every file kind shares:
+Safe YAML (PyYAML's safe loader: libyaml's C parser where PyYAML was built with it, the same
+safe constructors either way) with two rules every file kind shares:
 
 - a duplicated key is an error naming both lines (PyYAML would keep the last
   value silently: a second ``bias: [0, 0, 0]`` would zero the biases);
@@ -45,7 +46,14 @@ class LineDict(dict):
     key_lines: dict[Any, int]
 
 
-class _Loader(yaml.SafeLoader):
+#: libyaml's parser (``yaml.CSafeLoader``) where PyYAML has it: the same documents, marks
+#: and safe constructors as the pure-Python ``SafeLoader``, about 6x faster (a certificate:
+#: 1.4 ms against 8.7 ms on the 2-core machine; the daemon, each command and the tests
+#: load them often)
+_BASE: type[yaml.SafeLoader] = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+class _Loader(_BASE):  # type: ignore[valid-type,misc]
     pass
 
 

@@ -442,17 +442,19 @@ def test_simulate_fleet_writes_mixed_logs_and_the_truth(tmp_path: Path) -> None:
 def test_a_log_that_kills_its_worker_is_a_row_with_the_reason(
     fleet: tuple[Path, dict], tmp_path: Path
 ) -> None:
-    """Workers whose Dask memory limit (60 MB) is below what a worker needs are killed by
-    their nanny while running a log; each log is tried once more (``retries=1``), then
-    recorded with the reason, and the run itself ends normally with its summary."""
+    """A worker whose Dask memory limit (60 MB) is below what a worker needs is killed by
+    its nanny while running a log; the log is tried once more (``retries=1``), then
+    recorded with the reason, and the run itself ends normally with its summary. (One log:
+    each kill costs a worker's start, about 4 s on the 2-core machine.)"""
     import imudiag.fleet
 
     root, _ = fleet
-    logs = sorted(str(p) for p in (root / "unit-02").glob("flight-00[12].*"))
+    logs = sorted(str(p) for p in (root / "unit-02").glob("flight-001.*"))
+    assert len(logs) == 1
     records = imudiag.fleet.run(logs, tmp_path, workers=1, memory_limit="60MB", retries=1)
-    assert sorted(r["path"] for r in records) == logs
-    for r in records:
-        assert r["status"] == "error"
-        assert r["reason"] == "killed its worker 2 time(s) (the worker memory limit, or a crash)"
+    assert [r["path"] for r in records] == logs
+    (r,) = records
+    assert r["status"] == "error"
+    assert r["reason"] == "killed its worker 2 time(s) (the worker memory limit, or a crash)"
     summary = json.loads((tmp_path / "fleet.json").read_text())
-    assert summary["ok"] == 0 and len(summary["errors"]) == 2
+    assert summary["ok"] == 0 and len(summary["errors"]) == 1
