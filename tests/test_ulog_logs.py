@@ -108,3 +108,30 @@ def test_a_ulog_in_si_against_a_certificate_in_counts_names_both_units(tmp_path)
     assert r.returncode == 2
     assert "'rad/s'" in r.stderr and "'count'" in r.stderr
     assert not (tmp_path / "d.json").exists()
+
+
+def test_a_ulog_read_again_is_not_parsed_again_until_it_changes(tmp_path):
+    """A diagnosis reads a log twice and a fleet once per instance: pyulog's parse is kept
+    (read only) while the file's size and modification time are unchanged, and a reader
+    from it gives what a cold one gives."""
+    import shutil
+
+    from imudiag.logs import ulog
+
+    log = shutil.copy(SMALL, tmp_path / "small.ulg")
+    first = read_log_with(log, LogOptions(instance=1))
+    kept = ulog._LAST.get(log, "imu+gps", lambda: pytest.fail("parsed again"))
+    start, topics = kept
+    with pytest.raises(ValueError, match="read-only"):
+        topics[("sensor_gyro", 1)]["x"][0] = 0.0
+    again = read_log_with(log, LogOptions(instance=1))
+    ulog._LAST.forget()
+    cold = read_log_with(log, LogOptions(instance=1))
+    for got in (again, cold):
+        np.testing.assert_array_equal(got.gyro, first.gyro)
+        np.testing.assert_array_equal(got.accel, first.accel)
+        np.testing.assert_array_equal(got.t, first.t)
+    shutil.copy(SAMPLE, log)  # another log written over the same path
+    with open_log(log) as reader:
+        assert sum(len(b) for b in reader) == 17070
+    assert ulog._LAST.get(log, "imu+gps", lambda: pytest.fail("parsed again")) is not kept

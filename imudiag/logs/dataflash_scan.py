@@ -33,6 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from .kept import LastParse
+
 HEAD1, HEAD2 = 0xA3, 0x95  #: the two bytes that start every message
 FMT_TYPE = 128  #: the type of ``FMT`` messages
 FMT_LENGTH = 89  #: bytes of an ``FMT`` message: head, type, length, name, format, columns
@@ -152,36 +154,24 @@ def _decode(data: np.ndarray, fmt: _Format) -> dict[str, np.ndarray]:
     return out
 
 
-#: the last scan kept (:func:`scan_messages`): a log is read again for each of its IMU
-#: instances and by each pass of a diagnosis (the noise figures, then the windows)
-_LAST: dict[str, Any] = {"key": None, "messages": None}
-#: the largest scan kept, bytes of its columns (a longer log is scanned again each time)
-KEEP_BYTES = 256 * 2**20
+#: the last scan kept (:mod:`.kept`): a log is read again for each of its IMU instances and
+#: by each pass of a diagnosis (the noise figures, then the windows)
+_LAST: LastParse[Messages] = LastParse(
+    lambda m: (v for cols in m.columns.values() for v in cols.values())
+)
 
 
 def scan_messages(path: str | Path, names: set[str] | list[str]) -> Messages:
     """The messages named ``names`` of the DataFlash log at ``path`` (module docstring).
     Raises :class:`ScanError` for what it does not read as pymavlink would. The last scan
-    (up to :data:`KEEP_BYTES`) is kept and given again while the file's size and
-    modification time are unchanged."""
-    st = Path(path).stat()
-    key = (str(Path(path).resolve()), st.st_size, st.st_mtime_ns, frozenset(names))
-    if _LAST["key"] == key:
-        return _LAST["messages"]
-    messages = _scan(path, names)
-    size = sum(v.nbytes for cols in messages.columns.values() for v in cols.values())
-    forget()
-    if size <= KEEP_BYTES:
-        for cols in messages.columns.values():
-            for v in cols.values():
-                v.flags.writeable = False  # shared by every reader of the log: read only
-        _LAST.update(key=key, messages=messages)
-    return messages
+    (up to :data:`~imudiag.logs.kept.KEEP_BYTES`) is kept and given again while the file's
+    size and modification time are unchanged."""
+    return _LAST.get(path, frozenset(names), lambda: _scan(path, names))
 
 
 def forget() -> None:
     """Drop the scan kept by :func:`scan_messages` (its memory; a benchmark's cold read)."""
-    _LAST.update(key=None, messages=None)
+    _LAST.forget()
 
 
 def _scan(path: str | Path, names: set[str] | list[str]) -> Messages:
@@ -274,7 +264,6 @@ def pymavlink_messages(path: str | Path, names: set[str] | list[str]) -> Message
 
 __all__ = [
     "FORMAT_CHARS",
-    "KEEP_BYTES",
     "Messages",
     "ScanError",
     "forget",

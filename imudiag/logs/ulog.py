@@ -11,7 +11,8 @@ sample's ``timestamp`` (``timestamp_sample`` for raw topics) in s from the
 log's start. With the raw topics the accelerometer samples are interpolated
 linearly to the gyro's time stamps (their clocks differ), within their
 overlap; the gyro's temperature is ``temp``. The file is parsed whole (pyulog
-reads a ULog in one pass), then handed out in blocks.
+reads a ULog in one pass), then handed out in blocks; the last parse is kept while the file
+is unchanged (:mod:`.kept`: a diagnosis reads a log twice, a fleet once per instance).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from ..certificate import FLIGHT_CONTROLLER_DATASHEET
 from .base import DEFAULT_BLOCK_SIZE, ColumnsReader, LogError
 from .extras import require
 from .gnss_fixes import GnssFixes, mode_of_fix_type
+from .kept import LastParse
 from .options import LogOptions
 
 #: First bytes of a ULog file ("ULog" then 0x01 0x12 0x35).
@@ -32,6 +34,11 @@ ULOG_MAGIC = b"ULog\x01\x12\x35"
 _TOPICS = ["sensor_combined", "sensor_gyro", "sensor_accel", "vehicle_imu"]
 #: GNSS topics, in order of preference (the selected/blended receiver, then receiver 0).
 GPS_TOPICS = ("vehicle_gps_position", "sensor_gps")
+
+
+#: pyulog's last parse of a file: (the log's start, us; the topics' columns by (name, multi id))
+_Topics = tuple[int, dict[tuple[str, int], dict[str, np.ndarray]]]
+_LAST: LastParse[_Topics] = LastParse(lambda p: (v for d in p[1].values() for v in d.values()))
 
 
 def is_ulog(head: bytes) -> bool:
@@ -59,15 +66,7 @@ class ULogReader(ColumnsReader):
         head = self._read_head(len(ULOG_MAGIC))  # refused before the library's import
         if not is_ulog(head):
             raise LogError(self.path, "not a ULog file (no ULog header)")
-        pyulog = require("pyulog", "px4", "PX4 ULog files")
-        try:
-            ulog = pyulog.ULog(self.path, message_name_filter_list=[*_TOPICS, *GPS_TOPICS])
-        except Exception as exc:  # pyulog raises bare Exceptions on corrupt files
-            raise LogError(self.path, f"not a readable ULog file: {exc}") from None
-        topics: dict[tuple[str, int], dict[str, np.ndarray]] = {
-            (d.name, int(d.multi_id)): d.data for d in ulog.data_list
-        }
-        self._start_us = int(ulog.start_timestamp)
+        self._start_us, topics = _LAST.get(self.path, "imu+gps", self._parse)
         self._gnss = self._fixes(topics)
         self._cols, source = self._choose(topics)
         self.meta.update(
@@ -82,6 +81,16 @@ class ULogReader(ColumnsReader):
                 "datasheet": FLIGHT_CONTROLLER_DATASHEET,
             }
         )
+
+    def _parse(self) -> _Topics:
+        pyulog = require("pyulog", "px4", "PX4 ULog files")
+        try:
+            ulog = pyulog.ULog(self.path, message_name_filter_list=[*_TOPICS, *GPS_TOPICS])
+        except Exception as exc:  # pyulog raises bare Exceptions on corrupt files
+            raise LogError(self.path, f"not a readable ULog file: {exc}") from None
+        return int(ulog.start_timestamp), {
+            (d.name, int(d.multi_id)): d.data for d in ulog.data_list
+        }
 
     def _instances(
         self, topics: dict[tuple[str, int], dict[str, np.ndarray]]
