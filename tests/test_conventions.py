@@ -8,6 +8,7 @@ values (imudiag.validate)."""
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +60,7 @@ def _strings(node: ast.AST) -> list[str]:
     return []
 
 
+@functools.cache
 def _definitions() -> dict[str, list[str]]:
     """Where each function name is defined (a method as ``Class.name`` too), where a literal
     dict keyed by the six misalignment keys (a sign table written out again) appears, where

@@ -125,11 +125,17 @@ def _is_module(name: str) -> bool:
     return name in MODULES or (name.startswith("drivers.") and "imudiag." + name in MODULES)
 
 
+@functools.cache
+def _tree(path: Path) -> ast.Module:
+    """A module's syntax tree, parsed once for the tests that read it."""
+    return ast.parse(path.read_text(), str(path))
+
+
 def _imports(name: str, path: Path) -> set[str]:
     """The package's modules that ``name`` imports anywhere in its text."""
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     found: set[str] = set()
-    tree = ast.parse(path.read_text(), str(path))
+    tree = _tree(path)
     type_only = {  # `if TYPE_CHECKING:` blocks run under a type checker only
         id(n)
         for block in ast.walk(tree)
@@ -336,7 +342,7 @@ def test_sources_above_the_drivers_come_through_entry_points():
 def test_no_module_imports_another_modules_private_names():
     private = []
     for name, path in MODULES.items():
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        for node in ast.walk(_tree(path)):
             if isinstance(node, ast.ImportFrom) and (
                 node.level or "imudiag" in (node.module or "")
             ):
