@@ -30,6 +30,7 @@ on the same recordings.
 
 from __future__ import annotations
 
+import functools
 import json
 
 import numpy as np
@@ -229,12 +230,20 @@ def diagnose_plain(log, cert, **kw):
         return imudiag.diagnose(log, imudiag.api.load_certificate(str(cert)), **kw)
 
 
-@pytest.mark.parametrize("name", sorted(REAL_LOGS))
-def test_every_window_fit_of_a_real_recording(name, counted):
+@functools.cache
+def plain_real(name: str) -> tuple[list[tuple[tuple, dict]], dict]:
+    """The plain diagnosis of a real recording, made once for this module's two tests: its
+    exact fits (as :func:`record_exact_fits`) and its report (JSON)."""
     log, cert = REAL_LOGS[name]
     with pytest.MonkeyPatch.context() as mp:
         calls = record_exact_fits(mp)
-        diagnose_plain(log, cert)
+        report = json.loads(json_text(diagnose_plain(log, cert)))
+    return calls, report
+
+
+@pytest.mark.parametrize("name", sorted(REAL_LOGS))
+def test_every_window_fit_of_a_real_recording(name, counted):
+    calls, _ = plain_real(name)
     replay(calls)
     assert counted["calls"] == len(calls)  # a fit without a prior would not be counted
     assert counted["gave_up"] <= len(calls) // 10, counted
@@ -318,7 +327,7 @@ def assert_reports_agree(fast: dict, plain: dict) -> None:
 @pytest.mark.parametrize("name", sorted(REAL_LOGS))
 def test_whole_reports_of_the_real_recordings(name):
     log, cert = REAL_LOGS[name]
-    plain = json.loads(json_text(diagnose_plain(log, cert)))
+    _, plain = plain_real(name)
     with switch.switched(True):
         fast = json.loads(json_text(imudiag.diagnose(log, imudiag.api.load_certificate(str(cert)))))
     assert_reports_agree(fast, plain)
