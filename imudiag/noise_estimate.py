@@ -218,7 +218,12 @@ class NoiseMeter:
         """Measured noise per triad, or None when no complete clean chunk was seen."""
         if not self._chunks:
             return None
-        sig = np.nanquantile(np.vstack(self._chunks), self.quantile, axis=0)
+        figures = np.vstack(self._chunks)
+        # np.quantile where no figure is NaN: the same partition and interpolation per
+        # column as np.nanquantile, bit for bit, without its column-by-column Python loop
+        # (a status line a second in the daemon: 0.1 ms instead of 0.7 ms)
+        quantile = np.nanquantile if np.isnan(figures).any() else np.quantile
+        sig = quantile(figures, self.quantile, axis=0)
         sig = sig / quantile_bias(self.chunk, self.quantile)
         if self.quantum is not None:
             sig = np.maximum(sig, self.quantum / math.sqrt(12.0))
