@@ -368,7 +368,7 @@ def test_units_refused_at_start_with_diagnose_message():
     from conftest import run_imudiag, run_imudiag_in_process
 
     # the daemon as a real subprocess; diagnose's refusal in process (a real subprocess in
-    # test_diagnosis_cli.py)
+    # test_text_tables.py's test_si_log_with_a_counts_certificate_is_exit_2_naming_both)
     d = run_imudiag_in_process("diagnose", str(IMUCAL), "--certificate", str(BUNDLED))
     r = run_imudiag("run", "--source", f"replay://{IMUCAL}?speed=0", "--certificate", str(BUNDLED))
     assert d.returncode == 2 and r.returncode == 2

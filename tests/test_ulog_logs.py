@@ -106,7 +106,7 @@ def test_missing_pyulog_is_exit_2_with_the_pip_command():
 
 def test_a_ulog_in_si_against_a_certificate_in_counts_names_both_units(tmp_path):
     # in process: test_a_truncated_ulog_or_a_foreign_file_is_exit_2 refuses a ULog in a real
-    # subprocess, test_diagnosis_cli.py a certificate's units
+    # subprocess, test_text_tables.py a log in SI against a certificate in counts
     r = run_imudiag_in_process("diagnose", str(SAMPLE), "--json", str(tmp_path / "d.json"))
     assert r.returncode == 2
     assert "'rad/s'" in r.stderr and "'count'" in r.stderr
