@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_imudiag_in_process
 
 from imudiag.bench import (
     BenchError,
@@ -308,7 +309,8 @@ def test_cli_bad_scenario_and_unknown_name_exit_2(tmp_path: Path, imudiag_cli) -
     proc = imudiag_cli("bench", "--scenario", str(bad))
     assert proc.returncode == 2
     assert f"{bad}:3: injections[0].kind" in proc.stderr and "unplugged" in proc.stderr
-    proc = imudiag_cli("bench", "no-such-scenario")
+    # the bad scenario above is the real subprocess; the unknown name in process
+    proc = run_imudiag_in_process("bench", "no-such-scenario")
     assert proc.returncode == 2 and "transport" in proc.stderr  # lists the bundled ones
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_imudiag, run_imudiag_without
+from conftest import run_imudiag, run_imudiag_in_process, run_imudiag_without
 from pymavlink import DFReader  # the [test] extra installs pymavlink
 
 from imudiag.logs import LogError, LogOptions, lookup, open_log, read_log
@@ -85,7 +85,8 @@ def test_dataflash_and_wire_captures_share_bin_and_are_told_apart(tmp_path, sess
     log = write_dataflash(tmp_path / "00000042.BIN", session)
     assert lookup(log).name == "dataflash"
     wire = tmp_path / "capture.bin"
-    r = run_imudiag("simulate", "static", "--duration", "2", "--out", str(wire))
+    # in process: test_sim_command.py writes a .bin capture in a real subprocess
+    r = run_imudiag_in_process("simulate", "static", "--duration", "2", "--out", str(wire))
     assert r.returncode == 0, r.stderr
     assert lookup(wire).name == ".bin"
 
@@ -120,7 +121,8 @@ def test_commands_take_a_dataflash_log(tmp_path, session):
     r = run_imudiag("convert", str(log), str(out), "--instance", "1")
     assert r.returncode == 0, r.stderr
     _same(read_log(out), session, scale=1.01)
-    r = run_imudiag("allan", str(log))
+    # in process: test_a_real_ardupilot_log_through_allan runs allan as a real subprocess
+    r = run_imudiag_in_process("allan", str(log))
     assert r.returncode == 0, r.stderr
     assert "3000 samples at 102" in r.stdout
 

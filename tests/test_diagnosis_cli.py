@@ -1,4 +1,9 @@
-"""`imudiag diagnose` as spec/reports.md says: report keys, verdicts, bad input, methods."""
+"""`imudiag diagnose` as spec/reports.md says: report keys, verdicts, bad input, methods.
+
+Real subprocesses: the report written to a file (test_report_shape_and_verdict), to stdout
+(test_json_to_stdout), the first refusal of test_bad_certificate_and_log and the linear method;
+the other cases run the command's entry point in this process
+(``conftest.run_imudiag_in_process``: the same exit status and output)."""
 
 from __future__ import annotations
 
@@ -94,21 +99,21 @@ def test_json_to_stdout(faulty_log, imudiag_cli):
     assert rep["windows"] == [] and rep["verdict"]["accel"] == "fault"
 
 
-def test_units_mismatch_names_both(tmp_path, imudiag_cli):
+def test_units_mismatch_names_both(tmp_path, imudiag_in_process):
     cert = load_default()
     sim = simulate(cert, still(3.0, 200), seed=1)
     log = _write(tmp_path / "units.csv", sim, units="gyro=deg/s accel=count")
-    r = imudiag_cli("diagnose", str(log), "--certificate", "config/default-certificate.yaml")
+    r = imudiag_in_process("diagnose", str(log), "--certificate", "config/default-certificate.yaml")
     assert r.returncode == 2
     assert "deg/s" in r.stderr and "'count'" in r.stderr and "gyro.output_unit" in r.stderr
     assert "default-certificate.yaml" in r.stderr and "units.csv" in r.stderr
 
 
-def test_one_attitude_is_undetermined_never_ok(tmp_path, imudiag_cli):
+def test_one_attitude_is_undetermined_never_ok(tmp_path, imudiag_in_process):
     cert = load_default()
     sim = simulate(cert, still(40.0, 200, attitude_rpy_deg=(10, -5, 30)), seed=2)
     log = _write(tmp_path / "still.npz", sim)
-    r = imudiag_cli("diagnose", str(log), "--json", "-")
+    r = imudiag_in_process("diagnose", str(log), "--json", "-")
     assert r.returncode == 0, r.stderr
     v = json.loads(r.stdout)["verdict"]
     assert (v["accel"], v["gyro"]) == ("undetermined", "undetermined")
@@ -127,11 +132,11 @@ def test_one_attitude_is_undetermined_never_ok(tmp_path, imudiag_cli):
     assert re.match(r"std [0-9.e+-]+ rad above", und[("accel", "ax/az", "misalignment")])
 
 
-def test_no_still_period_is_undetermined(tmp_path, imudiag_cli):
+def test_no_still_period_is_undetermined(tmp_path, imudiag_in_process):
     cert = load_default()
     sim = simulate(cert, turntable(30.0, axis="x", duration_s=20.0, rate_hz=200), seed=3)
     log = _write(tmp_path / "turning.npz", sim)
-    r = imudiag_cli("diagnose", str(log), "--json", "-")
+    r = imudiag_in_process("diagnose", str(log), "--json", "-")
     rep = json.loads(r.stdout)
     assert rep["verdict"]["accel"] == "undetermined" and rep["verdict"]["gyro"] == "undetermined"
     assert all("no quasi-static interval" in u["reason"] for u in rep["verdict"]["undetermined"])
@@ -148,9 +153,9 @@ def test_bad_certificate_and_log(tmp_path, imudiag_cli, faulty_log):
     assert r.returncode == 2 and "accel.limits.bias" in r.stderr
     broken = tmp_path / "broken.csv"
     broken.write_text("t,gx,gy,gz,ax,ay,az\n0,1,2,3,4,5,6\n0.005,1,2,x,4,5,6\n")
-    r = imudiag_cli("diagnose", str(broken))
+    r = run_imudiag_in_process("diagnose", str(broken))
     assert r.returncode == 2 and "broken.csv:3" in r.stderr
-    r = imudiag_cli("diagnose", str(faulty_log[0]), "--magnitude", str(faulty_log[1]))
+    r = run_imudiag_in_process("diagnose", str(faulty_log[0]), "--magnitude", str(faulty_log[1]))
     assert r.returncode == 2 and "--magnitude" in r.stderr
 
 
@@ -173,8 +178,8 @@ def test_other_methods_run(faulty_log, imudiag_cli, method):
     }
 
 
-def test_moving_base_without_magnitude_warns(faulty_log, imudiag_cli):
-    r = imudiag_cli("diagnose", str(faulty_log[0]), "--method", "moving-base")
+def test_moving_base_without_magnitude_warns(faulty_log, imudiag_in_process):
+    r = imudiag_in_process("diagnose", str(faulty_log[0]), "--method", "moving-base")
     assert r.returncode == 0
     assert "cannot see faults" in r.stderr
 

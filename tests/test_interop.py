@@ -216,7 +216,8 @@ def test_imu_tk_pair_named_by_prefix_either_file_or_options(tmp_path):
         np.testing.assert_array_equal(got.accel.matrix, want.accel.matrix)
         np.testing.assert_array_equal(got.gyro.bias, want.gyro.bias)
     out = tmp_path / "c.yaml"
-    r = run_imudiag(
+    # in process: the acceptance test below imports an imu_tk pair as a real subprocess
+    r = run_imudiag_in_process(
         "certificate", "import", "--format", "imu_tk", "--accel", f"{prefix}_acc.calib",
         "--gyro", f"{prefix}_gyro.calib", "--like", str(LIKE_XSENS), "--out", str(out),
     )  # fmt: skip
@@ -350,9 +351,11 @@ def xsens_cal(tmp_path_factory) -> Path:
     return cal
 
 
-def _diagnose_verdict(cert: Path, tmp: Path) -> dict:
+def _diagnose_verdict(cert: Path, tmp: Path, run=run_imudiag) -> dict:
+    """The verdict of ``imudiag diagnose`` of the Xsens session with ``cert``, run by ``run``
+    (a real subprocess unless told)."""
     report = tmp / "diag.json"
-    r = run_imudiag("diagnose", str(XSENS), "--certificate", str(cert), "--json", str(report))
+    r = run("diagnose", str(XSENS), "--certificate", str(cert), "--json", str(report))
     assert r.returncode == 0, r.stderr
     return json.loads(report.read_text())["verdict"]
 
@@ -402,7 +405,8 @@ def test_a_frame_rotation_kept_by_gauge_tool_changes_no_verdict(xsens_cal, tmp_p
     n, n_cal = load(back).accel.n_matrix(), load(xsens_cal).accel.n_matrix()
     assert np.abs(n - n.T).max() > 1e-3  # not the symmetric gauge: the rotation is in N
     np.testing.assert_allclose(n @ n.T, n_cal @ n_cal.T, atol=1e-13)
-    verdict = _diagnose_verdict(back, tmp_path)
+    # in process: the acceptance test above diagnoses as a real subprocess
+    verdict = _diagnose_verdict(back, tmp_path, run_imudiag_in_process)
     assert (verdict["accel"], verdict["gyro"], verdict["faults"]) == ("ok", "ok", [])
 
 
@@ -514,14 +518,18 @@ def test_export_never_overwrites_its_input(tmp_path):
     acc = tmp_path / "p_acc.calib"
     acc.write_text(GOOD_ACC)
     (tmp_path / "p_gyro.calib").write_text((IO / "imu_tk_xsens_gyro.calib").read_text())
-    r = run_imudiag("certificate", "import", str(prefix), "--format", "imu_tk", "--out", str(acc))
+    # the export's refusal above is the real subprocess; the import's in process
+    r = run_imudiag_in_process(
+        "certificate", "import", str(prefix), "--format", "imu_tk", "--out", str(acc)
+    )
     assert r.returncode == 2 and "refusing to overwrite an input" in r.stderr
     assert acc.read_text() == GOOD_ACC
 
 
 def test_kalibr_export_without_noise_says_what_is_missing(tmp_path):
     out = tmp_path / "imu.yaml"
-    r = run_imudiag(
+    # in process: test_export_never_overwrites_its_input refuses an export in a subprocess
+    r = run_imudiag_in_process(
         "certificate", "export", str(LIKE_XSENS), "--format", "kalibr", "--out", str(out)
     )
     assert r.returncode == 2

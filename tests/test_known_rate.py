@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_imudiag
+from conftest import run_imudiag, run_imudiag_in_process
 
 from imudiag.certificate import load, load_default
 from imudiag.diagnosis.known_rate import parse_known_rate
@@ -148,7 +148,8 @@ def test_a_plateau_at_another_speed_is_set_aside(tmp_path):
     like = tmp_path / "like.yaml"
     load_default().save(like)
     out, js = tmp_path / "cal.yaml", tmp_path / "cal.json"
-    r = run_imudiag(
+    # in process: test_turntable_calibration_within_a_tenth_of_a_percent is the real subprocess
+    r = run_imudiag_in_process(
         "calibrate",
         str(log),
         "--like",
@@ -175,7 +176,11 @@ def test_a_gyro_only_log_needs_the_known_rate(tmp_path):
     _session(log, load_default().gyro, seed=6)
     like = tmp_path / "like.yaml"
     load_default().save(like)
-    r = run_imudiag("calibrate", str(log), "--like", str(like), "--out", str(tmp_path / "o.yaml"))
+    # in process: calibrate's refusal with exit 2 runs as a real subprocess in
+    # test_option_validation.py (test_real_subprocess_per_command)
+    r = run_imudiag_in_process(
+        "calibrate", str(log), "--like", str(like), "--out", str(tmp_path / "o.yaml")
+    )
     assert r.returncode == 2
     assert "ax" in r.stderr and not (tmp_path / "o.yaml").exists()
 
@@ -207,7 +212,8 @@ def test_diagnose_on_the_turntable_names_a_scale_factor_three_limits_off(tmp_pat
     bad.gyro.scale_factor_error = bad.gyro.scale_factor_error + np.array([0.0, 3.0, 0.0]) * lim[3:6]
     path = tmp_path / "bad.yaml"
     bad.save(path)
-    r = run_imudiag(
+    # the diagnosis with the good certificate above is the real subprocess; this one in process
+    r = run_imudiag_in_process(
         "diagnose",
         str(log),
         "--certificate",

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_imudiag_in_process
 
 from imudiag.logs.timing import timing_report
 
@@ -40,22 +39,8 @@ def test_timing_report_states_a_disagreeing_or_descriptive_rate() -> None:
 def test_allan_reads_the_bundled_firm_flight(tmp_path: Path) -> None:
     """Issue 12 item 7: 'sample_rate: about 90-100' is metadata text, not a fatal error."""
     out = tmp_path / "allan.json"
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "imudiag",
-            "allan",
-            str(FIRM),
-            "--json",
-            str(out),
-            "--sensors",
-            "gx,az",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    # in process: allan writes its report in a real subprocess in test_sim_command.py
+    proc = run_imudiag_in_process("allan", str(FIRM), "--json", str(out), "--sensors", "gx,az")
     assert proc.returncode == 0, proc.stderr
     assert "not a number" in proc.stderr and "estimated from t" in proc.stderr
     report = json.loads(out.read_text())

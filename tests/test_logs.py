@@ -457,21 +457,25 @@ def test_convert_chain_round_trips(tmp_path: Path, real_data_dir: Path, imudiag_
 
 
 def test_convert_to_bin_and_back(tmp_path: Path, real_data_dir: Path, imudiag_cli) -> None:
+    """Real subprocesses: the first refusal and the .bin written from the MPU-6050 log; the
+    other cases through cli.main in this process."""
     sections = real_data_dir / "imucal-ferraris" / "session.csv.gz"
     proc = imudiag_cli("convert", str(sections), str(tmp_path / "r.bin"))
     assert proc.returncode == 2 and "device-info frame holds 249" in proc.stderr
     assert not (tmp_path / "r.bin").exists()
-    proc = imudiag_cli("convert", "--no-meta", str(sections), str(tmp_path / "r.bin"))
+    proc = run_imudiag_in_process("convert", "--no-meta", str(sections), str(tmp_path / "r.bin"))
     assert proc.returncode == 2 and "not in counts (gyro in deg/s, accel in m/s^2)" in proc.stderr
     assert not (tmp_path / "r.bin").exists()
     quantum = ["--quantum", "gyro=0.001,accel=0.0001"]
-    proc = imudiag_cli("convert", "--no-meta", *quantum, str(sections), str(tmp_path / "r.bin"))
+    proc = run_imudiag_in_process(
+        "convert", "--no-meta", *quantum, str(sections), str(tmp_path / "r.bin")
+    )
     assert proc.returncode == 0, proc.stderr
     assert open_log(tmp_path / "r.bin").meta == {}
     src = real_data_dir / "mpu6050" / "rot90x.csv.gz"
     proc = imudiag_cli("convert", str(src), str(tmp_path / "r.bin"))
     assert proc.returncode == 0, proc.stderr
-    proc = imudiag_cli("convert", str(tmp_path / "r.bin"), str(tmp_path / "r.csv"))
+    proc = run_imudiag_in_process("convert", str(tmp_path / "r.bin"), str(tmp_path / "r.csv"))
     assert proc.returncode == 0, proc.stderr
     original, back = read_log(src), read_log(tmp_path / "r.csv")
     assert back.meta == original.meta  # carried by the device-info frame
@@ -489,9 +493,10 @@ def test_convert_bad_input_exit_2_names_file_and_line(tmp_path: Path, imudiag_cl
     assert proc.returncode == 2
     assert f"{bad}:4323: ragged row: 6 fields, header has 7" in proc.stderr
     assert not out.exists() and not Path(str(out) + ".part").exists()
-    proc = imudiag_cli("convert", str(tmp_path / "nope.csv"), str(out))
+    # the ragged row above is the real subprocess; the other refusals in process
+    proc = run_imudiag_in_process("convert", str(tmp_path / "nope.csv"), str(out))
     assert proc.returncode == 2 and "nope.csv: cannot read" in proc.stderr
-    proc = imudiag_cli("convert", str(bad), str(tmp_path / "out.xlsx"))
+    proc = run_imudiag_in_process("convert", str(bad), str(tmp_path / "out.xlsx"))
     assert proc.returncode == 2 and "unknown log format" in proc.stderr
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import allantools
 import numpy as np
 import pytest
-from conftest import REAL_DATA_DIR, run_imudiag
+from conftest import REAL_DATA_DIR, run_imudiag, run_imudiag_in_process
 from modelcheck_cases import session
 from scipy import signal, stats
 
@@ -204,22 +204,23 @@ def test_command_line_bad_input(tmp_path: Path) -> None:
     write_log(
         log, SampleBlock(t=np.arange(10) / 100.0, gyro=np.zeros((10, 3)), accel=np.zeros((10, 3)))
     )
+    # the bad certificate is the real subprocess run; the other refusals run in process
     proc = run_imudiag("model-check", str(log), "--certificate", str(bad_cert))
     assert proc.returncode == 2 and "gyro.limits.f0" in proc.stderr
     broken = tmp_path / "broken.csv"
     broken.write_text("t,gx,gy,gz,ax,ay,az\n0,1,2,3,4,5,6\n0.01,1,2,x,4,5,6\n")
-    proc = run_imudiag(
+    proc = run_imudiag_in_process(
         "model-check", str(broken), "--certificate", "config/default-certificate.yaml"
     )
     assert proc.returncode == 2 and "broken.csv:3" in proc.stderr and "gz" in proc.stderr
-    proc = run_imudiag(
+    proc = run_imudiag_in_process(
         "model-check",
         str(tmp_path / "missing.csv"),
         "--certificate",
         "config/default-certificate.yaml",
     )
     assert proc.returncode == 2 and "missing.csv" in proc.stderr
-    proc = run_imudiag(
+    proc = run_imudiag_in_process(
         "model-check", str(log), "--certificate", "config/default-certificate.yaml", "--chunk", "0"
     )
     assert proc.returncode == 2 and "--chunk" in proc.stderr

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import REAL_DATA_DIR, run_imudiag
+from conftest import REAL_DATA_DIR, run_imudiag_in_process
 
 from imudiag.modelcheck.extend import GAIN_DEFINITION, HELDOUT_LOGLIK_KEY
 
@@ -34,7 +34,8 @@ def _keys_with_gain(obj: Any, path: str = "") -> list[tuple[str, str]]:
 
 def test_every_gain_is_extended_over_baseline_of_its_measure(tmp_path: Path) -> None:
     out = tmp_path / "xsens.json"
-    r = run_imudiag(
+    # in process: model-check writes its report in a real subprocess in test_modelcheck.py
+    r = run_imudiag_in_process(
         "model-check",
         str(REAL_DATA_DIR / "xsens-mti-multiposition" / "session.csv.gz"),
         "--certificate",

@@ -159,13 +159,14 @@ def test_mpu6050_still_recording_is_white_noise_and_predicted(mpu6050_check, tmp
 def test_one_white_noise_figure_in_allan_and_model_check(mpu6050_check, tmp_path) -> None:
     """allan, model-check (and calibrate/diagnose, through the same meter) report the same
     white-noise density for a sensor, measured by one named method (issue 13 item 3)."""
-    from conftest import run_imudiag
+    from conftest import run_imudiag_in_process
 
     from imudiag.noise_estimate import METHOD
 
     log = DATA / "real" / "mpu6050" / "static.csv.gz"
     out = tmp_path / "allan.json"
-    r = run_imudiag("allan", str(log), "--json", str(out))
+    # in process: allan writes its report in a real subprocess in test_sim_command.py
+    r = run_imudiag_in_process("allan", str(log), "--json", str(out))
     assert r.returncode == 0, r.stderr
     assert METHOD in r.stdout
     allan = json.loads(out.read_text())["sensors"]

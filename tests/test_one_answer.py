@@ -327,9 +327,10 @@ def test_wire_counters_in_sample_time_and_in_the_report(tmp_path):
     assert lines[-1]["counters"]["lost"] >= 11
     report = diagnose(str(log), None, windows=False)
     assert report["wire"]["crc_errors"] == 1 and report["wire"]["lost"] >= 11
-    from conftest import run_imudiag
+    from conftest import run_imudiag_in_process
 
-    r = run_imudiag("diagnose", str(log), "--no-windows")
+    # in process: diagnose writes its text in a real subprocess in test_diagnosis_cli.py
+    r = run_imudiag_in_process("diagnose", str(log), "--no-windows")
     assert r.returncode == 0 and "1 CRC errors" in r.stdout and "lost" in r.stdout
 
 
@@ -364,9 +365,11 @@ IMUCAL = REAL / "imucal-ferraris/session.csv.gz"  # deg/s and m/s^2
 def test_units_refused_at_start_with_diagnose_message():
     """Issue 25 item 3: a deg/s + m/s^2 log against a count certificate: diagnose and the
     daemon both refuse, exit 2, with the same message."""
-    from conftest import run_imudiag
+    from conftest import run_imudiag, run_imudiag_in_process
 
-    d = run_imudiag("diagnose", str(IMUCAL), "--certificate", str(BUNDLED))
+    # the daemon as a real subprocess; diagnose's refusal in process (a real subprocess in
+    # test_text_tables.py's test_si_log_with_a_counts_certificate_is_exit_2_naming_both)
+    d = run_imudiag_in_process("diagnose", str(IMUCAL), "--certificate", str(BUNDLED))
     r = run_imudiag("run", "--source", f"replay://{IMUCAL}?speed=0", "--certificate", str(BUNDLED))
     assert d.returncode == 2 and r.returncode == 2
     message = d.stderr.strip().splitlines()[-1].split(": ", 1)[1]

@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import run_imudiag_in_process
 
 from imudiag.argtypes import (
     finite_float,
@@ -393,12 +394,9 @@ def test_unwritable_directory_is_refused(tmp_path: Path) -> None:
     try:
         with pytest.raises(argparse.ArgumentTypeError, match="is not writable"):
             writable_output_path()(str(directory / "out.csv"))
-        r = subprocess.run(
-            [sys.executable, "-m", "imudiag", "simulate", "static", "--duration", "1"]
-            + ["--out", str(directory / "out.csv")],
-            capture_output=True,
-            text=True,
-            timeout=120,
+        # in process: test_real_subprocess_per_command refuses an --out in a real subprocess
+        r = run_imudiag_in_process(
+            "simulate", "static", "--duration", "1", "--out", str(directory / "out.csv")
         )
         assert r.returncode == 2, r.stderr
         assert "argument --out: cannot write" in r.stderr and "is not writable" in r.stderr

@@ -207,7 +207,8 @@ def test_every_command_refuses_an_output_that_is_an_input(session: Path, tmp_pat
 
 def test_two_outputs_naming_one_file_are_refused(session: Path, tmp_path: Path):
     out = tmp_path / "x.yaml"
-    r = run_imudiag(
+    # in process: test_every_command_refuses_an_output_that_is_an_input refuses in a subprocess
+    r = run_imudiag_in_process(
         "calibrate", str(session), "--like", str(CERT), "--out", str(out), "--json", str(out)
     )
     assert r.returncode == 2
@@ -257,7 +258,8 @@ def test_unwritable_output_is_bad_input(tmp_path: Path):
 
 
 def test_report_into_a_missing_directory_exits_2(session: Path, tmp_path: Path):
-    r = run_imudiag("allan", str(session), "--json", str(tmp_path / "nodir" / "a.json"))
+    # in process, as test_two_outputs_naming_one_file_are_refused
+    r = run_imudiag_in_process("allan", str(session), "--json", str(tmp_path / "nodir" / "a.json"))
     assert r.returncode == 2
     assert "cannot write" in _one_line(r.stderr)
 

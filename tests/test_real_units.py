@@ -211,7 +211,8 @@ def test_grossly_wrong_certificate_is_a_fault_in_diagnose_as_in_the_daemon(tmp_p
     doc["accel"]["bias"] = [v + 300 for v in doc["accel"]["bias"]]  # 14 limits on each axis
     bad = tmp_path / "gross.yaml"
     bad.write_text(yaml.safe_dump(doc, sort_keys=False))
-    r = run_imudiag(
+    # in process: diagnose writes its report in a real subprocess in test_diagnosis_cli.py
+    r = run_imudiag_in_process(
         "diagnose", str(XSENS), "--certificate", str(bad), "--json", "-", "--no-windows"
     )
     assert r.returncode == 0, r.stderr

@@ -50,10 +50,13 @@ def test_status_lines(tmp_path):
         _head(obj, "imudiag-status/1")
 
 
-def test_command_reports(tmp_path, imudiag_cli):
-    """diagnose, calibrate, allan and model-check reports of one simulated session."""
+def test_command_reports(tmp_path, imudiag_cli, imudiag_in_process):
+    """diagnose, calibrate, allan and model-check reports of one simulated session. The
+    diagnosis as a real subprocess, the other commands in this process (each writes its
+    report in a real subprocess in its own test file: test_sim_command, test_calibrate,
+    test_sim_command's allan, test_modelcheck)."""
     log = tmp_path / "session.csv"
-    r = imudiag_cli(
+    r = imudiag_in_process(
         "simulate", "multiposition", "--duration", "60", "--seed", "3", "--out", str(log)
     )
     assert r.returncode == 0, r.stderr
@@ -74,6 +77,7 @@ def test_command_reports(tmp_path, imudiag_cli):
     }
     for fmt, args in runs.items():
         out = tmp_path / f"{args[0]}.json"
-        r = imudiag_cli(*args, "--json", str(out))
+        run = imudiag_cli if args[0] == "diagnose" else imudiag_in_process
+        r = run(*args, "--json", str(out))
         assert r.returncode in (0, 1), r.stderr  # 1: a calibration refused still reports
         _head(json.loads(out.read_text()), fmt)

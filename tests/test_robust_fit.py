@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_imudiag, run_imudiag_in_process
+from conftest import run_imudiag_in_process
 
 from imudiag.certificate import load, load_default
 from imudiag.diagnosis.intervals import IntervalCollector
@@ -164,8 +164,8 @@ def test_real_session_with_an_offset_hold(tmp_path):
     (about 0.9 % of g): the hold is rejected and named, the calibration is the clean one
     within its std, and diagnose with the clean calibration raises no fault (the windows
     reject it where they can tell, see docs/diagnosis.md; no single interval can make a
-    fault). The calibrations run by the command's entry point in this process, the diagnosis
-    as a real subprocess."""
+    fault). Both commands by their entry point in this process (calibrate and diagnose of the
+    Xsens session run as real subprocesses in test_interop.py)."""
     clean_cert, clean_json = tmp_path / "clean.yaml", tmp_path / "clean.json"
     r = run_imudiag_in_process(
         "calibrate",
@@ -197,7 +197,9 @@ def test_real_session_with_an_offset_hold(tmp_path):
         ):
             if s is not None:
                 assert abs(a - b) <= 2.0 * s, (key, a, b, s)
-    r = run_imudiag("diagnose", str(log), "--certificate", str(clean_cert), "--json", "-")
+    r = run_imudiag_in_process(
+        "diagnose", str(log), "--certificate", str(clean_cert), "--json", "-"
+    )
     assert r.returncode == 0, r.stderr
     report = json.loads(r.stdout)
     assert report["verdict"]["faults"] == []

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_imudiag
+from conftest import run_imudiag_in_process
 
 import imudiag
 from imudiag.certificate import load, load_default
@@ -131,14 +131,16 @@ def test_without_rejection_the_burst_pulls_the_gyro_calibration_off():
 
 def test_the_cli_lists_the_rejected_motion(tmp_path):
     """calibrate on a log with the corrupted turn: exit 0, the motion in ``rejected`` with its
-    time span and reason and on the console; the held-out check of the gyros in the summary."""
+    time span and reason and on the console; the held-out check of the gyros in the summary.
+    In process: calibrate writes its certificate and summary in a real subprocess in
+    test_calibrate.py."""
     _, like = _truth_and_like()
     _, bad_block, (b0, b1) = _session(21)
     log, like_path = tmp_path / "burst.csv", tmp_path / "like.yaml"
     write_log(log, bad_block)
     like.save(like_path)
     out, js = tmp_path / "cal.yaml", tmp_path / "cal.json"
-    r = run_imudiag(
+    r = run_imudiag_in_process(
         "calibrate", str(log), "--like", str(like_path), "--out", str(out), "--json", str(js)
     )
     assert r.returncode == 0, r.stderr

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
-from conftest import run_imudiag
+from conftest import run_imudiag, run_imudiag_in_process
 
 from imudiag.certificate import load, load_default
 from imudiag.diagnosis.config import DiagnosisConfig
@@ -52,7 +52,8 @@ def test_forty_short_holds_are_all_used(tmp_path: Path):
     all of them, twice the intervals and rotations of a 1 s minimum, and the calibration is
     at least as close to the truth."""
     log, truth = tmp_path / "short.csv.gz", tmp_path / "true.yaml"
-    r = run_imudiag(
+    # the default calibration is the real subprocess; simulate and --min-interval in process
+    r = run_imudiag_in_process(
         "simulate",
         "multiposition",
         "--param",
@@ -77,7 +78,7 @@ def test_forty_short_holds_are_all_used(tmp_path: Path):
     figures = {}
     for opt in ((), ("--min-interval", "1.0")):
         out, js = tmp_path / f"cal{len(opt)}.yaml", tmp_path / f"cal{len(opt)}.json"
-        r = run_imudiag(
+        r = (run_imudiag_in_process if opt else run_imudiag)(
             "calibrate",
             str(log),
             "--like",

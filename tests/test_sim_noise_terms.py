@@ -134,13 +134,14 @@ def test_simulate_command_writes_the_quantization_it_simulates(tmp_path) -> None
     """`imudiag simulate --effect quantization:S:STEP` in a real subprocess: the log's gx
     moves in whole steps, the true certificate carries Q = STEP / (rate sqrt(12)) (count
     s); a step of 0 is refused in one line naming the effect, exit 2."""
-    from conftest import run_imudiag
+    from conftest import run_imudiag_in_process
 
     from imudiag.certificate import load
     from imudiag.logs import read_log
 
     out, true = tmp_path / "q.csv.gz", tmp_path / "true.yaml"
-    r = run_imudiag(
+    # in process: simulate writes and refuses in real subprocesses in test_sim_command.py
+    r = run_imudiag_in_process(
         "simulate", "still", "--duration", "20", "--rate", "50", "--effect",
         "quantization:gx:200", "--out", str(out), "--true-certificate", str(true),
     )  # fmt: skip
@@ -149,7 +150,7 @@ def test_simulate_command_writes_the_quantization_it_simulates(tmp_path) -> None
     assert np.all(np.abs((gx - gx[0]) / 200.0 - np.round((gx - gx[0]) / 200.0)) < 1e-9)
     q = load(true).gyro.noise.quantization
     assert q is not None and q.tolist() == pytest.approx([200.0 / (50.0 * math.sqrt(12)), 0, 0])
-    bad = run_imudiag(
+    bad = run_imudiag_in_process(
         "simulate", "still", "--duration", "5", "--effect", "quantization:gx:0",
         "--out", str(tmp_path / "bad.csv.gz"),
     )  # fmt: skip

@@ -163,7 +163,10 @@ def test_diagnose_reads_a_users_table_like_the_spec_csv(session, imudiag_cli) ->
     table.write_text("\n".join(lines) + "\n")
     ref = _report(imudiag_cli, str(d / "session.csv"))
     assert ref["verdict"]["accel"] == "fault"
-    got = _report(imudiag_cli, str(table), "--columns", "t,gx,gy,gz,ax,ay,az", "--time-unit", "ms")
+    # the reference above is the real subprocess; the user's table in process
+    got = _report(
+        run_imudiag_in_process, str(table), "--columns", "t,gx,gy,gz,ax,ay,az", "--time-unit", "ms"
+    )
     _same(got, ref)
 
 
@@ -237,7 +240,10 @@ def test_convert_to_bin_refuses_a_log_not_in_counts(tmp_path: Path, imudiag_cli)
     assert r.returncode == 2 and "not in counts (gyro in deg/s, accel in g)" in r.stderr
     assert "--quantum" in r.stderr and not out.exists()
     assert not Path(str(out) + ".part").exists()
-    r = imudiag_cli("convert", str(firm), str(out), "--quantum", "gyro=0.001,accel=0.0001")
+    # the refusal above is the real subprocess; with --quantum in process
+    r = run_imudiag_in_process(
+        "convert", str(firm), str(out), "--quantum", "gyro=0.001,accel=0.0001"
+    )
     assert r.returncode == 0, r.stderr
     back = read_log(out)
     src = read_log(firm)
@@ -248,8 +254,11 @@ def test_convert_to_bin_refuses_a_log_not_in_counts(tmp_path: Path, imudiag_cli)
 
 
 def test_convert_to_bin_refuses_fractional_counts_and_keeps_no_temperature(
-    tmp_path: Path, imudiag_cli
+    tmp_path: Path, imudiag_in_process
 ) -> None:
+    """In process: convert's refusal to write a .bin runs as a real subprocess in
+    test_convert_to_bin_refuses_a_log_not_in_counts, its .bin written in test_logs.py."""
+    imudiag_cli = imudiag_in_process
     path = tmp_path / "frac.csv"
     path.write_text("t,gx,gy,gz,ax,ay,az\n" + "\n".join(_rows(",")) + "\n")
     r = imudiag_cli("convert", str(path), str(tmp_path / "frac.bin"))
@@ -276,11 +285,15 @@ def test_si_log_with_a_counts_certificate_is_exit_2_naming_both(
     firm = Path(__file__).parent / "data" / "real" / "firm-rocket-launch" / "flight.csv.gz"
     extra = ["--like", "config/default-certificate.yaml", "--out", str(tmp_path / "c.yaml")]
     args = extra if command == "calibrate" else []
-    r = imudiag_cli(command, str(firm), *args)
+    # diagnose's first refusal is the real subprocess, the others in process
+    run = imudiag_cli if command == "diagnose" else run_imudiag_in_process
+    r = run(command, str(firm), *args)
     assert r.returncode == 2, r.stderr
     assert "'deg/s'" in r.stderr and "output_unit is 'count'" in r.stderr
     assert "--units" in r.stderr and "use a certificate" in r.stderr
-    r = imudiag_cli(command, str(d / "session.csv"), "--units", "gyro=rad/s,accel=m/s^2", *args)
+    r = run_imudiag_in_process(
+        command, str(d / "session.csv"), "--units", "gyro=rad/s,accel=m/s^2", *args
+    )
     assert r.returncode == 2 and "'rad/s'" in r.stderr and "'count'" in r.stderr, r.stderr
     assert not (tmp_path / "c.yaml").exists()
 

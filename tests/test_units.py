@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import run_imudiag_in_process
 
 from imudiag.certificate import load as load_certificate
 from imudiag.errors import BadInput
@@ -71,12 +72,13 @@ def test_conform_converts_blocks_and_refuses_counts() -> None:
     assert "output_unit is 'deg/s'" in str(err.value)
 
 
-def _diagnose(args: list[str], out: Path) -> dict:
-    r = subprocess.run(
-        [sys.executable, "-m", "imudiag", "diagnose", *args, "--json", str(out), "--quiet"],
-        capture_output=True,
-        text=True,
-    )
+def _diagnose(args: list[str], out: Path, in_process: bool = False) -> dict:
+    """The report of ``imudiag diagnose ARGS`` (a real subprocess unless ``in_process``)."""
+    argv = ["diagnose", *args, "--json", str(out), "--quiet"]
+    if in_process:
+        r = run_imudiag_in_process(*argv)
+    else:
+        r = subprocess.run([sys.executable, "-m", "imudiag", *argv], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     return json.loads(out.read_text())
 
@@ -91,6 +93,7 @@ def test_headerless_table_in_ms_g_degs_diagnoses_as_the_si_log(tmp_path: Path) -
     txt = tmp_path / "imu.txt"
     np.savetxt(txt, table, fmt="%.17g", delimiter=" ")
     si = _diagnose([str(IMUCAL), "--certificate", str(LIKE_IMUCAL)], tmp_path / "si.json")
+    # the SI log is the real subprocess; the table in g and ms in process
     g = _diagnose(
         [
             str(txt),
@@ -104,6 +107,7 @@ def test_headerless_table_in_ms_g_degs_diagnoses_as_the_si_log(tmp_path: Path) -
             "accel=g,gyro=deg/s",
         ],
         tmp_path / "g.json",
+        in_process=True,
     )
     assert g["unit_conversion"] == [
         {"triad": "accel", "from": "g", "to": "m/s^2", "factor": 9.80665}

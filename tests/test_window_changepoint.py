@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import run_imudiag
+from conftest import run_imudiag_in_process
 
 from imudiag.certificate import load, load_default
 from imudiag.diagnosis.changepoint import STEP_SIGMA, window_exact_fit
@@ -100,14 +100,16 @@ def test_an_outlier_at_the_newest_end_is_kept_until_the_window_rolls():
 
 def test_diagnose_windows_reject_the_offset_hold_of_a_real_session(tmp_path):
     """The Xsens session with one hold offset by 15 counts on ax: the windows that hold it
-    in their middle reject it and name it; no fault, no step change claimed."""
+    in their middle reject it and name it; no fault, no step change claimed. Both commands in
+    this process: calibrate and diagnose of the Xsens session run as real subprocesses in
+    test_interop.py."""
     from test_robust_fit import _xsens_with_offset_hold
 
     log, (t0, t1) = _xsens_with_offset_hold(tmp_path, 15.0)
     cal = tmp_path / "cal.yaml"
-    r = run_imudiag("calibrate", str(XSENS), "--like", str(LIKE), "--out", str(cal))
+    r = run_imudiag_in_process("calibrate", str(XSENS), "--like", str(LIKE), "--out", str(cal))
     assert r.returncode == 0, r.stderr
-    r = run_imudiag("diagnose", str(log), "--certificate", str(cal), "--json", "-")
+    r = run_imudiag_in_process("diagnose", str(log), "--certificate", str(cal), "--json", "-")
     assert r.returncode == 0, r.stderr
     rep = json.loads(r.stdout)
     assert rep["verdict"]["faults"] == []

@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import run_imudiag
+from conftest import run_imudiag_in_process
 
 from imudiag import yamlio
 from imudiag.bench.scenario import ScenarioError
@@ -34,7 +34,8 @@ def test_a_duplicated_certificate_key_is_refused_with_both_lines(tmp_path):
         load(bad)
     msg = str(exc.value)
     assert str(bad) in msg and f"line {line}" in msg and "duplicate key 'bias'" in msg
-    r = run_imudiag(
+    # in process: diagnose refuses a bad certificate in a real subprocess in test_diagnosis_cli.py
+    r = run_imudiag_in_process(
         "diagnose",
         str(Path(__file__).parent / "data" / "real" / "imucal-ferraris" / "session.csv.gz"),
         "--certificate",
