@@ -1,6 +1,8 @@
 """``python -m benchmarks.plots``: CPU of the three commands that draw figures (``--plots``),
-with and without their figures, in a warm process (imports, font cache and a first run paid
-before timing).
+with and without their figures, each run a fresh ``python -m imudiag`` process as a user
+runs it (CPU: the child's user + system time; a first run warms matplotlib's font cache).
+In one warm process the figures would look cheaper than they are: matplotlib keeps parsed
+mathtext labels between figures.
 
 Cases:
 
@@ -11,12 +13,14 @@ Cases:
   tests/data/diagnosis/like-xsens.yaml: 3 figures;
 - ``calibrate``: the same session and ``--like`` certificate: 2 figures.
 
-Options: ``--cases`` (comma list), ``--repeat N`` (least of N, default 3), ``--profile N``
+Options: ``--cases`` (comma list), ``--repeat N`` (least of N, default 3), ``--before REV``
+(also the package of git revision REV, ``git archive`` into a temporary folder, its runs
+interleaved with this tree's: a before/after on a machine whose load changes), ``--profile N``
 (cProfile of one more run with figures, top N functions by cumulative time), ``--keep DIR``
 (leave the figures of the last run in DIR/<case>/ to look at).
-Prints, per case: the least CPU (``time.process_time``) of the command with ``--plots``, of
-the command without, and their difference (the figures). No assertion: docs/benchmarks.md
-holds the figures.
+Prints, per case: the least CPU of the command with ``--plots``, of the command without,
+and their difference (the figures, matplotlib's import included). ``--profile`` runs the
+command in this process. No assertion: docs/benchmarks.md holds the figures.
 """
 
 from __future__ import annotations
@@ -27,10 +31,11 @@ import cProfile
 import io
 import os
 import pstats
+import resource
 import shutil
+import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -72,17 +77,25 @@ def command(case: str, work: Path, plots: Path | None) -> list[str]:
     return args
 
 
-def run_once(args: list[str]) -> float:
-    """CPU seconds of ``imudiag ARGS`` in this process (its stdout discarded)."""
+def run_once(args: list[str], code: Path = ROOT) -> float:
+    """CPU seconds (user + system) of ``python -m imudiag ARGS`` in a child process, the
+    package imported from ``code``."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    proc = subprocess.run(
+        [sys.executable, "-m", "imudiag", *args, "-q"], cwd=code, capture_output=True, text=True
+    )
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if proc.returncode != 0:
+        raise SystemExit(f"imudiag {' '.join(args)}: exit {proc.returncode}: {proc.stderr}")
+    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def run_in_process(args: list[str]) -> None:
+    """``imudiag ARGS`` in this process (its stdout discarded), for the profile."""
     from imudiag.cli import main
 
     with contextlib.redirect_stdout(io.StringIO()):
-        start = time.process_time()
-        code = main(args)
-        cpu = time.process_time() - start
-    if code != 0:
-        raise SystemExit(f"imudiag {' '.join(args)}: exit {code}")
-    return cpu
+        main(args)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -92,34 +105,47 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--profile", type=int, default=0)
     ap.add_argument("--keep", type=Path)
+    ap.add_argument("--before")
     opts = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         write_modelcheck_session(work / "session.csv.gz")
+        trees = {"this tree": ROOT}
+        if opts.before:
+            old = work / "before"
+            old.mkdir()
+            archive = subprocess.run(["git", "archive", opts.before, "imudiag"], cwd=ROOT,
+                                     capture_output=True, check=True).stdout  # fmt: skip
+            subprocess.run(["tar", "-x", "-C", str(old)], input=archive, check=True)
+            trees = {opts.before: old, **trees}
         for case in opts.cases.split(","):
             plots = work / f"plots-{case}"
             run_once(command(case, work, plots))  # warm: imports, font cache, first figures
             shutil.rmtree(plots)
-            with_plots, without = [], []
+            with_plots: dict[str, list[float]] = {name: [] for name in trees}
+            without = []
             for _ in range(opts.repeat):
-                with_plots.append(run_once(command(case, work, plots)))
-                n_files = len(list(plots.glob("*.png")))
-                if opts.keep:
-                    dest = opts.keep / case
-                    shutil.rmtree(dest, ignore_errors=True)
-                    shutil.copytree(plots, dest)
-                shutil.rmtree(plots)
+                for name, code in trees.items():
+                    with_plots[name].append(run_once(command(case, work, plots), code))
+                    n_files = len(list(plots.glob("*.png")))
+                    if opts.keep:
+                        dest = opts.keep / name.replace(" ", "-") / case
+                        shutil.rmtree(dest, ignore_errors=True)
+                        shutil.copytree(plots, dest)
+                    shutil.rmtree(plots)
                 without.append(run_once(command(case, work, None)))
-            best, bare = min(with_plots), min(without)
-            print(
-                f"{case:12s} {n_files:2d} figures: with --plots {best:.3f} s CPU, without "
-                f"{bare:.3f} s, figures {best - bare:.3f} s ({(best - bare) / n_files:.3f} s "
-                f"per figure; least of {opts.repeat})"
-            )
+            bare = min(without)
+            for name, runs in with_plots.items():
+                best = min(runs)
+                print(
+                    f"{case:12s} {name:10s} {n_files:2d} figures: with --plots {best:.3f} s "
+                    f"CPU, without {bare:.3f} s, figures {best - bare:.3f} s "
+                    f"({(best - bare) / n_files:.3f} s per figure; least of {opts.repeat})"
+                )
             if opts.profile:
                 prof = cProfile.Profile()
                 prof.enable()
-                run_once(command(case, work, plots))
+                run_in_process(command(case, work, plots))
                 prof.disable()
                 shutil.rmtree(plots)
                 out = io.StringIO()

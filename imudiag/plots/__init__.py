@@ -160,16 +160,18 @@ def plain_log_labels(fig: Any) -> None:
     superscripts and TeX is not asked for."""
     from matplotlib import rcParams, ticker
 
-    if rcParams["text.usetex"] or not _font_has_superscripts():
+    if rcParams["text.usetex"]:
         return
-    cls = _plain_formatter_class()
     for ax in fig.axes:
         for axis in (ax.xaxis, ax.yaxis):
             major, minor = axis.get_major_formatter(), axis.get_minor_formatter()
-            if type(major) is ticker.LogFormatterSciNotation:
-                axis.set_major_formatter(cls(major))
-            if type(minor) is ticker.LogFormatterSciNotation:
-                axis.set_minor_formatter(cls(minor))
+            log = ticker.LogFormatterSciNotation
+            if (type(major) is log or type(minor) is log) and not _font_has_superscripts():
+                return
+            if type(major) is log:
+                axis.set_major_formatter(_plain_formatter_class()(major))
+            if type(minor) is log:
+                axis.set_minor_formatter(_plain_formatter_class()(minor))
 
 
 def layout(
