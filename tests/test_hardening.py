@@ -270,7 +270,7 @@ def test_allan_without_sensors_is_refused(log200, capsys, sensors):
     assert "--sensors: names no sensor" in line
 
 
-def test_no_matplotlib_warning_reaches_the_console():
+def test_no_matplotlib_warning_reaches_the_console(tmp_path):
     """The real MPU-6050 still recording against the bundled certificate (another board):
     no sample passes as still, 0 checks on either triad, and the F0 trace (``diagnose
     --plots``' f0_trace.png) drew the limit line alone on a log axis: matplotlib warned of
@@ -279,6 +279,7 @@ def test_no_matplotlib_warning_reaches_the_console():
     pytest.importorskip("matplotlib")
     from imudiag.diagnosis.config import DiagnosisConfig
     from imudiag.diagnosis.session import DiagnosisTrace, diagnose_recording
+    from imudiag.plots import TITLE_ROOM, save
     from imudiag.plots.diagnosis import _f0_figure
 
     trace = DiagnosisTrace()
@@ -289,6 +290,9 @@ def test_no_matplotlib_warning_reaches_the_console():
         warnings.simplefilter("error")
         fig = _f0_figure(trace)
         fig.savefig(io.BytesIO(), format="png", dpi=40)
+        # and as the command saves it: laid out, log labels in plain text, PNG written
+        save(_f0_figure(trace), tmp_path, "f0_trace.png", rect=TITLE_ROOM)
+    assert (tmp_path / "f0_trace.png").stat().st_size > 20_000
 
 
 # ---------------------------------------------------------------------------

@@ -245,3 +245,127 @@ def test_known_rate_calibration_draws_the_plateau_residuals(tmp_path):
     summary = json.loads(js.read_text())
     check_figures(summary["plots"], ("gyro_norm_residuals.png",), tmp_path / "p")
     assert summary["known_rate"]["norm_spread"]["after"]["rms"] < 1e-3
+
+
+# ---------------------------------------------------------------------------
+# imudiag.plots.save's rules: the layout and the log-axis labels (in this process, on Agg)
+
+_PARAMS = ("left", "right", "bottom", "top", "wspace", "hspace")
+
+
+def _figure_kinds():
+    """(name, figure, layout box) of each figure kind the three commands draw, with seeded
+    data: the real builders of calibrate and diagnose, the model check's shapes."""
+    from imudiag.diagnosis.session import DiagnosisTrace
+    from imudiag.plots import TITLE_ROOM, subplots
+    from imudiag.plots.calibration import _figure as calibration_figure
+    from imudiag.plots.diagnosis import _f0_figure
+
+    rng = np.random.default_rng(7)
+    res = {"before": rng.normal(0, 4e-3, 40), "after": rng.normal(0, 1e-4, 40),
+           "t": np.linspace(3.0, 480.0, 40)}  # fmt: skip
+    yield "calibration", calibration_figure("accel_norm", res, "like.yaml"), TITLE_ROOM
+    trace = DiagnosisTrace(t0=0.0)
+    for name, check, limit, scale in (("accel", "f0", 0.01, 3e-3), ("gyro", "rest_rate", 1.0, 0.4)):
+        tr = F0Trace(check, limit, max_points=500)
+        t = np.arange(0.0, 500.0, 0.1)
+        v = np.abs(rng.normal(0, scale, t.size))
+        tr.add(t, v, v > limit)
+        trace.f0[name] = tr
+    yield "f0 trace", _f0_figure(trace), TITLE_ROOM
+    fig, axes = subplots(3, 3, figsize=(13, 9.5), sharex=True)
+    for i, ax in enumerate(axes.flat):
+        ax.errorbar(np.arange(10.0), rng.normal(0, 10.0 ** (i - 4), 10), yerr=10.0 ** (i - 5))
+        ax.set_title(f"panel {i}", fontsize=10)
+        ax.set_ylabel("B [m/s^2]", fontsize=9)
+        ax.ticklabel_format(axis="y", style="sci", scilimits=(-3, 6), useOffset=False)
+    fig.legend(handles=[plt_line()], loc="lower center", ncol=5, fontsize=8, frameon=False)
+    fig.suptitle("estimates", fontsize=12)
+    yield "3x3 estimates", fig, (0.0, 0.04, 1.0, 0.97)
+    fig, ax = subplots(figsize=(6, 4), dpi=90)
+    tau = np.logspace(-2, 2, 30)
+    ax.loglog(tau, 0.3 / np.sqrt(tau) + 1e-3 * tau, "k.-", label="measured")
+    ax.set_xlabel("tau [s]")
+    ax.set_ylabel("Allan deviation [output units]")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    yield "allan", fig, (0.0, 0.0, 1.0, 1.0)
+    fig, (ax, ax2) = subplots(2, 1, figsize=(6, 6), sharex=True,
+                              gridspec_kw={"height_ratios": [3, 1]}, dpi=90)  # fmt: skip
+    ax.loglog(tau, 2e-3 / np.sqrt(tau))
+    ax2.semilogx(tau, 1 + rng.normal(0, 0.1, tau.size))
+    ax.set_title("noise model")
+    ax2.set_xlabel("tau [s]")
+    yield "noise model", fig, (0.0, 0.0, 1.0, 1.0)
+    fig, axes = subplots(1, 2, figsize=(10, 4), dpi=90)
+    axes[0].plot(np.arange(300.0), rng.normal(0, 0.02, 300), "k.", ms=2)
+    twin = axes[1].twinx()  # two axes in one cell: measured as one, as matplotlib does
+    twin.plot(np.arange(300.0), rng.normal(0, 5e4, 300))
+    twin.set_ylabel("a long right-hand label [units]")
+    yield "1x2 with a twin", fig, (0.0, 0.0, 1.0, 0.9)
+
+
+def plt_line():
+    from imudiag.plots import pyplot
+
+    return pyplot().Line2D([], [], color="k", label="certificate")
+
+
+def test_layout_gives_tight_layouts_subplot_parameters():
+    """imudiag.plots.layout measures each axes once; matplotlib's tight_layout with a box
+    measures the same figure twice: the parameters must be the same numbers."""
+    from imudiag.plots import layout, pyplot
+
+    for name, fig, rect in _figure_kinds():
+        start = {k: getattr(fig.subplotpars, k) for k in _PARAMS}
+        layout(fig, rect)
+        ours = {k: getattr(fig.subplotpars, k) for k in _PARAMS}
+        assert ours != start, name  # it laid the figure out
+        fig.subplots_adjust(**start)
+        fig.tight_layout(rect=rect)
+        ref = {k: getattr(fig.subplotpars, k) for k in _PARAMS}
+        assert ours == pytest.approx(ref, abs=1e-12), name
+        # nothing clipped: every axes with its decorations inside the figure
+        renderer = fig.canvas.get_renderer()
+        for ax in fig.axes:
+            box = ax.get_tightbbox(renderer)
+            assert box.x0 >= 0 and box.y0 >= 0, name
+            assert box.x1 <= fig.bbox.width and box.y1 <= fig.bbox.height, name
+        pyplot().close(fig)
+
+
+def test_log_axis_labels_are_matplotlibs_in_plain_text():
+    from matplotlib import ticker
+
+    from imudiag.plots import plain_log_label, plain_log_labels, pyplot, subplots
+
+    assert plain_log_label(r"$\mathdefault{10^{-3}}$") == "10⁻³"
+    assert plain_log_label(r"$\mathdefault{2\times10^{4}}$") == "2×10⁴"
+    assert plain_log_label(r"$\mathdefault{-10^{12}}$") == "−10¹²"
+    for other in ("", "0.5", r"$\mathdefault{10^{-0.50}}$", r"$x^2$"):
+        assert plain_log_label(other) == other  # not a label it knows: left as it is
+    labels = {}
+    for plain in (False, True):
+        # a wide span (decades labelled) and a narrow one (minor ticks labelled too)
+        fig, (wide, narrow) = subplots(1, 2, figsize=(8, 3))
+        wide.loglog([1e-3, 1e2], [1e-6, 1e1])
+        narrow.semilogy([0, 1], [2e-3, 9e-3])
+        if plain:
+            plain_log_labels(fig)
+        fig.canvas.draw()
+        labels[plain] = [
+            [t.get_text() for t in getter()]
+            for ax in (wide, narrow)
+            for getter in (
+                ax.xaxis.get_ticklabels,
+                ax.yaxis.get_ticklabels,
+                lambda ax=ax: ax.yaxis.get_ticklabels(minor=True),
+            )  # fmt: skip
+        ]
+        if plain:
+            assert not isinstance(wide.xaxis.get_major_formatter(), ticker.LogFormatter)
+        pyplot().close(fig)
+    assert labels[True] == [[plain_log_label(s) for s in row] for row in labels[False]]
+    flat = [s for row in labels[True] for s in row]
+    assert "10⁻³" in flat and any("×10⁻³" in s for s in flat)  # minor labels kept
+    assert not any("$" in s for s in flat)
