@@ -29,10 +29,12 @@ other core, which writes the rewritten test modules and imudiag's bytecode. In a
 clone each of the tier's two workers otherwise rewrote and compiled all of them itself
 (about 12 s of collection each on the 2-core machine, against 3.5 s warm). Beside it the
 optional compiled kernels (numba, :mod:`imudiag.kernels`) are compiled once into numba's
-cache (``imudiag/__pycache__``, git-ignored): in a fresh clone the first test of each
-tier worker that used them compiled them itself (48 s of CPU, and both workers at once),
-where a developer's later runs load them from the cache (about 1.4 s). Each warm-up
-process's end is printed after the style step (the tiers wait for both).
+cache (``imudiag/__pycache__``, git-ignored), the fits' and the streams' kernels in two
+processes: in a fresh clone the first test of each tier worker that used them compiled
+them itself (48 s of CPU, and both workers at once), where a developer's later runs load
+them from the cache (about 1.4 s). Each warm-up process's end is printed after the style
+step (the tiers wait for all of them). mypy checks with two worker processes
+(``num_workers`` in pyproject.toml).
 
 Every step runs, whatever the one before gave; the exit status is 0 only when all three
 passed. Each step's wall time is printed (a figure, not a bound). Extra arguments are
@@ -78,8 +80,11 @@ WARM_UP = {
         "no:cacheprovider",
     ],
     # the compiled kernels (numba's cache in imudiag/__pycache__): a fresh clone compiles
-    # them once here instead of in each tier worker whose tests use them
-    "kernels": ["-c", "from imudiag import kernels; kernels.load()"],
+    # them once here instead of in each tier worker whose tests use them; the fits' kernels
+    # and the streams' in two processes side by side (numba compiles on one core: 35 s and
+    # 18 s of the 48 s one process took)
+    "kernels (fits)": ["-c", "from imudiag import numba_kernels as k; k.warm_up(0)"],
+    "kernels (streams)": ["-c", "from imudiag import numba_kernels as k; k.warm_up(1)"],
 }
 
 

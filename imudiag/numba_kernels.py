@@ -1476,88 +1476,93 @@ def exact_fit_kernel(
     return True, th, r, info, cov_out, dof, cov_scale, extra_used, rms, shift, z, excess, zp
 
 
-def warm_up() -> dict[str, Any]:
+def warm_up(part: int | None = None) -> dict[str, Any]:
     """Run each kernel once (compiling it, or loading it from numba's cache); the kernels by
-    name."""
+    name. ``part`` 0 or 1: only the fits' kernels or only the streams' (two processes
+    compiling into numba's cache side by side: ``.ci/suite.py``'s warm-up); None: all."""
     rng = np.random.default_rng(0)
-    product_sensitivity_kernel(
-        rng.normal(size=(7, 3)), rng.normal(size=(7, 3)), np.array([3, 0, 4])
-    )
-    v = rng.normal(size=(12, 3))
-    v /= np.linalg.norm(v, axis=1)[:, None]
-    gauss_newton(
-        np.zeros(9),
-        0.0,
-        v,
-        np.ones(12),
-        np.full((12, 3), 1e-8),
-        np.ones(9),
-        np.zeros(9),
-        20,
-        0.5,
-        1e-14,
-    )
     q_c = np.eye(3)
-    for npar, frame in ((6, False), (9, True)):
-        ninv, dninv = ninv_derivatives_kernel(np.zeros(6), q_c, np.full(npar, 1e-3), frame)
-        frozen = dninv.copy()
-        frozen.setflags(write=False)  # the rotation fit's cached derivatives are read-only
-        for d in (dninv, frozen):
-            predict_kernel(
-                np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 3, 3, 3)), d, np.ones((1, 3))
-            )
-    rows = rng.normal(size=(3, 8))
-    bounds = np.array([0, 3], dtype=np.int64), np.array([3, 8], dtype=np.int64)
-    for rotate in (True, False):
-        # the epochs' mid rotations as a slice and as an array of their own (a drive's)
-        for mid in (rows[:, :3], rows[:, :3].copy()):
-            epoch_cut(rows, rows, rows, rows, mid, *bounds, rotate, rotate)
-    d_idx = np.array([0, 2, 4], dtype=np.int64)
-    d_max = np.zeros((3, 2))
-    trailing_spread(
-        d_idx, rows.T[:3, :4].copy(), d_idx, d_max, d_max.copy(), 0, 0, rows.T[:5, :2].copy(),
-        np.zeros(5, dtype=np.int64), 2, 3,
-    )  # fmt: skip
-    x = rng.normal(size=(12, 6))
-    for layout in (x, x.T.copy().T):  # C-contiguous and strided (a transposed view)
-        beyond_counts(layout, np.zeros((4, 6)), np.array([3, 12], dtype=np.int64), 3)
-    robust_excess(np.array([3.0, 1.0, 2.0, 5.0]), np.ones(4), 0.45)
-    excess_variance(rng.normal(size=300), np.ones(300), 100.0)
-    x13 = rng.normal(size=(6, 13))
-    jump_test(x13, x13 * 0.5, x13 * 0.25, np.ones(6, dtype=np.bool_), np.ones(3), 2, 3.0, 10)
-    jump_test(x13, x13[:, :], x13.T.copy().T, np.ones(6, dtype=np.bool_), np.ones(3), 2, 3.0, 0)
-    window_moments(x13, 2, np.zeros(6))
-    window_moments(x13[1:], 2, np.zeros(6))
-    x26 = rng.normal(size=(6, 26))
-    window_moments(x26[:, ::2], 2, np.zeros(6))  # strided (diagnose's prefix-sum views)
-    jump_test(x26[:, ::2], x26[:, 1::2], x26[:, ::2], np.ones(6, dtype=np.bool_), np.ones(3), 2,
-              3.0, 0)  # fmt: skip
-    for start, probes in ((True, 0), (False, 1)):
-        exact_fit_kernel(
-            np.zeros(9), start, v, np.full((12, 3), 1e-8), np.ones(12), np.zeros(9),
-            np.ones(9), 20, 0.5, 1e-14, True, 0.99, 0.45, v[:probes].copy(),
-            np.full((probes, 3), 1e-8), np.ones(probes),
+    if part in (None, 0):  # the fits
+        product_sensitivity_kernel(
+            rng.normal(size=(7, 3)), rng.normal(size=(7, 3)), np.array([3, 0, 4])
+        )
+        v = rng.normal(size=(12, 3))
+        v /= np.linalg.norm(v, axis=1)[:, None]
+        gauss_newton(
+            np.zeros(9),
+            0.0,
+            v,
+            np.ones(12),
+            np.full((12, 3), 1e-8),
+            np.ones(9),
+            np.zeros(9),
+            20,
+            0.5,
+            1e-14,
+        )
+        for npar, frame in ((6, False), (9, True)):
+            ninv, dninv = ninv_derivatives_kernel(np.zeros(6), q_c, np.full(npar, 1e-3), frame)
+            frozen = dninv.copy()
+            frozen.setflags(write=False)  # the rotation fit's cached derivatives are read-only
+            for d in (dninv, frozen):
+                predict_kernel(
+                    np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 3, 3, 3)), d, np.ones((1, 3))
+                )
+        robust_excess(np.array([3.0, 1.0, 2.0, 5.0]), np.ones(4), 0.45)
+        excess_variance(rng.normal(size=300), np.ones(300), 100.0)
+        for start, probes in ((True, 0), (False, 1)):
+            exact_fit_kernel(
+                np.zeros(9), start, v, np.full((12, 3), 1e-8), np.ones(12), np.zeros(9),
+                np.ones(9), 20, 0.5, 1e-14, True, 0.99, 0.45, v[:probes].copy(),
+                np.full((probes, 3), 1e-8), np.ones(probes),
+            )  # fmt: skip
+    if part in (None, 1):  # the streams' detectors, meters and cuts
+        rows = rng.normal(size=(3, 8))
+        bounds = np.array([0, 3], dtype=np.int64), np.array([3, 8], dtype=np.int64)
+        for rotate in (True, False):
+            # the epochs' mid rotations as a slice and as an array of their own (a drive's)
+            for mid in (rows[:, :3], rows[:, :3].copy()):
+                epoch_cut(rows, rows, rows, rows, mid, *bounds, rotate, rotate)
+        d_idx = np.array([0, 2, 4], dtype=np.int64)
+        d_max = np.zeros((3, 2))
+        trailing_spread(
+            d_idx, rows.T[:3, :4].copy(), d_idx, d_max, d_max.copy(), 0, 0, rows.T[:5, :2].copy(),
+            np.zeros(5, dtype=np.int64), 2, 3,
         )  # fmt: skip
-    g6 = rng.normal(size=(5, 3))
-    rows6 = np.empty((5, 13))
-    g12 = rng.normal(size=(5, 12))
-    for fl in (np.zeros(5, dtype=np.int64), np.zeros(0, dtype=np.int64)):
-        for gy, ac in ((g6, g6.copy()), (g12[:, 0:3], g12[:, 6:9])):  # C and strided
-            window_rows(gy, ac, fl, 7, np.ones(6, dtype=np.bool_), np.zeros(6), rows6)
-    window_rates(
-        x13[:, :6].copy(), x13, np.ones(6), np.zeros(6), np.zeros(3), np.ones(3), q_c,
-        np.zeros(3), np.ones(3), q_c,
-    )  # fmt: skip
-    ok6 = np.ones(6, dtype=np.bool_)
-    variance_test(x13[:, :6].copy(), np.ones(6), 3.0, ok6[:2].copy(), False, np.ones(3), 1.0, ok6)
-    drift_within(x13[:, :3].copy(), np.ones(3), 1.0, ok6)
-    ext = np.zeros((9, 13))
-    chunked_cumsum(x13, x13[0].copy(), 4, ext[3:])  # C rows into a C slice of ext
-    stack_backs(ext, 3, np.array([1, 3], dtype=np.int64), np.empty((6, 2, 13)))
-    highpass_squares(x13[:, :6].copy(), 4, 3, np.ones(6), np.empty((4, 6)))
-    stuck_scan(x13[:, :6].T.copy(), np.full(6, np.nan))  # a C-contiguous (6, N) block
-    second_diff_squares(x13[:, :6].T.copy())
-    stuck_scan(np.empty((6, 9))[:, 2:], np.full(6, np.nan))  # a slice after the history
+        x = rng.normal(size=(12, 6))
+        for layout in (x, x.T.copy().T):  # C-contiguous and strided (a transposed view)
+            beyond_counts(layout, np.zeros((4, 6)), np.array([3, 12], dtype=np.int64), 3)
+        x13 = rng.normal(size=(6, 13))
+        jump_test(x13, x13 * 0.5, x13 * 0.25, np.ones(6, dtype=np.bool_), np.ones(3), 2, 3.0, 10)
+        jump_test(x13, x13[:, :], x13.T.copy().T, np.ones(6, dtype=np.bool_), np.ones(3), 2, 3.0, 0)
+        window_moments(x13, 2, np.zeros(6))
+        window_moments(x13[1:], 2, np.zeros(6))
+        x26 = rng.normal(size=(6, 26))
+        window_moments(x26[:, ::2], 2, np.zeros(6))  # strided (diagnose's prefix-sum views)
+        jump_test(x26[:, ::2], x26[:, 1::2], x26[:, ::2], np.ones(6, dtype=np.bool_), np.ones(3), 2,
+                  3.0, 0)  # fmt: skip
+        g6 = rng.normal(size=(5, 3))
+        rows6 = np.empty((5, 13))
+        g12 = rng.normal(size=(5, 12))
+        for fl in (np.zeros(5, dtype=np.int64), np.zeros(0, dtype=np.int64)):
+            for gy, ac in ((g6, g6.copy()), (g12[:, 0:3], g12[:, 6:9])):  # C and strided
+                window_rows(gy, ac, fl, 7, np.ones(6, dtype=np.bool_), np.zeros(6), rows6)
+        window_rates(
+            x13[:, :6].copy(), x13, np.ones(6), np.zeros(6), np.zeros(3), np.ones(3), q_c,
+            np.zeros(3), np.ones(3), q_c,
+        )  # fmt: skip
+        ok6 = np.ones(6, dtype=np.bool_)
+        variance_test(
+            x13[:, :6].copy(), np.ones(6), 3.0, ok6[:2].copy(), False, np.ones(3), 1.0, ok6
+        )
+        drift_within(x13[:, :3].copy(), np.ones(3), 1.0, ok6)
+        ext = np.zeros((9, 13))
+        chunked_cumsum(x13, x13[0].copy(), 4, ext[3:])  # C rows into a C slice of ext
+        stack_backs(ext, 3, np.array([1, 3], dtype=np.int64), np.empty((6, 2, 13)))
+        highpass_squares(x13[:, :6].copy(), 4, 3, np.ones(6), np.empty((4, 6)))
+        stuck_scan(x13[:, :6].T.copy(), np.full(6, np.nan))  # a C-contiguous (6, N) block
+        second_diff_squares(x13[:, :6].T.copy())
+        stuck_scan(np.empty((6, 9))[:, 2:], np.full(6, np.nan))  # a slice after the history
     return {
         "chunked_cumsum": chunked_cumsum,
         "stack_backs": stack_backs,
