@@ -154,32 +154,27 @@ class VibrationMeter:
         if compiled is not None:
             sq = np.empty((n, 6))
             compiled(full, n, h, self._to_si, sq)
-            self._tail = full[-(h - 1) :].copy() if h > 1 else np.zeros((0, 6))
-            if not np.isfinite(sq).all():
-                sq = np.nan_to_num(sq, nan=0.0, posinf=0.0, neginf=0.0)
-            self._add_squares(sq)
-            self.seen += n
-            return
-        x = full[self._tail.shape[0] :]
-        # each sample minus the mean of the h samples ending at it (fewer at the stream's
-        # start), from prefix sums of the samples centred on the first
-        ref = full[0].copy()
-        c = np.zeros((full.shape[0] + 1, 6))
-        np.cumsum(full - ref, axis=0, out=c[1:])
-        m = full.shape[0]
-        hi = c[m - n + 1 : m + 1]
-        if m - n + 1 - h >= 0:  # every window whole: contiguous slices, no gather
-            mean = hi - c[m - n + 1 - h : m + 1 - h]
-            mean /= h
         else:
-            end = np.arange(m - n, m) + 1
-            start = np.maximum(end - h, 0)
-            mean = (hi - c[start]) / (end - start)[:, None]
-        mean += ref
-        hp = np.subtract(x, mean, out=mean)
-        hp *= self._to_si
+            x = full[self._tail.shape[0] :]
+            # each sample minus the mean of the h samples ending at it (fewer at the stream's
+            # start), from prefix sums of the samples centred on the first
+            ref = full[0].copy()
+            c = np.zeros((full.shape[0] + 1, 6))
+            np.cumsum(full - ref, axis=0, out=c[1:])
+            m = full.shape[0]
+            hi = c[m - n + 1 : m + 1]
+            if m - n + 1 - h >= 0:  # every window whole: contiguous slices, no gather
+                mean = hi - c[m - n + 1 - h : m + 1 - h]
+                mean /= h
+            else:
+                end = np.arange(m - n, m) + 1
+                start = np.maximum(end - h, 0)
+                mean = (hi - c[start]) / (end - start)[:, None]
+            mean += ref
+            hp = np.subtract(x, mean, out=mean)
+            hp *= self._to_si
+            sq = np.square(hp, out=hp)
         self._tail = full[-(h - 1) :].copy() if h > 1 else np.zeros((0, 6))
-        sq = np.square(hp, out=hp)
         if not np.isfinite(sq).all():
             sq = np.nan_to_num(sq, nan=0.0, posinf=0.0, neginf=0.0)
         self._add_squares(sq)
