@@ -440,18 +440,28 @@ def test_simulate_fleet_writes_mixed_logs_and_the_truth(tmp_path: Path) -> None:
 
 
 def test_a_log_that_kills_its_worker_is_a_row_with_the_reason(
-    fleet: tuple[Path, dict], tmp_path: Path
+    fleet: tuple[Path, dict], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A worker whose Dask memory limit (60 MB) is below what a worker needs is killed by
-    its nanny while running a log; the log is tried once more (``retries=1``), then
-    recorded with the reason, and the run itself ends normally with its summary. (One log:
-    each kill costs a worker's start, about 4 s on the 2-core machine.)"""
+    """A worker whose Dask memory limit is the least the runner takes (100 MiB: an idle
+    worker holds about 65 MB) is killed by its nanny while running a log: the task's
+    warm-up loads the compiled kernels (numba, about 230 MB in all). The log is tried once
+    more (``retries=1``), then recorded with the reason, and the run itself ends normally
+    with its summary. (Each kill costs a worker's start, about 1 s on the 2-core machine. A
+    limit below the idle worker's, 60 MB before, had each restarted worker killed before it
+    took the log, over and over until one raced past its nanny's memory monitor: 19 s, and
+    no bound; the runner now refuses such a limit, tests/test_option_validation.py.)"""
     import imudiag.fleet
+    from imudiag import kernels
+    from imudiag.fleet.runner import MIN_MEMORY_LIMIT
 
+    assert kernels.available(), "the fleet extra installs numba; the kill needs its kernels"
+    monkeypatch.delenv("IMUDIAG_KERNELS", raising=False)  # the workers load the kernels
     root, _ = fleet
     logs = sorted(str(p) for p in (root / "unit-02").glob("flight-001.*"))
     assert len(logs) == 1
-    records = imudiag.fleet.run(logs, tmp_path, workers=1, memory_limit="60MB", retries=1)
+    records = imudiag.fleet.run(
+        logs, tmp_path, workers=1, memory_limit=MIN_MEMORY_LIMIT, retries=1
+    )
     assert [r["path"] for r in records] == logs
     (r,) = records
     assert r["status"] == "error"

@@ -118,7 +118,7 @@ CASES: list[tuple] = [
     (FLEET, "--workers", COUNTS),
     (FLEET, "--timeout", POSITIVE_S),
     (FLEET, "--retries", ["-1", "2.5", "x"]),
-    (FLEET, "--memory-limit", ["lots", "-5MB", "0"]),
+    (FLEET, "--memory-limit", ["lots", "-5MB", "0", "60MB"]),
     (FLEET, "--scheduler", ["not-a-url", "tcp://", "tcp://host:port"]),
     (FLEET, "--certificate", [NONE], "none.yaml"),
     (FLEET, "--certificates", [NONE], "none.yaml"),

@@ -90,16 +90,9 @@ _ADDRESS = re.compile(r"^[a-z][a-z0-9+]*://[^\s:/]+:\d+$")
 
 def check_options(args: argparse.Namespace) -> None:
     """``--memory-limit`` and ``--scheduler`` before any work; BadInput naming them."""
-    from dask.utils import parse_bytes
+    from ..fleet.runner import memory_limit_bytes
 
-    try:
-        limit = parse_bytes(args.memory_limit)
-    except (ValueError, TypeError):
-        limit = -1
-    if not limit > 0:
-        raise BadInput(
-            f"--memory-limit {args.memory_limit!r}: expected a size such as 2GiB or 500MB"
-        )
+    memory_limit_bytes(args.memory_limit, "--memory-limit")
     if args.scheduler and not _ADDRESS.match(args.scheduler):
         raise BadInput(
             f"--scheduler {args.scheduler!r}: expected an address such as tcp://HOST:8786"

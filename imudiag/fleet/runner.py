@@ -25,6 +25,10 @@ EXTRA = "fleet"
 DEFAULT_TIMEOUT_S = 1800.0
 #: Default memory limit of each local worker (Dask's, per worker process).
 DEFAULT_MEMORY_LIMIT = "2GiB"
+#: The least memory limit of a local worker, bytes (100 MiB): an idle worker (Python, numpy,
+#: Dask) holds about 65 MB, and a nanny whose worker passes 95 % of its limit restarts it,
+#: before it takes a log too, over and over: the run would not end.
+MIN_MEMORY_LIMIT = 100 * 2**20
 #: Default times a log whose worker died is tried again on another worker.
 DEFAULT_RETRIES = 1
 SUMMARY = "fleet.json"
@@ -159,6 +163,25 @@ def rebuild(out: str | Path) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     return records, summary
 
 
+def memory_limit_bytes(value: str | float, where: str = "memory_limit") -> int:
+    """A worker memory limit (bytes, or text such as ``"2GiB"`` or ``"500MB"``) in bytes;
+    BadInput naming ``where`` when it is not a size or is below :data:`MIN_MEMORY_LIMIT`."""
+    from dask.utils import parse_bytes
+
+    try:
+        limit = parse_bytes(value)
+    except (ValueError, TypeError):
+        limit = -1
+    if not limit > 0:
+        raise BadInput(f"{where} {value!r}: expected a size such as 2GiB or 500MB")
+    if limit < MIN_MEMORY_LIMIT:
+        raise BadInput(
+            f"{where} {value!r}: below the {MIN_MEMORY_LIMIT // 2**20} MiB a fleet worker needs "
+            "before its first log (its nanny would restart it over and over)"
+        )
+    return int(limit)
+
+
 def run(
     paths: list[str] | str,
     out: str | Path,
@@ -182,11 +205,14 @@ def run(
     Logs already recorded in ``out/logs.jsonl`` (same content hash) are skipped unless
     ``redo``. ``workers``: local worker processes (default: this machine's cores), ignored
     with ``scheduler`` (``tcp://HOST:8786``, an existing cluster that sees the same paths).
-    ``memory_limit``: per local worker (bytes or text such as ``"2GiB"``); a log that kills
-    its worker is tried ``retries`` more times, then recorded with the reason.
+    ``memory_limit``: per local worker (bytes or text such as ``"2GiB"``, at least
+    :data:`MIN_MEMORY_LIMIT`; None: no limit); a log that kills its worker is tried
+    ``retries`` more times, then recorded with the reason.
     ``timeout_s``: per log, s of wall time. ``config``: :class:`DiagnosisConfig` fields.
     """
     require()
+    if memory_limit is not None:
+        memory_limit_bytes(memory_limit)  # a limit no worker can start under, before any work
     if isinstance(paths, str | os.PathLike):
         paths = [os.fspath(paths)]
     if certificate and certificate != AUTO:
