@@ -459,9 +459,7 @@ def test_a_log_that_kills_its_worker_is_a_row_with_the_reason(
     root, _ = fleet
     logs = sorted(str(p) for p in (root / "unit-02").glob("flight-001.*"))
     assert len(logs) == 1
-    records = imudiag.fleet.run(
-        logs, tmp_path, workers=1, memory_limit=MIN_MEMORY_LIMIT, retries=1
-    )
+    records = imudiag.fleet.run(logs, tmp_path, workers=1, memory_limit=MIN_MEMORY_LIMIT, retries=1)
     assert [r["path"] for r in records] == logs
     (r,) = records
     assert r["status"] == "error"
