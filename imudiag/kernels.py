@@ -9,7 +9,8 @@ GNSS epoch cut of the moving-base diagnosis
 band, variance, jump and drift tests and trailing spreads (:mod:`imudiag.quasistatic`), the
 prefix sums of :class:`imudiag.trailing.PrefixSums` (the detector's and the monitor's), the
 vibration meter's high-pass, the stuck check's scan and the noise judge's second
-differences (bit for bit). This
+differences (bit for bit); with them on, the CSV reader reads numbers with pyarrow's
+parser where pyarrow is installed (:mod:`imudiag.logs.arrow_csv`, bit for bit). This
 switch sits on the ground floor (tests/test_layout.py) so that every floor that has a kernel
 can ask it.
 

@@ -56,7 +56,8 @@ WARM_MODULES = (
 def warm_up() -> float:
     """Import :data:`WARM_MODULES` in this process (a fleet worker) and load the compiled
     window-fit kernels where numba is installed (:mod:`imudiag.diagnosis.kernels`; not with
-    ``IMUDIAG_KERNELS=plain``); the CPU of this thread it took, s (about 0 once done)."""
+    ``IMUDIAG_KERNELS=plain``) and pyarrow's CSV parser (:mod:`imudiag.logs.arrow_csv`);
+    the CPU of this thread it took, s (about 0 once done)."""
     import importlib
 
     cpu0 = time.thread_time()
@@ -66,8 +67,12 @@ def warm_up() -> float:
         # the compiled window-fit kernels where numba is installed (the fleet extra): the
         # compile, or the load of numba's disk cache, is paid here once per worker
         from ..diagnosis import kernels
+        from ..logs import arrow_csv
 
         kernels.load()
+        # pyarrow's CSV parser (the CSV reader's compiled path): its first parse costs
+        # about 0.4 s of set-up, paid here instead of by the first CSV log
+        arrow_csv.floats(b"0\n", 1, 1, [0])
     return time.thread_time() - cpu0
 
 
