@@ -439,6 +439,19 @@ def test_simulate_fleet_writes_mixed_logs_and_the_truth(tmp_path: Path) -> None:
     assert bad.returncode == 2 and "--vehicles N and --flights M" in bad.stderr
 
 
+def test_the_local_workers_are_spawned_with_the_malloc_settings() -> None:
+    """A local worker's own environment holds Dask's trimming and the mmap threshold the
+    runner adds (:data:`imudiag.fleet.runner.WORKER_MALLOC`, tests/test_fleet_warm.py)."""
+    from dask.distributed import Client
+
+    from imudiag.fleet.runner import local_cluster
+
+    names = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
+    with local_cluster(1, "1GiB") as cluster, Client(cluster) as client:
+        (seen,) = client.run(lambda: {k: os.environ.get(k) for k in names}).values()
+    assert seen == {"MALLOC_MMAP_THRESHOLD_": "33554432", "MALLOC_TRIM_THRESHOLD_": "65536"}
+
+
 def test_a_log_that_kills_its_worker_is_a_row_with_the_reason(
     fleet: tuple[Path, dict], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

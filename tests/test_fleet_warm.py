@@ -100,3 +100,22 @@ def test_a_missing_certificate_is_its_own_error(tmp_path):
     with pytest.raises(ImudiagError) as err:
         task.load_certificate_once(str(tmp_path / "nope.yaml"))
     assert "nope.yaml" in str(err.value)
+
+
+def test_local_workers_keep_glibcs_mmap_threshold_under_dasks_trimming() -> None:
+    """Dask's nanny spawns workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also fixed
+    glibc's mmap threshold at 128 KiB (every larger numpy array mapped and faulted in anew:
+    about 1.6x a task's CPU); the local workers get the 32 MiB glibc's own threshold slides
+    up to, beside Dask's settings, and a user's own setting wins. (The spawned workers'
+    environment: tests/test_fleet.py, real-time tier.)"""
+    import dask
+
+    from imudiag.fleet.runner import WORKER_MALLOC, worker_environment
+
+    env = worker_environment()
+    assert env["MALLOC_MMAP_THRESHOLD_"] == WORKER_MALLOC["MALLOC_MMAP_THRESHOLD_"] == "33554432"
+    assert str(env["MALLOC_TRIM_THRESHOLD_"]) == "65536"  # Dask's own, kept
+    assert str(env["OPENBLAS_NUM_THREADS"]) == "1"
+    mine = {"MALLOC_MMAP_THRESHOLD_": "1048576"}
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": mine}):
+        assert worker_environment() == mine

@@ -80,6 +80,51 @@ def load_certificate_map(path: str) -> dict[str, str]:
     return out
 
 
+#: glibc malloc settings of the local workers, over Dask's nanny environment: Dask sets
+#: ``MALLOC_TRIM_THRESHOLD_=65536`` there (so a worker gives freed memory back), which also
+#: fixes glibc's mmap threshold at 128 KiB, where it otherwise slides up with use: every
+#: numpy array over 128 KiB was mapped anew and its pages faulted in again, about 1.6x the
+#: CPU of a task (docs/benchmarks.md, "Fleet"). 32 MiB is the most glibc's own sliding
+#: threshold reaches; the trimming stays. A setting of the user's Dask configuration wins.
+WORKER_MALLOC = {"MALLOC_MMAP_THRESHOLD_": str(32 * 2**20)}
+
+
+def worker_environment() -> dict[str, Any]:
+    """The environment a local worker is spawned with (Dask's ``distributed.nanny.
+    pre-spawn-environ`` under :data:`WORKER_MALLOC`)."""
+    import dask
+
+    configured = dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {}
+    return {**WORKER_MALLOC, **configured}
+
+
+@contextlib.contextmanager
+def local_cluster(
+    workers: int | None, memory_limit: str | float | None, dashboard: bool = False
+) -> Iterator[Any]:
+    """A LocalCluster of ``workers`` processes (default: this machine's cores), one thread
+    each, spawned with :func:`worker_environment`; closed after the block."""
+    import dask
+    from dask.distributed import LocalCluster
+
+    # the scheduler always serves /health on 8787 (the dashboard stays off unless asked
+    # for); another cluster on the machine moves it to a free port: not worth a warning
+    warnings.filterwarnings("ignore", message="Port 8787 is already in use")
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environment()}):
+        cluster = LocalCluster(
+            n_workers=workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            memory_limit=memory_limit,
+            dashboard_address=":8787" if dashboard else None,
+            silence_logs=logging.ERROR,
+        )
+    try:
+        yield cluster
+    finally:
+        cluster.close()
+
+
 @contextlib.contextmanager
 def _client(
     scheduler: str | None,
@@ -89,7 +134,7 @@ def _client(
     dashboard: bool,
 ) -> Iterator[Any]:
     import dask
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client
 
     for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(name, "1")  # the workers' numpy: one BLAS thread each
@@ -104,25 +149,14 @@ def _client(
             finally:
                 client.close()
             return
-        # the scheduler always serves /health on 8787 (the dashboard stays off unless asked
-        # for); another cluster on the machine moves it to a free port: not worth a warning
-        warnings.filterwarnings("ignore", message="Port 8787 is already in use")
-        cluster = LocalCluster(
-            n_workers=workers or os.cpu_count() or 1,
-            threads_per_worker=1,
-            processes=True,
-            memory_limit=memory_limit,
-            dashboard_address=":8787" if dashboard else None,
-            silence_logs=logging.ERROR,
-        )
-        client = Client(cluster)
-        if dashboard:
-            print(f"imudiag fleet: dashboard at {client.dashboard_link}", flush=True)
-        try:
-            yield client
-        finally:
-            client.close()
-            cluster.close()
+        with local_cluster(workers, memory_limit, dashboard) as cluster:
+            client = Client(cluster)
+            if dashboard:
+                print(f"imudiag fleet: dashboard at {client.dashboard_link}", flush=True)
+            try:
+                yield client
+            finally:
+                client.close()
 
 
 def _lost(job: Job, exc: BaseException, retries: int) -> dict[str, Any]:
