@@ -1478,14 +1478,14 @@ def exact_fit_kernel(
 
 def warm_up(part: int | None = None) -> dict[str, Any]:
     """Run each kernel once (compiling it, or loading it from numba's cache); the kernels by
-    name. ``part`` 0 or 1: only the fits' kernels or only the streams' (two processes
-    compiling into numba's cache side by side: ``.ci/suite.py``'s warm-up); None: all."""
+    name. ``part`` 0 or 1: only the exact fit's kernels (its Gauss-Newton loop, excess
+    variances, robust excess: one chain, compiled together), or the others (the rotation
+    fit's products, the streams' detectors, meters and cuts): two processes of about the
+    same compile time, side by side into numba's cache (``.ci/suite.py``'s warm-up); None:
+    all."""
     rng = np.random.default_rng(0)
     q_c = np.eye(3)
-    if part in (None, 0):  # the fits
-        product_sensitivity_kernel(
-            rng.normal(size=(7, 3)), rng.normal(size=(7, 3)), np.array([3, 0, 4])
-        )
+    if part in (None, 0):  # the exact fit and what it calls (one chain: one process)
         v = rng.normal(size=(12, 3))
         v /= np.linalg.norm(v, axis=1)[:, None]
         gauss_newton(
@@ -1500,14 +1500,6 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
             0.5,
             1e-14,
         )
-        for npar, frame in ((6, False), (9, True)):
-            ninv, dninv = ninv_derivatives_kernel(np.zeros(6), q_c, np.full(npar, 1e-3), frame)
-            frozen = dninv.copy()
-            frozen.setflags(write=False)  # the rotation fit's cached derivatives are read-only
-            for d in (dninv, frozen):
-                predict_kernel(
-                    np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 3, 3, 3)), d, np.ones((1, 3))
-                )
         robust_excess(np.array([3.0, 1.0, 2.0, 5.0]), np.ones(4), 0.45)
         excess_variance(rng.normal(size=300), np.ones(300), 100.0)
         for start, probes in ((True, 0), (False, 1)):
@@ -1516,7 +1508,18 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
                 np.ones(9), 20, 0.5, 1e-14, True, 0.99, 0.45, v[:probes].copy(),
                 np.full((probes, 3), 1e-8), np.ones(probes),
             )  # fmt: skip
-    if part in (None, 1):  # the streams' detectors, meters and cuts
+    if part in (None, 1):  # the rotation fit's products; the streams' detectors, meters, cuts
+        product_sensitivity_kernel(
+            rng.normal(size=(7, 3)), rng.normal(size=(7, 3)), np.array([3, 0, 4])
+        )
+        for npar, frame in ((6, False), (9, True)):
+            ninv, dninv = ninv_derivatives_kernel(np.zeros(6), q_c, np.full(npar, 1e-3), frame)
+            frozen = dninv.copy()
+            frozen.setflags(write=False)  # the rotation fit's cached derivatives are read-only
+            for d in (dninv, frozen):
+                predict_kernel(
+                    np.array([[1.0, 0.0, 0.0, 0.0]]), np.zeros((1, 3, 3, 3)), d, np.ones((1, 3))
+                )
         rows = rng.normal(size=(3, 8))
         bounds = np.array([0, 3], dtype=np.int64), np.array([3, 8], dtype=np.int64)
         for rotate in (True, False):
