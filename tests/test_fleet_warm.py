@@ -119,3 +119,21 @@ def test_local_workers_keep_glibcs_mmap_threshold_under_dasks_trimming() -> None
     mine = {"MALLOC_MMAP_THRESHOLD_": "1048576"}
     with dask.config.set({"distributed.nanny.pre-spawn-environ": mine}):
         assert worker_environment() == mine
+
+
+def test_a_memory_limit_no_worker_starts_under_is_refused_before_any_work(tmp_path) -> None:
+    """The library refuses a size below the 100 MiB floor (the command: tests/
+    test_option_validation.py) before it reads a log or starts a cluster; Dask's other
+    forms of a limit ("auto", a fraction of the machine's memory, 0: none) pass to Dask."""
+    import imudiag.fleet
+    from imudiag.errors import BadInput
+    from imudiag.fleet.runner import MIN_MEMORY_LIMIT, memory_limit_bytes
+
+    for small in ("60MB", 60e6, MIN_MEMORY_LIMIT - 1):
+        with pytest.raises(BadInput, match="below the 100 MiB a fleet worker needs"):
+            imudiag.fleet.run([str(tmp_path)], tmp_path / "out", memory_limit=small)
+    assert not (tmp_path / "out").exists()
+    assert memory_limit_bytes("2GiB") == 2 * 2**30
+    assert memory_limit_bytes(MIN_MEMORY_LIMIT) == MIN_MEMORY_LIMIT
+    with pytest.raises(BadInput, match="--memory-limit 'lots': expected a size"):
+        memory_limit_bytes("lots", "--memory-limit")

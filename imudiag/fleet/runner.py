@@ -93,6 +93,7 @@ def worker_environment() -> dict[str, Any]:
     """The environment a local worker is spawned with (Dask's ``distributed.nanny.
     pre-spawn-environ`` under :data:`WORKER_MALLOC`)."""
     import dask
+    import distributed  # noqa: F401 - its defaults join dask's configuration on import
 
     configured = dask.config.get("distributed.nanny.pre-spawn-environ", default={}) or {}
     return {**WORKER_MALLOC, **configured}
@@ -239,14 +240,17 @@ def run(
     Logs already recorded in ``out/logs.jsonl`` (same content hash) are skipped unless
     ``redo``. ``workers``: local worker processes (default: this machine's cores), ignored
     with ``scheduler`` (``tcp://HOST:8786``, an existing cluster that sees the same paths).
-    ``memory_limit``: per local worker (bytes or text such as ``"2GiB"``, at least
-    :data:`MIN_MEMORY_LIMIT`; None: no limit); a log that kills its worker is tried
+    ``memory_limit``: per local worker, bytes or text such as ``"2GiB"`` (at least
+    :data:`MIN_MEMORY_LIMIT`), or Dask's other forms (``"auto"``, a fraction of the
+    machine's memory, 0 or None: no limit); a log that kills its worker is tried
     ``retries`` more times, then recorded with the reason.
     ``timeout_s``: per log, s of wall time. ``config``: :class:`DiagnosisConfig` fields.
     """
     require()
-    if memory_limit is not None:
-        memory_limit_bytes(memory_limit)  # a limit no worker can start under, before any work
+    if memory_limit not in (None, "auto") and not (
+        isinstance(memory_limit, int | float) and 0 <= memory_limit <= 1
+    ):  # a size no worker can start under, before any work (Dask's other forms pass)
+        memory_limit_bytes(memory_limit)
     if isinstance(paths, str | os.PathLike):
         paths = [os.fspath(paths)]
     if certificate and certificate != AUTO:
