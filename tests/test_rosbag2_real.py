@@ -1,0 +1,102 @@
+"""Real ROS 2 bags written by rosbag2 itself (tests/data/real/ros2-talker, SOURCE.md there):
+the demo talker recorded in 2020 by the Eloquent/Foxy recorder (no message definitions, the
+SQLite storage's first schema) and the same recording rewritten by rosbag2 into the schema 4
+of Iron and later (a ``schema`` table naming ``rolling``, stored definitions). They hold no
+IMU: imudiag opens each, from its folder or its ``.db3``, and says so with the topics they
+have; the typestore imudiag picks for a bag without definitions decodes every message the
+recorder wrote."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+from rosbags.rosbag2 import Reader  # the [test] extra installs rosbags
+
+from imudiag.cli import main
+from imudiag.logs import LogError, read_log
+from imudiag.logs.rosbag import sqlite_distro, typestore_for
+
+DATA = Path(__file__).parent / "data" / "real" / "ros2-talker"
+FOXY = DATA / "2020-foxy"
+SCHEMA4 = DATA / "2023-schema4"
+TOPICS = (
+    "its topics: /parameter_events (rcl_interfaces/msg/ParameterEvent, 0 messages), "
+    "/rosout (rcl_interfaces/msg/Log, 10 messages), /topic (std_msgs/msg/String, 10 messages)"
+)
+#: each bag as a folder and as its storage file pointed at directly
+PATHS = [FOXY, FOXY / "talker.db3", SCHEMA4, SCHEMA4 / "talker.db3"]
+IDS = ["foxy-folder", "foxy-db3", "schema4-folder", "schema4-db3"]
+
+
+def test_the_two_files_are_what_their_source_says():
+    assert sqlite_distro(FOXY / "talker.db3") is None  # no schema table: before Humble
+    assert sqlite_distro(SCHEMA4 / "talker.db3") == "rolling"
+    for bag in (FOXY, SCHEMA4):
+        with Reader(bag) as r:
+            assert {c.topic: c.msgcount for c in r.connections} == {
+                "/topic": 10,
+                "/rosout": 10,
+                "/parameter_events": 0,
+            }
+            defs = {c.topic: c.msgdef.data for c in r.connections}
+        if bag == FOXY:
+            assert set(defs.values()) == {""}  # the recorder stored no definition
+        else:
+            assert defs["/topic"] == "string data"
+
+
+@pytest.mark.parametrize("path", PATHS, ids=IDS)
+def test_a_recorder_bag_without_imu_names_its_topics(path):
+    with pytest.raises(LogError) as err:
+        read_log(path)
+    assert f"no sensor_msgs/msg/Imu topic in the bag ({TOPICS})" in str(err.value)
+    assert str(path) in str(err.value)
+
+
+@pytest.mark.parametrize("command", ["allan", "convert", "diagnose", "calibrate"])
+@pytest.mark.parametrize("path", [FOXY, SCHEMA4 / "talker.db3"], ids=["foxy", "schema4-db3"])
+def test_every_log_command_refuses_it_in_one_line(command, path, capsys, tmp_path):
+    cert = str(Path(__file__).parent / "data/interop/like-si.yaml")
+    args = {
+        "allan": [str(path)],
+        "convert": [str(path), str(tmp_path / "out.csv")],
+        "diagnose": [str(path), "-c", cert],
+        "calibrate": [str(path), "--like", cert, "--out", str(tmp_path / "cal.yaml")],
+    }[command]
+    assert main([command, *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert TOPICS in err and str(path) in err
+    assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+@pytest.mark.parametrize("path", [FOXY, SCHEMA4], ids=["foxy", "schema4"])
+def test_a_named_topic_that_is_not_imu_lists_the_others(path, capsys):
+    assert main(["allan", str(path), "--topic", "/topic"]) == 2
+    err = capsys.readouterr().err
+    assert "--topic /topic: no sensor_msgs/msg/Imu messages on it (IMU topics: none;" in err
+    assert "other topics: /parameter_events (rcl_interfaces/msg/ParameterEvent, 0 messages)" in err
+
+
+def test_the_chosen_typestore_decodes_every_message_the_recorder_wrote():
+    """No definitions in the 2020 bag and no distribution named: imudiag's choice (the
+    default distribution's typestore, :func:`typestore_for`) decodes all 20 messages, and
+    the two topics agree: each String the talker published is the one its log line names,
+    in order, 0.5 s apart as the talker's timer ran (0.4997 to 0.5304 s)."""
+    store = typestore_for(sqlite_distro(FOXY / "talker.db3"), str(FOXY))
+    said, logged, stamps = [], [], []
+    with Reader(FOXY) as r:
+        for conn, bag_ns, raw in r.messages():
+            msg = store.deserialize_cdr(raw, conn.msgtype)
+            if conn.topic == "/topic":
+                said.append(msg.data)
+                stamps.append(bag_ns)
+            else:
+                assert conn.topic == "/rosout" and msg.name == "minimal_publisher"
+                logged.append(re.fullmatch(r"Publishing: '(.*)'", msg.msg).group(1))
+                assert abs(msg.stamp.sec + msg.stamp.nanosec * 1e-9 - bag_ns * 1e-9) < 0.01
+    assert said == logged == [f"Hello, world! {i}" for i in range(10)]
+    steps = [(b - a) * 1e-9 for a, b in zip(stamps, stamps[1:], strict=False)]
+    assert len(steps) == 9 and all(abs(s - 0.5) < 0.05 for s in steps)
