@@ -24,6 +24,7 @@ from imudiag.certificate import Uncertainty, load, load_default, loads
 from imudiag.cli import build_parser, main
 from imudiag.logs import open_log, read_log
 from imudiag.logs.options import LogOptions
+from imudiag.samples import SampleBlock
 
 ROOT = Path(__file__).resolve().parent.parent
 REAL = ROOT / "tests" / "data" / "real"
@@ -268,6 +269,24 @@ def test_convert_writes_the_spec_units_line(tmp_path, capsys, source):
 def test_allan_without_sensors_is_refused(log200, capsys, sensors):
     line = _refused(capsys, "allan", str(log200), "--sensors", sensors)
     assert "--sensors: names no sensor" in line
+
+
+def test_allan_names_a_stuck_output_and_analyses_the_others(log200, tmp_path, capsys):
+    """A sensor stuck on one value has no Allan curve (every deviation 0): allan ended in a
+    LinAlgError traceback; it now names the sensor, exit 2, and the others still analyse."""
+    from imudiag.logs import open_writer
+
+    block = read_log(log200)
+    gyro = block.gyro.copy()
+    gyro[:, 1] = gyro[0, 1]  # gy stuck on its first count
+    stuck = tmp_path / "stuck.csv"
+    with open_writer(stuck, {"sample_rate": 200.0, "units": "gyro=count accel=count"}) as w:
+        w.write(SampleBlock(t=block.t, gyro=gyro, accel=block.accel))
+    line = _refused(capsys, "allan", str(stuck))
+    assert "gy: the same value in every sample of the selected range" in line
+    assert "leave it out with --sensors" in line and str(stuck) in line
+    code, _, err = _cli(capsys, "allan", str(stuck), "--sensors", "gx,gz,ax,ay,az")
+    assert code == 0, err
 
 
 def test_no_matplotlib_warning_reaches_the_console(tmp_path):

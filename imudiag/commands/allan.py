@@ -183,6 +183,16 @@ def run(args: argparse.Namespace) -> int:
     t, u, meta = _collect(args.log, args.start, args.stop, log_options(args))
     if t.shape[0] < 16:
         raise LogError(args.log, f"{t.shape[0]} samples in the selected range; need at least 16")
+    # a stuck output (one value throughout) has no Allan curve: every deviation is 0, and
+    # the term fit divides by it (a LinAlgError traceback before 2026-11-29)
+    stuck = [s for s in sensors if np.ptp(u[:, SENSORS.index(s)]) == 0]
+    if stuck:
+        raise LogError(
+            args.log,
+            f"{', '.join(stuck)}: the same value in every sample of the selected range "
+            "(a stuck output has no noise to measure); leave "
+            f"{'it' if len(stuck) == 1 else 'them'} out with --sensors",
+        )
     dt = np.diff(t)
     median_dt = float(np.median(dt))
     timing = timing_report(t, meta)
