@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import Any
 
 import pytest
 from rosbags.rosbag2 import Reader  # the [test] extra installs rosbags
@@ -100,3 +101,87 @@ def test_the_chosen_typestore_decodes_every_message_the_recorder_wrote():
     assert said == logged == [f"Hello, world! {i}" for i in range(10)]
     steps = [(b - a) * 1e-9 for a, b in zip(stamps, stamps[1:], strict=False)]
     assert len(steps) == 9 and all(abs(s - 0.5) < 0.05 for s in steps)
+
+
+def _imu_bag_as_the_2023_talker(folder: Path, n: int, files: int = 1) -> Any:
+    """A schema-4 bag (rosbags' writer, as Iron and later record) of the real imucal
+    session's first ``n`` samples on /imu, whose metadata.yaml then states the topic's QoS
+    as the 2023 talker's does (durations 0) while its .db3 keeps the writer's; ``files`` > 1:
+    the .db3 copied and listed again (one bag in several files). Returns the session."""
+    import numpy as np
+    import yaml
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    session = read_log(Path(__file__).parent / "data/real/imucal-ferraris/session.csv.gz")
+    st = get_typestore(Stores.ROS2_JAZZY)
+    T = st.types
+    vec = T["geometry_msgs/msg/Vector3"]
+    w = np.radians(session.gyro[:n])  # the session is in deg/s; Imu is rad/s
+    with Writer(folder, version=8) as bag:
+        conn = bag.add_connection("/imu", "sensor_msgs/msg/Imu", typestore=st)
+        for i in range(n):
+            ns = 1_700_000_000 * 10**9 + int(round(session.t[i] * 1e9))
+            sec, nsec = divmod(ns, 10**9)
+            msg = T["sensor_msgs/msg/Imu"](
+                header=T["std_msgs/msg/Header"](
+                    stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
+                    frame_id="imu",
+                ),
+                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+                orientation_covariance=np.zeros(9),
+                angular_velocity=vec(x=w[i, 0], y=w[i, 1], z=w[i, 2]),
+                angular_velocity_covariance=np.zeros(9),
+                linear_acceleration=vec(*session.accel[i]),
+                linear_acceleration_covariance=np.zeros(9),
+            )
+            bag.write(conn, ns, st.serialize_cdr(msg, "sensor_msgs/msg/Imu"))
+    talker = yaml.safe_load((SCHEMA4 / "metadata.yaml").read_text())
+    qos = talker["rosbag2_bagfile_information"]["topics_with_message_count"][0]
+    meta_path = folder / "metadata.yaml"
+    meta = yaml.safe_load(meta_path.read_text())
+    info = meta["rosbag2_bagfile_information"]
+    for topic in info["topics_with_message_count"]:
+        topic["topic_metadata"]["offered_qos_profiles"] = qos["topic_metadata"][
+            "offered_qos_profiles"
+        ]
+    (db3,) = folder.glob("*.db3")
+    for k in range(1, files):
+        copy = folder / f"{folder.name}_{k}.db3"
+        copy.write_bytes(db3.read_bytes())
+        info["relative_file_paths"].append(copy.name)
+    meta_path.write_text(yaml.safe_dump(meta, sort_keys=False))
+    return session
+
+
+def test_an_imu_bag_whose_metadata_yaml_disagrees_with_its_db3_reads_every_sample(tmp_path):
+    """rosbags reads no message of a topic whose metadata.yaml record differs from the
+    .db3's (the 2023 talker's state, above): the folder read as an empty log. imudiag now
+    reads the bag's one storage file itself, every sample, and says so."""
+    import numpy as np
+
+    n = 1500
+    folder = tmp_path / "imu_bag"
+    session = _imu_bag_as_the_2023_talker(folder, n)
+    with Reader(folder) as r:  # the state: rosbags alone reads nothing through the folder
+        assert {c.topic: c.msgcount for c in r.connections} == {"/imu": n}
+        assert next(iter(r.messages()), None) is None
+    log = read_log(folder)
+    (db3,) = folder.glob("*.db3")
+    assert "read from " + db3.name + " itself: the bag's metadata.yaml describes" in str(
+        log.meta["source"]
+    )
+    assert len(log) == n
+    np.testing.assert_allclose(log.t - log.t[0], session.t[:n] - session.t[0], atol=2e-6)
+    np.testing.assert_allclose(log.gyro, np.radians(session.gyro[:n]), rtol=1e-12)
+    np.testing.assert_array_equal(log.accel, session.accel[:n])
+
+
+def test_a_several_file_bag_in_that_state_is_refused_saying_why(tmp_path, capsys):
+    folder = tmp_path / "imu_bag"
+    _imu_bag_as_the_2023_talker(folder, 200, files=2)
+    assert main(["allan", str(folder)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert "metadata.yaml counts messages on /imu, but none reads through it" in err
+    assert "differ from those of its 2 storage files" in err and "ros2 bag reindex" in err

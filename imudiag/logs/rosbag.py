@@ -9,7 +9,9 @@ time), or the bag's receive time where the stamps are unset (zero), which the
 ``source`` metadata then says. Messages are read and handed out in blocks as
 the bag is iterated (in the bag's order); a message whose stamp does not
 advance (repeated or out of order) is skipped and counted
-(``meta["skipped_stamps"]``), never reordered in silence.
+(``meta["skipped_stamps"]``), never reordered in silence. A bag directory whose
+metadata.yaml describes the topic otherwise than its storage file does (rosbags then reads
+none of its messages) is read from its one storage file, which ``source`` says.
 """
 
 from __future__ import annotations
@@ -173,14 +175,52 @@ class RosbagReader(LogReader):
         self._other_topics = ""  # the bag's topics of other types, for the messages
         topics = self._imu_topics()
         self.topic = self._choose(topics)
+        read_from = ""
+        if self._bag.is_dir() and topics[self.topic] > 0 and not self._topic_reads():
+            self._bag = self._storage_file()
+            topics = self._imu_topics()
+            if topics.get(self.topic, 0) == 0:
+                raise LogError(self.path, f"{self._bag.name} holds no message of {self.topic}")
+            read_from = (
+                f", read from {self._bag.name} itself: the bag's metadata.yaml describes its "
+                "topics otherwise than the file does (rosbags reads none through it)"
+            )
         self.meta.update(
             {
                 "units": {"gyro": "rad/s", "accel": "m/s^2"},
                 "device": f"ROS bag {p.name}, topic {self.topic}",
-                "source": f"{IMU_TYPE} on {self.topic} ({topics[self.topic]} messages)",
+                "source": f"{IMU_TYPE} on {self.topic} ({topics[self.topic]} messages){read_from}",
             }
         )
         self.meta["skipped_stamps"] = 0
+
+    def _topic_reads(self) -> bool:
+        """Whether the chosen topic's first message reads through the bag directory.
+
+        rosbags pairs each topic of metadata.yaml with the storage file's topic of the same
+        name, type, serialization and QoS; where the two disagree (a .db3 rewritten without
+        its metadata.yaml, as in rosbag2's own test bags) it reads no message of that topic
+        and says nothing."""
+        reader = self._open_bag()
+        try:
+            conns = [c for c in reader.connections if c.topic == self.topic]
+            return next(iter(reader.messages(connections=conns)), None) is not None
+        finally:
+            reader.close()
+
+    def _storage_file(self) -> Path:
+        """The bag's one storage file, read by itself (its topics from its own tables);
+        several: exit 2 saying why and what to do."""
+        files = sorted(f for f in self._bag.iterdir() if f.suffix.lower() in (".db3", ".mcap"))
+        if len(files) != 1:
+            raise LogError(
+                self.path,
+                f"metadata.yaml counts messages on {self.topic}, but none reads through it: "
+                f"its topic records (type, serialization, QoS) differ from those of its "
+                f"{len(files)} storage files; rebuild it with `ros2 bag reindex`, or give "
+                "one storage file",
+            )
+        return files[0]
 
     def _bag_path(self, p: Path) -> Path:
         """What rosbags opens: a ROS 1 ``.bag``; a ROS 2 bag directory; for one ``.db3`` /
