@@ -160,6 +160,54 @@ def test_saturation_flags_persist_into_a_fault():
     assert sat[0]["t_first"] == pytest.approx(block.t[600 + 19])  # 20 of the last 50 samples
 
 
+def test_a_stuck_output_that_frees_itself_stays_in_the_streams_faults():
+    """``stuck_faults``: what the stream ever raised (diagnose's verdict and the daemon's),
+    after the fault in force has cleared; the same however the reads cut the stream."""
+    block = _session([Fault("stuck", "gz", 3.0, None)])
+    free = block.slice(0, len(block))
+    frozen = np.flatnonzero(block.t >= 6.0)
+    free.gyro[frozen, 2] += np.arange(frozen.size) % 7  # gz moves again from t = 6 s
+    runs = []
+    for sizes in ([len(free)], [256] * 8, [1] * 300 + [999]):
+        m = Monitor(CERT, MonitorConfig(stuck_samples=50))
+        _feed(m, free, sizes)
+        assert [f for f in m.active_faults if f["cause"] == "stuck"] == []  # cleared
+        runs.append(m.stuck_faults())
+    assert runs[0] == runs[1] == runs[2]
+    (fault,) = runs[0]
+    t_frozen = block.t[np.searchsorted(block.t, 3.0)]
+    assert fault == {
+        "triad": "gyro",
+        "sensor": "gz",
+        "cause": "stuck",
+        "t_first": pytest.approx(t_frozen + 49 / CERT.sample_rate, abs=1e-9),
+        "raised": 1,
+        "samples": 50,
+    }
+    m = Monitor(CERT, MonitorConfig(stuck_samples=50))
+    m.update(_session())
+    assert m.stuck_faults() == [] and m.saturation_faults() == []
+
+
+def test_saturation_that_ends_stays_in_the_streams_faults():
+    block = _session(duration_s=5.0)
+    flags = np.zeros(len(block), dtype=np.uint16)
+    flags[600:700] |= FLAG_ACCEL_SATURATED
+    block.flags = flags
+    m = Monitor(CERT)
+    m.update(block)
+    assert [f for f in m.active_faults if f["cause"] == "saturation"] == []  # ended
+    assert m.saturation_faults() == [
+        {
+            "triad": "accel",
+            "sensor": None,
+            "cause": "saturation",
+            "t_first": pytest.approx(block.t[600 + 19]),
+            "raised": 1,
+        }
+    ]
+
+
 def test_temperature_block_of_the_certificate_is_applied():
     """With a temperature-dependent bias the monitor is clean only with the extended certificate."""
     from imudiag.certificate import Temperature

@@ -2,7 +2,8 @@
 random streams cut into random blocks and on the real recordings (issue 30 item 6):
 
 - :class:`~imudiag.monitor.StuckCheck`: after every block, a channel is stuck exactly when
-  its last ``stuck_samples`` raw outputs are equal (and its noise is checked);
+  its last ``stuck_samples`` raw outputs are equal (and its noise is checked), and the
+  episodes it counts are the stream's runs of one value that long, however it was cut;
 - :class:`~imudiag.monitor.batching.F0Screen`: its count of samples beyond the F0 limit is
   that of the F0 of each sample corrected with the certificate, and it never counts fewer
   (the bound the gathered reads rely on);
@@ -43,15 +44,40 @@ def _plain_stuck(raw: np.ndarray, end: int, samples: int) -> np.ndarray:
     return np.all(tail == tail[-1], axis=0)
 
 
+def _plain_episodes(raw: np.ndarray, samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per channel of ``raw`` (N, 6): the runs of one value at least ``samples`` long
+    (count), and the row completing the first of them (NaN: none)."""
+    count = np.zeros(6, dtype=np.int64)
+    first = np.full(6, np.nan)
+    for c in range(6):
+        i = 0
+        while i < raw.shape[0]:
+            j = i + 1
+            while j < raw.shape[0] and raw[j, c] == raw[i, c]:
+                j += 1
+            if j - i >= samples:
+                count[c] += 1
+                if np.isnan(first[c]):
+                    first[c] = i + samples - 1
+            i = j
+    return count, first
+
+
 def _check_stuck(raw: np.ndarray, sigma: tuple, seed: int, samples: int = 50) -> int:
+    """The state in force after every block, and the episodes the whole stream raised
+    (:attr:`StuckCheck.raised`, also those inside one block), against their definitions."""
     rng = np.random.default_rng(seed)
     check = StuckCheck(sigma, 1.0, samples)
     stuck_seen = 0
     for a, b in _blocks(rng, raw.shape[0]):
-        active = check.update(raw[a:b].T.copy())
+        active = check.update(raw[a:b].T.copy(), np.arange(a, b, dtype=float))
         want = _plain_stuck(raw, b, samples) & check.enabled
         assert np.array_equal(active, want), f"block {a}..{b}"
         stuck_seen += int(active.any())
+    count, first = _plain_episodes(raw, samples)
+    on = check.enabled  # fixed here: counts (step 1) and a fixed sigma
+    np.testing.assert_array_equal(check.raised, np.where(on, count, 0))
+    np.testing.assert_array_equal(check.t_first_raised, np.where(on, first, np.nan))
     return stuck_seen
 
 

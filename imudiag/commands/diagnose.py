@@ -236,6 +236,16 @@ F0_MEASURES = {
 }
 
 
+def _at(t: float | None, word: str) -> str:
+    """`` from t = 1.23 s`` (sample time, s), or nothing when it is not known."""
+    return "" if t is None else f" {word} t = {t:.2f} s"
+
+
+def _times(n: int) -> str:
+    """``raised once``, ``raised 3 times``."""
+    return "raised once" if n == 1 else f"raised {n} times"
+
+
 def summary_lines(report: dict) -> list[str]:
     """A short human-readable account of a diagnosis report."""
     v = report["verdict"]
@@ -255,6 +265,18 @@ def summary_lines(report: dict) -> list[str]:
             continue  # said with the moving-base section's lines
         if f["cause"] == "noise" and f.get("estimate") is None:
             lines.append(f"  FAULT {f['triad']} {f['sensor']} noise: persistent excess at rest")
+            continue
+        if f["cause"] == "stuck":
+            lines.append(
+                f"  FAULT {f['triad']} {f['sensor']} stuck: one raw value for {f['samples']} "
+                f"samples or more{_at(f['t_first'], 'from')} ({_times(f['raised'])})"
+            )
+            continue
+        if f["cause"] == "saturation":
+            lines.append(
+                f"  FAULT {f['triad']} saturation: persistent saturation flags"
+                f"{_at(f['t_first'], 'from')} ({_times(f['raised'])})"
+            )
             continue
         if f["cause"] == "f0":
             lines.append(

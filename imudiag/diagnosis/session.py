@@ -285,8 +285,9 @@ def add_monitor_faults(
 ) -> dict[str, Any]:
     """Complete a window diagnosis's ``verdict`` (:meth:`StreamingDiagnoser.verdict`, changed
     in place and returned) with the monitor's faults ever raised: persistent F0 failures
-    (``explained_by``: the parameter faults the window diagnosis names on that triad) and
-    excess white noise at rest, by the daemon's own checks and persistence. The one
+    (``explained_by``: the parameter faults the window diagnosis names on that triad),
+    excess white noise at rest, stuck outputs and saturation, by the daemon's own checks and
+    persistence. The one
     definition of the whole-stream verdict, for ``imudiag diagnose`` and the daemon's
     status (issue 25: one answer)."""
     named = list(verdict["faults"])
@@ -304,6 +305,10 @@ def add_monitor_faults(
     # excess white noise at rest (judged only while the other triad is at its noise, so
     # vibration is not noise)
     for fault in monitor.noise_faults():
+        verdict["faults"].append(fault)
+        verdict[fault["triad"]] = "fault"
+    # a stuck output and saturation, as the daemon raises them (the monitor's checks)
+    for fault in monitor.stuck_faults() + monitor.saturation_faults():
         verdict["faults"].append(fault)
         verdict[fault["triad"]] = "fault"
     return verdict

@@ -449,6 +449,52 @@ class Monitor:
             )
         return f"{e['static']} still samples, every one flagged (saturation or ADC error)"
 
+    def stuck_faults(self) -> list[dict[str, Any]]:
+        """Stuck outputs ever raised over the stream, per sensor (``diagnose``'s faults: the
+        daemon's ``stuck`` fault, the same check): ``t_first`` the sample time (s) the
+        sensor first came in force as stuck (None: not known), ``raised`` how many times,
+        ``samples`` the run of one raw value that the check calls stuck."""
+        stuck = self._stuck
+        out: list[dict[str, Any]] = []
+        for name in TRIADS:
+            base = 0 if name == TRIADS_RING[0] else 3
+            for axis in range(3):
+                c = base + axis
+                if stuck.raised[c] == 0:
+                    continue
+                t_in = float(stuck.t_first_raised[c])
+                out.append(
+                    {
+                        "triad": name,
+                        "sensor": SENSOR_NAMES[name][axis],
+                        "cause": "stuck",
+                        "t_first": t_in if math.isfinite(t_in) else None,
+                        "raised": int(stuck.raised[c]),
+                        "samples": int(stuck.samples),
+                    }
+                )
+        return out
+
+    def saturation_faults(self) -> list[dict[str, Any]]:
+        """Saturation ever raised over the stream, per triad (the daemon's ``saturation``
+        fault: the samples' saturation flags, the same persistence; no axis can be told:
+        ``sensor`` None): ``t_first`` the sample time (s) it first came in force, ``raised``
+        how many times."""
+        out: list[dict[str, Any]] = []
+        for name in TRIADS:
+            sat = self._state[name].saturation
+            if sat is not None and sat.raised:
+                out.append(
+                    {
+                        "triad": name,
+                        "sensor": None,
+                        "cause": "saturation",
+                        "t_first": sat.t_first_raised,
+                        "raised": sat.raised,
+                    }
+                )
+        return out
+
     def noise_faults(self) -> list[dict[str, Any]]:
         """Excess-noise faults ever raised over the stream, per sensor (``diagnose``'s faults:
         the daemon's ``noise`` fault, the same checks and persistence). ``estimate``: the

@@ -54,6 +54,9 @@ class StuckCheck:
         self.run = np.zeros(6, dtype=np.int64)  #: samples in each run, excluding its first
         self.last = np.full(6, np.nan)  #: the last raw output of each channel
         self.t_first = np.full(6, np.nan)  #: s, when each stuck channel came in force
+        self.raised = np.zeros(6, dtype=np.int64)  #: times each channel became stuck
+        self.t_first_raised = np.full(6, np.nan)  #: s, when each first became stuck
+        self._active = np.zeros(6, dtype=bool)  #: the channels stuck after the last block
 
     def update(self, raw: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
         """The channels (6,) stuck after the block ``raw`` (6, N): its raw outputs (output
@@ -107,6 +110,7 @@ class StuckCheck:
         """The stuck channels (6,) after a block (:meth:`update`), from each channel's run
         (samples, excluding its first) and its finite and zero steps in the block."""
         n = raw.shape[1]
+        self._episodes(raw, t, n_same)
         # samples in the current run of equal values, excluding its first
         self.run = run.astype(np.int64)
         self.last = raw[:, -1].astype(float)
@@ -119,6 +123,7 @@ class StuckCheck:
             at = np.clip(n - 1 - (self.run[rising] - need), 0, n - 1)
             self.t_first[rising] = np.asarray(t, dtype=float)[at]
         self.t_first[~active] = np.nan
+        self._active = active.copy()
         # the repeat rate of the channels not stuck now (a stuck run must not make the
         # channel look like one that repeats by nature, or its fault would clear)
         free = ~active
@@ -126,6 +131,39 @@ class StuckCheck:
         self.repeats[free] += n_same[free]
         self.enabled = self._enabled()
         return active
+
+    def _episodes(self, raw: np.ndarray, t: np.ndarray | None, n_same: np.ndarray) -> None:
+        """Count the stuck episodes that begin in the block ``raw`` (6, N) (:attr:`raised`,
+        :attr:`t_first_raised`): every run of one value reaching ``samples`` on a checked
+        channel, also one that starts and ends inside the block, so that what the stream
+        raised does not depend on how its reads were cut (the state in force is judged at
+        each block's end). Runs before the block: :attr:`run` and :attr:`last` (not yet
+        updated); a run already stuck at the last block's end is not a new episode."""
+        need = self.samples - 1
+        n = raw.shape[1]
+        # a new episode needs need equal steps in the block, or fewer after a carried run
+        maybe = self.enabled & (n_same + self.run >= need)
+        for c in np.flatnonzero(maybe):
+            x = raw[c]
+            same = np.empty(n, dtype=bool)
+            same[0] = x[0] == self.last[c]
+            np.equal(x[1:], x[:-1], out=same[1:])
+            edges = np.diff(np.concatenate(([0], same.view(np.int8), [0])))
+            starts = np.flatnonzero(edges == 1)  # runs of equal steps [start, end)
+            ends = np.flatnonzero(edges == -1)
+            carried = np.where(starts == 0, self.run[c], 0)
+            # the sample whose step completes ``need``: a run's first sample is the one
+            # before its first equal step
+            reach = starts + need - 1 - carried
+            hit = ends - starts + carried >= need
+            if starts.size and starts[0] == 0 and self._active[c]:
+                hit[0] = False  # the episode in force at the last block's end goes on
+            if not hit.any():
+                continue
+            self.raised[c] += int(np.count_nonzero(hit))
+            if np.isnan(self.t_first_raised[c]) and t is not None:
+                at = int(np.clip(reach[hit][0], 0, n - 1))
+                self.t_first_raised[c] = float(np.asarray(t, dtype=float)[at])
 
     def _enabled(self) -> np.ndarray:
         """The channels (6,) checked: noise of at least ``min_sigma`` steps, and counts or a
