@@ -351,6 +351,43 @@ def test_a_calibration_that_follows_its_own_holds_is_refused(tmp_path, imudiag_c
     assert "does not generalise" in load(out).device["warning"]
 
 
+def test_a_session_with_a_stuck_output_is_refused_naming_it(tmp_path):
+    """gy frozen at t = 20 s of a simulated multi-position session: calibrate wrote a
+    certificate (its gyro 'kept from --like') and said nothing of the frozen sensor; it is
+    now refused with the monitor's reason, exit 1, nothing written; --force writes it with
+    the warning. The same session unfrozen is calibrated."""
+    from imudiag.sim import Fault
+
+    cert = load_default()
+    traj = multi_position(n_attitudes=14, dwell_s=3.0, turn_s=1.5, rate_hz=200, seed=12)
+    logs = {}
+    for name, faults in (("clean", []), ("stuck", [Fault("stuck", "gy", 20.0, None)])):
+        logs[name] = tmp_path / f"{name}.csv"
+        with open_writer(
+            logs[name], {"sample_rate": 200.0, "units": "gyro=count accel=count"}
+        ) as w:
+            w.write(simulate(cert, traj, seed=13, faults=faults).samples)
+    like = Path(__file__).parent.parent / "config" / "default-certificate.yaml"
+    out, summary = tmp_path / "c.yaml", tmp_path / "c.json"
+    args = ("calibrate", str(logs["stuck"]), "--like", str(like), "--out", str(out),
+            "--json", str(summary))  # fmt: skip
+    r = run_imudiag_in_process(*args)
+    assert r.returncode == 1, r.stderr
+    assert "refused" in r.stderr and "gyro gy stuck (one raw value for 50 samples" in r.stderr
+    assert "a stuck output cannot be calibrated" in r.stderr and not out.exists()
+    js = json.loads(summary.read_text())
+    (stuck,) = js["stuck"]
+    assert (stuck["triad"], stuck["sensor"], stuck["raised"]) == ("gyro", "gy", 1)
+    assert 20.0 < stuck["t_first"] < 20.5
+    r = run_imudiag_in_process(*args, "--force")
+    assert r.returncode == 0, r.stderr
+    assert "gyro gy stuck" in load(out).device["warning"]
+    clean = run_imudiag_in_process(
+        "calibrate", str(logs["clean"]), "--like", str(like), "--out", str(tmp_path / "k.yaml")
+    )
+    assert clean.returncode == 0, clean.stderr
+
+
 @pytest.mark.parametrize("seed", [1, 3])
 def test_a_like_certificate_that_is_already_right_is_not_refused(tmp_path, seed):
     """Issue 10 item 2: with the true certificate as --like, a correct fit predicts held-out

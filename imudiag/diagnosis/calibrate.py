@@ -383,6 +383,9 @@ class CalibrationResult:
     #: the still runs of the recording: ``found``, ``used`` and ``dropped`` ({why: count}),
     #: where the caller collected them (:func:`.session.collect_intervals`)
     holds: dict[str, Any] | None = None
+    #: the stuck outputs of the recording (the monitor's check, :func:`..monitor.stuck.
+    #: stuck_faults`), where the caller looked for them: each a reason to refuse
+    stuck: list[dict[str, Any]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         for fit in (self.accel, self.gyro):
@@ -412,11 +415,20 @@ class CalibrationResult:
             "gyro_generalisation": self.gyro_generalisation,
             "known_rate": self.known_rate,
             "holds": self.holds,
+            "stuck": self.stuck,
         }
 
     def refusals(self) -> list[str]:
-        """Why the calibration does not generalise (the held-out checks that failed), or []."""
-        return [
+        """Why the calibration is refused: a stuck output of the recording, the held-out
+        checks that failed; or []."""
+        stuck = []
+        for f in self.stuck:
+            since = "" if f["t_first"] is None else f" from t = {f['t_first']:.2f} s"
+            stuck.append(
+                f"{f['triad']} {f['sensor']} stuck (one raw value for {f['samples']} samples "
+                f"or more{since}): a stuck output cannot be calibrated"
+            )
+        return stuck + [
             c["reason"]
             for c in (self.generalisation, self.gyro_generalisation)
             if c is not None and c.get("generalises") is False

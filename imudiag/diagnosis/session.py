@@ -326,18 +326,21 @@ def _collect_pass(
     progress: ProgressCallback | None = None,
     holds: dict[str, Any] | None = None,
     short: tuple[float, float, float, float] | None = None,
+    stuck_out: list[dict[str, Any]] | None = None,
 ) -> tuple[
     list[QuasiStaticInterval], float, dict[str, tuple[NormalEquations, float]], np.ndarray | None
 ]:
     """One pass of the interval collector; ``short``: (window, minimum hold, trim, motion
     margin), s, in place of the configured ones. Also returns the accelerometer noise sigma
-    (3,) per sample the detector measured (output units), None when unknown."""
+    (3,) per sample the detector measured (output units), None when unknown. ``stuck_out``,
+    when given, gets the stuck outputs of the recording (the monitor's check)."""
     name = recording_name(data)
     known = config.known_rate_rad_s
     detector_options: dict[str, Any] = {"certificate_noise": certificate_noise}
     if known is not None:
         detector_options.update(PLATEAU_DETECTOR)
     collector = None
+    stuck = None
     intervals: list[QuasiStaticInterval] = []
     moving: dict[str, tuple[NormalEquations, float]] = {}
     rate = None
@@ -363,6 +366,13 @@ def _collect_pass(
                         "accel": (NormalEquations(), like.gravity / like.accel.unit_to_si),
                         "gyro": (NormalEquations(), 1.0 / like.gyro.unit_to_si),
                     }
+                if stuck_out is not None:
+                    from ..monitor import MonitorConfig
+                    from ..monitor.stuck import monitor_stuck_check
+
+                    stuck = monitor_stuck_check(like, MonitorConfig(), rate)
+            if stuck is not None and len(block):
+                stuck.update(np.concatenate([block.gyro.T, block.accel.T]), block.t)
             intervals.extend(collector.update(block))
             if table is not None:
                 mags = table.at(block.t)
@@ -378,6 +388,10 @@ def _collect_pass(
                         )
     if collector is None:
         raise BadInput(f"{name}: no samples")
+    if stuck is not None and stuck_out is not None:
+        from ..monitor.stuck import stuck_faults
+
+        stuck_out.extend(stuck_faults(stuck))
     intervals.extend(collector.flush())
     if not intervals:
         raise BadInput(
@@ -412,11 +426,14 @@ def collect_intervals(
     block_size: int = DEFAULT_BLOCK_SIZE,
     progress: ProgressCallback | None = None,
     holds: dict[str, Any] | None = None,
+    stuck: list[dict[str, Any]] | None = None,
 ) -> tuple[list[QuasiStaticInterval], float, dict[str, tuple[NormalEquations, float]]]:
     """The still intervals the calibration fits (time order), the sample rate (Hz) and, with
     independent magnitudes ``table``, each triad's moving-base normal equations and
     reference magnitude (input units). ``holds``, when given, is filled with the still runs
-    found, used and dropped (with why) and the detector used. Raises
+    found, used and dropped (with why) and the detector used; ``stuck``, when given, with
+    the recording's stuck outputs (the monitor's check, :func:`..monitor.stuck.stuck_faults`).
+    Raises
     :class:`~imudiag.errors.BadInput` without samples or without a still interval.
 
     Short holds (``config.short_holds``; not with a known rate or independent magnitudes):
@@ -432,7 +449,17 @@ def collect_intervals(
     """
     first: dict[str, Any] = {}
     intervals, rate, moving, sigma = _collect_pass(
-        data, like, config, rate_hz, table, certificate_noise, options, block_size, progress, first
+        data,
+        like,
+        config,
+        rate_hz,
+        table,
+        certificate_noise,
+        options,
+        block_size,
+        progress,
+        first,
+        stuck_out=stuck,
     )
     mode = config.short_holds
     if table is not None or config.known_rate_rad_s is not None:
@@ -529,8 +556,19 @@ def calibrate_recording(
         data, like, rate_hz, block_size, options, certificate_noise, progress
     )
     holds: dict[str, Any] = {}
+    stuck: list[dict[str, Any]] = []
     intervals, rate, moving = collect_intervals(
-        data, like, config, rate_hz, table, certificate_noise, options, block_size, progress, holds
+        data,
+        like,
+        config,
+        rate_hz,
+        table,
+        certificate_noise,
+        options,
+        block_size,
+        progress,
+        holds,
+        stuck,
     )
     measured = {
         triad: np.asarray(noise_report[triad]["measured"]["density"], dtype=float)
@@ -557,6 +595,7 @@ def calibrate_recording(
         raise BadInput(f"{name}: {exc}") from None
     result.noise = noise_report
     result.holds = holds
+    result.stuck = stuck
     return result
 
 

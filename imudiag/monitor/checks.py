@@ -57,12 +57,11 @@ from ..samples import (
 )
 from ..scalar import f0
 from ..trailing import PrefixSums
-from ..units import COUNT, canonical
 from ..vibration import VibrationMeter
 from .batching import F0Screen
 from .noise import TRIADS_RING, NoiseCheck
 from .state import MonitorConfig, TriadState
-from .stuck import StuckCheck
+from .stuck import monitor_stuck_check, stuck_faults
 from .trace import F0Trace
 
 
@@ -163,20 +162,7 @@ class Monitor:
         #: the F0 screen of the reads gathered (:mod:`.batching`)
         self._screen = F0Screen(certificate, self._n_inv_t, self._limit)
         # stuck outputs: both triads as one (6,) row, gyro then accel (the ring's column order)
-        self._stuck = StuckCheck(
-            (self._sigma["gyro"], self._sigma["accel"]),
-            cfg.stuck_min_sigma,
-            cfg.stuck_samples,
-            counts=np.array(
-                [
-                    canonical(certificate.triad(name).output_unit) == COUNT
-                    for name in TRIADS_RING
-                    for _ in range(3)
-                ]
-            ),
-            history=cfg.stuck_history,
-            max_repeat=cfg.stuck_max_repeat,
-        )
+        self._stuck = monitor_stuck_check(certificate, cfg, rate)
         self._gyro_window = max(1, int(round(cfg.gyro_window_s * rate)))
         # the MEMS rest-rate check's threshold per axis (rad/s): Earth rate, the bias limit
         # and k_sigma standard deviations of the window's mean
@@ -451,29 +437,8 @@ class Monitor:
 
     def stuck_faults(self) -> list[dict[str, Any]]:
         """Stuck outputs ever raised over the stream, per sensor (``diagnose``'s faults: the
-        daemon's ``stuck`` fault, the same check): ``t_first`` the sample time (s) the
-        sensor first came in force as stuck (None: not known), ``raised`` how many times,
-        ``samples`` the run of one raw value that the check calls stuck."""
-        stuck = self._stuck
-        out: list[dict[str, Any]] = []
-        for name in TRIADS:
-            base = 0 if name == TRIADS_RING[0] else 3
-            for axis in range(3):
-                c = base + axis
-                if stuck.raised[c] == 0:
-                    continue
-                t_in = float(stuck.t_first_raised[c])
-                out.append(
-                    {
-                        "triad": name,
-                        "sensor": SENSOR_NAMES[name][axis],
-                        "cause": "stuck",
-                        "t_first": t_in if math.isfinite(t_in) else None,
-                        "raised": int(stuck.raised[c]),
-                        "samples": int(stuck.samples),
-                    }
-                )
-        return out
+        daemon's ``stuck`` fault, the same check; :func:`.stuck.stuck_faults`)."""
+        return stuck_faults(self._stuck)
 
     def saturation_faults(self) -> list[dict[str, Any]]:
         """Saturation ever raised over the stream, per triad (the daemon's ``saturation``

@@ -10,9 +10,15 @@ shown at most ``max_repeat`` identical consecutive pairs over ``history`` pairs.
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 import numpy as np
 
+from ..certificate import SENSOR_NAMES, TRIADS, Certificate
 from ..kernels import kernel
+from ..units import COUNT, canonical
+from .state import MonitorConfig
 
 
 class StuckCheck:
@@ -171,3 +177,50 @@ class StuckCheck:
         own = (self.pairs >= self.history) & (self.repeats <= self.max_repeat * self.pairs)
         checked: np.ndarray = (self.sigma >= self.min_sigma * self.quantum) & (self.counts | own)
         return checked
+
+
+def monitor_stuck_check(
+    certificate: Certificate, config: MonitorConfig, rate_hz: float
+) -> StuckCheck:
+    """The monitor's stuck check for ``certificate`` at ``rate_hz`` (Hz): the certificate's
+    per-sample noise sigma at that rate, ``config``'s run, steps and repeat rate, raw
+    counts where the output unit is counts (the daemon's, ``diagnose``'s and
+    ``calibrate``'s: one definition)."""
+    return StuckCheck(
+        (certificate.gyro.noise_sigma(rate_hz), certificate.accel.noise_sigma(rate_hz)),
+        config.stuck_min_sigma,
+        config.stuck_samples,
+        counts=np.array(
+            [
+                canonical(certificate.triad(name).output_unit) == COUNT
+                for name in TRIADS
+                for _ in range(3)
+            ]
+        ),
+        history=config.stuck_history,
+        max_repeat=config.stuck_max_repeat,
+    )
+
+
+def stuck_faults(check: StuckCheck) -> list[dict[str, Any]]:
+    """The stuck outputs ``check`` ever raised, per sensor (gyro then accel): ``t_first`` the
+    sample time (s) each first came in force (None: not known), ``raised`` how many times,
+    ``samples`` the run of one raw value that the check calls stuck."""
+    out: list[dict[str, Any]] = []
+    for k, name in enumerate(TRIADS):
+        for axis in range(3):
+            c = 3 * k + axis
+            if check.raised[c] == 0:
+                continue
+            t_in = float(check.t_first_raised[c])
+            out.append(
+                {
+                    "triad": name,
+                    "sensor": SENSOR_NAMES[name][axis],
+                    "cause": "stuck",
+                    "t_first": t_in if math.isfinite(t_in) else None,
+                    "raised": int(check.raised[c]),
+                    "samples": int(check.samples),
+                }
+            )
+    return out
