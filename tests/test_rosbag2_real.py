@@ -104,38 +104,18 @@ def test_the_chosen_typestore_decodes_every_message_the_recorder_wrote():
 
 
 def _imu_bag_as_the_2023_talker(folder: Path, n: int, files: int = 1) -> Any:
-    """A schema-4 bag (rosbags' writer, as Iron and later record) of the real imucal
-    session's first ``n`` samples on /imu, whose metadata.yaml then states the topic's QoS
-    as the 2023 talker's does (durations 0) while its .db3 keeps the writer's; ``files`` > 1:
-    the .db3 copied and listed again (one bag in several files). Returns the session."""
-    import numpy as np
+    """A schema-4 bag (rosbags' writer, as Iron and later record; tests/test_rosbag_logs.py)
+    of the real imucal session's first ``n`` samples on /imu/data, whose metadata.yaml then
+    states the topic's QoS as the 2023 talker's does (durations 0) while its .db3 keeps the
+    writer's; ``files`` > 1: the .db3 copied and listed again (one bag in several files).
+    Returns the session's samples written."""
     import yaml
-    from rosbags.rosbag2 import Writer
-    from rosbags.typesys import Stores, get_typestore
+
+    from tests.test_rosbag_logs import write_ros2
 
     session = read_log(Path(__file__).parent / "data/real/imucal-ferraris/session.csv.gz")
-    st = get_typestore(Stores.ROS2_JAZZY)
-    T = st.types
-    vec = T["geometry_msgs/msg/Vector3"]
-    w = np.radians(session.gyro[:n])  # the session is in deg/s; Imu is rad/s
-    with Writer(folder, version=8) as bag:
-        conn = bag.add_connection("/imu", "sensor_msgs/msg/Imu", typestore=st)
-        for i in range(n):
-            ns = 1_700_000_000 * 10**9 + int(round(session.t[i] * 1e9))
-            sec, nsec = divmod(ns, 10**9)
-            msg = T["sensor_msgs/msg/Imu"](
-                header=T["std_msgs/msg/Header"](
-                    stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
-                    frame_id="imu",
-                ),
-                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
-                orientation_covariance=np.zeros(9),
-                angular_velocity=vec(x=w[i, 0], y=w[i, 1], z=w[i, 2]),
-                angular_velocity_covariance=np.zeros(9),
-                linear_acceleration=vec(*session.accel[i]),
-                linear_acceleration_covariance=np.zeros(9),
-            )
-            bag.write(conn, ns, st.serialize_cdr(msg, "sensor_msgs/msg/Imu"))
+    written = session.slice(0, n)
+    write_ros2(folder, written)
     talker = yaml.safe_load((SCHEMA4 / "metadata.yaml").read_text())
     qos = talker["rosbag2_bagfile_information"]["topics_with_message_count"][0]
     meta_path = folder / "metadata.yaml"
@@ -151,30 +131,27 @@ def _imu_bag_as_the_2023_talker(folder: Path, n: int, files: int = 1) -> Any:
         copy.write_bytes(db3.read_bytes())
         info["relative_file_paths"].append(copy.name)
     meta_path.write_text(yaml.safe_dump(meta, sort_keys=False))
-    return session
+    return written
 
 
 def test_an_imu_bag_whose_metadata_yaml_disagrees_with_its_db3_reads_every_sample(tmp_path):
     """rosbags reads no message of a topic whose metadata.yaml record differs from the
     .db3's (the 2023 talker's state, above): the folder read as an empty log. imudiag now
     reads the bag's one storage file itself, every sample, and says so."""
-    import numpy as np
+    from tests.test_rosbag_logs import _same_samples
 
     n = 1500
     folder = tmp_path / "imu_bag"
-    session = _imu_bag_as_the_2023_talker(folder, n)
+    written = _imu_bag_as_the_2023_talker(folder, n)
     with Reader(folder) as r:  # the state: rosbags alone reads nothing through the folder
-        assert {c.topic: c.msgcount for c in r.connections} == {"/imu": n}
+        assert {c.topic: c.msgcount for c in r.connections} == {"/imu/data": n}
         assert next(iter(r.messages()), None) is None
     log = read_log(folder)
     (db3,) = folder.glob("*.db3")
     assert "read from " + db3.name + " itself: the bag's metadata.yaml describes" in str(
         log.meta["source"]
     )
-    assert len(log) == n
-    np.testing.assert_allclose(log.t - log.t[0], session.t[:n] - session.t[0], atol=2e-6)
-    np.testing.assert_allclose(log.gyro, np.radians(session.gyro[:n]), rtol=1e-12)
-    np.testing.assert_array_equal(log.accel, session.accel[:n])
+    _same_samples(log, written)
 
 
 def test_a_several_file_bag_in_that_state_is_refused_saying_why(tmp_path, capsys):
@@ -183,5 +160,5 @@ def test_a_several_file_bag_in_that_state_is_refused_saying_why(tmp_path, capsys
     assert main(["allan", str(folder)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "Traceback" not in err
-    assert "metadata.yaml counts messages on /imu, but none reads through it" in err
+    assert "metadata.yaml counts messages on /imu/data, but none reads through it" in err
     assert "differ from those of its 2 storage files" in err and "ros2 bag reindex" in err

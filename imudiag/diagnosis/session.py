@@ -448,18 +448,9 @@ def collect_intervals(
     holds or drops more holds than it keeps.
     """
     first: dict[str, Any] = {}
+    reading = (certificate_noise, options, block_size, progress)
     intervals, rate, moving, sigma = _collect_pass(
-        data,
-        like,
-        config,
-        rate_hz,
-        table,
-        certificate_noise,
-        options,
-        block_size,
-        progress,
-        first,
-        stuck_out=stuck,
+        data, like, config, rate_hz, table, *reading, first, stuck_out=stuck
     )
     mode = config.short_holds
     if table is not None or config.known_rate_rad_s is not None:
@@ -557,18 +548,9 @@ def calibrate_recording(
     )
     holds: dict[str, Any] = {}
     stuck: list[dict[str, Any]] = []
+    reading = (certificate_noise, options, block_size, progress)
     intervals, rate, moving = collect_intervals(
-        data,
-        like,
-        config,
-        rate_hz,
-        table,
-        certificate_noise,
-        options,
-        block_size,
-        progress,
-        holds,
-        stuck,
+        data, like, config, rate_hz, table, *reading, holds=holds, stuck=stuck
     )
     measured = {
         triad: np.asarray(noise_report[triad]["measured"]["density"], dtype=float)
