@@ -150,3 +150,31 @@ def test_an_instance_past_the_time_limit_keeps_the_logs_own_report() -> None:
         "instance 1: timeout: the diagnosis ran past 60 s (while fitting windows)"
     )
     assert items[0]["report"] is None and items[0]["parameters"] == []
+
+
+def test_a_stuck_output_puts_its_unit_on_the_look_at_list(tmp_path: Path) -> None:
+    """gy frozen at t = 20 s of a log: the fleet's record holds the stuck fault that
+    ``diagnose`` names (before 2026-11-29 its verdict held none: the unit was not listed),
+    and the vehicle is to be looked at for it, the reason saying where it was raised."""
+    from imudiag.certificate import load_default
+    from imudiag.logs import open_writer
+
+    bundled = PROJECT_DIR / "config" / "default-certificate.yaml"
+    traj = multi_position(n_attitudes=14, dwell_s=3.0, turn_s=1.5, rate_hz=200, seed=7)
+    frozen = simulate(load_default(), traj, seed=8, faults=[Fault("stuck", "gy", 20.0, None)])
+    (tmp_path / "rover-3").mkdir()
+    log = tmp_path / "rover-3" / "run-01.csv"
+    with open_writer(log, {"sample_rate": 200.0, "units": "gyro=count accel=count"}) as w:
+        w.write(frozen.samples)
+    st = log.stat()
+    job = Job(str(log), "-", st.st_size, st.st_mtime_ns, str(tmp_path), certificate=str(bundled))
+    record = diagnose_log(job)
+    assert record["status"] == "ok", record["reason"]
+    stuck = [f for f in record["report"]["verdict"]["faults"] if f["cause"] == "stuck"]
+    assert [(f["triad"], f["sensor"]) for f in stuck] == [("gyro", "gy")]
+    (vehicle,) = summarize([record])["vehicles"]
+    assert vehicle["vehicle"] == "rover-3" and vehicle["look_at"] is True
+    (reason,) = [r for r in vehicle["reasons"] if r["cause"] == "stuck"]
+    assert (reason["triad"], reason["sensor"]) == ("gyro", "gy")
+    assert reason["why"].startswith("raised as a fault from log 1 of 1")
+    json.dumps(record, allow_nan=False)
