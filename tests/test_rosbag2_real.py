@@ -4,11 +4,15 @@ SQLite storage's first schema) and the same recording rewritten by rosbag2 into 
 of Iron and later (a ``schema`` table naming ``rolling``, stored definitions). They hold no
 IMU: imudiag opens each, from its folder or its ``.db3``, and says so with the topics they
 have; the typestore imudiag picks for a bag without definitions decodes every message the
-recorder wrote."""
+recorder wrote.
+
+The bags are SQLite databases in WAL mode: opening one writes its ``-shm`` and ``-wal``
+files beside it, so the tests read copies (:func:`bags`), never the shipped folders."""
 
 from __future__ import annotations
 
 import re
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -20,21 +24,36 @@ from imudiag.logs import LogError, read_log
 from imudiag.logs.rosbag import sqlite_distro, typestore_for
 
 DATA = Path(__file__).parent / "data" / "real" / "ros2-talker"
-FOXY = DATA / "2020-foxy"
-SCHEMA4 = DATA / "2023-schema4"
+BAGS = ("2020-foxy", "2023-schema4")
 TOPICS = (
     "its topics: /parameter_events (rcl_interfaces/msg/ParameterEvent, 0 messages), "
     "/rosout (rcl_interfaces/msg/Log, 10 messages), /topic (std_msgs/msg/String, 10 messages)"
 )
-#: each bag as a folder and as its storage file pointed at directly
-PATHS = [FOXY, FOXY / "talker.db3", SCHEMA4, SCHEMA4 / "talker.db3"]
-IDS = ["foxy-folder", "foxy-db3", "schema4-folder", "schema4-db3"]
 
 
-def test_the_two_files_are_what_their_source_says():
-    assert sqlite_distro(FOXY / "talker.db3") is None  # no schema table: before Humble
-    assert sqlite_distro(SCHEMA4 / "talker.db3") == "rolling"
-    for bag in (FOXY, SCHEMA4):
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Each shipped bag (its metadata.yaml and talker.db3, as shipped) copied to a folder
+    of its own name."""
+    root = tmp_path_factory.mktemp("ros2-talker")
+    for name in BAGS:
+        (root / name).mkdir()
+        for part in ("metadata.yaml", "talker.db3"):
+            shutil.copyfile(DATA / name / part, root / name / part)
+    return {name: root / name for name in BAGS}
+
+
+def _path(bags: dict[str, Path], which: str) -> Path:
+    """``2020-foxy`` (the folder) or ``2020-foxy/talker.db3`` (its storage file)."""
+    name, _, part = which.partition("/")
+    return bags[name] / part if part else bags[name]
+
+
+def test_the_two_files_are_what_their_source_says(bags):
+    foxy, schema4 = bags["2020-foxy"], bags["2023-schema4"]
+    assert sqlite_distro(foxy / "talker.db3") is None  # no schema table: before Humble
+    assert sqlite_distro(schema4 / "talker.db3") == "rolling"
+    for bag in (foxy, schema4):
         with Reader(bag) as r:
             assert {c.topic: c.msgcount for c in r.connections} == {
                 "/topic": 10,
@@ -42,14 +61,19 @@ def test_the_two_files_are_what_their_source_says():
                 "/parameter_events": 0,
             }
             defs = {c.topic: c.msgdef.data for c in r.connections}
-        if bag == FOXY:
+        if bag == foxy:
             assert set(defs.values()) == {""}  # the recorder stored no definition
         else:
             assert defs["/topic"] == "string data"
 
 
-@pytest.mark.parametrize("path", PATHS, ids=IDS)
-def test_a_recorder_bag_without_imu_names_its_topics(path):
+#: each bag as a folder and as its storage file pointed at directly
+@pytest.mark.parametrize(
+    "which",
+    ["2020-foxy", "2020-foxy/talker.db3", "2023-schema4", "2023-schema4/talker.db3"],
+)
+def test_a_recorder_bag_without_imu_names_its_topics(bags, which):
+    path = _path(bags, which)
     with pytest.raises(LogError) as err:
         read_log(path)
     assert f"no sensor_msgs/msg/Imu topic in the bag ({TOPICS})" in str(err.value)
@@ -57,8 +81,9 @@ def test_a_recorder_bag_without_imu_names_its_topics(path):
 
 
 @pytest.mark.parametrize("command", ["allan", "convert", "diagnose", "calibrate"])
-@pytest.mark.parametrize("path", [FOXY, SCHEMA4 / "talker.db3"], ids=["foxy", "schema4-db3"])
-def test_every_log_command_refuses_it_in_one_line(command, path, capsys, tmp_path):
+@pytest.mark.parametrize("which", ["2020-foxy", "2023-schema4/talker.db3"])
+def test_every_log_command_refuses_it_in_one_line(bags, command, which, capsys, tmp_path):
+    path = _path(bags, which)
     cert = str(Path(__file__).parent / "data/interop/like-si.yaml")
     args = {
         "allan": [str(path)],
@@ -73,22 +98,24 @@ def test_every_log_command_refuses_it_in_one_line(command, path, capsys, tmp_pat
     assert list(tmp_path.iterdir()) == []  # nothing written
 
 
-@pytest.mark.parametrize("path", [FOXY, SCHEMA4], ids=["foxy", "schema4"])
-def test_a_named_topic_that_is_not_imu_lists_the_others(path, capsys):
+@pytest.mark.parametrize("which", BAGS)
+def test_a_named_topic_that_is_not_imu_lists_the_others(bags, which, capsys):
+    path = _path(bags, which)
     assert main(["allan", str(path), "--topic", "/topic"]) == 2
     err = capsys.readouterr().err
     assert "--topic /topic: no sensor_msgs/msg/Imu messages on it (IMU topics: none;" in err
     assert "other topics: /parameter_events (rcl_interfaces/msg/ParameterEvent, 0 messages)" in err
 
 
-def test_the_chosen_typestore_decodes_every_message_the_recorder_wrote():
+def test_the_chosen_typestore_decodes_every_message_the_recorder_wrote(bags):
     """No definitions in the 2020 bag and no distribution named: imudiag's choice (the
     default distribution's typestore, :func:`typestore_for`) decodes all 20 messages, and
     the two topics agree: each String the talker published is the one its log line names,
     in order, 0.5 s apart as the talker's timer ran (0.4997 to 0.5304 s)."""
-    store = typestore_for(sqlite_distro(FOXY / "talker.db3"), str(FOXY))
+    foxy = bags["2020-foxy"]
+    store = typestore_for(sqlite_distro(foxy / "talker.db3"), str(foxy))
     said, logged, stamps = [], [], []
-    with Reader(FOXY) as r:
+    with Reader(foxy) as r:
         for conn, bag_ns, raw in r.messages():
             msg = store.deserialize_cdr(raw, conn.msgtype)
             if conn.topic == "/topic":
@@ -116,7 +143,7 @@ def _imu_bag_as_the_2023_talker(folder: Path, n: int, files: int = 1) -> Any:
     session = read_log(Path(__file__).parent / "data/real/imucal-ferraris/session.csv.gz")
     written = session.slice(0, n)
     write_ros2(folder, written)
-    talker = yaml.safe_load((SCHEMA4 / "metadata.yaml").read_text())
+    talker = yaml.safe_load((DATA / "2023-schema4" / "metadata.yaml").read_text())
     qos = talker["rosbag2_bagfile_information"]["topics_with_message_count"][0]
     meta_path = folder / "metadata.yaml"
     meta = yaml.safe_load(meta_path.read_text())
