@@ -236,9 +236,9 @@ F0_MEASURES = {
 }
 
 
-def _at(t: float | None, word: str) -> str:
+def _since(t: float | None) -> str:
     """`` from t = 1.23 s`` (sample time, s), or nothing when it is not known."""
-    return "" if t is None else f" {word} t = {t:.2f} s"
+    return "" if t is None else f" from t = {t:.2f} s"
 
 
 def _times(n: int) -> str:
@@ -267,15 +267,17 @@ def summary_lines(report: dict) -> list[str]:
             lines.append(f"  FAULT {f['triad']} {f['sensor']} noise: persistent excess at rest")
             continue
         if f["cause"] == "stuck":
+            from ..monitor.stuck import stuck_words  # the monitor's, loaded by the diagnosis
+
             lines.append(
-                f"  FAULT {f['triad']} {f['sensor']} stuck: one raw value for {f['samples']} "
-                f"samples or more{_at(f['t_first'], 'from')} ({_times(f['raised'])})"
+                f"  FAULT {f['triad']} {f['sensor']} stuck: {stuck_words(f)} "
+                f"({_times(f['raised'])})"
             )
             continue
         if f["cause"] == "saturation":
             lines.append(
                 f"  FAULT {f['triad']} saturation: persistent saturation flags"
-                f"{_at(f['t_first'], 'from')} ({_times(f['raised'])})"
+                f"{_since(f['t_first'])} ({_times(f['raised'])})"
             )
             continue
         if f["cause"] == "f0":

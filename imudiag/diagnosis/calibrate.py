@@ -421,13 +421,13 @@ class CalibrationResult:
     def refusals(self) -> list[str]:
         """Why the calibration is refused: a stuck output of the recording, the held-out
         checks that failed; or []."""
-        stuck = []
-        for f in self.stuck:
-            since = "" if f["t_first"] is None else f" from t = {f['t_first']:.2f} s"
-            stuck.append(
-                f"{f['triad']} {f['sensor']} stuck (one raw value for {f['samples']} samples "
-                f"or more{since}): a stuck output cannot be calibrated"
-            )
+        from ..monitor.stuck import stuck_words  # the monitor's, loaded by the pass
+
+        stuck = [
+            f"{f['triad']} {f['sensor']} stuck ({stuck_words(f)}): a stuck output cannot be "
+            "calibrated"
+            for f in self.stuck
+        ]
         return stuck + [
             c["reason"]
             for c in (self.generalisation, self.gyro_generalisation)

@@ -202,6 +202,13 @@ def monitor_stuck_check(
     )
 
 
+def stuck_words(fault: dict[str, Any]) -> str:
+    """What a fault of :func:`stuck_faults` says: ``one raw value for 50 samples or more
+    from t = 20.24 s`` (sample time, s; left out where it is not known)."""
+    since = "" if fault["t_first"] is None else f" from t = {fault['t_first']:.2f} s"
+    return f"one raw value for {fault['samples']} samples or more{since}"
+
+
 def stuck_faults(check: StuckCheck) -> list[dict[str, Any]]:
     """The stuck outputs ``check`` ever raised, per sensor (gyro then accel): ``t_first`` the
     sample time (s) each first came in force (None: not known), ``raised`` how many times,
