@@ -117,11 +117,9 @@ def _sessions(directory: Path) -> dict[str, Path]:
         out[f"session-stuck-{sensor}"] = _write(
             directory / f"stuck-{sensor}.npz", frozen.samples, 200.0
         )
-    # gy's bias steps by 9 limits at t = 60 s, mid-session. Both faces name the gyro
-    # rest-rate F0 on gy from the step on; neither names gy bias: the windows straddle the
-    # step, its scatter inflates the estimate's std (30 counts against a 33-count limit in
-    # the last window, 5.7 limits off) and the parameter reads not determined (noted,
-    # 2026-11-29)
+    # gy's bias steps by 9 limits at t = 60 s, mid-session. Both faces name gy bias (the
+    # windows split gy's rest rate at the step, tests/test_rest_step.py) and the gyro
+    # rest-rate F0 on gy, which it explains
     step = [Fault("bias", "gy", 60.0, 9 * cert.gyro.limits.bias[1])]
     out["session-gy-bias-step"] = _write(
         directory / "gy-bias-step.npz", simulate(cert, traj, seed=45, faults=step).samples, 200.0
@@ -532,6 +530,17 @@ def test_a_stuck_output_is_one_fault_in_both_faces(runs, sensor):
 def test_a_bias_step_mid_session_is_named_on_its_axis_by_both_faces(runs):
     report, lines = runs["session-gy-bias-step"]["report"], runs["session-gy-bias-step"]["lines"]
     gyro = [f for f in report["verdict"]["faults"] if f["triad"] == "gyro"]
-    assert gyro and {f["sensor"] for f in gyro} == {"gy"}
+    assert {(f["sensor"], f["cause"]) for f in gyro} == {("gy", "bias"), ("gy", "f0")}
     assert all(f["t_first"] >= 60.0 for f in gyro if f.get("t_first") is not None)
     assert not [s for s in lines if s["state"] == "fault" and s["t"] < 60.0]
+    (bias,) = [f for f in gyro if f["cause"] == "bias"]
+    assert 57.0 <= bias["step"]["t_after"] <= 64.5
+    (f0,) = [f for f in gyro if f["cause"] == "f0"]
+    assert {"sensor": "gy", "cause": "bias"} in f0["explained_by"]
+    # the daemon's verdict (names only) holds gy bias, and its status lines have it in
+    # force from a window after the step
+    assert {"triad": "gyro", "sensor": "gy", "cause": "bias"} in lines[-1]["verdict"]["faults"]
+    first = next(
+        s for s in lines if ("gy", "bias") in {(f["sensor"], f["cause"]) for f in s["faults"]}
+    )
+    assert first["t"] >= bias["t_first"] > bias["step"]["t_after"]

@@ -236,6 +236,17 @@ F0_MEASURES = {
 }
 
 
+def _stepped(step: dict | None, unit: str) -> str:
+    """The summary's note of a bias taken after a step of the rest rate (a fault's
+    ``step``), or ""."""
+    if not step:
+        return ""
+    return (
+        f"; its rest rate stepped from {step['before']:.6g} to {step['after']:.6g}{unit} at "
+        f"t = {step['t_after']:.2f} s"
+    )
+
+
 def _since(t: float | None) -> str:
     """`` from t = 1.23 s`` (sample time, s), or nothing when it is not known."""
     return "" if t is None else f" from t = {t:.2f} s"
@@ -294,6 +305,7 @@ def summary_lines(report: dict) -> list[str]:
             f"  FAULT {f['triad']} {f['sensor']} {f['cause']}: estimate "
             f"{f['estimate']:.6g}{unit}, certificate {f['certificate']:.6g}{unit}, limit "
             f"{f['limit']:.6g}{unit}, first at t = {f['t_first']:.2f} s"
+            + _stepped(f.get("step"), unit)
         )
     wire = report.get("wire")
     if wire:

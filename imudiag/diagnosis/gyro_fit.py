@@ -89,6 +89,37 @@ def earth_rate_observable(
 # bias at rest
 
 
+#: A step in a gyro's rest rate inside a window (a bias shift: a shock, a power cycle):
+#: the means of the intervals after it differ from those before by more than this many
+#: sigma (each side's std the larger of its noise and its scatter, as :func:`rest_bias`).
+#: The best split of a window is searched, so the threshold stands well above the maximum
+#: of a score over ~20 splits of white noise (about 3 sigma).
+REST_STEP_SIGMA = 6.0
+#: Fewest intervals on each side of a rest-rate step: the side after it gives the bias,
+#: its scatter the std (fewer points would make that std itself a guess).
+REST_STEP_MIN_SIDE = 5
+#: Smallest rest-rate step split, in bias limits: a smaller one cannot move the bias
+#: across its limit by itself, and the slow wander of a real unit's rest rate can score
+#: as a step (the MPU-6050's 449-s hold: 1.1 counts, 0.008 limits, at 6.1 sigma).
+REST_STEP_MIN_LIMITS = 0.5
+
+
+def _rest_mean_var(
+    means: np.ndarray, mean_var: np.ndarray, counts: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Count-weighted mean of interval means (K, d) and its variance: the larger of the
+    white noise of the means and their scatter (bias wander), per column."""
+    w = np.asarray(counts, dtype=float)
+    w = w / w.sum()
+    est = w @ means
+    var = (w * w) @ mean_var
+    k = means.shape[0]
+    if k > 1:
+        scatter = (w @ (means - est) ** 2) * k / (k - 1) / k
+        var = np.maximum(var, scatter)
+    return est, var
+
+
 def rest_bias(
     gyro: TriadModel,
     means: np.ndarray,
@@ -103,16 +134,65 @@ def rest_bias(
     rate term of unknown direction (S * Omega / sqrt(3) per axis).
     """
     means = np.asarray(means, dtype=float).reshape(-1, 3)
-    w = np.asarray(counts, dtype=float)
-    w = w / w.sum()
-    est = w @ means
-    noise_var = (w * w) @ np.asarray(mean_var, dtype=float).reshape(-1, 3)
-    k = means.shape[0]
-    if k > 1:
-        scatter = (w @ (means - est) ** 2) * k / (k - 1) / k
-        noise_var = np.maximum(noise_var, scatter)
+    est, var = _rest_mean_var(means, np.asarray(mean_var, dtype=float).reshape(-1, 3), counts)
+    return est, np.sqrt(var + _earth_var(gyro, earth_rate_si))
+
+
+def _earth_var(gyro: TriadModel, earth_rate_si: float) -> np.ndarray:
+    """Variance (3,) of the Earth-rate term of unknown direction at rest, output units^2."""
     earth = gyro.scale_factor * earth_rate_si / gyro.unit_to_si
-    return est, np.sqrt(noise_var + earth**2 / 3.0)
+    return earth**2 / 3.0
+
+
+@dataclass(frozen=True)
+class RestStep:
+    """A step of one gyro's rest rate inside a window (:func:`rest_rate_steps`)."""
+
+    axis: int  #: 0, 1, 2 for x, y, z
+    index: int  #: first interval after the step (row of the window's means)
+    before: float  #: rest rate before the step, output units
+    after: float  #: rest rate after it, output units
+    z: float  #: the step over its std (sigma)
+
+    def to_json(self, t_after: float) -> dict:
+        """As the window's gyro fit lists it (``rest_step``); ``t_after`` the start (s) of
+        the first interval after the step."""
+        return {
+            "sensor": "g" + "xyz"[self.axis],
+            "t_after": round(t_after, 6),
+            "before": self.before,
+            "after": self.after,
+            "sigma": round(self.z, 3),
+        }
+
+
+def rest_rate_steps(
+    means: np.ndarray,
+    mean_var: np.ndarray,
+    counts: np.ndarray,
+    min_size: np.ndarray | float = 0.0,
+) -> list[RestStep]:
+    """Steps of the gyros' rest rates in a window (interval means (K, 3) in time order,
+    their white-noise variances and sample counts): per axis, the split of the window into
+    an older and a newer part whose means differ most for their std; a step where that is
+    beyond :data:`REST_STEP_SIGMA`, with :data:`REST_STEP_MIN_SIDE` intervals on each side
+    and a size of at least ``min_size`` (output units, per axis or one for all).
+    """
+    means = np.asarray(means, dtype=float).reshape(-1, 3)
+    mean_var = np.asarray(mean_var, dtype=float).reshape(-1, 3)
+    counts = np.asarray(counts, dtype=float)
+    k = means.shape[0]
+    best: list[RestStep | None] = [None, None, None]
+    for split in range(REST_STEP_MIN_SIDE, k - REST_STEP_MIN_SIDE + 1):
+        m0, v0 = _rest_mean_var(means[:split], mean_var[:split], counts[:split])
+        m1, v1 = _rest_mean_var(means[split:], mean_var[split:], counts[split:])
+        z = np.abs(m1 - m0) / np.sqrt(v0 + v1)
+        z[np.abs(m1 - m0) < min_size] = 0.0
+        for a in range(3):
+            found = best[a]
+            if z[a] > REST_STEP_SIGMA and (found is None or z[a] > found.z):
+                best[a] = RestStep(a, split, float(m0[a]), float(m1[a]), float(z[a]))
+    return [s for s in best if s is not None]
 
 
 def rest_rotation_fit(
@@ -124,10 +204,17 @@ def rest_rotation_fit(
     rotation: RotationFitResult | None,
     determined_std_ratio: float,
     rotation_note: str = "",
+    starts: np.ndarray | None = None,
 ) -> TriadFit:
     """The MEMS gyro fit, the one place it is assembled: the bias at rest (:func:`rest_bias`
     of the interval means (K, 3), output units) and the shape from ``rotation`` (the
     :func:`rotation_fit` of the motions between the intervals, None without rotations).
+
+    With ``starts`` (the intervals' start times, s: a window of the diagnosis, which
+    judges the unit as it is now) an axis whose rest rate steps inside the window
+    (:func:`rest_rate_steps`) takes its bias from the intervals after the step; each step
+    is listed in ``extra["rest_step"]``. Without (a calibration), the bias is that of every
+    interval.
 
     Estimates and std in certificate units; a parameter is determined where its std is at
     most ``determined_std_ratio`` of its limit. ``rotation_note`` is added to the reason of
@@ -140,6 +227,19 @@ def rest_rotation_fit(
     est = cert.copy()
     std = np.full(9, np.inf)
     est[:3], std[:3] = rest_bias(gyro, means, mean_var, counts, earth_rate_si)
+    steps = []
+    if starts is not None:
+        steps = rest_rate_steps(means, mean_var, counts, REST_STEP_MIN_LIMITS * limit[:3])
+    for step in steps:
+        a, after = step.axis, slice(step.index, None)
+        e, sd = rest_bias(
+            gyro,
+            np.asarray(means, dtype=float).reshape(-1, 3)[after],
+            np.asarray(mean_var, dtype=float).reshape(-1, 3)[after],
+            np.asarray(counts, dtype=float)[after],
+            earth_rate_si,
+        )
+        est[a], std[a] = e[a], sd[a]
     if rotation is not None:
         scale = np.concatenate([gyro.scale_factor, np.ones(3)])
         est[3:] = cert[3:] + rotation.deviation * scale
@@ -167,6 +267,9 @@ def rest_rotation_fit(
         points=len(np.asarray(means).reshape(-1, 3)),
         dof=rotation.dof if rotation is not None else float("nan"),
         certificate_std=certificate_std_vector(gyro),
+        extra={"rest_step": [s.to_json(float(starts[s.index])) for s in steps]}
+        if steps and starts is not None
+        else {},
     )
 
 

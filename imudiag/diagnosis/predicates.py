@@ -166,6 +166,8 @@ class PredicateTracker:
             **(
                 {"certificate_std": float(fit.certificate_std[i])} if fit.certificate_std[i] else {}
             ),
+            # a gyro bias taken after a step of its rest rate in the window
+            **_step_of(fit, i),
         }
 
     def active(self) -> list[dict]:
@@ -182,6 +184,19 @@ class PredicateTracker:
         return [_public(f) for f in self.raised]
 
 
+def _step_of(fit: TriadFit, i: int) -> dict:
+    """``{"step": ...}`` when the window took bias ``i`` after a step of its rest rate (the
+    window's ``rest_step`` entry for that sensor: ``t_after`` s, ``before``, ``after``
+    output units, ``sigma``), else empty."""
+    if i >= 3:
+        return {}
+    sensor = sensor_of(fit.triad, i)
+    for step in fit.extra.get("rest_step", ()):
+        if step["sensor"] == sensor:
+            return {"step": {k: v for k, v in step.items() if k != "sensor"}}
+    return {}
+
+
 def _public(f: dict) -> dict:
     keys = (
         "triad",
@@ -194,6 +209,7 @@ def _public(f: dict) -> dict:
         "t_last",
         "std",
         "certificate_std",
+        "step",
     )
     return {k: f[k] for k in keys if k in f}
 

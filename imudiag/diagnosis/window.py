@@ -383,6 +383,7 @@ def gyro_window_fit(
         rot,
         config.determined_std_ratio,
         f"; {rotations} rotation(s) between static poses in the window",
+        starts=np.array([iv.t_start for iv in intervals]),
     )
     rot_dof = fit.dof
     if rot is not None:
@@ -395,7 +396,7 @@ def gyro_window_fit(
         resolved = ev[0] > ev[-1] / CONDITION_RESOLUTION
         fit.condition = float(ev[-1] / ev[0]) if resolved else float("inf")
         fit.rms_residual = rot.rms
-        fit.extra = {"rotation_rms_rad": rot.rms, "frame_rad": [float(v) for v in rot.frame]}
+        fit.extra.update({"rotation_rms_rad": rot.rms, "frame_rad": [float(v) for v in rot.frame]})
         if rot.loo_deviation is not None:
             # each motion left out: the shape moves, the rest biases do not
             loo = np.tile(fit.estimate - fit.certificate, (len(pairs), 1))
