@@ -124,6 +124,21 @@ def _sessions(directory: Path) -> dict[str, Path]:
     out["session-gy-bias-step"] = _write(
         directory / "gy-bias-step.npz", simulate(cert, traj, seed=45, faults=step).samples, 200.0
     )
+    # ax's bias steps by 9 limits at t = 60 s: both faces name ax bias (the windows start
+    # again at the step, tests/test_fault_onset.py); before 2026-11-29 only the
+    # accelerometer F0, the windows straddling the step to the session's end
+    step = [Fault("bias", "ax", 60.0, 9 * cert.accel.limits.bias[0])]
+    out["session-ax-bias-step"] = _write(
+        directory / "ax-bias-step.npz", simulate(cert, traj, seed=45, faults=step).samples, 200.0
+    )
+    # ay's scale factor 8.18 limits off from t = 46.9 s of a 40-attitude session (a draw of
+    # benchmarks/fault_onset.py): two windows mixing both sides of the onset raise ay's
+    # bias, withdrawn when a later window finds the step; both faces name ay's scale factor
+    long = multi_position(n_attitudes=40, dwell_s=3.0, turn_s=1.5, rate_hz=200, seed=4700)
+    onset = [Fault("scale_factor", "ay", 46.9, 8.18 * cert.accel.limits.scale_factor_error[1])]
+    out["session-ay-onset"] = _write(
+        directory / "ay-onset.npz", simulate(cert, long, seed=4701, faults=onset).samples, 200.0
+    )
     return out
 
 
@@ -199,6 +214,8 @@ SIM_CASES = (
     "session-faulty",
     "session-stuck-ax",
     "session-gy-bias-step",
+    "session-ax-bias-step",
+    "session-ay-onset",
     "session-stuck-gy",
 )
 #: every case whose whole verdict the two faces must give alike; session-stuck-gy: its
@@ -544,3 +561,31 @@ def test_a_bias_step_mid_session_is_named_on_its_axis_by_both_faces(runs):
         s for s in lines if ("gy", "bias") in {(f["sensor"], f["cause"]) for f in s["faults"]}
     )
     assert first["t"] >= bias["t_first"] > bias["step"]["t_after"]
+
+
+def test_an_accelerometer_bias_step_mid_session_is_named_by_both_faces(runs):
+    report, lines = runs["session-ax-bias-step"]["report"], runs["session-ax-bias-step"]["lines"]
+    assert _named(report["verdict"]["faults"]) == {("accel", "ax", "bias"), ("accel", "", "f0")}
+    assert _named(lines[-1]["verdict"]["faults"]) == _named(report["verdict"]["faults"])
+    (bias,) = [f for f in report["verdict"]["faults"] if f["cause"] == "bias"]
+    assert bias["t_first"] > 60.0
+    assert not [s for s in lines if s["state"] == "fault" and s["t"] < 60.0]
+
+
+def test_faults_withdrawn_after_an_onset_leave_both_faces_one_answer(runs):
+    """The withdrawn bias is in neither verdict; both name ay's scale factor (and the F0
+    check); the daemon's status lines had the bias in force only until the window that
+    found the step, and never after."""
+    report, lines = runs["session-ay-onset"]["report"], runs["session-ay-onset"]["lines"]
+    assert _named(report["verdict"]["faults"]) == {
+        ("accel", "ay", "scale_factor"),
+        ("accel", "", "f0"),
+    }
+    assert _named(lines[-1]["verdict"]["faults"]) == _named(report["verdict"]["faults"])
+    (gone,) = report["verdict"]["withdrawn"]
+    assert (gone["sensor"], gone["cause"]) == ("ay", "bias") and gone["t_first"] > 46.9
+    assert "step change at t = " in gone["reason"]
+    had = [
+        s["t"] for s in lines if ("ay", "bias") in {(f["sensor"], f["cause"]) for f in s["faults"]}
+    ]
+    assert had and lines[-1]["t"] > max(had)

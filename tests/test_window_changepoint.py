@@ -1,5 +1,7 @@
 """Issue 10: sliding windows reject isolated outlier intervals, but not a step change (a fault
-onset inside the window), which the window keeps whole and rolls past.
+onset inside the window), which the window keeps whole; the stream then starts its next
+windows at the step (tests/test_fault_onset.py), where before they rolled past it over 24
+intervals.
 
 Real recording: tests/data/real/xsens-mti-multiposition (SOURCE.md there).
 """
@@ -57,7 +59,7 @@ def test_an_isolated_outlier_in_a_window_is_rejected(seed):
     means[bad] += 40.0 * np.sqrt(var[bad]) * up[bad]
     fit = _fit(cert, means, var, labels)
     assert [r["point"] for r in fit.extra["rejected"]] == [labels[bad]]
-    assert "rejection_withheld" not in fit.extra
+    assert "rejection_withheld" not in fit.extra and "step_change" not in fit.extra
     assert labels[bad] not in fit.point_labels and len(fit.point_labels) == K - 1
     assert np.all(np.abs(fit.estimate - clean.estimate) <= 2.0 * clean.std)
 
@@ -83,6 +85,9 @@ def test_a_step_change_in_a_window_is_not_rejected(newest):
     assert "a step change, not outliers" in step["reason"]
     assert float(step["reason"].split(" sigma")[0].split()[-1]) > STEP_SIGMA
     assert fit.point_labels == labels
+    # where the unit as it is now begins: the stream starts its next windows there
+    first = K - 5 if newest else 5
+    assert fit.extra["step_change"] == {"first": labels[first], "index": first}
 
 
 def test_an_outlier_at_the_newest_end_is_kept_until_the_window_rolls():
@@ -91,6 +96,7 @@ def test_an_outlier_at_the_newest_end_is_kept_until_the_window_rolls():
     fit = _fit(cert, means, var, labels)
     assert "rejected" not in fit.extra
     assert "end of the window" in fit.extra["rejection_withheld"]["reason"]
+    assert "step_change" not in fit.extra  # not a step: nothing beyond it to tell
     # one interval later it is no longer at the end: rejected
     more, mvar = _means(cert.accel, up[:1], 400, np.random.default_rng(8))
     m2, v2 = np.vstack([means[1:], more]), np.vstack([var[1:], mvar])

@@ -307,6 +307,11 @@ def summary_lines(report: dict) -> list[str]:
             f"{f['limit']:.6g}{unit}, first at t = {f['t_first']:.2f} s"
             + _stepped(f.get("step"), unit)
         )
+    for f in v.get("withdrawn", []):
+        lines.append(
+            f"  withdrawn {f['triad']} {f['sensor']} {f['cause']} (first at t = "
+            f"{f['t_first']:.2f} s): {f['reason']}"
+        )
     wire = report.get("wire")
     if wire:
         lines.append(

@@ -14,11 +14,14 @@ After a step, the intervals on the far side are all off (the median of their
 prediction errors is beyond :data:`STEP_SIGMA`); around an isolated outlier
 they are not (the median ignores the other outliers among them). A step, or a
 rejected interval at either end of the window (nothing beyond it to tell), keeps
-every interval: the window rolls past the change, and the influence rule of the
-predicates keeps one interval from making a fault. So does a rejection that would
-leave another interval the only evidence for a parameter (two holds in one attitude,
-one of them off: which one cannot be told, and the one left could make a fault that
-nothing holds back).
+every interval, and the influence rule of the predicates keeps one interval from
+making a fault. Every interval is kept as well where the rejection would leave
+another interval the only evidence for a parameter (two holds in one attitude, one of
+them off: which one cannot be told, and the one left could make a fault that nothing
+holds back). A step is also
+listed as the fit's ``step_change`` (its first interval of the unit as it is now): the
+stream starts its next windows there and withdraws the faults that the windows mixing
+both sides raised (:class:`.stream.StreamingDiagnoser`).
 """
 
 from __future__ import annotations
@@ -67,23 +70,30 @@ def step_change(
     mag: np.ndarray,
     rejected: np.ndarray,
     kwargs: dict[str, Any],
-) -> str:
+) -> tuple[str, int | None]:
     """Why the rejected points (indices, time order of ``means``) look like a step change,
-    or "" when they are isolated outliers. ``kwargs`` as :func:`.scalar_fit.exact_fit`."""
+    or "" when they are isolated outliers; with the step's first interval (the first of the
+    unit as it is now: the earliest rejected one when the newer intervals are off, the one
+    after the latest rejected when the older are), None when there is no step.
+    ``kwargs`` as :func:`.scalar_fit.exact_fit`."""
     k = means.shape[0]
     idx = np.arange(k)
     first, last = int(rejected.min()), int(rejected.max())
     if first == k - 1 or last == 0:
-        return "the rejected interval is at the end of the window: nothing beyond it to tell a step"
+        return (
+            "the rejected interval is at the end of the window: nothing beyond it to tell a step",
+            None,
+        )
     newer = _median_prediction_z(triad, means, var, mag, idx[idx < first], idx[idx > first], kwargs)
     older = _median_prediction_z(triad, means, var, mag, idx[idx > last], idx[idx < last], kwargs)
-    for z, side in ((newer, "newer"), (older, "older")):
+    for z, side, boundary in ((newer, "newer", first), (older, "older", last + 1)):
         if np.isfinite(z) and z > STEP_SIGMA:
             return (
                 f"the intervals {side} than the rejected ones are {z:.1f} sigma off (median) "
-                f"the fit to the others: a step change, not outliers"
+                f"the fit to the others: a step change, not outliers",
+                boundary,
             )
-    return ""
+    return "", None
 
 
 def window_exact_fit(
@@ -111,7 +121,7 @@ def window_exact_fit(
         return fit
     # the fit to every interval, made first by the rejection and left untouched by it
     plain.point_labels = list(labels)
-    why = step_change(triad, means, var, mag, np.flatnonzero(~fit.kept), kwargs)
+    why, boundary = step_change(triad, means, var, mag, np.flatnonzero(~fit.kept), kwargs)
     if not why and _essential(fit) > _essential(plain):
         # two holds in one attitude, one of them off: the data cannot say which, and the
         # one left would be the only evidence for a parameter (a fault nothing can hold back)
@@ -125,6 +135,9 @@ def window_exact_fit(
         "points": [r["point"] for r in fit.extra.get("rejected", [])],
         "reason": why,
     }
+    if boundary is not None:
+        # the stream starts its next windows here (:class:`.stream.StreamingDiagnoser`)
+        plain.extra["step_change"] = {"first": labels[boundary], "index": boundary}
     return plain
 
 

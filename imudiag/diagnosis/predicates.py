@@ -111,6 +111,8 @@ class PredicateTracker:
         self.persist = int(persist)
         self._state: dict[tuple[str, int], _State] = {}
         self.raised: list[dict] = []  #: every fault raised, in order (latched)
+        #: faults withdrawn by :meth:`restart`, each with its ``reason``
+        self.withdrawn: list[dict] = []
 
     def update(self, fit: TriadFit, t: float) -> list[dict]:
         """Judge one window's fit at time ``t`` (s); returns this window's candidates."""
@@ -149,6 +151,32 @@ class PredicateTracker:
                     if st.clear_streak >= self.persist:
                         st.active = False
                         st.clear_streak = 0
+        return out
+
+    def restart(self, triad: str, t_step: float) -> list[dict]:
+        """A step change of ``triad`` at ``t_step`` (s, the start of the first interval of
+        the unit as it is now) found after the fact: every window since held intervals
+        from both sides of it, a mixture no parameter set describes. The faults of the
+        triad those windows raised (first candidate at or after ``t_step``) are withdrawn
+        with the reason, and the streaks they began forgotten; the windows after the step
+        raise again what is really there. Faults raised before the step stay. Returns the
+        withdrawn faults."""
+        reason = (
+            f"raised by windows mixing intervals from before and after a step change at "
+            f"t = {t_step:.2f} s"
+        )
+        out = []
+        for f in [f for f in self.raised if f["triad"] == triad and f["t_first"] >= t_step]:
+            self.raised.remove(f)
+            out.append(dict(_public(f), reason=reason))
+        for (tri, _), st in self._state.items():
+            if tri != triad:
+                continue
+            if st.fault is not None and st.fault["t_first"] >= t_step:
+                st.active, st.fault, st.clear_streak = False, None, 0
+            if st.t_first is not None and st.t_first >= t_step:
+                st.streak, st.sign, st.t_first = 0, 0.0, None
+        self.withdrawn.extend(out)
         return out
 
     @staticmethod

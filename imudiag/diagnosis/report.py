@@ -25,12 +25,14 @@ class F0Counts(TypedDict, total=False):
 class Verdict(TypedDict):
     """Per triad ``ok`` / ``fault`` / ``undetermined``; the faults (triad, sensor, cause,
     estimate, certificate, limit in the certificate's units, t_first s, ...) and what the
-    data could not determine (triad, sensor, cause, reason)."""
+    data could not determine (triad, sensor, cause, reason); ``withdrawn`` (only when not
+    empty): faults raised by windows mixing both sides of a step change, with the reason."""
 
     accel: str
     gyro: str
     faults: list[dict[str, Any]]
     undetermined: list[dict[str, Any]]
+    withdrawn: NotRequired[list[dict[str, Any]]]
 
 
 #: The report of :func:`imudiag.diagnose` and ``imudiag diagnose --json``.

@@ -34,6 +34,16 @@ REPORT_FORMAT = DIAGNOSIS_FORMAT
 TRIADS = ("accel", "gyro")
 
 
+def _step_boundaries(res: WindowResult) -> list[tuple[str, int]]:
+    """(triad, the window's first interval after the step) of each triad whose fit found a
+    step change (its ``step_change``)."""
+    return [
+        (t, int(res.fit(t).extra["step_change"]["index"]))
+        for t in TRIADS
+        if "step_change" in res.fit(t).extra
+    ]
+
+
 def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
     """Centred moving average of (N,) over n samples (shorter at the edges)."""
     if n <= 1 or x.shape[0] == 0:
@@ -179,6 +189,14 @@ class StreamingDiagnoser:
                 )
                 self._judge(res)
                 out.append(res)
+                # a step change (a fault onset) in the window: the next windows start at
+                # it, holding the unit as it is now only (:mod:`.changepoint`), and the
+                # faults raised by the windows that mixed both sides are withdrawn
+                for triad, first in _step_boundaries(res):
+                    if self.tracker.restart(triad, self._window[first].t_start):
+                        self._note_verdicts(res.t_end)
+                for _ in range(max((f for _, f in _step_boundaries(res)), default=0)):
+                    self._window.popleft()
         return out
 
     def _plateau_f0(self, iv: QuasiStaticInterval) -> None:
@@ -232,6 +250,11 @@ class StreamingDiagnoser:
             for i in range(9):
                 if not fit.determined[i]:
                     self._reasons[triad][i] = fit.reasons[i]
+        self._note_verdicts(res.t_end)
+        self.windows.append(res)
+
+    def _note_verdicts(self, t: float) -> None:
+        """Each triad's verdict now (fault in force, ok, undetermined) and since when (s)."""
         in_force = {f["triad"] for f in self.tracker.active()}
         for triad in TRIADS:
             now = (
@@ -242,8 +265,7 @@ class StreamingDiagnoser:
                 else "undetermined"
             )
             if now != self.verdict_since[triad][0]:
-                self.verdict_since[triad] = (now, float(res.t_end))
-        self.windows.append(res)
+                self.verdict_since[triad] = (now, float(t))
 
     # -- moving base -------------------------------------------------------------
 
@@ -389,6 +411,9 @@ class StreamingDiagnoser:
                 out[triad] = "ok"
         out["faults"] = raised
         out["undetermined"] = und
+        if self.tracker.withdrawn:
+            # faults the windows raised on a mixture of both sides of a step change
+            out["withdrawn"] = list(self.tracker.withdrawn)
         return out
 
     def report(
@@ -404,6 +429,7 @@ class StreamingDiagnoser:
             "gyro": v["gyro"],
             "faults": v["faults"],
             "undetermined": v["undetermined"],
+            **({"withdrawn": v["withdrawn"]} if "withdrawn" in v else {}),
         }
         return {
             **header(REPORT_FORMAT),
