@@ -10,7 +10,7 @@ fault late.
 
 Measured on 54 onsets drawn at random (``python -m benchmarks.fault_onset``: bias and
 scale factor of any accelerometer or MEMS gyro axis, any accelerometer misalignment, 4 to 9
-limits, onset at 30 to 90 s; the windows' verdict): named exactly 45, with a wrong
+limits, onset at 30 to 90 s; through diagnose): named exactly 45, with a wrong
 parameter 2, missed 7 before 2026-11-29; 54, 0 and 0 after (docs/diagnosis.md, "Fault
 onsets mid-session").
 """

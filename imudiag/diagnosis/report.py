@@ -11,28 +11,39 @@ from __future__ import annotations
 from typing import Any, NotRequired, Required, TypedDict
 
 
-class F0Counts(TypedDict, total=False):
-    """The F0 checks of one triad: samples checked and failed; ``why`` (only when none
-    was checked) the criterion that kept the check from running; ``check`` ``known_rate``
-    on a turntable (per plateau)."""
+class _F0Keys(TypedDict):
+    checked: int
+    failed: int
 
-    checked: Required[int]
-    failed: Required[int]
+
+class F0Counts(_F0Keys, total=False):
+    """The F0 checks of one triad: samples checked and failed; ``why`` (only when none
+    was checked) the criterion that kept the check from running; ``unjudged`` (only while
+    samples were checked but fewer than one check averages) why none was judged;
+    ``check`` ``known_rate`` on a turntable (per plateau)."""
+
     why: str
+    unjudged: str
     check: str
 
 
-class Verdict(TypedDict):
-    """Per triad ``ok`` / ``fault`` / ``undetermined``; the faults (triad, sensor, cause,
-    estimate, certificate, limit in the certificate's units, t_first s, ...) and what the
-    data could not determine (triad, sensor, cause, reason); ``withdrawn`` (only when not
-    empty): faults raised by windows mixing both sides of a step change, with the reason."""
-
+class _VerdictKeys(TypedDict):
     accel: str
     gyro: str
     faults: list[dict[str, Any]]
     undetermined: list[dict[str, Any]]
-    withdrawn: NotRequired[list[dict[str, Any]]]
+
+
+class Verdict(_VerdictKeys, total=False):
+    """Per triad ``ok`` / ``fault`` / ``undetermined``; the faults (triad, sensor, cause,
+    estimate, certificate, limit in the certificate's units, t_first s, ...) and what the
+    data could not determine (triad, sensor, cause, reason); ``withdrawn`` (only when not
+    empty): faults raised by windows mixing both sides of a step change, with the reason.
+    (The optional key by a subclass with ``total=False``: under postponed annotations,
+    ``Required``/``NotRequired`` are strings that Python 3.11's ``TypedDict`` cannot read.)
+    """
+
+    withdrawn: list[dict[str, Any]]
 
 
 #: The report of :func:`imudiag.diagnose` and ``imudiag diagnose --json``.
