@@ -16,6 +16,12 @@ monitor's F0, noise and stuck checks are counted apart):
 ``--windows-only`` scores :func:`imudiag.diagnosis.diagnose_samples` instead: the windows
 alone on the samples, with the certificate's noise (the library's streaming default).
 
+``--wander N``: N healthy sessions whose every bias wanders instead (first-order
+Gauss-Markov, sigma 0.2 to 0.6 limits, time constant 10 to 60 s, drawn at random): per
+session the verdict, the windows that split a step, and the largest true excursion of each
+bias (limits; the simulation rerun without white noise, minus one without the wander), so
+a named bias fault can be checked against the truth.
+
 Prints one line a case and the totals. Figures of 2026-11-29 (seeds 1 and 2, 24 and 30
 cases), docs/diagnosis.md "Fault onsets".
 """
@@ -33,7 +39,7 @@ from imudiag.certificate import default_certificate_path, load_default
 from imudiag.diagnosis import diagnose_samples
 from imudiag.diagnosis.params import limit_vector
 from imudiag.logs import open_writer
-from imudiag.sim import Fault, multi_position, simulate
+from imudiag.sim import Effects, Fault, multi_position, simulate
 
 AXES = "xyz"
 
@@ -101,12 +107,66 @@ def run(seed: int, cases: int, windows_only: bool = False) -> dict[str, int]:
     return totals
 
 
+def wander(sessions: int, seed: int = 700) -> None:
+    """Healthy sessions with wandering biases (module docstring); prints a line each."""
+    cert = load_default()
+    log = Path(tempfile.mkdtemp(prefix="imudiag-wander-")) / "session.npz"
+    lim = {"a": cert.accel.limits.bias, "g": cert.gyro.limits.bias}
+    for k in range(sessions):
+        rng = np.random.default_rng(seed + k)
+        frac, tau_s = float(rng.uniform(0.2, 0.6)), float(rng.uniform(10.0, 60.0))
+        gm = {f"{t}{AXES[i]}": (frac * float(lim[t][i]), tau_s) for t in "ag" for i in range(3)}
+        traj = multi_position(n_attitudes=40, dwell_s=3.0, turn_s=1.5, rate_hz=200, seed=seed + k)
+        sim = simulate(cert, traj, seed=seed + 100 + k, effects=Effects(bias_instability=gm))
+        quiet = simulate(
+            cert, traj, seed=seed + 100 + k, effects=Effects(bias_instability=gm, white_noise=False)
+        ).samples
+        still = simulate(
+            cert, traj, seed=seed + 100 + k, effects=Effects(white_noise=False)
+        ).samples
+        excursion = {
+            f"{t}{AXES[i]}": float(
+                np.max(np.abs(quiet.triad(tri)[:, i] - still.triad(tri)[:, i])) / lim[t][i]
+            )
+            for t, tri in (("a", "accel"), ("g", "gyro"))
+            for i in range(3)
+        }
+        with open_writer(log, {"sample_rate": traj.rate_hz}) as out:
+            out.write(sim.samples)
+        report = diagnose(str(log), str(default_certificate_path()))
+        verdict = report["verdict"]
+        split = sum(
+            1
+            for w in report["windows"]
+            if w["gyro"].get("rest_step")
+            or w["accel"].get("step_change")
+            or w["gyro"].get("step_change")
+        )
+        named = [
+            (f["sensor"], f["cause"], round((f["estimate"] - f["certificate"]) / f["limit"], 2))
+            for f in verdict["faults"]
+            if f["cause"] in PARAMETERS
+        ]
+        worst = max(excursion, key=lambda s: excursion[s])
+        print(
+            f"sigma {frac:.2f} limits, tau {tau_s:4.1f} s: {verdict['accel']}/{verdict['gyro']} "
+            f"named {named} (estimate, limits), windows split {split}; largest true "
+            f"excursion {worst} {excursion[worst]:.2f} limits; "
+            + " ".join(f"{s} {v:.2f}" for s, v in excursion.items()),
+            flush=True,
+        )
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--cases", type=int, nargs="+", default=[24, 30], help="cases per seed")
     ap.add_argument("--windows-only", action="store_true", help="diagnose_samples instead")
+    ap.add_argument("--wander", type=int, metavar="N", help="N healthy wandering sessions")
     args = ap.parse_args(argv)
+    if args.wander:
+        wander(args.wander)
+        return 0
     grand = {"exact": 0, "wrong": 0, "missed": 0}
     for seed, n in zip(args.seeds, args.cases, strict=True):
         totals = run(seed, n, args.windows_only)
