@@ -589,3 +589,12 @@ def test_faults_withdrawn_after_an_onset_leave_both_faces_one_answer(runs):
         s["t"] for s in lines if ("ay", "bias") in {(f["sensor"], f["cause"]) for f in s["faults"]}
     ]
     assert had and lines[-1]["t"] > max(had)
+    # the daemon's verdict says why it went, as diagnose's does (its windows end a few
+    # samples apart: docs/service.md, the data's noise per block)
+    (said,) = lines[-1]["verdict"]["withdrawn"]
+    assert {k: said[k] for k in ("triad", "sensor", "cause")} == {
+        k: gone[k] for k in ("triad", "sensor", "cause")
+    }
+    assert abs(said["t_first"] - gone["t_first"]) < 0.5
+    assert "step change at t = " in said["reason"]
+    assert all("withdrawn" not in s["verdict"] for s in lines if s["t"] <= max(had))

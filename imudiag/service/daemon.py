@@ -550,7 +550,15 @@ class Daemon:
             entry = {k: f[k] for k in ("triad", "sensor", "cause", "one_of") if k in f}
             named.setdefault(repr(sorted(entry.items())), entry)
         faults = list(named.values())
-        return {"accel": v["accel"], "gyro": v["gyro"], "faults": faults, "note": VERDICT_NOTE}
+        out = {"accel": v["accel"], "gyro": v["gyro"], "faults": faults, "note": VERDICT_NOTE}
+        if v.get("withdrawn"):
+            # faults that windows mixing both sides of a step change raised, now withdrawn:
+            # a status line that had one in force says here why it went
+            out["withdrawn"] = [
+                {k: f[k] for k in ("triad", "sensor", "cause", "t_first", "reason")}
+                for f in v["withdrawn"]
+            ]
+        return out
 
     def _diagnosis_view(self) -> tuple[list[dict[str, Any]], dict[str, Any]]:
         """The diagnoser's faults in force and its per-triad verdict (kept between feeds)."""
