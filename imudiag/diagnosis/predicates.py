@@ -165,10 +165,11 @@ class PredicateTracker:
             f"raised by windows mixing intervals from before and after a step change at "
             f"t = {t_step:.2f} s"
         )
-        out = []
-        for f in [f for f in self.raised if f["triad"] == triad and f["t_first"] >= t_step]:
-            self.raised.remove(f)
-            out.append(dict(_public(f), reason=reason))
+        mixed = [f["triad"] == triad and f["t_first"] >= t_step for f in self.raised]
+        out = [
+            dict(_public(f), reason=reason) for f, m in zip(self.raised, mixed, strict=True) if m
+        ]
+        self.raised = [f for f, m in zip(self.raised, mixed, strict=True) if not m]
         for (tri, _), st in self._state.items():
             if tri != triad:
                 continue
