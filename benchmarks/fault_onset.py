@@ -3,10 +3,11 @@
 Run: ``.venv/bin/python -m benchmarks.fault_onset [--seeds 1 2] [--cases 24 30]``. Per case,
 one fault is drawn at random from the catalogue (bias and scale factor of every
 accelerometer and MEMS gyro axis, the three accelerometer misalignments), its size 4 to 9
-limits with a random sign, its onset 30 to 90 s into a 40-attitude multi-position session of
-the bundled board (3-s holds, 1.5-s turns, 200 Hz, about 180 s), written as a ``.npz`` log
-and diagnosed as ``imudiag diagnose`` does (:func:`imudiag.api.diagnose`; the daemon gives
-the same verdict, tests/test_one_answer.py). The parameters it names are scored (the
+limits (``--limits``) with a random sign, its onset 30 to 90 s into a 40-attitude
+multi-position session of the bundled board (3-s holds, 1.5-s turns, 200 Hz, about
+180 s), written as a ``.npz`` log and diagnosed as ``imudiag diagnose`` does
+(:func:`imudiag.api.diagnose`; the daemon gives the same verdict,
+tests/test_one_answer.py). The parameters it names are scored (the
 monitor's F0, noise and stuck checks are counted apart):
 
 - ``exact``: the one fault named, nothing else, first in a window after the onset;
@@ -23,7 +24,8 @@ bias (limits; the simulation rerun without white noise, minus one without the wa
 a named bias fault can be checked against the truth.
 
 Prints one line a case and the totals. Figures of 2026-11-29 (seeds 1 and 2, 24 and 30
-cases), docs/diagnosis.md "Fault onsets".
+cases; seeds 3 and 4, 30 each; ``--limits 2 4`` seed 5, 30): docs/diagnosis.md, "Fault
+onsets mid-session".
 """
 
 from __future__ import annotations
@@ -57,8 +59,11 @@ def catalogue() -> list[tuple[str, str, int]]:
 PARAMETERS = ("bias", "scale_factor", "misalignment")
 
 
-def run(seed: int, cases: int, windows_only: bool = False) -> dict[str, int]:
-    """Score ``cases`` onsets drawn under ``seed``; prints a line each, returns the totals."""
+def run(
+    seed: int, cases: int, windows_only: bool = False, limits: tuple[float, float] = (4.0, 9.0)
+) -> dict[str, int]:
+    """Score ``cases`` onsets drawn under ``seed``, their size in ``limits`` (low, high);
+    prints a line each, returns the totals."""
     cert = load_default()
     log = Path(tempfile.mkdtemp(prefix="imudiag-onset-")) / "session.npz"
     cat = catalogue()
@@ -66,7 +71,7 @@ def run(seed: int, cases: int, windows_only: bool = False) -> dict[str, int]:
     totals = {"exact": 0, "wrong": 0, "missed": 0}
     for _ in range(cases):
         kind, sensor, index = cat[int(rng.integers(len(cat)))]
-        factor = float(rng.uniform(4.0, 9.0)) * float(rng.choice([-1.0, 1.0]))
+        factor = float(rng.uniform(*limits)) * float(rng.choice([-1.0, 1.0]))
         at_s = float(rng.uniform(30.0, 90.0))
         sim_seed = int(rng.integers(10_000))
         triad = "gyro" if sensor[0] == "g" else "accel"
@@ -162,6 +167,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--cases", type=int, nargs="+", default=[24, 30], help="cases per seed")
     ap.add_argument("--windows-only", action="store_true", help="diagnose_samples instead")
+    ap.add_argument(
+        "--limits", type=float, nargs=2, default=[4.0, 9.0], help="fault size range, limits"
+    )
     ap.add_argument("--wander", type=int, metavar="N", help="N healthy wandering sessions")
     args = ap.parse_args(argv)
     if args.wander:
@@ -169,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     grand = {"exact": 0, "wrong": 0, "missed": 0}
     for seed, n in zip(args.seeds, args.cases, strict=True):
-        totals = run(seed, n, args.windows_only)
+        totals = run(seed, n, args.windows_only, (args.limits[0], args.limits[1]))
         print(f"seed {seed}: {totals}", flush=True)
         for k, v in totals.items():
             grand[k] += v
