@@ -194,3 +194,46 @@ def test_the_real_mpu6050_hold_has_no_step() -> None:
     report = diagnose(str(REAL / "mpu6050/static.csv.gz"), str(LIKE / "like-mpu6050.yaml"))
     assert report["windows"]
     assert not [w for w in report["windows"] if w["gyro"].get("rest_step")]
+
+
+def _steps_by_definition(means, var, counts, min_size=0.0):
+    """The split-by-split definition of rest_rate_steps: every split scored with
+    _rest_mean_var of its two parts, the first highest kept per axis."""
+    from imudiag.diagnosis.gyro_fit import _rest_mean_var
+
+    k = means.shape[0]
+    best: list = [None, None, None]
+    for split in range(REST_STEP_MIN_SIDE, k - REST_STEP_MIN_SIDE + 1):
+        m0, v0 = _rest_mean_var(means[:split], var[:split], counts[:split])
+        m1, v1 = _rest_mean_var(means[split:], var[split:], counts[split:])
+        z = np.abs(m1 - m0) / np.sqrt(v0 + v1)
+        z[np.abs(m1 - m0) < min_size] = 0.0
+        for a in range(3):
+            if z[a] > REST_STEP_SIGMA and (best[a] is None or z[a] > best[a][2]):
+                best[a] = (a, split, float(z[a]), float(m0[a]), float(m1[a]))
+    return [b for b in best if b is not None]
+
+
+def test_the_prefix_sums_score_every_split_as_the_definition_does() -> None:
+    """On 300 seeded random windows (5 to 24 intervals, unequal counts and noise, a step
+    of random size on a random axis in two thirds of them, a size floor in half): the
+    same steps, at the same intervals, the same sigma to 1e-9 and the same levels."""
+    rng = np.random.default_rng(2913)
+    found = 0
+    for _ in range(300):
+        k = int(rng.integers(5, 25))
+        sigma = rng.uniform(0.3, 3.0, 3)
+        counts = rng.integers(200, 900, k).astype(float)
+        means = 32_000.0 + sigma * rng.standard_normal((k, 3))
+        if rng.random() < 2 / 3:
+            means[int(rng.integers(1, k)) :, int(rng.integers(3))] += rng.uniform(-80, 80)
+        var = np.tile(sigma**2, (k, 1)) * rng.uniform(0.5, 2.0, (k, 1))
+        floor = float(rng.uniform(0, 20)) if rng.random() < 0.5 else 0.0
+        want = _steps_by_definition(means, var, counts, floor)
+        got = rest_rate_steps(means, var, counts, floor)
+        assert [(s.axis, s.index) for s in got] == [(w[0], w[1]) for w in want]
+        for s, w in zip(got, want, strict=True):
+            assert s.z == pytest.approx(w[2], rel=1e-9)
+            assert (s.before, s.after) == (w[3], w[4])
+        found += len(got)
+    assert found > 50  # 75 steps found on these windows

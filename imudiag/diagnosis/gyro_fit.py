@@ -166,6 +166,22 @@ class RestStep:
         }
 
 
+def _prefix_mean_var(
+    means: np.ndarray, mean_var: np.ndarray, counts: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_rest_mean_var` of every leading part ``[:n]``, n = 1..K, at once: rows (K, d)
+    from prefix sums (``means`` centred by the caller, so no large squares cancel)."""
+    w = counts[:, None]
+    big_w = np.cumsum(w, axis=0)
+    est = np.cumsum(w * means, axis=0) / big_w
+    noise = np.cumsum(w * w * mean_var, axis=0) / big_w**2
+    n = np.arange(1, means.shape[0] + 1, dtype=float)[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        spread = np.cumsum(w * means * means, axis=0) / big_w - est * est
+        scatter = np.where(n > 1, np.maximum(spread, 0.0) / (n - 1), 0.0)
+    return est, np.maximum(noise, scatter)
+
+
 def rest_rate_steps(
     means: np.ndarray,
     mean_var: np.ndarray,
@@ -174,25 +190,38 @@ def rest_rate_steps(
 ) -> list[RestStep]:
     """Steps of the gyros' rest rates in a window (interval means (K, 3) in time order,
     their white-noise variances and sample counts): per axis, the split of the window into
-    an older and a newer part whose means differ most for their std; a step where that is
-    beyond :data:`REST_STEP_SIGMA`, with :data:`REST_STEP_MIN_SIDE` intervals on each side
-    and a size of at least ``min_size`` (output units, per axis or one for all).
+    an older and a newer part whose means differ most for their std (each part's mean and
+    variance as :func:`rest_bias` takes them); a step where that is beyond
+    :data:`REST_STEP_SIGMA`, with :data:`REST_STEP_MIN_SIDE` intervals on each side and a
+    size of at least ``min_size`` (output units, per axis or one for all). Every split is
+    scored at once from prefix sums (tests/test_rest_step.py holds it to the split-by-split
+    definition).
     """
     means = np.asarray(means, dtype=float).reshape(-1, 3)
     mean_var = np.asarray(mean_var, dtype=float).reshape(-1, 3)
     counts = np.asarray(counts, dtype=float)
     k = means.shape[0]
-    best: list[RestStep | None] = [None, None, None]
-    for split in range(REST_STEP_MIN_SIDE, k - REST_STEP_MIN_SIDE + 1):
-        m0, v0 = _rest_mean_var(means[:split], mean_var[:split], counts[:split])
-        m1, v1 = _rest_mean_var(means[split:], mean_var[split:], counts[split:])
-        z = np.abs(m1 - m0) / np.sqrt(v0 + v1)
-        z[np.abs(m1 - m0) < min_size] = 0.0
-        for a in range(3):
-            found = best[a]
-            if z[a] > REST_STEP_SIGMA and (found is None or z[a] > found.z):
-                best[a] = RestStep(a, split, float(m0[a]), float(m1[a]), float(z[a]))
-    return [s for s in best if s is not None]
+    lo, hi = REST_STEP_MIN_SIDE, k - REST_STEP_MIN_SIDE  # splits lo..hi
+    if hi < lo:
+        return []
+    centred = means - means[0]
+    m_old, v_old = _prefix_mean_var(centred, mean_var, counts)
+    m_new, v_new = _prefix_mean_var(centred[::-1], mean_var[::-1], counts[::-1])
+    splits = np.arange(lo, hi + 1)
+    m0, v0 = m_old[splits - 1], v_old[splits - 1]  # parts [:split]
+    m1, v1 = m_new[k - splits - 1], v_new[k - splits - 1]  # parts [split:]
+    step = np.abs(m1 - m0)
+    z = step / np.sqrt(v0 + v1)
+    z[~(step >= min_size) | ~np.isfinite(z)] = 0.0
+    out = []
+    for a in range(3):
+        best = int(np.argmax(z[:, a]))
+        if z[best, a] > REST_STEP_SIGMA:
+            split = int(splits[best])
+            before, _ = _rest_mean_var(means[:split], mean_var[:split], counts[:split])
+            after, _ = _rest_mean_var(means[split:], mean_var[split:], counts[split:])
+            out.append(RestStep(a, split, float(before[a]), float(after[a]), float(z[best, a])))
+    return out
 
 
 def rest_rotation_fit(
