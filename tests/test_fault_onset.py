@@ -161,3 +161,41 @@ def test_faults_raised_on_a_mixture_are_withdrawn_and_earlier_ones_stay() -> Non
     assert ("ay", "scale_factor") not in {(f["sensor"], f["cause"]) for f in tracker.active()}
     tracker.update(fit({0: 5.0, 4: 5.0}), 70.0)
     assert ("ay", "scale_factor") in {(f["sensor"], f["cause"]) for f in tracker.active()}
+
+
+def _gyro_scale_onsets(n: int, seed: int) -> list:
+    """``n`` MEMS gyro scale-factor onsets picked at random under ``seed``: axis, size 5 to
+    9 limits, sign, onset time 40 to 70 s, simulation seed (gyro bias onsets:
+    tests/test_rest_step.py)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        axis = int(rng.integers(3))
+        factor = round(float(rng.uniform(5.0, 9.0)) * float(rng.choice([-1.0, 1.0])), 2)
+        at = round(float(rng.uniform(40.0, 70.0)), 1)
+        sim_seed = int(rng.integers(10_000))
+        out.append(pytest.param(axis, factor, at, sim_seed, id=f"g{AXES[axis]}-{factor:+}x-{at}s"))
+    return out
+
+
+@pytest.mark.parametrize("axis, factor, at_s, sim_seed", _gyro_scale_onsets(2, seed=2914))
+def test_a_hidden_gyro_scale_onset_is_named_alone(
+    axis: int, factor: float, at_s: float, sim_seed: int
+) -> None:
+    """A gyro's scale factor changes mid-session (the rotation fit, which has no step
+    test of its own): named alone, first in a window after the onset, its estimate the
+    faulty value."""
+    cert = load_default()
+    sensor = f"g{AXES[axis]}"
+    limit = float(limit_vector(cert.gyro)[3 + axis])
+    _, diag = _diagnose(
+        [Fault("scale_factor", sensor, at_s, factor * limit)], sim_seed, attitudes=40
+    )
+    verdict = diag.verdict()
+    assert [(f["triad"], f["sensor"], f["cause"]) for f in verdict["faults"]] == [
+        ("gyro", sensor, "scale_factor")
+    ]
+    (fault,) = verdict["faults"]
+    assert fault["t_first"] > at_s
+    truth = fault["certificate"] + factor * limit
+    assert abs(fault["estimate"] - truth) < max(4.0 * fault["std"], 0.3 * limit)
