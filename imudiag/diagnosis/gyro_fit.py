@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..certificate import Certificate, TriadModel
+from ..certificate import SENSOR_NAMES, Certificate, TriadModel
 from ..rotations import (
     quat_matrix,
     rotvec_quat,
@@ -152,13 +152,14 @@ class RestStep:
     index: int  #: first interval after the step (row of the window's means)
     before: float  #: rest rate before the step, output units
     after: float  #: rest rate after it, output units
+    after_var: float  #: variance of ``after`` (as :func:`rest_bias` takes it), output units^2
     z: float  #: the step over its std (sigma)
 
     def to_json(self, t_after: float) -> dict:
         """As the window's gyro fit lists it (``rest_step``); ``t_after`` the start (s) of
         the first interval after the step."""
         return {
-            "sensor": "g" + "xyz"[self.axis],
+            "sensor": SENSOR_NAMES["gyro"][self.axis],
             "t_after": round(t_after, 6),
             "before": self.before,
             "after": self.after,
@@ -219,8 +220,12 @@ def rest_rate_steps(
         if z[best, a] > REST_STEP_SIGMA:
             split = int(splits[best])
             before, _ = _rest_mean_var(means[:split], mean_var[:split], counts[:split])
-            after, _ = _rest_mean_var(means[split:], mean_var[split:], counts[split:])
-            out.append(RestStep(a, split, float(before[a]), float(after[a]), float(z[best, a])))
+            after, var = _rest_mean_var(means[split:], mean_var[split:], counts[split:])
+            out.append(
+                RestStep(
+                    a, split, float(before[a]), float(after[a]), float(var[a]), float(z[best, a])
+                )
+            )
     return out
 
 
@@ -256,19 +261,15 @@ def rest_rotation_fit(
     est = cert.copy()
     std = np.full(9, np.inf)
     est[:3], std[:3] = rest_bias(gyro, means, mean_var, counts, earth_rate_si)
-    steps = []
+    extra: dict = {}
     if starts is not None:
         steps = rest_rate_steps(means, mean_var, counts, REST_STEP_MIN_LIMITS * limit[:3])
-    for step in steps:
-        a, after = step.axis, slice(step.index, None)
-        e, sd = rest_bias(
-            gyro,
-            np.asarray(means, dtype=float).reshape(-1, 3)[after],
-            np.asarray(mean_var, dtype=float).reshape(-1, 3)[after],
-            np.asarray(counts, dtype=float)[after],
-            earth_rate_si,
-        )
-        est[a], std[a] = e[a], sd[a]
+        earth_var = _earth_var(gyro, earth_rate_si)
+        for step in steps:  # the bias after the step, as rest_bias takes it
+            est[step.axis] = step.after
+            std[step.axis] = math.sqrt(step.after_var + earth_var[step.axis])
+        if steps:
+            extra["rest_step"] = [s.to_json(float(starts[s.index])) for s in steps]
     if rotation is not None:
         scale = np.concatenate([gyro.scale_factor, np.ones(3)])
         est[3:] = cert[3:] + rotation.deviation * scale
@@ -296,9 +297,7 @@ def rest_rotation_fit(
         points=len(np.asarray(means).reshape(-1, 3)),
         dof=rotation.dof if rotation is not None else float("nan"),
         certificate_std=certificate_std_vector(gyro),
-        extra={"rest_step": [s.to_json(float(starts[s.index])) for s in steps]}
-        if steps and starts is not None
-        else {},
+        extra=extra,
     )
 
 
