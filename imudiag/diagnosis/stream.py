@@ -192,10 +192,11 @@ class StreamingDiagnoser:
                 # a step change (a fault onset) in the window: the next windows start at
                 # it, holding the unit as it is now only (:mod:`.changepoint`), and the
                 # faults raised by the windows that mixed both sides are withdrawn
-                for triad, first in _step_boundaries(res):
+                steps = _step_boundaries(res)
+                for triad, first in steps:
                     if self.tracker.restart(triad, self._window[first].t_start):
                         self._note_verdicts(res.t_end)
-                for _ in range(max((f for _, f in _step_boundaries(res)), default=0)):
+                for _ in range(max((first for _, first in steps), default=0)):
                     self._window.popleft()
         return out
 
