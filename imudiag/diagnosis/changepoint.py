@@ -18,10 +18,9 @@ every interval, and the influence rule of the predicates keeps one interval from
 making a fault. Every interval is kept as well where the rejection would leave
 another interval the only evidence for a parameter (two holds in one attitude, one of
 them off: which one cannot be told, and the one left could make a fault that nothing
-holds back). A step is also
-listed as the fit's ``step_change`` (its first interval of the unit as it is now): the
-stream starts its next windows there and withdraws the faults that the windows mixing
-both sides raised (:class:`.stream.StreamingDiagnoser`).
+holds back). A step is also listed as the fit's ``step_change`` (its first interval of
+the unit as it is now): the stream starts its next windows there and withdraws the faults
+that the windows mixing both sides raised (:class:`.stream.StreamingDiagnoser`).
 """
 
 from __future__ import annotations
