@@ -39,24 +39,24 @@ import numpy as np
 from imudiag.api import diagnose
 from imudiag.certificate import default_certificate_path, load_default
 from imudiag.diagnosis import diagnose_samples
-from imudiag.diagnosis.params import limit_vector
+from imudiag.diagnosis.params import CAUSES, PARAM_KEYS, limit_vector, sensor_of
 from imudiag.logs import open_writer
 from imudiag.sim import Effects, Fault, multi_position, simulate
 
 AXES = "xyz"
 
 
-def catalogue() -> list[tuple[str, str, int]]:
-    """(kind, sensor, parameter index) of every fault drawn from."""
+def catalogue(triads: tuple[str, ...] = ("accel", "gyro")) -> list[tuple[str, str, int]]:
+    """(kind, sensor, parameter index) of every fault drawn from: per triad the bias and
+    scale factor of each axis, then the accelerometer misalignments (tests/
+    test_diagnosis_isolation.py's MEMS catalogue), named as the diagnosis names them."""
     out = []
-    for t in "ag":
-        for a in range(3):
-            out += [("bias", f"{t}{AXES[a]}", a), ("scale_factor", f"{t}{AXES[a]}", 3 + a)]
-    out += [("misalignment", p, 6 + k) for k, p in enumerate(("ax/ay", "ax/az", "ay/az"))]
+    for triad in triads:
+        for axis in range(3):
+            out += [(CAUSES[i], sensor_of(triad, i), i) for i in (axis, 3 + axis)]
+    if "accel" in triads:
+        out += [(CAUSES[i], sensor_of("accel", i), i) for i in range(6, 9)]
     return out
-
-
-PARAMETERS = ("bias", "scale_factor", "misalignment")
 
 
 def run(
@@ -86,7 +86,7 @@ def run(
             with open_writer(log, {"sample_rate": traj.rate_hz}) as out:
                 out.write(sim.samples)
             verdict = diagnose(str(log), str(default_certificate_path()))["verdict"]
-        faults = [f for f in verdict["faults"] if f["cause"] in PARAMETERS]
+        faults = [f for f in verdict["faults"] if f["cause"] in PARAM_KEYS]
         checks = sorted(
             {f"{f['sensor'] or f['triad']} {f['cause']}" for f in verdict["faults"]}
             - {f"{f['sensor']} {f['cause']}" for f in faults}
@@ -150,7 +150,7 @@ def wander(sessions: int, seed: int = 700) -> None:
         named = [
             (f["sensor"], f["cause"], round((f["estimate"] - f["certificate"]) / f["limit"], 2))
             for f in verdict["faults"]
-            if f["cause"] in PARAMETERS
+            if f["cause"] in PARAM_KEYS
         ]
         worst = max(excursion, key=lambda s: excursion[s])
         print(

@@ -22,6 +22,7 @@ from itertools import pairwise
 import numpy as np
 import pytest
 
+from benchmarks.fault_onset import catalogue
 from imudiag.certificate import load_default
 from imudiag.diagnosis import diagnose_samples
 from imudiag.diagnosis.params import limit_vector
@@ -30,20 +31,11 @@ from imudiag.sim import Fault, multi_position, simulate
 AXES = "xyz"
 
 
-def _accel_catalogue() -> list[tuple[str, str, int]]:
-    """(kind, sensor, parameter index) of an accelerometer fault."""
-    out = []
-    for a in range(3):
-        out += [("bias", f"a{AXES[a]}", a), ("scale_factor", f"a{AXES[a]}", 3 + a)]
-    out += [("misalignment", p, 6 + k) for k, p in enumerate(("ax/ay", "ax/az", "ay/az"))]
-    return out
-
-
 def _onsets(n: int, seed: int) -> list:
     """``n`` onsets picked at random under ``seed``: fault, size 5 to 9 limits, sign,
     onset time 40 to 70 s, simulation seed."""
     rng = np.random.default_rng(seed)
-    cat = _accel_catalogue()
+    cat = catalogue(("accel",))
     out = []
     for _ in range(n):
         kind, sensor, index = cat[int(rng.integers(len(cat)))]
