@@ -37,11 +37,13 @@ from pathlib import Path
 import numpy as np
 
 from imudiag.api import diagnose
-from imudiag.certificate import default_certificate_path, load_default
+from imudiag.certificate import Certificate, default_certificate_path, load_default
 from imudiag.diagnosis import diagnose_samples
 from imudiag.diagnosis.params import CAUSES, PARAM_KEYS, limit_vector, sensor_of
 from imudiag.logs import open_writer
 from imudiag.sim import Effects, Fault, multi_position, simulate
+from imudiag.sim.simulator import SimResult
+from imudiag.sim.trajectories import Trajectory
 
 AXES = "xyz"
 
@@ -60,12 +62,20 @@ def catalogue(triads: tuple[str, ...] = ("accel", "gyro")) -> list[tuple[str, st
 
 
 def run(
-    seed: int, cases: int, windows_only: bool = False, limits: tuple[float, float] = (4.0, 9.0)
+    seed: int,
+    cases: int,
+    windows_only: bool = False,
+    limits: tuple[float, float] = (4.0, 9.0),
+    workdir: Path | None = None,
 ) -> dict[str, int]:
     """Score ``cases`` onsets drawn under ``seed``, their size in ``limits`` (low, high);
-    prints a line each, returns the totals."""
+    prints a line each, returns the totals. The session log is written in ``workdir``
+    (a temporary folder removed at the end when None)."""
+    if workdir is None:
+        with tempfile.TemporaryDirectory(prefix="imudiag-onset-") as tmp:
+            return run(seed, cases, windows_only, limits, Path(tmp))
     cert = load_default()
-    log = Path(tempfile.mkdtemp(prefix="imudiag-onset-")) / "session.npz"
+    log = workdir / "session.npz"
     cat = catalogue()
     rng = np.random.default_rng(seed)
     totals = {"exact": 0, "wrong": 0, "missed": 0}
@@ -112,30 +122,42 @@ def run(
     return totals
 
 
-def wander(sessions: int, seed: int = 700) -> None:
-    """Healthy sessions with wandering biases (module docstring); prints a line each."""
-    cert = load_default()
-    log = Path(tempfile.mkdtemp(prefix="imudiag-wander-")) / "session.npz"
+def wander_session(
+    cert: Certificate, seed: int
+) -> tuple[float, float, Trajectory, SimResult, dict[str, float]]:
+    """One healthy session whose every bias wanders (module docstring), drawn under ``seed``:
+    (sigma in limits, time constant s, trajectory, simulation, largest true excursion of
+    each bias in limits)."""
     lim = {"a": cert.accel.limits.bias, "g": cert.gyro.limits.bias}
+    rng = np.random.default_rng(seed)
+    frac, tau_s = float(rng.uniform(0.2, 0.6)), float(rng.uniform(10.0, 60.0))
+    gm = {f"{t}{AXES[i]}": (frac * float(lim[t][i]), tau_s) for t in "ag" for i in range(3)}
+    traj = multi_position(n_attitudes=40, dwell_s=3.0, turn_s=1.5, rate_hz=200, seed=seed)
+    sim = simulate(cert, traj, seed=seed + 100, effects=Effects(bias_instability=gm))
+    quiet = simulate(
+        cert, traj, seed=seed + 100, effects=Effects(bias_instability=gm, white_noise=False)
+    ).samples
+    still = simulate(cert, traj, seed=seed + 100, effects=Effects(white_noise=False)).samples
+    excursion = {
+        f"{t}{AXES[i]}": float(
+            np.max(np.abs(quiet.triad(tri)[:, i] - still.triad(tri)[:, i])) / lim[t][i]
+        )
+        for t, tri in (("a", "accel"), ("g", "gyro"))
+        for i in range(3)
+    }
+    return frac, tau_s, traj, sim, excursion
+
+
+def wander(sessions: int, seed: int = 700, workdir: Path | None = None) -> None:
+    """Healthy sessions with wandering biases (module docstring); prints a line each. The
+    session log is written in ``workdir`` (a temporary folder removed at the end when None)."""
+    if workdir is None:
+        with tempfile.TemporaryDirectory(prefix="imudiag-wander-") as tmp:
+            return wander(sessions, seed, Path(tmp))
+    cert = load_default()
+    log = workdir / "session.npz"
     for k in range(sessions):
-        rng = np.random.default_rng(seed + k)
-        frac, tau_s = float(rng.uniform(0.2, 0.6)), float(rng.uniform(10.0, 60.0))
-        gm = {f"{t}{AXES[i]}": (frac * float(lim[t][i]), tau_s) for t in "ag" for i in range(3)}
-        traj = multi_position(n_attitudes=40, dwell_s=3.0, turn_s=1.5, rate_hz=200, seed=seed + k)
-        sim = simulate(cert, traj, seed=seed + 100 + k, effects=Effects(bias_instability=gm))
-        quiet = simulate(
-            cert, traj, seed=seed + 100 + k, effects=Effects(bias_instability=gm, white_noise=False)
-        ).samples
-        still = simulate(
-            cert, traj, seed=seed + 100 + k, effects=Effects(white_noise=False)
-        ).samples
-        excursion = {
-            f"{t}{AXES[i]}": float(
-                np.max(np.abs(quiet.triad(tri)[:, i] - still.triad(tri)[:, i])) / lim[t][i]
-            )
-            for t, tri in (("a", "accel"), ("g", "gyro"))
-            for i in range(3)
-        }
+        frac, tau_s, traj, sim, excursion = wander_session(cert, seed + k)
         with open_writer(log, {"sample_rate": traj.rate_hz}) as out:
             out.write(sim.samples)
         report = diagnose(str(log), str(default_certificate_path()))

@@ -9,6 +9,7 @@ finite, large z rather than infinity.
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
@@ -78,10 +79,86 @@ def chi2_ratio_quantile(dof: float, z: float) -> float:
     return max((1.0 - a + z * math.sqrt(a)) ** 3, 1e-6)
 
 
+def _beta_cf(a: float, b: float, x: float) -> float:
+    """Continued fraction of the regularised incomplete beta function (modified Lentz)."""
+    tiny = 1e-300
+    c, d = 1.0, 1.0 - (a + b) * x / (a + 1.0)
+    d = 1.0 / (d if abs(d) > tiny else tiny)
+    h = d
+    for m in range(1, 400):
+        for num in (
+            m * (b - m) * x / ((a + 2 * m - 1.0) * (a + 2 * m)),
+            -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1.0)),
+        ):
+            d = 1.0 + num * d
+            d = 1.0 / (d if abs(d) > tiny else tiny)
+            c = 1.0 + num / c
+            c = c if abs(c) > tiny else tiny
+            h *= d * c
+        if abs(d * c - 1.0) < 1e-15:
+            break
+    return h
+
+
+def log_betainc(a: float, b: float, x: float) -> float:
+    """log of the regularised incomplete beta function I_x(a, b), a, b > 0, 0 <= x <= 1."""
+    if x <= 0.0:
+        return -math.inf
+    if x >= 1.0:
+        return 0.0
+    log_front = (
+        math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b)
+        + a * math.log(x) + b * math.log1p(-x)
+    )  # fmt: skip
+    if x < (a + 1.0) / (a + b + 2.0):
+        return log_front + math.log(_beta_cf(a, b, x)) - math.log(a)
+    tail = math.exp(log_front) * _beta_cf(b, a, 1.0 - x) / b  # I_x = 1 - I_(1-x)(b, a)
+    return math.log1p(-tail) if tail < 1.0 else -math.inf
+
+
+def log_t_two_sided(t: float, dof: float) -> float:
+    """log P(|T| > t) for Student's t with ``dof`` (> 0, not necessarily whole) degrees of
+    freedom; the normal's for an infinite ``dof``."""
+    t = abs(float(t))
+    if math.isinf(dof):
+        return math.log(2.0) + log_normal_sf(t)
+    return log_betainc(0.5 * dof, 0.5, dof / (dof + t * t))
+
+
+@lru_cache(maxsize=4096)
+def _t_equivalent(k_sigma: float, dof: float) -> float:
+    target = math.log(2.0) + log_normal_sf(k_sigma)
+    lo, hi = k_sigma, k_sigma
+    while log_t_two_sided(hi, dof) > target:
+        hi *= 2.0
+    for _ in range(100):  # bisection on a monotone tail: 1e-9 relative
+        mid = 0.5 * (lo + hi)
+        if log_t_two_sided(mid, dof) > target:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-9 * hi:
+            break
+    return 0.5 * (lo + hi)
+
+
+def t_equivalent(k_sigma: float, dof: float) -> float:
+    """The Student-t quantile with the two-sided tail of ``k_sigma`` standard normal sigma,
+    for a statistic whose std was estimated with ``dof`` degrees of freedom (``k_sigma``
+    itself for an infinite ``dof``; 4 sigma is 5.5 at 15 dof, 16.7 at 4). Fractional
+    ``dof`` are rounded to 0.01 (cached); below 0.5 dof the tail is that of 0.5."""
+    if not math.isfinite(dof) or dof > 1e6:
+        return float(k_sigma)
+    return _t_equivalent(float(k_sigma), round(max(float(dof), 0.5), 2))
+
+
 __all__ = [
     "chi2_ratio_quantile",
     "chi2_significance",
     "log_chi2_sf",
+    "log_betainc",
     "log_normal_sf",
+    "log_t_two_sided",
+    "t_equivalent",
     "z_from_log_p",
 ]

@@ -119,6 +119,8 @@ def assert_fits_close(fast: dict, plain: dict) -> None:
             tol = HW_RESIDUAL_KEYS["rms_residual"] * np.abs(b)
         elif key == "dof":
             tol = np.maximum(HW_RESIDUAL_KEYS["dof"] * np.abs(b), DOF_ABS)
+        elif key == "estimated_var":  # a difference of variances: at the variance's scale
+            tol = HW_RESIDUAL_KEYS["rms_residual"] * (np.abs(b) + finite_std**2)
         else:
             tol = HW_REL_TOL * np.abs(b)
         bad = ~((np.abs(a - b) <= tol) | (a == b) | (np.isnan(a) & np.isnan(b)))

@@ -59,6 +59,9 @@ def fit_arrays(fit):
         "rms": np.array([fit.rms_residual]),
         "dof": np.array([fit.dof]),
         "excess": np.array([fit.excess_var]),
+        # the part of each variance estimated from the residuals (the Student-t threshold):
+        # a difference of two variances, compared at the scale of the variance
+        "estimated_var": fit.estimated_var,
     }
 
 
@@ -71,6 +74,7 @@ def assert_fits_close(fast, plain):
         "estimate": plain["std"],
         "loo": None if plain["loo"] is None else np.max(np.abs(plain["loo"]), axis=0),
         "z": None if plain["z"] is None else np.max(np.abs(plain["z"])),
+        "estimated_var": np.where(np.isfinite(plain["std"]), plain["std"] ** 2, 0.0),
     }
     for key in plain:
         if plain[key] is None:

@@ -120,6 +120,23 @@ def _rest_mean_var(
     return est, var
 
 
+def _rest_scatter_part(
+    means: np.ndarray, mean_var: np.ndarray, counts: np.ndarray
+) -> tuple[np.ndarray, float]:
+    """The part (3,) of :func:`_rest_mean_var`'s variance measured from the means' own
+    scatter (where it exceeds their white noise; 0 elsewhere), output units^2, and the
+    degrees of freedom it was measured with (intervals - 1)."""
+    means = np.asarray(means, dtype=float).reshape(-1, 3)
+    k = means.shape[0]
+    if k < 2:
+        return np.zeros(3), float("nan")
+    w = np.asarray(counts, dtype=float)
+    w = w / w.sum()
+    white = (w * w) @ np.asarray(mean_var, dtype=float).reshape(-1, 3)
+    _est, var = _rest_mean_var(means, mean_var, counts)
+    return np.where(var > white, var, 0.0), float(k - 1)
+
+
 def rest_bias(
     gyro: TriadModel,
     means: np.ndarray,
@@ -261,6 +278,10 @@ def rest_rotation_fit(
     est = cert.copy()
     std = np.full(9, np.inf)
     est[:3], std[:3] = rest_bias(gyro, means, mean_var, counts, earth_rate_si)
+    # what the std holds of a scatter measured on the window's own points (the Student-t
+    # threshold of .predicates): the rest rates' scatter, the rotation fit's Birge ratio
+    est_var, est_dof = np.zeros(9), np.full(9, np.nan)
+    est_var[:3], est_dof[:3] = _rest_scatter_part(means, mean_var, counts)
     extra: dict = {}
     if starts is not None:
         steps = rest_rate_steps(means, mean_var, counts, REST_STEP_MIN_LIMITS * limit[:3])
@@ -268,12 +289,18 @@ def rest_rotation_fit(
         for step in steps:  # the bias after the step, as rest_bias takes it
             est[step.axis] = step.after
             std[step.axis] = math.sqrt(step.after_var + earth_var[step.axis])
+            part, dof = _rest_scatter_part(
+                means[step.index :], mean_var[step.index :], counts[step.index :]
+            )
+            est_var[step.axis], est_dof[step.axis] = part[step.axis], dof
         if steps:
             extra["rest_step"] = [s.to_json(float(starts[s.index])) for s in steps]
     if rotation is not None:
         scale = np.concatenate([gyro.scale_factor, np.ones(3)])
         est[3:] = cert[3:] + rotation.deviation * scale
         std[3:] = np.sqrt(np.maximum(np.diag(rotation.cov), 0.0)) * scale
+        finite = np.isfinite(std[3:])
+        est_var[3:][finite] = std[3:][finite] ** 2 * (1.0 - 1.0 / rotation.cov_scale)
     determined = std <= determined_std_ratio * limit
     reasons = [""] * 9
     for i in range(9):
@@ -298,6 +325,8 @@ def rest_rotation_fit(
         dof=rotation.dof if rotation is not None else float("nan"),
         certificate_std=certificate_std_vector(gyro),
         extra=extra,
+        estimated_var=est_var,
+        estimated_dof=est_dof,
     )
 
 
@@ -346,6 +375,9 @@ class RotationFitResult:
     point_z: np.ndarray | None = None
     #: robust excess variance of a direction component beyond the motions' noise, rad^2
     excess_var: float = 0.0
+    #: factor (>= 1) ``cov`` was scaled by for a scatter beyond the motions' noise (chi^2 /
+    #: dof, the Birge ratio); 1 where it was not
+    cov_scale: float = 1.0
     #: prediction error of the ``predict`` motion against this fit, sigma (NaN: not asked)
     predicted_z: float = float("nan")
     #: (pairs, npar) all fitted parameters (shape, frame) with each motion left out, by the
@@ -720,8 +752,8 @@ def rotation_fit(
             prior_prec,
             (gyro_sample_var, earth_rate_si),
         )
-    if dof > 0.5 and scale_by_residual:
-        cov = cov * max(1.0, chi2 / dof)
+    cov_scale = max(1.0, chi2 / dof) if dof > 0.5 and scale_by_residual else 1.0
+    cov = cov * cov_scale
     ang = [math.degrees(math.acos(min(max(float(np.dot(p.up0, p.up1)), -1.0), 1.0))) for p in pairs]
     return RotationFitResult(
         deviation=x[:6],
@@ -736,6 +768,7 @@ def rotation_fit(
         loo_deviation=loo,
         point_z=point_z,
         excess_var=excess,
+        cov_scale=cov_scale,
         predicted_z=predicted_z,
         loo_params=loo_params,
         loo_var=loo_var,

@@ -196,6 +196,14 @@ class TriadFit:
     #: (9,) std of the certificate's own values (:func:`certificate_std_vector`), certificate
     #: units: 0 unless the certificate states an ``uncertainty`` (a calibration's)
     certificate_std: np.ndarray = field(default_factory=lambda: np.zeros(9))
+    #: (9,) the part of ``std``^2 the fit estimated from its own residual scatter (its excess
+    #: variance and Birge ratio, estimated with :attr:`dof` degrees of freedom), certificate
+    #: units^2; 0 where the std rests on the points' stated noise alone
+    estimated_var: np.ndarray = field(default_factory=lambda: np.zeros(9))
+    #: (9,) the degrees of freedom ``estimated_var`` was measured with, where a parameter's
+    #: differ from the fit's :attr:`dof` (the MEMS gyro's rest biases: intervals - 1); NaN:
+    #: :attr:`dof`
+    estimated_dof: np.ndarray = field(default_factory=lambda: np.full(9, np.nan))
 
     def require_redundancy(self, dof: float, min_dof: float, idx: range, what: str) -> None:
         """Mark parameters ``idx`` unjudged when the fit's effective dof is below ``min_dof``."""
@@ -220,6 +228,21 @@ class TriadFit:
         """Std (9,) of :attr:`deviation`, certificate units: the estimate's and the
         certificate's own (:attr:`certificate_std`) combined, sqrt(std^2 + cert_std^2)."""
         return np.hypot(self.std, self.certificate_std)
+
+    @property
+    def deviation_dof(self) -> np.ndarray:
+        """Effective degrees of freedom (9,) of :attr:`deviation_std` (Welch-Satterthwaite):
+        dof (std^2 + cert_std^2)^2 / estimated_var^2 (dof: :attr:`estimated_dof`, else
+        :attr:`dof`), infinite where no part of it was
+        estimated. A deviation over its std is Student-t with these degrees of freedom,
+        not normal, when the std holds a scatter measured on few points."""
+        total = self.std**2 + self.certificate_std**2
+        est = self.estimated_var
+        dof = np.where(np.isfinite(self.estimated_dof), self.estimated_dof, self.dof)
+        out = np.full(9, np.inf)
+        use = (est > 0) & np.isfinite(total) & np.isfinite(dof)
+        out[use] = np.maximum(dof[use], 0.0) * total[use] ** 2 / est[use] ** 2
+        return out
 
     def to_json(self) -> dict:
         """Estimates and standard deviations grouped by cause (non-finite values as null)."""

@@ -4,7 +4,13 @@ Parameter i of a triad is a *candidate* in a window when its deviation from
 the certificate exceeds both the limit lambda_i and ``k_sigma`` standard
 deviations of the deviation: the estimate's std and the certificate's own (its
 stated ``uncertainty``, a calibration's) combined, sqrt(std^2 + cert_std^2), so
-a certificate that is itself uncertain is not taken as exact; it becomes a
+a certificate that is itself uncertain is not taken as exact. Where that std
+holds a scatter the fit measured on its own residuals (few points, an excess
+variance or a Birge ratio), ``k_sigma`` is the Student-t quantile of the same
+two-sided tail at the std's effective degrees of freedom
+(:attr:`~.params.TriadFit.deviation_dof`): 4 sigma of a normal is 5.5 at 15
+degrees of freedom and 17 at 4, where a std measured on 4 residuals is itself
+uncertain by a third. It becomes a
 *fault* when it stays a candidate (with the same sign) in ``persist``
 consecutive windows that estimated it, and stays active until it has not been
 a candidate for ``persist`` consecutive windows. Undetermined windows neither
@@ -17,12 +23,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..stats import t_equivalent
 from .params import CAUSES, TriadFit, sensor_of
 
 
+def critical_sigma(fit: TriadFit, k_sigma: float) -> np.ndarray:
+    """(9,) how many of its std a deviation must exceed: ``k_sigma`` where the std is
+    known, its Student-t equivalent at :attr:`~.params.TriadFit.deviation_dof` where the fit
+    estimated part of it (module doc)."""
+    return np.array([t_equivalent(k_sigma, float(nu)) for nu in fit.deviation_dof])
+
+
 def _beyond(dev: np.ndarray, fit: TriadFit, k_sigma: float) -> np.ndarray:
+    k = critical_sigma(fit, k_sigma)
     with np.errstate(invalid="ignore"):
-        return (np.abs(dev) > fit.limit) & (np.abs(dev) > k_sigma * fit.deviation_std)
+        return (np.abs(dev) > fit.limit) & (np.abs(dev) > k * fit.deviation_std)
 
 
 def _eligible(fit: TriadFit, k_sigma: float) -> np.ndarray:

@@ -123,6 +123,29 @@ def _finish(
     )
 
 
+def _estimated_variance(
+    triad: TriadForm,
+    m0: float,
+    jac: np.ndarray,
+    noise: np.ndarray,
+    prior_diag: np.ndarray,
+    cov: np.ndarray,
+    null: np.ndarray,
+    extra: float,
+    cov_scale: float,
+) -> np.ndarray:
+    """(9,) the part of each parameter's variance the fit estimated from its residuals,
+    certificate units^2 (:attr:`.params.TriadFit.estimated_var`): the diagonal of ``cov``
+    (with the excess variance ``extra`` and the Birge ratio ``cov_scale``) less that of the
+    covariance the points' stated ``noise`` (K,) and the prior alone give. 0 where the fit
+    estimated nothing, or where a parameter has no estimate (``null``)."""
+    if (extra <= 0.0 and cov_scale <= 1.0) or jac.shape[0] == 0:
+        return np.zeros(9)
+    known = np.linalg.pinv(jac.T @ (jac / noise[:, None]) + prior_diag)
+    part = np.maximum(np.diag(cov) - np.diag(known), 0.0) * triad.scale(m0) ** 2
+    return np.where(null | ~np.isfinite(part), 0.0, part)
+
+
 def _scaled_condition(info: np.ndarray, lim: np.ndarray) -> float:
     """Condition number of the information matrix with parameters in units of their limits."""
     m = info * np.outer(lim, lim)
@@ -340,6 +363,9 @@ def exact_fit(
     fit.dof = dof
     fit.cov_scale = cov_scale
     fit.excess_var = float(extra_used)
+    fit.estimated_var = _estimated_variance(
+        triad, m0, jac, sig2 - extra_used, prior_diag, cov, null, extra_used, cov_scale
+    )
     if k and max_iter > 0:
         diag = point_diagnostics(jac, r, sig2 - extra_used, cov_unscaled, weights=wgt)
         scale = triad.scale(m0)
@@ -435,6 +461,19 @@ def _compiled_fit(
     fit.dof = float(dof)
     fit.cov_scale = float(cov_scale)
     fit.excess_var = float(extra_used)
+    if extra_used > 0.0 or cov_scale > 1.0:
+        _r0, x0, w0 = _residuals(theta, v, mu)
+        fit.estimated_var = _estimated_variance(
+            triad,
+            m0,
+            _jacobian(x0, w0),
+            np.einsum("kj,kj->k", w0 * w0, var_v) + RESIDUAL_FLOOR**2,
+            np.diag(prior_prec),
+            cov,
+            null,
+            float(extra_used),
+            float(cov_scale),
+        )
     fit.loo_deviation = ((theta - theta_c)[None, :] + shift) * triad.scale(m0)[None, :]
     fit.point_z = z
     if predict is not None:
