@@ -125,21 +125,37 @@ def log_t_two_sided(t: float, dof: float) -> float:
     return log_betainc(0.5 * dof, 0.5, dof / (dof + t * t))
 
 
+def _log_t_pdf(t: float, dof: float) -> float:
+    """log of Student's t density with ``dof`` degrees of freedom at ``t``."""
+    return (
+        math.lgamma(0.5 * (dof + 1.0)) - math.lgamma(0.5 * dof)
+        - 0.5 * math.log(dof * math.pi) - 0.5 * (dof + 1.0) * math.log1p(t * t / dof)
+    )  # fmt: skip
+
+
 @lru_cache(maxsize=4096)
 def _t_equivalent(k_sigma: float, dof: float) -> float:
     target = math.log(2.0) + log_normal_sf(k_sigma)
     lo, hi = k_sigma, k_sigma
     while log_t_two_sided(hi, dof) > target:
-        hi *= 2.0
-    for _ in range(100):  # bisection on a monotone tail: 1e-9 relative
-        mid = 0.5 * (lo + hi)
-        if log_t_two_sided(mid, dof) > target:
-            lo = mid
+        lo, hi = hi, hi * 2.0
+    # safeguarded Newton on the log tail (d/dt log P(|T| > t) = -2 pdf / P), bisection
+    # where a step leaves the bracket; 1e-10 relative
+    t = hi if hi == k_sigma else 0.5 * (lo + hi)
+    for _ in range(100):
+        g = log_t_two_sided(t, dof)
+        if g > target:
+            lo = t
         else:
-            hi = mid
-        if hi - lo <= 1e-9 * hi:
-            break
-    return 0.5 * (lo + hi)
+            hi = t
+        step = (g - target) / -math.exp(math.log(2.0) + _log_t_pdf(t, dof) - g)
+        nxt = t - step
+        if not lo < nxt < hi:
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - t) <= 1e-10 * t or hi - lo <= 1e-10 * hi:
+            return nxt
+        t = nxt
+    return t
 
 
 def t_equivalent(k_sigma: float, dof: float) -> float:

@@ -27,17 +27,27 @@ from ..stats import t_equivalent
 from .params import CAUSES, TriadFit, sensor_of
 
 
-def critical_sigma(fit: TriadFit, k_sigma: float) -> np.ndarray:
+def critical_sigma(fit: TriadFit, k_sigma: float, only: np.ndarray | None = None) -> np.ndarray:
     """(9,) how many of its std a deviation must exceed: ``k_sigma`` where the std is
     known, its Student-t equivalent at :attr:`~.params.TriadFit.deviation_dof` where the fit
-    estimated part of it (module doc)."""
-    return np.array([t_equivalent(k_sigma, float(nu)) for nu in fit.deviation_dof])
+    estimated part of it (module doc). ``only`` (9,) bool: the parameters to work it out
+    for (the others keep ``k_sigma``, a bound below it)."""
+    nu = fit.deviation_dof
+    out = np.full(9, float(k_sigma))
+    for i in np.flatnonzero(np.isfinite(nu) & (True if only is None else only)):
+        out[i] = t_equivalent(k_sigma, float(nu[i]))
+    return out
 
 
 def _beyond(dev: np.ndarray, fit: TriadFit, k_sigma: float) -> np.ndarray:
-    k = critical_sigma(fit, k_sigma)
+    dstd = fit.deviation_std
     with np.errstate(invalid="ignore"):
-        return (np.abs(dev) > fit.limit) & (np.abs(dev) > k * fit.deviation_std)
+        out = (np.abs(dev) > fit.limit) & (np.abs(dev) > k_sigma * dstd)
+        # the Student-t threshold (never below k_sigma) only where the normal one passed
+        need = out if out.ndim == 1 else out.any(axis=0)
+        if need.any():
+            out &= np.abs(dev) > critical_sigma(fit, k_sigma, need) * dstd
+    return out
 
 
 def _eligible(fit: TriadFit, k_sigma: float) -> np.ndarray:
