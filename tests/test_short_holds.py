@@ -99,3 +99,28 @@ def test_forty_short_holds_are_all_used(tmp_path: Path):
     assert rot_def >= 2 * rot_1
     # both well within the limits of the truth (2 limits off in --like); the default no worse
     assert err_def < 0.1 and err_def <= err_1 * 1.1
+
+
+def test_a_session_of_short_holds_alone_is_calibrated_from_them():
+    """A hand session whose every hold is 0.6 s, the first too: the default detector (0.5 s
+    window, 0.25 s trim) keeps none, and ``short_holds: auto`` takes the short-hold
+    detector's. Until 2026-11-29 the short-hold pass ran only when the default one had
+    kept at least one hold: such a session was refused as "never stood still"."""
+    from imudiag.diagnosis.calibrate import calibrate
+    from imudiag.diagnosis.session import collect_intervals
+    from imudiag.sim import multi_position, simulate
+
+    like = load_default()
+    traj = multi_position(
+        n_attitudes=24, dwell_s=0.6, turn_s=1.0, rate_hz=200.0, seed=3, first_dwell_s=0.6
+    )
+    samples = simulate(like, traj, seed=4).samples
+    holds: dict = {}
+    intervals, rate, _ = collect_intervals(samples, like, DiagnosisConfig(), holds=holds)
+    assert holds["detector"].startswith("short holds") and "kept 0 of" in holds["detector"]
+    assert len(intervals) == holds["used"] >= 22 and rate == 200.0
+    res = calibrate(intervals, like, "exact", rate)
+    assert res.refusals() == []
+    # within a quarter of a limit of the truth (the simulated board is the certificate)
+    dev = certificate_vector(res.certificate.accel) - certificate_vector(like.accel)
+    assert np.all(np.abs(dev[:6]) < 0.25 * limit_vector(like.accel)[:6]), dev

@@ -393,11 +393,6 @@ def _collect_pass(
 
         stuck_out.extend(stuck_faults(stuck))
     intervals.extend(collector.flush())
-    if not intervals:
-        raise BadInput(
-            f"{name}: no quasi-static interval found (the unit never stood "
-            "still long enough): nothing to calibrate from"
-        )
     moving = {k: v for k, v in moving.items() if v[0].n > 0}
     assert rate is not None
     if holds is not None:
@@ -502,6 +497,11 @@ def collect_intervals(
                 f"{first['used']} of {first['found']})"
             )
             first = second
+    if not intervals:  # after the short-hold pass: a session of short holds alone has none
+        raise BadInput(
+            f"{recording_name(data)}: no quasi-static interval found (the unit never stood "
+            "still long enough): nothing to calibrate from"
+        )
     if holds is not None:
         holds.update(first)
     return intervals, rate, moving
