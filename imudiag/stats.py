@@ -161,7 +161,7 @@ def _t_equivalent(k_sigma: float, dof: float) -> float:
 def t_equivalent(k_sigma: float, dof: float) -> float:
     """The Student-t quantile with the two-sided tail of ``k_sigma`` standard normal sigma,
     for a statistic whose std was estimated with ``dof`` degrees of freedom (``k_sigma``
-    itself for an infinite ``dof``; 4 sigma is 5.5 at 15 dof, 16.7 at 4). Fractional
+    itself for an infinite ``dof``; 4 sigma is 5.5 at 15 dof, 17.4 at 4). Fractional
     ``dof`` are rounded to 0.01 (cached); below 0.5 dof the tail is that of 0.5."""
     if not math.isfinite(dof) or dof > 1e6:
         return float(k_sigma)
