@@ -104,20 +104,28 @@ REST_STEP_MIN_SIDE = 5
 REST_STEP_MIN_LIMITS = 0.5
 
 
+def _rest_parts(
+    means: np.ndarray, mean_var: np.ndarray, counts: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Count-weighted mean of interval means (K, d), the variance of that mean from their
+    white noise, and the variance from their scatter (bias wander; 0 for one interval),
+    per column."""
+    w = np.asarray(counts, dtype=float)
+    w = w / w.sum()
+    est = w @ means
+    white = (w * w) @ mean_var
+    k = means.shape[0]
+    scatter = (w @ (means - est) ** 2) * k / (k - 1) / k if k > 1 else np.zeros_like(white)
+    return est, white, scatter
+
+
 def _rest_mean_var(
     means: np.ndarray, mean_var: np.ndarray, counts: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Count-weighted mean of interval means (K, d) and its variance: the larger of the
     white noise of the means and their scatter (bias wander), per column."""
-    w = np.asarray(counts, dtype=float)
-    w = w / w.sum()
-    est = w @ means
-    var = (w * w) @ mean_var
-    k = means.shape[0]
-    if k > 1:
-        scatter = (w @ (means - est) ** 2) * k / (k - 1) / k
-        var = np.maximum(var, scatter)
-    return est, var
+    est, white, scatter = _rest_parts(means, mean_var, counts)
+    return est, np.maximum(white, scatter)
 
 
 def _rest_scatter_part(
@@ -127,14 +135,12 @@ def _rest_scatter_part(
     scatter (where it exceeds their white noise; 0 elsewhere), output units^2, and the
     degrees of freedom it was measured with (intervals - 1)."""
     means = np.asarray(means, dtype=float).reshape(-1, 3)
-    k = means.shape[0]
-    if k < 2:
+    if means.shape[0] < 2:
         return np.zeros(3), float("nan")
-    w = np.asarray(counts, dtype=float)
-    w = w / w.sum()
-    white = (w * w) @ np.asarray(mean_var, dtype=float).reshape(-1, 3)
-    _est, var = _rest_mean_var(means, mean_var, counts)
-    return np.where(var > white, var, 0.0), float(k - 1)
+    _est, white, scatter = _rest_parts(
+        means, np.asarray(mean_var, dtype=float).reshape(-1, 3), counts
+    )
+    return np.where(scatter > white, scatter, 0.0), float(means.shape[0] - 1)
 
 
 def rest_bias(
