@@ -37,15 +37,18 @@ from pathlib import Path
 import numpy as np
 
 from imudiag.api import diagnose
-from imudiag.certificate import Certificate, default_certificate_path, load_default
+from imudiag.certificate import (
+    SENSOR_NAMES,
+    Certificate,
+    default_certificate_path,
+    load_default,
+)
 from imudiag.diagnosis import diagnose_samples
 from imudiag.diagnosis.params import CAUSES, PARAM_KEYS, limit_vector, sensor_of
 from imudiag.logs import open_writer
 from imudiag.sim import Effects, Fault, multi_position, simulate
 from imudiag.sim.simulator import SimResult
 from imudiag.sim.trajectories import Trajectory
-
-AXES = "xyz"
 
 
 def catalogue(triads: tuple[str, ...] = ("accel", "gyro")) -> list[tuple[str, str, int]]:
@@ -128,10 +131,15 @@ def wander_session(
     """One healthy session whose every bias wanders (module docstring), drawn under ``seed``:
     (sigma in limits, time constant s, trajectory, simulation, largest true excursion of
     each bias in limits)."""
-    lim = {"a": cert.accel.limits.bias, "g": cert.gyro.limits.bias}
+    triads = ("accel", "gyro")
+    lim = {tri: cert.triad(tri).limits.bias for tri in triads}
     rng = np.random.default_rng(seed)
     frac, tau_s = float(rng.uniform(0.2, 0.6)), float(rng.uniform(10.0, 60.0))
-    gm = {f"{t}{AXES[i]}": (frac * float(lim[t][i]), tau_s) for t in "ag" for i in range(3)}
+    gm = {
+        s: (frac * float(lim[tri][i]), tau_s)
+        for tri in triads
+        for i, s in enumerate(SENSOR_NAMES[tri])
+    }
     traj = multi_position(n_attitudes=40, dwell_s=3.0, turn_s=1.5, rate_hz=200, seed=seed)
     sim = simulate(cert, traj, seed=seed + 100, effects=Effects(bias_instability=gm))
     quiet = simulate(
@@ -139,11 +147,9 @@ def wander_session(
     ).samples
     still = simulate(cert, traj, seed=seed + 100, effects=Effects(white_noise=False)).samples
     excursion = {
-        f"{t}{AXES[i]}": float(
-            np.max(np.abs(quiet.triad(tri)[:, i] - still.triad(tri)[:, i])) / lim[t][i]
-        )
-        for t, tri in (("a", "accel"), ("g", "gyro"))
-        for i in range(3)
+        s: float(np.max(np.abs(quiet.triad(tri)[:, i] - still.triad(tri)[:, i])) / lim[tri][i])
+        for tri in triads
+        for i, s in enumerate(SENSOR_NAMES[tri])
     }
     return frac, tau_s, traj, sim, excursion
 
