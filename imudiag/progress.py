@@ -3,9 +3,11 @@
 One line redrawn in place with ``\\r``: what the command is doing, a bar of the fraction
 done (samples read of the log's samples, or the position in the file, or samples
 simulated of those asked for), the percentage and the samples so far. Redraws are
-rate-limited (:data:`MIN_REDRAW_S`); the line is cleared when the work ends, so the
-command's own output starts on a clean line. Nothing at all is written when the stream is
-not a terminal (a pipe, a file) or when the user asked for ``--quiet``. Standard library
+rate-limited (:data:`MIN_REDRAW_S`), except the first of each phase (a new ``what``), which
+is always drawn so that a short phase is named however fast the machine. The line is cleared
+when the work ends, so the command's own output starts on a clean line. Nothing at all is
+written when the stream is not a terminal (a pipe, a file) or when the user asked for
+``--quiet``. Standard library
 only: the daemon's runtime dependencies stay numpy, pyserial and pyyaml.
 """
 
@@ -58,16 +60,19 @@ class Progress:
         self.min_redraw_s = min_redraw_s
         self.redraws = 0  #: lines drawn so far
         self._last = -float("inf")
+        self._what: str | None = None  # the phase last drawn
         self._width = 0  # characters of the line on screen
 
     def update(self, what: str, fraction: float | None, done: int = 0) -> None:
-        """Now doing ``what``, ``fraction`` (0..1, None when unknown) done, ``done`` samples."""
+        """Now doing ``what``, ``fraction`` (0..1, None when unknown) done, ``done`` samples.
+        Drawn at most every ``min_redraw_s`` s within a phase, always when ``what`` changes."""
         if not self.enabled:
             return
         now = time.monotonic()
-        if now - self._last < self.min_redraw_s:
+        if what == self._what and now - self._last < self.min_redraw_s:
             return
         self._last = now
+        self._what = what
         columns = shutil.get_terminal_size((80, 24)).columns
         head = f"imudiag {self.name}: {what} "
         tail = f" {_count(done)} samples" if done else ""

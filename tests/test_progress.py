@@ -194,6 +194,26 @@ def test_rate_limited_and_cleared():
     assert text.endswith("\r") and text.rsplit("\r", 2)[-2].strip() == ""
 
 
+def test_each_phase_is_drawn_at_once_however_fast():
+    """A new phase is drawn at its first update even within the redraw interval, so a phase
+    shorter than the interval is still named (a fast machine ran diagnose's 'diagnosing'
+    within 0.1 s of 'measuring noise' and the line never named it)."""
+    s = io.StringIO()
+    bar = Progress("diagnose", stream=s, enabled=True, min_redraw_s=3600.0)
+    for i in range(1, 101):
+        bar.update("measuring noise", i / 100, i)
+    for i in range(1, 101):
+        bar.update("diagnosing", i / 100, i)
+    bar.update("measuring noise", 1.0, 100)  # back to a phase: a change again
+    assert bar.redraws == 3
+    lines = [x for x in s.getvalue().split("\r") if x.strip()]
+    assert [x.split("[")[0].strip() for x in lines] == [
+        "imudiag diagnose: measuring noise",
+        "imudiag diagnose: diagnosing",
+        "imudiag diagnose: measuring noise",
+    ]
+
+
 def test_bar_fraction_and_unknown_fraction():
     s = io.StringIO()
     bar = Progress("convert", stream=s, enabled=True, min_redraw_s=0.0)

@@ -20,6 +20,12 @@ from imudiag.sim import multi_position, simulate
 FROZEN = Path(__file__).parent / "data" / "frozen-gyro-fit" / "rest-rotation.json"
 #: relative tolerance of the numbers (the frozen diagnose reports' 1e-9)
 RTOL = 1e-9
+#: the residual figures of a fit to rounding (RMS residual ~2.4e-7 rad) move with the
+#: processor's rounding: held to the frozen diagnose reports' cross-hardware tolerance
+#: (``HW_RESIDUAL_KEYS``, 1e-3; the rotation fit's RMS too). An AVX-512 machine gave
+#: rms_residual and rotation_rms_rad 1.9e-9 off the file (written on an AVX2 machine), every
+#: other number within 1e-9.
+RESIDUAL_RTOL = {"dof": 1e-3, "rms_residual": 1e-3, "rotation_rms_rad": 1e-3}
 
 
 def _fit_json(f: TriadFit) -> dict:
@@ -63,7 +69,8 @@ def _same(got, want, where: str) -> None:
         for i, (g, w) in enumerate(zip(got, want, strict=True)):
             _same(g, w, f"{where}[{i}]")
     elif isinstance(want, float) and not isinstance(want, bool):
-        np.testing.assert_allclose(got, want, rtol=RTOL, atol=0, err_msg=where)
+        rtol = RESIDUAL_RTOL.get(where.rsplit(".", 1)[-1], RTOL)
+        np.testing.assert_allclose(got, want, rtol=rtol, atol=0, err_msg=where)
     else:
         assert got == want, where
 
