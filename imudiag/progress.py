@@ -7,8 +7,8 @@ rate-limited (:data:`MIN_REDRAW_S`), except the first of each phase (a new ``wha
 is always drawn so that a short phase is named however fast the machine. The line is cleared
 when the work ends, so the command's own output starts on a clean line. Nothing at all is
 written when the stream is not a terminal (a pipe, a file) or when the user asked for
-``--quiet``. Standard library
-only: the daemon's runtime dependencies stay numpy, pyserial and pyyaml.
+``--quiet``. Standard library only: the daemon's runtime dependencies stay numpy, pyserial
+and pyyaml.
 """
 
 from __future__ import annotations
