@@ -17,8 +17,10 @@ rounding far above 1e-9 (the condition number of a singular information matrix i
 at any precision). Every set is therefore kept per SIMD level, written on a machine of that
 level: ``x86-v3/`` on an AMD EPYC with AVX2 at 8d0fb87, ``x86-v4/`` on an AMD EPYC with
 AVX-512 (numpy 2.4.6) on 2026-11-30. Every non-float of the two is equal (checked below). A
-machine is held to 1e-9 against its own level's set; a machine of a level with no set is
-held to the cross-hardware tolerance (:func:`hardware_differences`) against the nearest set.
+machine is held to 1e-9 against its own level's set where it is the kind of machine that
+wrote it (:data:`SET_MACHINES`: the numpy version and the SIMD extensions numpy found, where
+the set records them); any other machine is held to the cross-hardware tolerance
+(:func:`hardware_differences`) against its level's set, or the nearest set.
 
 The ``x86-v4/`` set was first written at d021e2f on the machine of issue 14, and no AVX-512
 machine ran the suite again until 2026-11-30. There the code of that day differed from it by
@@ -61,22 +63,51 @@ HW_SINGULAR_CONDITION = 1e15
 HW_CONDITION_EPS = 100 * float(np.finfo(float).eps)
 
 
+def simd_found() -> tuple[str, ...]:
+    """The SIMD extensions this machine's numpy found (sorted; empty when it does not say)."""
+    try:
+        found = np.__config__.CONFIG["SIMD Extensions"]["found"]  # type: ignore[attr-defined]
+    except (AttributeError, KeyError, TypeError):
+        return ()
+    return tuple(sorted(found))
+
+
 def simd_level() -> str:
     """This machine's numpy SIMD level as a set directory name (``x86-v4``, ``x86-v3``, ...)."""
-    try:
-        found = set(np.__config__.CONFIG["SIMD Extensions"]["found"])  # type: ignore[attr-defined]
-    except (AttributeError, KeyError, TypeError):
-        found = set()
+    found = set(simd_found())
     for level in ("X86_V4", "X86_V3", "X86_V2"):
         if level in found:
             return level.lower().replace("_", "-")
     return "unknown"
 
 
-#: The set this machine's reports are held to, strictly when it is of this machine's level.
+#: The machine each set was written on, where recorded: numpy's version and the SIMD
+#: extensions it found. The rounding of the reports' last digits follows both (an AVX-512
+#: machine of 2026-11-30 reproduced the ``x86-v3/`` set to 1e-9 and not the ``x86-v4/`` set
+#: written at d021e2f), so a set is strict only on the kind of machine that wrote it; a set
+#: with no record (``x86-v3/``, whose numpy version was not kept) on every machine of its
+#: level.
+SET_MACHINES: dict[str, dict[str, Any]] = {
+    "x86-v4": {"numpy": "2.4.6", "simd_found": ("AVX512_ICL", "X86_V3", "X86_V4")},
+}
+
+
+def strict_here(level: str) -> bool:
+    """Whether this machine is held to 1e-9 against set ``level``: the set's own level, and
+    the machine that wrote it where :data:`SET_MACHINES` records one."""
+    if level != simd_level():
+        return False
+    machine = SET_MACHINES.get(level)
+    return machine is None or (
+        machine["numpy"] == np.__version__ and tuple(machine["simd_found"]) == simd_found()
+    )
+
+
+#: The set this machine's reports are held to: its level's, else x86-v3's; strictly (1e-9)
+#: when :func:`strict_here`, else within the cross-hardware tolerance.
 LEVELS = sorted(p.name for p in FROZEN_SETS.iterdir() if p.is_dir())
-OWN_SET = simd_level() in LEVELS
-FROZEN = FROZEN_SETS / (simd_level() if OWN_SET else "x86-v3")
+FROZEN = FROZEN_SETS / (simd_level() if simd_level() in LEVELS else "x86-v3")
+OWN_SET = strict_here(FROZEN.name)
 #: keys that name this run's files (the log, the certificate by its path), not the diagnosis
 RUN_KEYS = ("log", "certificate")
 
@@ -216,8 +247,31 @@ def test_report_unchanged(name, tmp_path):
     want = json.loads((FROZEN / f"{name}.json").read_text())
     got = diagnose_report(name, tmp_path, in_process=name != min(CASES))
     diff = differences(got, want) if OWN_SET else hardware_differences(got, want)
-    how = f"{FROZEN.name} set, " + ("1e-9" if OWN_SET else f"from a {simd_level()} machine")
+    how = f"{FROZEN.name} set, " + (
+        "1e-9" if OWN_SET else f"cross-hardware, numpy {np.__version__} {simd_found()}"
+    )
     assert not diff, f"{len(diff)} differences ({how}), first: " + "; ".join(diff[:8])
+
+
+def test_strictness_follows_the_machine_that_wrote_the_set(monkeypatch):
+    """1e-9 only on the level and, where recorded, the numpy and SIMD extensions of the
+    machine that wrote the set; another numpy or other extensions get the cross-hardware
+    tolerance, as another level does."""
+    monkeypatch.setattr(sys.modules[__name__], "simd_level", lambda: "x86-v4")
+    monkeypatch.setattr(
+        sys.modules[__name__], "simd_found", lambda: ("AVX512_ICL", "X86_V3", "X86_V4")
+    )
+    monkeypatch.setattr(np, "__version__", "2.4.6")
+    assert strict_here("x86-v4") and not strict_here("x86-v3")
+    monkeypatch.setattr(np, "__version__", "2.5.0")
+    assert not strict_here("x86-v4")
+    monkeypatch.setattr(np, "__version__", "2.4.6")
+    monkeypatch.setattr(
+        sys.modules[__name__], "simd_found", lambda: ("AVX512_SKX", "X86_V3", "X86_V4")
+    )
+    assert not strict_here("x86-v4")
+    monkeypatch.setattr(sys.modules[__name__], "simd_level", lambda: "x86-v3")
+    assert strict_here("x86-v3")  # no record: every machine of the level
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
@@ -269,3 +323,7 @@ if __name__ == "__main__":
             rep = diagnose_report(case, Path(tmp))
             (target / f"{case}.json").write_text(json.dumps(rep, indent=1) + "\n")
             print(case, rep["verdict"]["accel"], rep["verdict"]["gyro"], rep.get("windows_run"))
+    print(
+        f"record the writer in SET_MACHINES: {simd_level()!r}: "
+        f'{{"numpy": {np.__version__!r}, "simd_found": {simd_found()!r}}}'
+    )
