@@ -16,8 +16,9 @@ from ..rowwise import rows_where
 from ..trailing import median_side
 from .state import MonitorConfig, TriadState
 
-#: triads in the ring's column order (raw gyro columns 1-3, accel 4-6)
-TRIADS_RING = ("gyro", "accel")
+#: triads in the ring's column order (raw gyro columns 1-3, accel 4-6): the certificate's
+#: order of its triads, one definition
+TRIADS_RING = TRIADS
 
 
 class NoiseCheck:
