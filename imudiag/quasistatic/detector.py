@@ -70,7 +70,12 @@ stops after braking is still only ``drift_window_s`` later.
 Per-sample noise ``sigma = density * sqrt(rate / 2)`` (output units) comes
 from the certificate's noise density; where the certificate has none, the
 detector estimates it from the data as the low quantile of the short-window
-variances seen so far (the quietest stretches are noise only).
+variances seen so far (the quietest stretches are noise only). A window whose
+variance on a channel is zero to the rounding of its sums (every sample equal:
+a stuck output) measures no noise and is left out of that channel's quantile
+(:func:`flat_windows`): a gyro axis frozen at 40 s of a session had driven its
+estimate to zero, after which no window where it was alive passed the variance
+test, and in one block the samples before it froze lost their stillness too.
 
 The window is trailing, so decisions are causal: the first ``W - 1`` samples
 of a stream are never static, a static stretch starts ``W - 1`` samples after
@@ -88,6 +93,7 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -102,6 +108,49 @@ from .windows import WindowStage, WindowStats
 #: Standard normal quantile used for the data-driven noise estimate.
 _NOISE_QUANTILE = 0.05
 _Z_NOISE_QUANTILE = -1.6448536269514729
+
+
+#: A window variance within this many times the rounding bound of the prefix sums it comes
+#: from is zero (:func:`flat_windows`).
+_FLAT_ROUNDING_FACTOR = 64.0
+
+
+def flat_windows(st: WindowStats, window: int, cols: slice) -> np.ndarray:
+    """(M, k) bool: the windows of ``st`` (``window`` rows) whose variance on the channels
+    ``cols`` (of the 6) is zero to the rounding of the prefix-sum differences it comes from
+    (every sample of the window equal: a stuck output).
+
+    The variance is (S2 - S1^2 / W) / (W - 1) from sums that are differences of prefix sums
+    P - B of the centred outputs (S1) and their squares (S2), each difference carrying about
+    eps (|P| + |B|) of rounding; a variance within :data:`_FLAT_ROUNDING_FACTOR` times that
+    bound is zero (the largest ratio seen on frozen outputs was 7). A working channel's
+    noise variance is orders above it: the bound follows the sums' magnitudes."""
+    w = float(window)
+    eps = float(np.finfo(float).eps)
+    sq = slice(cols.start + 6, cols.stop + 6)
+    b1, b2 = np.abs(st.back_w[:, cols]), np.abs(st.back_w[:, sq])
+    s1, s2 = np.abs(st.sums[:, cols]), np.abs(st.sums[:, sq])
+    scale = _FLAT_ROUNDING_FACTOR * eps / (w - 1.0)
+    return st.var[:, cols] <= scale * ((2.0 * b2 + s2) + 2.0 * s1 * (2.0 * b1 + s1) / w)
+
+
+def flat_ceiling(st: WindowStats, window: int, rows: int) -> np.ndarray:
+    """(6,) an upper bound, per channel, of :func:`flat_windows`' bound over every window of
+    ``st``, from a few of its rows (``rows``: the stream's rows so far): the prefix sums of
+    squares are monotonic over a block, so their largest magnitude is at its ends; a window
+    sum of centred outputs is at most W times the largest centred window mean; a prefix sum
+    of centred outputs over C <= ``rows`` rows is at most sqrt(C Q) (Cauchy-Schwarz, Q its
+    squares). A noise estimate above it cannot have come from flat windows."""
+    w = float(window)
+    eps = float(np.finfo(float).eps)
+    ends = np.abs(np.concatenate([st.back_w[[0, -1], 6:12], (st.back_w + st.sums)[[0, -1], 6:12]]))
+    q = ends.max(axis=0)  # |B2|, |P2| and so S2 <= |P2| + |B2| <= 2 q
+    ref = np.asarray(st._stage.ref, dtype=float)
+    centred = max(float(st.mean.max() - ref.min()), float(ref.max() - st.mean.min()), 0.0)
+    s1 = w * centred
+    b1 = np.sqrt(max(rows, 1) * q)
+    scale = _FLAT_ROUNDING_FACTOR * eps / (w - 1.0)
+    return scale * ((4.0 * q) + 2.0 * s1 * (2.0 * b1 + s1) / w)
 
 
 def _chi2_quantile_ratio(dof: float, z: float) -> float:
@@ -319,14 +368,37 @@ class QuasiStaticDetector:
         v = self._noise_var[triad]
         return None if v is None else np.sqrt(v)
 
-    def _update_noise_estimate(self, triad: str, var: np.ndarray) -> None:
+    def _update_noise_estimate(
+        self,
+        triad: str,
+        var: np.ndarray,
+        ceiling: np.ndarray | None = None,
+        flat: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None,
+    ) -> None:
+        """The data-driven noise variances of ``triad`` from this block's window variances
+        ``var`` (K, 3). Where an axis's quantile is at most ``ceiling`` (3,), windows flat
+        on it (a stuck output) may have made it: ``flat()`` gives the window variances
+        again and which are flat (K, 3), and those are left out (module doc)."""
         if self._noise_fixed[triad] or var.shape[0] < 10:
             return
         ratio = _chi2_quantile_ratio(self.window - 1, _Z_NOISE_QUANTILE)
-        # ``var`` is the caller's boolean-mask copy: partitioned in place, not copied again
-        est = np.quantile(var, _NOISE_QUANTILE, axis=0, overwrite_input=True) / ratio
-        est = np.maximum(est, 1e-30)
         prev = self._noise_var[triad]
+        # ``var`` is the caller's boolean-mask copy: partitioned in place, not copied again
+        q = np.quantile(var, _NOISE_QUANTILE, axis=0, overwrite_input=True)
+        stands: list[int] = []
+        if ceiling is not None and flat is not None and np.any(q <= ceiling):
+            fresh, frozen = flat()
+            for j in np.flatnonzero(frozen.any(axis=0)):
+                live = fresh[~frozen[:, j], j]
+                if live.shape[0] >= 10:
+                    q[j] = np.quantile(live, _NOISE_QUANTILE)
+                elif prev is not None:  # nothing alive on it here: the estimate stands
+                    stands.append(int(j))
+                # else frozen since the stream began: no noise figure to be had (the floor)
+        est = q / ratio
+        est = np.maximum(est, 1e-30)
+        if stands and prev is not None:
+            est[stands] = prev[stands]
         if prev is not None:
             est = np.minimum(prev, est)
             if np.array_equal(est, prev):
@@ -438,9 +510,15 @@ class QuasiStaticDetector:
         sums, var, mean = st.sums, st.var, st.mean
         ok = sums[:, 12] < 0.5  # no bad sample in the window
         if not (self._noise_fixed["gyro"] and self._noise_fixed["accel"]):
+            ceiling = flat_ceiling(st, w, first + m)
             for c, name in enumerate(("gyro", "accel")):
-                v = var[:, 3 * c : 3 * c + 3]
-                self._update_noise_estimate(name, v[ok] if ok.any() else v[:0])
+                cols = slice(3 * c, 3 * c + 3)
+                v = var[:, cols]
+
+                def flat(cols: slice = cols) -> tuple[np.ndarray, np.ndarray]:
+                    return st.var[:, cols][ok], flat_windows(st, w, cols)[ok]
+
+                self._update_noise_estimate(name, v[ok] if ok.any() else v[:0], ceiling[cols], flat)
         lim = self._limits()
         limit = self.variance_ratio_limit
         compiled = kernel("variance_test")
