@@ -143,7 +143,8 @@ def flat_ceiling(st: WindowStats, window: int, rows: int) -> np.ndarray:
     squares). A noise estimate above it cannot have come from flat windows."""
     w = float(window)
     eps = float(np.finfo(float).eps)
-    ends = np.abs(np.concatenate([st.back_w[[0, -1], 6:12], (st.back_w + st.sums)[[0, -1], 6:12]]))
+    back = st.back_w[[0, -1], 6:12]  # B2 at the block's ends, then P2 = B2 + S2 there
+    ends = np.abs(np.concatenate([back, back + st.sums[[0, -1], 6:12]]))
     q = ends.max(axis=0)  # |B2|, |P2| and so S2 <= |P2| + |B2| <= 2 q
     ref = np.asarray(st._stage.ref, dtype=float)
     centred = max(float(st.mean.max() - ref.min()), float(ref.max() - st.mean.min()), 0.0)
