@@ -14,6 +14,8 @@ quantile (:func:`imudiag.quasistatic.detector.flat_windows`).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -123,3 +125,34 @@ def test_an_output_frozen_from_the_start_gives_no_noise_figure_but_the_floor():
     sigma = det.noise_sigma("gyro")
     assert sigma is not None and sigma[0] < 1e-9 and 50.0 < sigma[1] < 80.0
     assert mask.any()
+
+
+@pytest.mark.parametrize("triad", ["gyro", "accel"])
+def test_a_stuck_output_drawn_at_random_gets_one_answer_from_both_faces(triad, tmp_path):
+    """A sensor of each triad drawn under a seed freezes at 40 s: ``imudiag diagnose`` and
+    the daemon (``replay://...?speed=0``) give the same verdicts and name the same faults,
+    the drawn sensor's ``stuck`` among them. Before 2026-11-30 a frozen gx, gy or gz made
+    diagnose say the accelerometers were ``undetermined`` where the daemon said ``ok``."""
+    from imudiag.api import diagnose
+    from imudiag.logs import open_writer
+    from imudiag.service.daemon import Daemon, DaemonSettings
+    from tests.helpers import CollectSink
+
+    sensor = str(np.random.default_rng(35).choice([f"{triad[0]}{a}" for a in "xyz"]))
+    log = tmp_path / f"stuck-{sensor}.npz"
+    with open_writer(log, {"sample_rate": 200.0, "units": "gyro=count accel=count"}) as w:
+        w.write(_session(sensor))
+    cert = str(Path(__file__).parent.parent / "config" / "default-certificate.yaml")
+    report = diagnose(str(log), cert, windows=False)
+    sink = CollectSink()
+    url = f"replay://{log}?speed=0&step=2"
+    assert Daemon(DaemonSettings(source_url=url, certificate_path=cert), [sink]).run() == 0
+    last = [s for s in sink.lines if s["t"] is not None][-1]
+    named = {(f["triad"], f.get("sensor") or "", f["cause"]) for f in report["verdict"]["faults"]}
+    assert (triad, sensor, "stuck") in named, (sensor, named)
+    for triad in ("accel", "gyro"):
+        assert last["verdict"][triad] == report["verdict"][triad], (sensor, triad)
+    daemon_named = {
+        (f["triad"], f.get("sensor") or "", f["cause"]) for f in last["verdict"]["faults"]
+    }
+    assert daemon_named == named
