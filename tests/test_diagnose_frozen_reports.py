@@ -12,7 +12,8 @@ report):
 
 The last digits of a float depend on the processor: numpy picks its SIMD kernels of exp,
 log, sqrt, sums and products at run time, so an AVX-512 machine (numpy's ``X86_V4``) and an
-AVX2 one (``X86_V3``) round differently, and an ill-conditioned window fit carries that
+AVX2 one (``X86_V3``) can round differently (the first two machines that wrote sets did;
+numpy's build matters too, below), and an ill-conditioned window fit carries that
 rounding far above 1e-9 (the condition number of a singular information matrix is noise
 at any precision). Every set is therefore kept per SIMD level, written on a machine of that
 level: ``x86-v3/`` on an AMD EPYC with AVX2 at 8d0fb87, ``x86-v4/`` on an AMD EPYC with
