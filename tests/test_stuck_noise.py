@@ -20,7 +20,12 @@ import numpy as np
 import pytest
 
 from imudiag.certificate import load_default
-from imudiag.quasistatic.detector import QuasiStaticDetector, flat_ceiling, flat_windows
+from imudiag.quasistatic.detector import (
+    QuasiStaticDetector,
+    flat_ceiling,
+    flat_windows,
+    rounding_bound,
+)
 from imudiag.samples import SampleBlock
 from imudiag.sim import Fault, multi_position, simulate
 
@@ -95,7 +100,6 @@ def test_the_ceiling_bounds_every_window_also_across_the_shift_of_the_sums(seed)
     det = QuasiStaticDetector(CERT, 200.0, certificate_noise=False)
     w = det.window
     stage = det._stage
-    eps = float(np.finfo(float).eps)
     done, total = 0, (1 << 20) + 150_000
     while done < total:
         k = int(rng.integers(1000, 200_000))
@@ -110,7 +114,7 @@ def test_the_ceiling_bounds_every_window_also_across_the_shift_of_the_sums(seed)
         ceiling = flat_ceiling(st, w, done)
         b1, b2 = np.abs(st.back_w[:, :6]), np.abs(st.back_w[:, 6:12])
         s1, s2 = np.abs(st.sums[:, :6]), np.abs(st.sums[:, 6:12])
-        bound = 64 * eps / (w - 1) * ((2 * b2 + s2) + 2 * s1 * (2 * b1 + s1) / w)
+        bound = rounding_bound(b1, b2, s1, s2, w)
         assert np.all(bound <= ceiling), (done, bound.max(axis=0), ceiling)
     assert done > 1 << 20
 

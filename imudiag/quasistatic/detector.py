@@ -115,43 +115,44 @@ _Z_NOISE_QUANTILE = -1.6448536269514729
 _FLAT_ROUNDING_FACTOR = 64.0
 
 
+def rounding_bound(
+    b1: np.ndarray, b2: np.ndarray, s1: np.ndarray | float, s2: np.ndarray, window: int
+) -> np.ndarray:
+    """The largest window variance that is zero to rounding, output units^2, for a window of
+    ``window`` rows whose variance (S2 - S1^2 / W) / (W - 1) comes from sums that are
+    differences of prefix sums P - B of the centred outputs (S1, B1) and their squares (S2,
+    B2), each difference carrying about eps (|P| + |B|) of rounding: that bound times
+    :data:`_FLAT_ROUNDING_FACTOR` (the largest ratio seen on frozen outputs was 7). The
+    arguments are magnitudes (|B1|, |B2|, |S1|, |S2|), arrays or bounds of them."""
+    w = float(window)
+    scale = _FLAT_ROUNDING_FACTOR * float(np.finfo(float).eps) / (w - 1.0)
+    return scale * ((2.0 * b2 + s2) + 2.0 * s1 * (2.0 * b1 + s1) / w)
+
+
 def flat_windows(st: WindowStats, window: int, cols: slice) -> np.ndarray:
     """(M, k) bool: the windows of ``st`` (``window`` rows) whose variance on the channels
-    ``cols`` (of the 6) is zero to the rounding of the prefix-sum differences it comes from
-    (every sample of the window equal: a stuck output).
-
-    The variance is (S2 - S1^2 / W) / (W - 1) from sums that are differences of prefix sums
-    P - B of the centred outputs (S1) and their squares (S2), each difference carrying about
-    eps (|P| + |B|) of rounding; a variance within :data:`_FLAT_ROUNDING_FACTOR` times that
-    bound is zero (the largest ratio seen on frozen outputs was 7). A working channel's
-    noise variance is orders above it: the bound follows the sums' magnitudes."""
-    w = float(window)
-    eps = float(np.finfo(float).eps)
+    ``cols`` (of the 6) is zero to rounding (:func:`rounding_bound`): every sample of the
+    window equal, a stuck output. A working channel's noise variance is orders above it:
+    the bound follows the sums' magnitudes."""
     sq = slice(cols.start + 6, cols.stop + 6)
     b1, b2 = np.abs(st.back_w[:, cols]), np.abs(st.back_w[:, sq])
     s1, s2 = np.abs(st.sums[:, cols]), np.abs(st.sums[:, sq])
-    scale = _FLAT_ROUNDING_FACTOR * eps / (w - 1.0)
-    return st.var[:, cols] <= scale * ((2.0 * b2 + s2) + 2.0 * s1 * (2.0 * b1 + s1) / w)
+    return st.var[:, cols] <= rounding_bound(b1, b2, s1, s2, window)
 
 
 def flat_ceiling(st: WindowStats, window: int, rows: int) -> np.ndarray:
-    """(6,) an upper bound, per channel, of :func:`flat_windows`' bound over every window of
+    """(6,) an upper bound, per channel, of :func:`rounding_bound` over every window of
     ``st``, from a few of its rows (``rows``: the stream's rows so far): the prefix sums of
-    squares are monotonic over a block, so their largest magnitude is at its ends; a window
-    sum of centred outputs is at most W times the largest centred window mean; a prefix sum
-    of centred outputs over C <= ``rows`` rows is at most sqrt(C Q) (Cauchy-Schwarz, Q its
-    squares). A noise estimate above it cannot have come from flat windows."""
-    w = float(window)
-    eps = float(np.finfo(float).eps)
+    squares are monotonic over a block, so their largest magnitude q is at its ends and a
+    window's S2 <= 2 q; a window sum of centred outputs is at most W times the largest
+    centred window mean; a prefix sum of centred outputs over C <= ``rows`` rows is at most
+    sqrt(C q) (Cauchy-Schwarz). A noise estimate above it cannot have come from flat
+    windows."""
     back = st.back_w[[0, -1], 6:12]  # B2 at the block's ends, then P2 = B2 + S2 there
-    ends = np.abs(np.concatenate([back, back + st.sums[[0, -1], 6:12]]))
-    q = ends.max(axis=0)  # |B2|, |P2| and so S2 <= |P2| + |B2| <= 2 q
+    q = np.abs(np.concatenate([back, back + st.sums[[0, -1], 6:12]])).max(axis=0)
     ref = np.asarray(st._stage.ref, dtype=float)
     centred = max(float(st.mean.max() - ref.min()), float(ref.max() - st.mean.min()), 0.0)
-    s1 = w * centred
-    b1 = np.sqrt(max(rows, 1) * q)
-    scale = _FLAT_ROUNDING_FACTOR * eps / (w - 1.0)
-    return scale * ((4.0 * q) + 2.0 * s1 * (2.0 * b1 + s1) / w)
+    return rounding_bound(np.sqrt(max(rows, 1) * q), q, window * centred, 2.0 * q, window)
 
 
 def _chi2_quantile_ratio(dof: float, z: float) -> float:
