@@ -1,8 +1,11 @@
-"""Helpers shared by the tests: transports and the daemon, block cuts of a stream."""
+"""Helpers shared by the tests: transports and the daemon, block cuts of a stream, a log
+through both faces."""
 
 from __future__ import annotations
 
 import time
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -53,3 +56,27 @@ def random_blocks(rng: np.random.Generator, n: int, read_max: int, big: int) -> 
         out.append(min(size, n - done))
         done += out[-1]
     return out
+
+
+def run_both_faces(log: Path, cert: Path | str, read_as: str = "") -> dict[str, Any]:
+    """``log`` through both faces with certificate ``cert``: ``imudiag diagnose``'s report
+    (no windows) and the daemon's status lines with samples, replaying it at full speed
+    (``replay://LOG?speed=0&step=2``, ``read_as`` its further query, the reader's options):
+    ``{"report": ..., "lines": [...]}``."""
+    from imudiag.api import diagnose
+    from imudiag.logs.options import options_from_query
+    from imudiag.service.daemon import Daemon, DaemonSettings
+
+    query = dict(kv.split("=", 1) for kv in read_as.split("&") if kv)
+    report = diagnose(str(log), str(cert), windows=False, log_options=options_from_query(query))
+    sink = CollectSink()
+    url = f"replay://{log}?speed=0&step=2" + (f"&{read_as}" if read_as else "")
+    daemon = Daemon(DaemonSettings(source_url=url, certificate_path=str(cert)), [sink])
+    assert daemon.run() == 0
+    lines = [s for s in sink.lines if s["t"] is not None]
+    return {"report": report, "lines": lines}
+
+
+def named_faults(faults: list[dict[str, Any]]) -> set[tuple[str, str, str]]:
+    """(triad, sensor or "", cause) of each fault of a verdict or a status."""
+    return {(f["triad"], f.get("sensor") or "", f["cause"]) for f in faults}

@@ -24,14 +24,13 @@ from benchmarks.fault_onset import wander_session
 from imudiag.api import diagnose
 from imudiag.certificate import load, load_default
 from imudiag.logs import open_writer
-from imudiag.logs.options import options_from_query
 from imudiag.samples import SampleBlock
 from imudiag.service.daemon import Daemon, DaemonSettings
 from imudiag.sim import Effects, Fault, multi_position, simulate
 from imudiag.sim.drive import drive_motion
 from imudiag.sim.vibration import Vibration, add_vibration
 from imudiag.vibration import VibrationMeter
-from tests.helpers import CollectSink
+from tests.helpers import CollectSink, named_faults, run_both_faces
 
 DATA = Path(__file__).parent / "data"
 REAL = DATA / "real"
@@ -151,17 +150,6 @@ def _sessions(directory: Path) -> dict[str, Path]:
     return out
 
 
-def _run_both(log: Path, cert: Path, read_as: str = "") -> dict[str, Any]:
-    query = dict(kv.split("=", 1) for kv in read_as.split("&") if kv)
-    report = diagnose(str(log), str(cert), windows=False, log_options=options_from_query(query))
-    sink = CollectSink()
-    url = f"replay://{log}?speed=0&step=2" + (f"&{read_as}" if read_as else "")
-    daemon = Daemon(DaemonSettings(source_url=url, certificate_path=str(cert)), [sink])
-    assert daemon.run() == 0
-    lines = [s for s in sink.lines if s["t"] is not None]
-    return {"report": report, "lines": lines}
-
-
 @pytest.fixture(scope="module")
 def sim_logs(tmp_path_factory) -> dict[str, Any]:
     d = tmp_path_factory.mktemp("one-answer")
@@ -200,7 +188,8 @@ def runs(sim_logs, tmp_path_factory) -> dict[str, dict[str, Any]]:
     for name in SIM_CASES:
         cases[name] = (sim_logs[name], BUNDLED)
     return {
-        name: _run_both(log, cert, READ_AS.get(name, "")) for name, (log, cert) in cases.items()
+        name: run_both_faces(log, cert, READ_AS.get(name, ""))
+        for name, (log, cert) in cases.items()
     }
 
 
@@ -209,10 +198,6 @@ def _criterion(why: str) -> str:
     counts may differ (the still detector measures the data's noise per block it is fed,
     docs/service.md "What still differs": 40 against 9 on the hand-held Xsens)."""
     return re.sub(r"^\d+ still samples", "N still samples", why)
-
-
-def _named(faults: list[dict[str, Any]]) -> set[tuple[str, str, str]]:
-    return {(f["triad"], f.get("sensor") or "", f["cause"]) for f in faults}
 
 
 #: the simulated cases (:func:`sim_logs`)
@@ -242,10 +227,10 @@ def test_daemon_and_diagnose_give_one_answer(runs, case):
     verdict = report["verdict"]
     for triad in ("accel", "gyro"):
         assert last["verdict"][triad] == verdict[triad], (triad, last["verdict"], verdict)
-    assert _named(last["verdict"]["faults"]) == _named(verdict["faults"])
+    assert named_faults(last["verdict"]["faults"]) == named_faults(verdict["faults"])
     # each named fault once in the status (the Xsens session's gx/gy misalignment is
     # raised, cleared and raised again by the daemon's windows: it was listed twice)
-    assert len(last["verdict"]["faults"]) == len(_named(last["verdict"]["faults"]))
+    assert len(last["verdict"]["faults"]) == len(named_faults(last["verdict"]["faults"]))
     if not verdict["faults"]:
         in_fault = [s for s in lines if s["state"] == "fault"]
         assert not in_fault, f"{len(in_fault)} status lines in fault: {in_fault[0]['faults']}"
@@ -331,11 +316,11 @@ def test_vibration_is_not_a_noise_fault_and_is_measured(runs, sim_logs):
     assert np.all(np.abs(ratio - 1.0) < 0.2), (ratio.min(), ratio.max())
 
 
-def test_a_true_noise_fault_on_the_vibrating_drive_is_raised_and_named(runs):
+def test_a_true_noise_fault_on_the_vibrating_drive_is_raised_andnamed_faults(runs):
     for named in (
-        _named(runs["drive-noise"]["report"]["verdict"]["faults"]),
-        _named(runs["drive-noise"]["lines"][-1]["verdict"]["faults"]),
-        _named(runs["drive-noise"]["lines"][-1]["faults"]),
+        named_faults(runs["drive-noise"]["report"]["verdict"]["faults"]),
+        named_faults(runs["drive-noise"]["lines"][-1]["verdict"]["faults"]),
+        named_faults(runs["drive-noise"]["lines"][-1]["faults"]),
     ):
         assert ("accel", "ax", "noise") in named
         assert not any(cause == "noise" and s != "ax" for _, s, cause in named)
@@ -348,7 +333,7 @@ def test_a_true_noise_fault_on_the_vibrating_drive_is_raised_and_named(runs):
 
 
 def test_the_simulated_faults_are_named_by_both(runs):
-    named = _named(runs["session-faulty"]["report"]["verdict"]["faults"])
+    named = named_faults(runs["session-faulty"]["report"]["verdict"]["faults"])
     assert ("accel", "ax", "bias") in named and ("gyro", "gy", "scale_factor") in named
     assert runs["session-clean"]["report"]["verdict"]["faults"] == []
 
@@ -446,13 +431,13 @@ def test_units_converted_as_diagnose_converts():
     """The same log against an SI certificate (rad/s): both convert the gyro exactly and
     end with the same verdict and faults; the status says what it converted."""
     cert = DATA / "interop/like-si.yaml"
-    both = _run_both(IMUCAL, cert)
+    both = run_both_faces(IMUCAL, cert)
     report, last = both["report"], both["lines"][-1]
     assert report["unit_conversion"] == last["unit_conversion"]
     assert [c["triad"] for c in last["unit_conversion"]] == ["gyro"]
     for triad in ("accel", "gyro"):
         assert last["verdict"][triad] == report["verdict"][triad]
-    assert _named(last["verdict"]["faults"]) == _named(report["verdict"]["faults"])
+    assert named_faults(last["verdict"]["faults"]) == named_faults(report["verdict"]["faults"])
 
 
 def test_a_reload_whose_units_are_refused_keeps_the_certificate(tmp_path):
@@ -562,7 +547,7 @@ def test_a_stuck_output_is_one_fault_in_both_faces(runs, sensor):
         assert report["verdict"]["accel"] == "ok"
     assert 40.0 < stuck["t_first"] < 40.0 + 2 * stuck["samples"] / 200.0
     assert stuck["raised"] == 1
-    assert _named(lines[-1]["verdict"]["faults"]) == _named(report["verdict"]["faults"])
+    assert named_faults(lines[-1]["verdict"]["faults"]) == named_faults(report["verdict"]["faults"])
     first = next(s for s in lines if any(f["cause"] == "stuck" for f in s["faults"]))
     # the status line of the read that holds it (2 s of samples a read here, step=2)
     assert first["state"] == "fault" and stuck["t_first"] <= first["t"] <= stuck["t_first"] + 2.0
@@ -589,8 +574,11 @@ def test_a_bias_step_mid_session_is_named_on_its_axis_by_both_faces(runs):
 
 def test_an_accelerometer_bias_step_mid_session_is_named_by_both_faces(runs):
     report, lines = runs["session-ax-bias-step"]["report"], runs["session-ax-bias-step"]["lines"]
-    assert _named(report["verdict"]["faults"]) == {("accel", "ax", "bias"), ("accel", "", "f0")}
-    assert _named(lines[-1]["verdict"]["faults"]) == _named(report["verdict"]["faults"])
+    assert named_faults(report["verdict"]["faults"]) == {
+        ("accel", "ax", "bias"),
+        ("accel", "", "f0"),
+    }
+    assert named_faults(lines[-1]["verdict"]["faults"]) == named_faults(report["verdict"]["faults"])
     (bias,) = [f for f in report["verdict"]["faults"] if f["cause"] == "bias"]
     assert bias["t_first"] > 60.0
     assert not [s for s in lines if s["state"] == "fault" and s["t"] < 60.0]
@@ -602,11 +590,11 @@ def test_faults_withdrawn_after_an_onset_leave_both_faces_one_answer(runs):
     the daemon's status lines had the withdrawn entry in force only until the window that
     found the step."""
     report, lines = runs["session-ax-onset"]["report"], runs["session-ax-onset"]["lines"]
-    assert _named(report["verdict"]["faults"]) == {
+    assert named_faults(report["verdict"]["faults"]) == {
         ("accel", "ax", "scale_factor"),
         ("accel", "", "f0"),
     }
-    assert _named(lines[-1]["verdict"]["faults"]) == _named(report["verdict"]["faults"])
+    assert named_faults(lines[-1]["verdict"]["faults"]) == named_faults(report["verdict"]["faults"])
     (gone,) = report["verdict"]["withdrawn"]
     assert (gone["sensor"], gone["cause"]) == ("ax", "scale_factor") and gone["t_first"] > 38.04
     assert "step change at t = " in gone["reason"]

@@ -137,26 +137,17 @@ def test_a_stuck_output_drawn_at_random_gets_one_answer_from_both_faces(triad, t
     the daemon (``replay://...?speed=0``) give the same verdicts and name the same faults,
     the drawn sensor's ``stuck`` among them. Before 2026-11-30 a frozen gx, gy or gz made
     diagnose say the accelerometers were ``undetermined`` where the daemon said ``ok``."""
-    from imudiag.api import diagnose
     from imudiag.logs import open_writer
-    from imudiag.service.daemon import Daemon, DaemonSettings
-    from tests.helpers import CollectSink
+    from tests.helpers import named_faults, run_both_faces
 
     sensor = str(np.random.default_rng(35).choice([f"{triad[0]}{a}" for a in "xyz"]))
     log = tmp_path / f"stuck-{sensor}.npz"
     with open_writer(log, {"sample_rate": 200.0, "units": "gyro=count accel=count"}) as w:
         w.write(_session(sensor))
-    cert = str(Path(__file__).parent.parent / "config" / "default-certificate.yaml")
-    report = diagnose(str(log), cert, windows=False)
-    sink = CollectSink()
-    url = f"replay://{log}?speed=0&step=2"
-    assert Daemon(DaemonSettings(source_url=url, certificate_path=cert), [sink]).run() == 0
-    last = [s for s in sink.lines if s["t"] is not None][-1]
-    named = {(f["triad"], f.get("sensor") or "", f["cause"]) for f in report["verdict"]["faults"]}
+    both = run_both_faces(log, Path(__file__).parent.parent / "config" / "default-certificate.yaml")
+    report, last = both["report"], both["lines"][-1]
+    named = named_faults(report["verdict"]["faults"])
     assert (triad, sensor, "stuck") in named, (sensor, named)
-    for triad in ("accel", "gyro"):
-        assert last["verdict"][triad] == report["verdict"][triad], (sensor, triad)
-    daemon_named = {
-        (f["triad"], f.get("sensor") or "", f["cause"]) for f in last["verdict"]["faults"]
-    }
-    assert daemon_named == named
+    for t in ("accel", "gyro"):
+        assert last["verdict"][t] == report["verdict"][t], (sensor, t)
+    assert named_faults(last["verdict"]["faults"]) == named
