@@ -20,9 +20,11 @@ from __future__ import annotations
 import argparse
 import time
 
+import numpy as np
+
 from imudiag.aiding.moving import MovingConfig, moving_base_diagnosis
 from imudiag.aiding.tpv import parse_tpv, track_from_reports
-from imudiag.certificate import load_default
+from imudiag.certificate import SENSOR_NAMES, load_default
 from imudiag.sim.drive import DRIVE_SCENARIOS, EPOCH_UNIX, GnssSimConfig, simulate_drive
 from imudiag.sim.effects import Effects
 from imudiag.sim.faults import Fault
@@ -57,8 +59,6 @@ def describe(out: dict) -> str:
 
 def clean_drives(cert, scenarios: list[str], n: int, wander: float, duration_s: float) -> int:
     """``--clean``: n healthy drives per scenario, biases wandering ``wander`` limits."""
-    import numpy as np
-
     lim = cert.accel.limits.bias
     drives = alarms = 0
     for sc in scenarios:
@@ -69,7 +69,7 @@ def clean_drives(cert, scenarios: list[str], n: int, wander: float, duration_s: 
                 effects = Effects(
                     bias_instability={
                         s: (wander * float(lim[i]) * rng.uniform(0.5, 1.5), rng.uniform(20, 80))
-                        for i, s in enumerate(("ax", "ay", "az"))
+                        for i, s in enumerate(SENSOR_NAMES["accel"])
                     }
                 )
             res, reports, _ = simulate_drive(sc, duration_s, cert, seed=seed, effects=effects)
