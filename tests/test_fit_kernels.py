@@ -255,3 +255,77 @@ def test_ninv_derivatives_and_predictions_kernels_equal_plain(fit_frame):
         for a, b in zip(fast + pred1, plain + pred0, strict=True):
             assert a.shape == b.shape
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-13 * max(1.0, float(np.abs(b).max())))
+
+
+def _rotation_case(seed: int, truth_off: float):
+    """(gyro model, motions, per-sample gyro variance, Earth rate) of a simulated session of
+    14 attitudes turned by hand, its gyro shape ``truth_off`` limits off the certificate."""
+    from imudiag.diagnosis.gyro_fit import gyro_sample_var
+    from imudiag.diagnosis.intervals import IntervalCollector
+    from imudiag.diagnosis.params import limit_vector
+    from imudiag.diagnosis.window import rotation_pairs
+    from imudiag.sim import multi_position, simulate
+
+    like = load_default()
+    truth = like.copy()
+    rng = np.random.default_rng(seed)
+    lim = limit_vector(truth.gyro)
+    truth.gyro.scale_factor_error = truth.gyro.scale_factor_error + truth_off * lim[
+        3:6
+    ] * rng.uniform(-1.0, 1.0, 3)
+    traj = multi_position(n_attitudes=14, dwell_s=3.0, turn_s=1.5, rate_hz=200.0, seed=seed)
+    block = simulate(truth, traj, seed=seed + 1).samples
+    coll = IntervalCollector(like, like.sample_rate)
+    ivs = coll.update(block) + coll.flush()
+    return like.gyro, rotation_pairs(like, like.accel, ivs), gyro_sample_var(ivs), like.earth_rate
+
+
+ROTATION_CASES = [(1, True, 0.5), (2, True, 3.0), (3, False, 1.0), (4, True, 0.0)]
+
+
+@pytest.mark.parametrize(("seed", "fit_frame", "truth_off"), ROTATION_CASES)
+def test_rotation_fit_loop_kernel_equals_plain(both, seed, fit_frame, truth_off):
+    """The gyro rotation fit's damped Gauss-Newton loop compiled (its evaluations, normal
+    equations and damped solves; :func:`imudiag.numba_kernels.rotation_loop`) against the
+    plain loop on simulated sessions (a shape within, and beyond, its limits; with and
+    without the frame rotation): the same estimate, covariance, deletion figures and
+    prediction within the reports' tolerance of each value or its scale, as the exact fit."""
+    from imudiag.diagnosis.gyro_fit import rotation_fit
+
+    gyro, pairs, var, earth = _rotation_case(seed, truth_off)
+    assert len(pairs) >= 10
+    probe, fitted = pairs[0], pairs[1:]
+
+    def fit():
+        return rotation_fit(gyro, fitted, var, earth, fit_frame=fit_frame, predict=probe)
+
+    calls = []
+    real = kernels.rotation_loop
+
+    def counted(*args, **kwargs):
+        out = real(*args, **kwargs)
+        calls.append(out is not None)
+        return out
+
+    kernels.rotation_loop = counted
+    try:
+        plain, fast = both(fit)
+    finally:
+        kernels.rotation_loop = real
+    assert calls == [True], "the compiled loop ran the fit once, and did not give up"
+    std = np.sqrt(np.diag(plain.cov))
+    pairs_scale = {
+        "deviation": (plain.deviation, fast.deviation, std),
+        "frame": (plain.frame, fast.frame, None),
+        "cov": (plain.cov, fast.cov, None),
+        "loo": (plain.loo_deviation, fast.loo_deviation, std),
+        "point_z": (plain.point_z, fast.point_z, np.max(np.abs(plain.point_z))),
+        "rms": (np.array([plain.rms]), np.array([fast.rms]), None),
+        "dof": (np.array([plain.dof]), np.array([fast.dof]), None),
+        "predicted_z": (np.array([plain.predicted_z]), np.array([fast.predicted_z]), None),
+    }
+    for key, (b, a, scale) in pairs_scale.items():
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        tol = RTOL * (np.abs(b) + (0.0 if scale is None else scale))
+        bad = ~((np.abs(a - b) <= tol) | (a == b))
+        assert not bad.any(), f"{key}: {a[bad]} != {b[bad]} (tolerance {tol[bad]})"

@@ -702,10 +702,19 @@ def rotation_fit(
         return r, j, float(np.sum(r * r * wgt) + np.sum(prior_prec * x * x))
 
     x = np.zeros(npar)
-    res, jac, cost = evaluate(x)
+    compiled = None
+    if max_iter > 0 and pairs and kernels.enabled():  # the loop compiled (fleet workers)
+        _product_plan(stack)
+        compiled = kernels.rotation_loop(
+            x, stack, up0, up1, wgt, prior_prec, shape_c, q_c, fit_frame, max_iter, MAX_SHAPE
+        )
+    if compiled is not None:
+        x, res, jac, cost = compiled
+    else:
+        res, jac, cost = evaluate(x)
     lam = 1e-6
     done = False
-    for _ in range(max_iter):
+    for _ in range(max_iter if compiled is None else 0):
         info = jac.T @ (jac * wgt[:, None])
         hess = info + np.diag(prior_prec)
         grad = jac.T @ (res * wgt) - prior_prec * x

@@ -132,6 +132,47 @@ def predict_directions(
     return out
 
 
+def rotation_loop(
+    x: np.ndarray,
+    stack: dict[str, np.ndarray],
+    up0: np.ndarray,
+    up1: np.ndarray,
+    wgt: np.ndarray,
+    prior_prec: np.ndarray,
+    shape_c: np.ndarray,
+    q_c: np.ndarray,
+    fit_frame: bool,
+    max_iter: int,
+    max_shape: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
+    """The gyro rotation fit's damped Gauss-Newton loop compiled
+    (:func:`imudiag.numba_kernels.rotation_loop`) from ``x`` (npar,), its evaluations
+    compiled too: (x, residuals (3 n,), Jacobian (3 n, npar), cost) at its end, as the plain
+    loop of :func:`.gyro_fit.rotation_fit`, equal to rounding; None when the kernels are
+    off or a damped solve was ill-conditioned (the caller runs the plain loop). ``stack``:
+    the motions' increments with their product plan (``turning`` (K, 3) rad, ``lengths``)."""
+    loop: Callable[..., Any] | None = kernel("rotation_loop")
+    if loop is None:
+        return None
+    ok, x1, r1, j1, c1 = loop(
+        np.ascontiguousarray(x, dtype=float),
+        np.ascontiguousarray(stack["turning"], dtype=float),
+        np.ascontiguousarray(stack["lengths"], dtype=np.int64),
+        np.ascontiguousarray(up0, dtype=float),
+        np.ascontiguousarray(up1, dtype=float),
+        np.ascontiguousarray(wgt, dtype=float),
+        np.ascontiguousarray(prior_prec, dtype=float),
+        np.ascontiguousarray(shape_c, dtype=float),
+        np.ascontiguousarray(q_c, dtype=float),
+        bool(fit_frame),
+        int(max_iter),
+        float(max_shape),
+    )
+    if not ok:
+        return None
+    return x1, r1, j1, float(c1)
+
+
 __all__ = [
     "available",
     "enable",
@@ -142,6 +183,7 @@ __all__ = [
     "ninv_derivatives",
     "predict_directions",
     "product_sensitivity",
+    "rotation_loop",
     "status",
     "switched",
 ]

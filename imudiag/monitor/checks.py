@@ -645,7 +645,8 @@ class Monitor:
             bad = ~np.isfinite(gyro_si).all(axis=1)
             rows[bad, :3] = 0.0
             rows[:, 4] = bad
-        now, back, idx = self._prefix.update(rows, self._offsets)
+        # P at each row and ``_offsets`` rows back (views on diagnose's big blocks: no copies)
+        now, back, idx = self._prefix.update_views(rows, self._offsets)
 
         if self.gyro_mode != "earth_rate":
             ok_g = static & ~adc_error & ~sat["gyro"]
@@ -655,20 +656,20 @@ class Monitor:
         # (2 (P[s] - P[s-m]) - (P[s] - P[s-2m])) / m per 0.1 s (in place: the same
         # operations in the same order as now - 2 back2 + back3, fewer (N, 3) arrays)
         m = self._accel_m
-        d = np.multiply(2.0, back[:, 2, :3])
+        d = np.multiply(2.0, back[2][:, :3])
         np.subtract(now[:, :3], d, out=d)
-        d += back[:, 3, :3]
+        d += back[3][:, :3]
         alpha = np.einsum("ij,ij->i", d, d)
         np.sqrt(alpha, out=alpha)
         alpha *= self.rate_hz / m
         alpha /= m
         if not finite:
-            alpha[now[:, 4] - back[:, 3, 4] > 0] = np.nan
+            alpha[now[:, 4] - back[3][:, 4] > 0] = np.nan
         turning = ~(alpha <= self.config.noise_motion_gate)  # NaN (ADC error): turning
         turns = turning[:, None].astype(float)
-        tnow, tback, _ = self._turn_prefix.update(turns, self._turn_offsets)
+        tnow, tback, _ = self._turn_prefix.update_views(turns, self._turn_offsets)
         first = self._checked_samples - n
-        pos = self._noise.positions(first, self._noise_seen(n), tnow[:, 0] == tback[:, 0, 0])
+        pos = self._noise.positions(first, self._noise_seen(n), tnow[:, 0] == tback[0][:, 0])
         # both triads' raw outputs channel by channel (6, h + n), gyro then accel (the
         # ring's column order), after the h samples before the block that the noise
         # check's windows reach back to (from the ring, pushed after this)
@@ -721,20 +722,25 @@ class Monitor:
         st.persistence.update(failed, t)
 
     def _gyro_rest_rate(
-        self, now: np.ndarray, back: np.ndarray, idx: np.ndarray, ok: np.ndarray, t: np.ndarray
+        self,
+        now: np.ndarray,
+        back: tuple[np.ndarray, ...],
+        idx: np.ndarray,
+        ok: np.ndarray,
+        t: np.ndarray,
     ) -> None:
         """MEMS rest-rate check: moving mean of the corrected rate over a static window.
 
-        ``now`` (N, 5), ``back`` (N, 4, 5), ``idx`` (N,): the prefix sums (see ``_offsets``).
+        ``now`` (N, 5), ``back`` four (N, 5), ``idx`` (N,): the prefix sums (see ``_offsets``).
         """
         w, span = self._gyro_window, self._span
         # per axis, the mean of the w samples that end lag samples back as a ratio to its
         # threshold (> 1 fails): for every sample, in place, then kept where usable
-        excess = np.subtract(back[:, 0, :3], back[:, 1, :3])
+        excess = np.subtract(back[0][:, :3], back[1][:, :3])
         excess /= w
         np.abs(excess, out=excess)
         rows_op(np.divide, excess, self._rest_thr, out=excess)
-        still = now[:, 3] - back[:, 1, 3]
+        still = now[:, 3] - back[1][:, 3]
         # the averaging window and the lag after it were all still
         usable = ok & (idx + 1 >= span) & (still == span)
         # the ratio of the worst axis (elementwise maxima: a reduction along rows of 3
