@@ -752,8 +752,15 @@ def trailing_spread(d_idx, d_val, d_start, d_max, d_min, old, k0, values, start,
         _history_extremes(d_idx, d_val, d_start, d_max, d_min, old, k, c)
     m = values.shape[0]
     out = np.zeros((m, c))
+    # p = old + (r - k0) // step, row by row without a division: ``rem`` is r - k0 modulo step
+    p = old + (-k0) // step
+    rem = (-k0) % step
     for r in range(m):
-        p = old + (r - k0) // step
+        if r:
+            rem += 1
+            if rem == step:
+                rem = 0
+                p += 1
         if p < 0 or d_idx[p] < start[r]:
             continue
         for j in range(c):

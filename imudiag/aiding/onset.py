@@ -92,14 +92,16 @@ def find_onset(
     chi_common = float(rw @ mr)
     best = (-1.0, 0, 0)
     cand = np.arange(min_side, k - min_side + 1)
+    # for the step z = a (column i of jw) from epoch s on, every parameter at once:
+    # z^T M r, and z^T M z = sum over j, l >= s of a_j M_jl a_l, as the sums from the last
+    # epoch back of each epoch's terms with the later ones (M's upper and lower triangles
+    # and its diagonal): O(K^2) per parameter instead of the K x K table of tail sums
+    num = np.cumsum((jw * mr[:, None])[::-1], axis=0)[::-1]  # (K, 9)
+    later = np.triu(m, 1) @ jw + np.tril(m, -1).T @ jw + np.diagonal(m)[:, None] * jw
+    den = np.cumsum((jw * later)[::-1], axis=0)[::-1]  # (K, 9)
     for i in range(9):
-        a = jw[:, i]
-        num = np.cumsum((a * mr)[::-1])[::-1]  # z^T M r for the step from each epoch on
-        g = a[:, None] * m * a[None, :]
-        tail = np.cumsum(np.cumsum(g[::-1, ::-1], axis=0), axis=1)[::-1, ::-1]
-        den = np.diagonal(tail)  # z^T M z
         with np.errstate(divide="ignore", invalid="ignore"):
-            drop = np.where(den[cand] > 1e-12, num[cand] ** 2 / den[cand], 0.0)
+            drop = np.where(den[cand, i] > 1e-12, num[cand, i] ** 2 / den[cand, i], 0.0)
         j = int(np.argmax(drop))
         if drop[j] > best[0]:
             best = (float(drop[j]), i, int(cand[j]))
