@@ -772,6 +772,43 @@ def trailing_spread(d_idx, d_val, d_start, d_max, d_min, old, k0, values, start,
 
 
 @jit
+def quantile_above(v, ok, thr, q):
+    """Whether, on every column of ``v`` (M, C) over the rows where ``ok`` (M,), numpy's
+    ``q`` quantile (the linear method) is certainly above ``thr`` (C,): at least 10 rows, no
+    nan among them, and at most floor((n - 1) q) - 1 of the n values at or below ``thr``
+    (one rank of margin): then both order statistics the quantile interpolates are above
+    it, and so is the quantile. Counts and comparisons only (the still detector's noise
+    estimate, :meth:`imudiag.quasistatic.QuasiStaticDetector._update`, skips a block whose
+    window variances cannot lower it)."""
+    m = v.shape[0]
+    c = v.shape[1]
+    n = 0
+    for i in range(m):
+        if ok[i]:
+            n += 1
+    if n < 10:
+        return False
+    limit = int(np.floor((n - 1) * q)) - 1
+    if limit < 0:
+        return False
+    for j in range(c):
+        t = thr[j]
+        if not (t == t):
+            return False
+        cnt = 0
+        for i in range(m):
+            if ok[i]:
+                x = v[i, j]
+                if x != x:
+                    return False
+                if not (x > t):
+                    cnt += 1
+                    if cnt > limit:
+                        return False
+    return True
+
+
+@jit
 def beyond_counts(x, bounds, ends, w):
     """The counts of :func:`imudiag.trailing.median_side`: per window ``x[e - w : e]`` (``e``
     in ``ends``, P, non-decreasing, each at least ``w``) and column of ``x`` (R, C), how many
@@ -1660,6 +1697,8 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
             d_idx, rows.T[:3, :4].copy(), d_idx, d_max, d_max.copy(), 0, 0, rows.T[:5, :2].copy(),
             np.zeros(5, dtype=np.int64), 2, 3,
         )  # fmt: skip
+        xv = rng.random(size=(20, 6))
+        quantile_above(xv[:, 0:3], np.ones(20, dtype=np.bool_), np.zeros(3), 0.05)  # strided
         x = rng.normal(size=(12, 6))
         for layout in (x, x.T.copy().T):  # C-contiguous and strided (a transposed view)
             beyond_counts(layout, np.zeros((4, 6)), np.array([3, 12], dtype=np.int64), 3)
@@ -1718,4 +1757,5 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         "ninv_derivatives": ninv_derivatives_kernel,
         "predict": predict_kernel,
         "rotation_loop": rotation_loop,
+        "quantile_above": quantile_above,
     }

@@ -271,3 +271,90 @@ def test_variance_test_and_drift_norm_kernels_equal_numpy(seed):
     ok = np.ones(m, dtype=bool)
     nk.drift_within(spread, to_si, drift_limit, ok)
     np.testing.assert_array_equal(ok, norm <= drift_limit)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_quantile_above_never_says_above_when_the_quantile_is_not(seed):
+    """:func:`imudiag.numba_kernels.quantile_above` (the data-noise estimate's skip) against
+    ``np.quantile`` itself on seeded columns (ties, nans, masked rows, thresholds at and
+    around the quantile): whenever it says "certainly above", numpy's 5 % quantile over the
+    kept rows is above the threshold; and it does say so well clear of it."""
+    from imudiag.numba_kernels import quantile_above
+
+    rng = np.random.default_rng(seed)
+    said = 0
+    for trial in range(300):
+        n = int(rng.integers(5, 400))
+        v = np.round(rng.gamma(2.0, 1.0, (n, 3)), int(rng.integers(0, 4)))  # ties when coarse
+        if trial % 7 == 0:
+            v[rng.integers(n), rng.integers(3)] = np.nan
+        ok = rng.random(n) < 0.8
+        kept = v[ok]
+        q = np.quantile(kept, 0.05, axis=0) if kept.shape[0] else np.full(3, np.nan)
+        factors = [0.5, 0.9, 0.999, 1.0, 1.001, 2.0]
+        thr = q * (rng.choice(factors, size=3) if trial % 2 else rng.choice(factors))
+        if quantile_above(v, ok, thr, 0.05):
+            said += 1
+            assert kept.shape[0] >= 10 and np.all(q > thr), (q, thr)
+        if kept.shape[0] >= 40 and not np.isnan(kept).any():
+            assert quantile_above(v, ok, 0.5 * np.min(kept, axis=0) - 1.0, 0.05)
+    assert said > 10
+
+
+@pytest.mark.parametrize(
+    "name", ["xsens-mti-multiposition/session.csv.gz", "mpu6050/calibration.csv.gz"]
+)
+def test_data_noise_figures_with_the_skip_equal_plain(name, switch):
+    """The data-noise detector (the window diagnosis's: no certificate noise) keeps the same
+    noise figures, block by block, with the kernels (which skip blocks whose quantile cannot
+    lower the estimate) as without, on real recordings in random blocks and on a seeded
+    stream whose second half is quieter (its estimate falls there)."""
+    from imudiag.certificate import load_default
+    from imudiag.sim import Effects, multi_position, simulate
+
+    block, cert = _real(name)
+    traj = multi_position(n_attitudes=12, dwell_s=40.0, turn_s=2.0, rate_hz=100, seed=21)
+    loud = simulate(load_default(), traj, seed=22, effects=Effects(noise_scale=1.0)).samples
+    soft = simulate(load_default(), traj, seed=23, effects=Effects(noise_scale=0.3)).samples
+    half = len(loud) // 2  # the same motions, the noise 0.3 times as large from half on
+    quiet = SampleBlock(
+        t=loud.t,
+        gyro=np.concatenate([loud.gyro[:half], soft.gyro[half:]]),
+        accel=np.concatenate([loud.accel[:half], soft.accel[half:]]),
+    )
+    switch(True)
+    real_above = kernels._KERNELS["quantile_above"]
+    skipped = []
+
+    def above(*args):
+        out = real_above(*args)
+        skipped.append(out)
+        return out
+
+    for blk, crt, seed, falls in ((block, cert, 8, False), (quiet, load_default(), 9, True)):
+        sizes = blocks(np.random.default_rng(seed), len(blk))
+        got = []
+        for on in (False, True):
+            switch(on)
+            kernels._KERNELS["quantile_above"] = above if on else real_above
+            det = QuasiStaticDetector(crt, certificate_noise=False)
+            figures, first = [], 0
+            for size in sizes:
+                det.update(blk.slice(first, first + size))
+                figures.append([det._noise_var[t] for t in ("gyro", "accel")])
+                first += size
+            got.append(figures)
+        for fp, ff in zip(got[0], got[1], strict=True):
+            for a, b in zip(fp, ff, strict=True):
+                assert (a is None) == (b is None)
+                if a is not None:
+                    assert a.tobytes() == b.tobytes()
+        kernels._KERNELS["quantile_above"] = real_above
+        assert any(skipped) and not all(skipped), "blocks skipped, and blocks not"
+        skipped.clear()
+        if falls:  # the quieter half lowered the estimate after its first figure
+            seen = [f for f in got[0] if f[0] is not None and f[1] is not None]
+            assert any(
+                not (np.array_equal(f[0], seen[-1][0]) and np.array_equal(f[1], seen[-1][1]))
+                for f in seen
+            ), "the estimate fell along the stream"

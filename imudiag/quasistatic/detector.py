@@ -513,9 +513,19 @@ class QuasiStaticDetector:
         ok = sums[:, 12] < 0.5  # no bad sample in the window
         if not (self._noise_fixed["gyro"] and self._noise_fixed["accel"]):
             ceiling = flat_ceiling(st, w, first + m)
+            above = kernel("quantile_above")
             for c, name in enumerate(("gyro", "accel")):
                 cols = slice(3 * c, 3 * c + 3)
                 v = var[:, cols]
+                prev = self._noise_var[name]
+                if above is not None and prev is not None and not self._noise_fixed[name]:
+                    # (compiled kernels) a block whose window variances' quantile is above
+                    # both the present estimate's and the flat windows' ceiling cannot
+                    # lower the estimate nor call for the flat windows: it changes nothing
+                    ratio = _chi2_quantile_ratio(self.window - 1, _Z_NOISE_QUANTILE)
+                    thr = np.maximum(prev * ratio, ceiling[cols]) * (1.0 + 1e-9)
+                    if above(v, ok, thr, _NOISE_QUANTILE):
+                        continue
 
                 def flat(cols: slice = cols) -> tuple[np.ndarray, np.ndarray]:
                     return st.var[:, cols][ok], flat_windows(st, w, cols)[ok]
