@@ -86,6 +86,8 @@ def load_certificate_map(path: str) -> dict[str, str]:
 #: numpy array over 128 KiB was mapped anew and its pages faulted in again, about 1.6x the
 #: CPU of a task (docs/benchmarks.md, "Fleet"). 32 MiB is the most glibc's own sliding
 #: threshold reaches; the trimming stays. A setting of the user's Dask configuration wins.
+#: Each worker's warm-up then keeps freed memory for the whole log as well, and gives it back
+#: after a log past a mark (:mod:`.allocator`: a worker on any scheduler, not only these).
 WORKER_MALLOC = {"MALLOC_MMAP_THRESHOLD_": str(32 * 2**20)}
 
 

@@ -20,6 +20,7 @@ import numpy as np
 from ..certificate import AUTO
 from ..errors import ImudiagError
 from ..reports import finite_or_null
+from .allocator import keep_freed_memory, release_freed_memory
 
 #: Certificate file names looked for in a log's folder and the folders above it (up to the
 #: folder named on the command line).
@@ -53,6 +54,10 @@ WARM_MODULES = (
 )
 
 
+#: Whether :func:`warm_up` has set this worker's malloc (:mod:`.allocator`).
+_ALLOCATOR_SET = False
+
+
 def warm_up() -> float:
     """Import :data:`WARM_MODULES` in this process (a fleet worker) and load the compiled
     window-fit kernels where numba is installed (:mod:`imudiag.diagnosis.kernels`; not with
@@ -61,6 +66,11 @@ def warm_up() -> float:
     import importlib
 
     cpu0 = time.thread_time()
+    global _ALLOCATOR_SET
+    if not _ALLOCATOR_SET:
+        # freed arrays kept for the next during a log, given back after it (allocator.py)
+        keep_freed_memory()
+        _ALLOCATOR_SET = True
     for name in WARM_MODULES:
         importlib.import_module(name)
     if _use_kernels():
@@ -439,6 +449,7 @@ def diagnose_log(job: Job) -> dict[str, Any]:
         record["reason"] = (
             f"{stage}: {type(exc).__name__}: {exc} ({Path(where.filename).name}:{where.lineno})"
         )
+    release_freed_memory()  # the log's freed arrays back to the system (allocator.py)
     record["cpu_s"] = _cpu_s() - cpu0
     record["warm_up_cpu_s"] = warm_cpu
     record["wall_s"] = time.monotonic() - started

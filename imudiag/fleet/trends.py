@@ -292,9 +292,9 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
         by_vehicle[str(r.get("vehicle"))].append(r)
     vehicles = [vehicle_summary(v, rs) for v, rs in by_vehicle.items()]
     vehicles.sort(key=lambda v: (not v["look_at"], -v["score"], v["vehicle"]))
-    errors = [
+    errors = [  # by path: the same summary whatever order the logs completed in
         {"path": r["path"], "vehicle": r.get("vehicle"), "reason": r.get("reason")}
-        for r in attach_unreadable(records)
+        for r in sorted(attach_unreadable(records), key=lambda r: str(r["path"]))
         if r.get("status") != "ok"
     ]
     return {
