@@ -123,12 +123,21 @@ def test_bar_on_a_terminal(command, session, tmp_path):
 
 
 @pytest.mark.realtime
-def test_phases_of_the_diagnosis_are_named(session):
+def test_phases_of_the_diagnosis_are_named(session, tmp_path):
+    """``diagnose`` reads its log once (the noise measured along the pass): one phase;
+    ``calibrate`` measures the noise first, then collects the intervals: two, in order."""
     code, term, _ = run_on_pty("diagnose", str(session), "-c", CERT, "--block-size", "1000")
     assert code == 0
     text = term.decode()
-    assert "measuring noise [" in text and "diagnosing [" in text
-    assert text.index("measuring noise [") < text.index("diagnosing [")
+    assert "diagnosing [" in text and "measuring noise [" not in text
+    out = str(tmp_path / "x.yaml")
+    code, term, _ = run_on_pty(
+        "calibrate", str(session), "--like", CERT, "--out", out, "--force", "--block-size", "1000"
+    )  # fmt: skip
+    assert code == 0, term.decode()
+    text = term.decode()
+    assert "measuring noise [" in text and "collecting intervals [" in text
+    assert text.index("measuring noise [") < text.index("collecting intervals [")
 
 
 @pytest.mark.realtime

@@ -113,6 +113,64 @@ def blocks(
         yield reader.meta, from_file()
 
 
+class NoiseMeasure:
+    """The report's ``noise`` part, measured along a pass over a recording's blocks: the
+    unit's white noise (:class:`~imudiag.noise_estimate.NoiseMeter`, over at most the first
+    :data:`NOISE_SECONDS`) beside the certificate's; each triad says which noise the still
+    detector uses (``detector_noise``: ``data`` unless ``certificate_noise`` and the
+    certificate has one). Feed :meth:`update` every block in order (units applied), then
+    :meth:`report`."""
+
+    def __init__(self, cert: Certificate, certificate_noise: bool = CERTIFICATE_NOISE) -> None:
+        self.cert = cert
+        self.certificate_noise = certificate_noise
+        self._meter: NoiseMeter | None = None
+        self._t0: float | None = None
+        self.done = False  #: the first NOISE_SECONDS are in: later blocks are not needed
+
+    def update(self, block: SampleBlock, rate_hz: float) -> None:
+        """Feed the recording's next block (``rate_hz``: the session's sample rate, Hz)."""
+        if self.done:
+            return
+        if self._meter is None:
+            self._meter = NoiseMeter(rate_hz)
+            self._t0 = float(block.t[0]) if len(block) else None
+        good = None
+        if block.flags is not None:
+            flags = np.asarray(block.flags).astype(np.int64)
+            good = (flags & (BAD_FLAGS | FLAG_SELF_TEST)) == 0
+        self._meter.update(block.gyro, block.accel, good)
+        t0 = self._t0
+        if t0 is not None and len(block) and float(block.t[-1]) - t0 > NOISE_SECONDS:
+            self.done = True
+
+    def report(self) -> dict[str, Any]:
+        """The ``noise`` part of the report from the blocks fed."""
+        cert = self.cert
+        figures = self._meter.result() if self._meter is not None else None
+        report: dict[str, Any] = {"method": None, "mismatch_factor": NOISE_MISMATCH_FACTOR}
+        for name, fig in (figures or {}).items():
+            tri = cert.triad(name)
+            certified = tri.noise.density if tri.noise is not None else None
+            if not np.all(np.isfinite(fig.density)):
+                # a gyro-only log (known rate): nothing to measure on that triad
+                report[name] = {"measured": None, "unit": f"{tri.output_unit}/sqrt(Hz)"}
+                continue
+            entry: dict[str, Any] = {
+                "measured": fig.as_dict(),
+                "unit": f"{tri.output_unit}/sqrt(Hz)",
+            }
+            entry.update(compare(fig.density, certified))
+            report[name] = entry
+            report["method"] = fig.method
+        for name in ("gyro", "accel"):
+            noise = cert.triad(name).noise
+            has_cert = noise is not None and noise.density is not None
+            used = "certificate" if self.certificate_noise and has_cert else "data"
+            report.setdefault(name, {"measured": None})["detector_noise"] = used
+        return report
+
+
 def measure_noise(
     data: Recording,
     cert: Certificate,
@@ -122,49 +180,20 @@ def measure_noise(
     certificate_noise: bool = CERTIFICATE_NOISE,
     progress: ProgressCallback | None = None,
 ) -> dict[str, Any]:
-    """The report's ``noise`` part: the unit's white noise beside the certificate's.
-
-    Measured with :class:`~imudiag.noise_estimate.NoiseMeter` over at most the first
-    :data:`NOISE_SECONDS`; each triad says which noise the still detector uses
-    (``detector_noise``: ``data`` unless ``certificate_noise`` and the certificate has one).
-    """
-    meter = None
-    t0 = None
+    """The report's ``noise`` part (:class:`NoiseMeasure`) by a pass of its own over at most
+    the first :data:`NOISE_SECONDS` of ``data``."""
+    measure = NoiseMeasure(cert, certificate_noise)
+    rate = None
     with blocks(data, block_size, options, progress, "measuring noise") as (meta, stream):
         units = check_units(recording_name(data), meta, cert)
         for block in stream:
             block = units.apply(block)
-            if meter is None:
-                meter = NoiseMeter(
-                    session_rate_hz(rate_hz, meta, block, cert, recording_name(data))
-                )
-                t0 = float(block.t[0]) if len(block) else None
-            good = None
-            if block.flags is not None:
-                flags = np.asarray(block.flags).astype(np.int64)
-                good = (flags & (BAD_FLAGS | FLAG_SELF_TEST)) == 0
-            meter.update(block.gyro, block.accel, good)
-            if t0 is not None and len(block) and float(block.t[-1]) - t0 > NOISE_SECONDS:
+            if rate is None:
+                rate = session_rate_hz(rate_hz, meta, block, cert, recording_name(data))
+            measure.update(block, rate)
+            if measure.done:
                 break
-    figures = meter.result() if meter is not None else None
-    report: dict[str, Any] = {"method": None, "mismatch_factor": NOISE_MISMATCH_FACTOR}
-    for name, fig in (figures or {}).items():
-        tri = cert.triad(name)
-        certified = tri.noise.density if tri.noise is not None else None
-        if not np.all(np.isfinite(fig.density)):
-            # a gyro-only log (known rate): nothing to measure on that triad
-            report[name] = {"measured": None, "unit": f"{tri.output_unit}/sqrt(Hz)"}
-            continue
-        entry: dict[str, Any] = {"measured": fig.as_dict(), "unit": f"{tri.output_unit}/sqrt(Hz)"}
-        entry.update(compare(fig.density, certified))
-        report[name] = entry
-        report["method"] = fig.method
-    for name in ("gyro", "accel"):
-        noise = cert.triad(name).noise
-        has_cert = noise is not None and noise.density is not None
-        used = "certificate" if certificate_noise and has_cert else "data"
-        report.setdefault(name, {"measured": None})["detector_noise"] = used
-    return report
+    return measure.report()
 
 
 def _magnitudes(magnitude: MagnitudeTable | str | Path | None) -> MagnitudeTable | None:
@@ -203,11 +232,10 @@ def diagnose_recording(
     if table is not None and config.method != "moving-base":
         raise BadInput("--magnitude: only the moving-base method uses independent magnitudes")
     name = recording_name(data)
-    noise_report = measure_noise(
-        data, cert, rate_hz, block_size, options, certificate_noise, progress
-    )
+    noise = NoiseMeasure(cert, certificate_noise)  # measured along the same pass
     monitor = None
     diag = None
+    rate = 0.0
     opened: list[Any] = []
     with blocks(data, block_size, options, progress, "diagnosing", opened) as (meta, stream):
         units = check_units(name, meta, cert)
@@ -226,6 +254,7 @@ def diagnose_recording(
                     trace.f0 = monitor.keep_f0_trace()
                     trace.t0 = float(block.t[0]) if len(block) else float("nan")
             assert monitor is not None
+            noise.update(block, rate)
             monitor.update(block)
             done = diag.update(block, table.at(block.t) if table is not None else None)
             if trace is not None:
@@ -265,7 +294,7 @@ def diagnose_recording(
     if cert.device.get("warning"):
         report["certificate_warning"] = str(cert.device["warning"])
     report["sample_rate"] = diag.rate_hz
-    report["noise"] = noise_report
+    report["noise"] = noise.report()
     if not units.identity:  # what was converted, exactly (imudiag.units)
         report["unit_conversion"] = units.describe()
     report["vibration"] = vibration_object(monitor.vibration)
@@ -592,6 +621,7 @@ __all__ = [
     "calibrate_recording",
     "add_monitor_faults",
     "diagnose_recording",
+    "NoiseMeasure",
     "measure_noise",
     "recording_name",
 ]
