@@ -462,10 +462,10 @@ def predict_end_directions(
     return np.einsum("pnji,nj->pni", c, up0)
 
 
-def _product_plan(stack: dict[str, np.ndarray]) -> None:
-    """Keep in ``stack`` the blocks that turn, motion by motion, and the plan of their
-    products (every evaluation of a fit shares them)."""
-    if "plan" in stack:
+def _turning_blocks(stack: dict[str, np.ndarray]) -> None:
+    """Keep in ``stack`` the blocks that turn, motion by motion (``turning`` (K, 3), rad) and
+    each motion's number of them (``lengths``)."""
+    if "turning" in stack:
         return
     inc = stack["inc"]
     n, b, _ = inc.shape
@@ -475,7 +475,15 @@ def _product_plan(stack: dict[str, np.ndarray]) -> None:
     row, block = np.nonzero(np.arange(b)[None, :] < np.asarray(lengths)[:, None])
     stack["turning"] = inc[row, block]  # (K, 3): motion by motion, blocks in order
     stack["lengths"] = np.asarray(lengths)
-    stack["plan"] = segment_product_plan(np.asarray(lengths))  # type: ignore[assignment]
+
+
+def _product_plan(stack: dict[str, np.ndarray]) -> None:
+    """Keep in ``stack`` the blocks that turn, motion by motion, and the plan of their
+    products (every evaluation of a fit shares them)."""
+    if "plan" in stack:
+        return
+    _turning_blocks(stack)
+    stack["plan"] = segment_product_plan(stack["lengths"])  # type: ignore[assignment]
 
 
 def motion_sensitivities(
@@ -489,7 +497,7 @@ def motion_sensitivities(
     and a motion is in every window of its interval); when all are there, nothing is
     computed.
     """
-    _product_plan(stack)
+    _turning_blocks(stack)
     turning = stack["turning"]
     lengths = stack["lengths"]
     if memos is None or any(m is None for m in memos):
@@ -497,6 +505,7 @@ def motion_sensitivities(
         fast = kernels.product_sensitivity(theta, turning, lengths)  # fleet workers
         if fast is not None:
             return fast
+        _product_plan(stack)
         return segmented_product_sensitivity(
             theta,
             turning,
@@ -704,7 +713,7 @@ def rotation_fit(
     x = np.zeros(npar)
     compiled = None
     if max_iter > 0 and pairs and kernels.enabled():  # the loop compiled (fleet workers)
-        _product_plan(stack)
+        _turning_blocks(stack)  # (the compiled products need no plan)
         compiled = kernels.rotation_loop(
             x, stack, up0, up1, wgt, prior_prec, shape_c, q_c, fit_frame, max_iter, MAX_SHAPE
         )
