@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import gzip
 import io
-import itertools
 import json
 import os
 import zlib
@@ -110,21 +109,52 @@ class CsvReader(LogReader):
         except (EOFError, gzip.BadGzipFile, zlib.error) as exc:
             raise LogError(self.path, f"corrupt gzip data: {exc}") from None
 
+    def _chunks(self, fh: IO[bytes]) -> Iterator[tuple[bytes, int]]:
+        """The data's text in chunks of ``block_size`` lines, the file's lines as iterating
+        it gives them (each ending at a newline, the last perhaps not), and each chunk's number
+        of lines: read in large pieces and cut after the ``block_size``-th newline (no
+        Python object per line)."""
+        need = self.block_size
+        pending = b""
+        newlines = 0
+        eof = False
+        per_line = 128.0  # bytes a line, until the data tell
+        while True:
+            while not eof and newlines < need:
+                want = max(1 << 16, int((need - newlines) * per_line * 1.1))
+                try:
+                    data = fh.read(want)
+                except (EOFError, gzip.BadGzipFile, zlib.error) as exc:
+                    raise LogError(self.path, f"corrupt gzip data: {exc}") from None
+                if not data:
+                    eof = True
+                    break
+                pending += data
+                newlines += data.count(b"\n")
+                if newlines:
+                    per_line = len(pending) / newlines
+            if not pending:
+                return
+            if newlines >= need:
+                ends = np.flatnonzero(np.frombuffer(pending, dtype=np.uint8) == 10)
+                cut = int(ends[need - 1]) + 1
+                chunk, pending = pending[:cut], pending[cut:]
+                newlines -= need
+                yield chunk, need
+            else:  # the end of the file: what is left (its last line perhaps unterminated)
+                chunk, pending = pending, b""
+                yield chunk, newlines + (0 if chunk.endswith(b"\n") else 1)
+                newlines = 0
+
     def _blocks(self) -> Iterator[SampleBlock]:
         fh = self._file()
         try:
             fh.seek(self._data_offset)
             lineno = self._header_line + 1
             last_t: float | None = None
-            while True:
-                try:
-                    chunk = list(itertools.islice(fh, self.block_size))
-                except (EOFError, gzip.BadGzipFile, zlib.error) as exc:
-                    raise LogError(self.path, f"corrupt gzip data: {exc}") from None
-                if not chunk:
-                    return
+            for chunk, lines in self._chunks(fh):
                 cols = self._parse(chunk, lineno, last_t)
-                lineno += len(chunk)
+                lineno += lines
                 if cols is not None:
                     last_t = float(cols["t"][-1])
                     yield make_block(cols, self.meta)
@@ -132,10 +162,11 @@ class CsvReader(LogReader):
             self._release(fh)
 
     def _parse(
-        self, lines: list[bytes], first_line: int, last_t: float | None
+        self, chunk: bytes, first_line: int, last_t: float | None
     ) -> dict[str, np.ndarray] | None:
-        """Validated columns of a chunk of lines starting at file line ``first_line``."""
-        text = b"".join(lines)
+        """Validated columns of a chunk of lines (their text) starting at file line
+        ``first_line``."""
+        text = chunk
         if not text.endswith(b"\n"):
             text += b"\n"
         if b"\r" in text:  # after the final newline: a last line "\r" is empty (fuzz/)
@@ -146,6 +177,8 @@ class CsvReader(LogReader):
         linenos: np.ndarray | None = None  # file line of each data row, if not consecutive
         # comment or empty lines (a line of only "\r"s is empty too: found by fuzz/)
         if np.any((buf[starts] == 35) | (buf[starts] == 10) | (buf[starts] == 13)):
+            parts = chunk.split(b"\n")  # the file's lines, each with its b"\n"
+            lines = [ln + b"\n" for ln in parts[:-1]] + ([parts[-1]] if parts[-1] else [])
             keep = [
                 (first_line + i, ln.rstrip(b"\r\n") + b"\n")
                 for i, ln in enumerate(lines)
