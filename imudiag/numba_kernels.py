@@ -549,6 +549,199 @@ def rotation_loop(
 
 
 @jit
+def _solve_small(a, b, out):
+    """``out`` = a^-1 b for a small square ``a`` (m, m) and ``b`` (m, k), by Gaussian
+    elimination with partial pivoting (copies; False where a pivot is zero or not a
+    number)."""
+    m = a.shape[0]
+    k = b.shape[1]
+    aa = a.copy()
+    bb = b.copy()
+    for c in range(m):
+        piv = c
+        best = abs(aa[c, c])
+        for i in range(c + 1, m):
+            if abs(aa[i, c]) > best:
+                best = abs(aa[i, c])
+                piv = i
+        if not best > 0.0:
+            return False
+        if piv != c:
+            for j in range(m):
+                t = aa[c, j]
+                aa[c, j] = aa[piv, j]
+                aa[piv, j] = t
+            for j in range(k):
+                t = bb[c, j]
+                bb[c, j] = bb[piv, j]
+                bb[piv, j] = t
+        for i in range(c + 1, m):
+            f = aa[i, c] / aa[c, c]
+            if f != 0.0:
+                for j in range(c, m):
+                    aa[i, j] -= f * aa[c, j]
+                for j in range(k):
+                    bb[i, j] -= f * bb[c, j]
+    for j in range(k):
+        for i in range(m - 1, -1, -1):
+            acc = bb[i, j]
+            for q in range(i + 1, m):
+                acc -= aa[i, q] * out[q, j]
+            out[i, j] = acc / aa[i, i]
+    return True
+
+
+@jit
+def _below_leverage(h, limit):
+    """Whether every eigenvalue of the symmetric ``h`` (m, m) is at most ``limit``: limit I - h
+    positive semi-definite, by its Cholesky (a zero pivot: an eigenvalue at the limit)."""
+    m = h.shape[0]
+    lo = np.zeros((m, m))
+    for j in range(m):
+        acc = limit - h[j, j]
+        for q in range(j):
+            acc -= lo[j, q] * lo[j, q]
+        if acc < 0.0 or acc != acc:
+            return False
+        d = np.sqrt(acc)
+        lo[j, j] = d
+        for i in range(j + 1, m):
+            acc = -h[i, j]
+            for q in range(j):
+                acc -= lo[i, q] * lo[j, q]
+            if d > 0.0:
+                lo[i, j] = acc / d
+            elif acc != 0.0:
+                return False
+            else:
+                lo[i, j] = 0.0
+    return True
+
+
+@jit
+def rotation_post(jac, res, wgt, prior_prec, max_leverage, chi2_median):
+    """What :func:`imudiag.diagnosis.gyro_fit.rotation_fit` works out after its loop,
+    compiled: the information (npar, npar) and the unscaled covariance (:func:`spd_inverse`
+    of it with the prior), chi^2, the degrees of freedom, and per motion (its three rows) the
+    deletion figures of :func:`imudiag.diagnosis.robust.point_diagnostics` (shift (G, npar),
+    z (G,), nan where the motion's leverage exceeds ``max_leverage``; the robust common
+    excess) and the deletion variances (G, npar) of ``_deletion_variances`` (inf there). (ok,
+    info, cov, chi2, dof, shift, z, excess, loo_var); ok False where the covariance is not
+    positive definite or too ill-conditioned, or a 3 x 3 solve breaks down (the plain
+    path then works it out)."""
+    nr = jac.shape[0]
+    npar = jac.shape[1]
+    g_count = nr // 3
+    info = np.zeros((npar, npar))
+    for p in range(npar):
+        for q in range(p, npar):
+            acc = 0.0
+            for r in range(nr):
+                acc += jac[r, p] * (jac[r, q] * wgt[r])
+            info[p, q] = acc
+            info[q, p] = acc
+    hess = info.copy()
+    for p in range(npar):
+        hess[p, p] += prior_prec[p]
+    cov = np.empty((npar, npar))
+    shift = np.full((g_count, npar), np.nan)
+    z = np.full(g_count, np.nan)
+    loo_var = np.full((g_count, npar), np.inf)
+    if not spd_inverse(hess, cov):
+        return False, info, cov, 0.0, 0.0, shift, z, 0.0, loo_var
+    chi2 = 0.0
+    for r in range(nr):
+        chi2 += res[r] * res[r] * wgt[r]
+    trace = 0.0
+    for p in range(npar):
+        for q in range(npar):
+            trace += cov[p, q] * info[q, p]
+    dof = 2.0 * g_count - trace
+    sw = np.sqrt(wgt)
+    u = np.full(g_count, np.nan)
+    nv_mean = np.ones(g_count)
+    a = np.empty((3, npar))
+    ca = np.empty((npar, 3))
+    hk = np.empty((3, 3))
+    eye_h = np.empty((3, 3))
+    s = np.empty((3, 1))
+    sol = np.empty((3, 1))
+    sol_m = np.empty((3, npar))
+    for g in range(g_count):
+        for i in range(3):
+            for p in range(npar):
+                a[i, p] = jac[3 * g + i, p] * sw[3 * g + i]
+        for p in range(npar):  # cov a^T (npar, 3)
+            for i in range(3):
+                acc = 0.0
+                for q in range(npar):
+                    acc += cov[p, q] * a[i, q]
+                ca[p, i] = acc
+        for i in range(3):
+            for j in range(3):
+                acc = 0.0
+                for p in range(npar):
+                    acc += a[i, p] * ca[p, j]
+                hk[i, j] = acc
+        for i in range(3):
+            for j in range(i + 1, 3):
+                m = 0.5 * (hk[i, j] + hk[j, i])
+                hk[i, j] = m
+                hk[j, i] = m
+        if not _below_leverage(hk, max_leverage):
+            continue
+        for i in range(3):
+            for j in range(3):
+                eye_h[i, j] = (1.0 if i == j else 0.0) - hk[i, j]
+            # the residual rows of -jac: s = sqrt(w) r, with a of -jac (signs cancel in shift)
+            s[i, 0] = sw[3 * g + i] * res[3 * g + i]
+        if not _solve_small(eye_h, s, sol):
+            return False, info, cov, chi2, dof, shift, z, 0.0, loo_var
+        us = 0.0
+        nvw = 0.0
+        nv = 0.0
+        for i in range(3):
+            us += s[i, 0] * sol[i, 0]
+            nvw += (1.0 / wgt[3 * g + i]) * wgt[3 * g + i]
+            nv += 1.0 / wgt[3 * g + i]
+        u[g] = us / (nvw / 3.0)
+        nv_mean[g] = nv / 3.0
+        for p in range(npar):  # point_diagnostics' a is of -jac: its shift is -(cov a^T) sol
+            acc = 0.0
+            for i in range(3):
+                acc += ca[p, i] * sol[i, 0]
+            shift[g, p] = -acc
+        # deletion variances: diag(cov) + diag(cov a^T (I - hk)^-1 a cov)
+        if not _solve_small(eye_h, ca.T.copy(), sol_m):
+            return False, info, cov, chi2, dof, shift, z, 0.0, loo_var
+        for p in range(npar):
+            acc = 0.0
+            for i in range(3):
+                acc += ca[p, i] * sol_m[i, p]
+            loo_var[g, p] = cov[p, p] + acc
+    # the robust common excess (robust._robust_excess)
+    n_ok = 0
+    for g in range(g_count):
+        if np.isfinite(u[g]):
+            n_ok += 1
+    excess = 0.0
+    if n_ok >= 3:
+        aa = np.empty(n_ok)
+        nvv = np.empty(n_ok)
+        k = 0
+        for g in range(g_count):
+            if np.isfinite(u[g]):
+                aa[k] = u[g] / 3.0
+                nvv[k] = nv_mean[g]
+                k += 1
+        if sorted_median(aa) > chi2_median:
+            excess = robust_excess(aa, nvv, chi2_median)
+    for g in range(g_count):
+        z[g] = np.sqrt(u[g] / (3.0 * (1.0 + excess / nv_mean[g])))
+    return True, info, cov, chi2, dof, shift, z, excess, loo_var
+
+
+@jit
 def epoch_cut(accel, fc, gyro, big, big_mid, start, end, rotate, gyro_sums):
     """Per GNSS epoch k (samples start[k] <= i < end[k], in order), the sums (K, 3) of the
     samples ``fc`` (3, N) rotated to the epoch's mid time by the rotation vector ``big[:, i]
@@ -1681,10 +1874,11 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         lengths = np.array([3, 4], dtype=np.int64)
         ups = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
         for npar, frame in ((6, False), (9, True)):
-            rotation_loop(
+            _ok, _x, res, jac, _c = rotation_loop(
                 np.zeros(npar), turning, lengths, ups, ups, np.ones(6), np.ones(npar),
                 np.zeros(6), q_c, frame, 6, 0.5,
             )  # fmt: skip
+            rotation_post(jac, res, np.ones(6), np.ones(npar), 0.99, 0.45)
         rows = rng.normal(size=(3, 8))
         bounds = np.array([0, 3], dtype=np.int64), np.array([3, 8], dtype=np.int64)
         for rotate in (True, False):
@@ -1757,5 +1951,6 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         "ninv_derivatives": ninv_derivatives_kernel,
         "predict": predict_kernel,
         "rotation_loop": rotation_loop,
+        "rotation_post": rotation_post,
         "quantile_above": quantile_above,
     }

@@ -746,16 +746,24 @@ def rotation_fit(
             lam *= 10.0
         if not accepted or done:
             break
-    info = jac.T @ (jac * wgt[:, None])
-    hess = info + np.diag(prior_prec)
-    cov = np.linalg.pinv(hess)
-    chi2 = float(np.sum(res * res * wgt))
-    # two observations per motion (a direction), less the parameters the data determine
-    dof = 2 * len(pairs) - float(np.trace(cov @ info))
     loo = loo_params = loo_var = None
     point_z = None
     excess = 0.0
-    if pairs and max_iter > 0:
+    post = kernels.rotation_post(jac, res, wgt, prior_prec) if compiled is not None else None
+    if post is not None:  # what follows, compiled (fleet workers)
+        info, cov, chi2, dof, shift, point_z, excess, loo_var = post
+        loo = x[None, :6] + shift[:, :6]
+        loo_params = x[None, :] + shift
+        if dof > 0.5 and scale_by_residual:
+            loo_var = loo_var * max(1.0, chi2 / dof)
+    else:
+        info = jac.T @ (jac * wgt[:, None])
+        hess = info + np.diag(prior_prec)
+        cov = np.linalg.pinv(hess)
+        chi2 = float(np.sum(res * res * wgt))
+        # two observations per motion (a direction), less the parameters the data determine
+        dof = 2 * len(pairs) - float(np.trace(cov @ info))
+    if post is None and pairs and max_iter > 0:
         groups = [np.arange(3 * i, 3 * i + 3) for i in range(len(pairs))]
         diag = point_diagnostics(-jac, res, 1.0 / wgt, cov, groups=groups, weights=wgt)
         loo = x[None, :6] + diag.shift[:, :6]

@@ -173,6 +173,33 @@ def rotation_loop(
     return x1, r1, j1, float(c1)
 
 
+def rotation_post(
+    jac: np.ndarray, res: np.ndarray, wgt: np.ndarray, prior_prec: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float, float, np.ndarray, np.ndarray, float, np.ndarray] | None:
+    """What the gyro rotation fit works out after its loop, compiled
+    (:func:`imudiag.numba_kernels.rotation_post`): (information, unscaled covariance, chi^2,
+    degrees of freedom, each motion's deletion shift (G, npar), z (G,), the robust excess,
+    the deletion variances (G, npar)), as :func:`.gyro_fit.rotation_fit`'s numpy with
+    :func:`.robust.point_diagnostics`, equal to rounding; None when the kernels are off or
+    the covariance or a motion's solve is ill-conditioned (the caller runs the numpy)."""
+    from .robust import CHI2_1_MEDIAN, MAX_LEVERAGE
+
+    post: Callable[..., Any] | None = kernel("rotation_post")
+    if post is None:
+        return None
+    ok, info, cov, chi2, dof, shift, z, excess, loo_var = post(
+        np.ascontiguousarray(jac, dtype=float),
+        np.ascontiguousarray(res, dtype=float),
+        np.ascontiguousarray(wgt, dtype=float),
+        np.ascontiguousarray(prior_prec, dtype=float),
+        float(MAX_LEVERAGE),
+        float(CHI2_1_MEDIAN),
+    )
+    if not ok:
+        return None
+    return info, cov, float(chi2), float(dof), shift, z, float(excess), loo_var
+
+
 __all__ = [
     "available",
     "enable",
@@ -184,6 +211,7 @@ __all__ = [
     "predict_directions",
     "product_sensitivity",
     "rotation_loop",
+    "rotation_post",
     "status",
     "switched",
 ]
