@@ -135,6 +135,21 @@ def stacked_mean_var(
     return var / counts[:, None]
 
 
+def mean_and_cov(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``x.mean(axis=0)`` and ``np.cov(x, rowvar=False)`` of samples ``x`` (N, 3), N >= 2,
+    bit for bit: np.cov's own steps (a contiguous copy, its mean along the samples, the
+    centred product), its mean kept (the same reduction in the same memory order as
+    ``x.mean(axis=0)``), without np.cov's argument handling or a second mean."""
+    c = np.array(x, dtype=float)
+    ct = c.T
+    avg = ct.mean(axis=1)
+    mean = avg.copy()
+    ct -= avg[:, None]
+    cov = np.dot(ct, ct.T.conj())
+    cov *= np.true_divide(1, c.shape[0] - 1)
+    return mean, cov
+
+
 def _rows(block: SampleBlock) -> np.ndarray:
     n = len(block)
     out = np.empty((n, _NCOL))
@@ -245,7 +260,12 @@ class IntervalCollector:
                 )
         temp = rows[:, _TEMP]
         temp_mean = float(np.mean(temp)) if np.all(np.isfinite(temp)) else None
-        acc_mean = a.mean(axis=0)
+        if n > 1:
+            gyro_mean, gyro_cov = mean_and_cov(g)
+            acc_mean, accel_cov = mean_and_cov(a)
+        else:
+            gyro_mean, gyro_cov = g.mean(axis=0), np.zeros((3, 3))
+            acc_mean, accel_cov = a.mean(axis=0), np.zeros((3, 3))
         try:
             f = self.certificate.accel.inverse(acc_mean[None, :])[0]
             up = f / np.linalg.norm(f)
@@ -256,10 +276,10 @@ class IntervalCollector:
             t_start=float(rows[0, _T]),
             t_end=float(rows[-1, _T]),
             n=n,
-            gyro_mean=g.mean(axis=0),
+            gyro_mean=gyro_mean,
             accel_mean=acc_mean,
-            gyro_cov=np.cov(g, rowvar=False) if n > 1 else np.zeros((3, 3)),
-            accel_cov=np.cov(a, rowvar=False) if n > 1 else np.zeros((3, 3)),
+            gyro_cov=gyro_cov,
+            accel_cov=accel_cov,
             temp=temp_mean,
             up=up,
             before=before,

@@ -230,8 +230,14 @@ def exact_fit(
     triad = triad_form(triad)
     means = np.asarray(means, dtype=float).reshape(-1, 3)
     k = means.shape[0]
-    mag = np.broadcast_to(np.asarray(magnitude, dtype=float), (k,))
-    m0 = float(np.median(mag)) if k else 1.0
+    mag_in = np.asarray(magnitude, dtype=float)
+    mag = np.broadcast_to(mag_in, (k,))
+    if not k:
+        m0 = 1.0
+    elif mag_in.ndim == 0:  # one magnitude for all: np.median of equal values is that value
+        m0 = float(mag_in)
+    else:
+        m0 = float(np.median(mag))
     s = triad.scale_factor
     v = means / (s * m0)
     var_v = np.asarray(mean_var, dtype=float).reshape(-1, 3) / (s * m0) ** 2
