@@ -742,6 +742,43 @@ def rotation_post(jac, res, wgt, prior_prec, max_leverage, chi2_median):
 
 
 @jit
+def mean_cov3(x):
+    """An interval's mean (3,) and sample covariance (3, 3) of ``x`` (N, 3), N >= 2, as
+    :func:`imudiag.diagnosis.intervals.mean_and_cov`: the mean summed down the samples in
+    order then divided by N (numpy's reduction along the samples: the same bits), the
+    covariance from the centred samples' products times 1 / (N - 1) (numpy's: a BLAS
+    product, so equal to rounding)."""
+    n = x.shape[0]
+    mean = np.empty(3)
+    for j in range(3):
+        acc = x[0, j]
+        for i in range(1, n):
+            acc += x[i, j]
+        mean[j] = acc / n
+    m0, m1, m2 = mean[0], mean[1], mean[2]
+    c00 = c01 = c02 = c11 = c12 = c22 = 0.0
+    for i in range(n):
+        d0 = x[i, 0] - m0
+        d1 = x[i, 1] - m1
+        d2 = x[i, 2] - m2
+        c00 += d0 * d0
+        c01 += d0 * d1
+        c02 += d0 * d2
+        c11 += d1 * d1
+        c12 += d1 * d2
+        c22 += d2 * d2
+    f = 1.0 / (n - 1)
+    cov = np.empty((3, 3))
+    cov[0, 0] = c00 * f
+    cov[1, 1] = c11 * f
+    cov[2, 2] = c22 * f
+    cov[0, 1] = cov[1, 0] = c01 * f
+    cov[0, 2] = cov[2, 0] = c02 * f
+    cov[1, 2] = cov[2, 1] = c12 * f
+    return mean, cov
+
+
+@jit
 def epoch_cut(accel, fc, gyro, big, big_mid, start, end, rotate, gyro_sums):
     """Per GNSS epoch k (samples start[k] <= i < end[k], in order), the sums (K, 3) of the
     samples ``fc`` (3, N) rotated to the epoch's mid time by the rotation vector ``big[:, i]
@@ -1891,6 +1928,9 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
             d_idx, rows.T[:3, :4].copy(), d_idx, d_max, d_max.copy(), 0, 0, rows.T[:5, :2].copy(),
             np.zeros(5, dtype=np.int64), 2, 3,
         )  # fmt: skip
+        r14 = rng.normal(size=(9, 14))
+        mean_cov3(r14[:, 1:4])  # a strided view (the interval collector's rows)
+        mean_cov3(r14[:, 1:4].copy())
         xv = rng.random(size=(20, 6))
         quantile_above(xv[:, 0:3], np.ones(20, dtype=np.bool_), np.zeros(3), 0.05)  # strided
         x = rng.normal(size=(12, 6))
@@ -1952,5 +1992,6 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         "predict": predict_kernel,
         "rotation_loop": rotation_loop,
         "rotation_post": rotation_post,
+        "mean_cov3": mean_cov3,
         "quantile_above": quantile_above,
     }

@@ -21,3 +21,23 @@ def test_mean_and_cov_equal_numpy_bit_for_bit(seed):
             mean, cov = mean_and_cov(x)
             assert mean.tobytes() == x.mean(axis=0).tobytes()
             assert cov.tobytes() == np.cov(x, rowvar=False).tobytes()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_compiled_moments_equal_numpy(seed):
+    """The fleet workers' compiled moments (:func:`imudiag.numba_kernels.mean_cov3`): the mean
+    bit for bit (the same sums down the samples, in order), the covariance to rounding (a
+    BLAS product in numpy: within 1e-12 of the variances' scale)."""
+    pytest.importorskip("numba", reason="numba (the fleet extra) is not installed")
+    from imudiag.numba_kernels import mean_cov3
+
+    rng = np.random.default_rng(100 + seed)
+    for _ in range(60):
+        n = int(rng.integers(2, 7000))
+        rows = rng.normal(size=(n, 14)) * 10 ** rng.uniform(-4, 5) + rng.normal() * 3e4
+        for x in (rows[:, 1:4], np.ascontiguousarray(rows[:, 4:7])):
+            mean, cov = mean_cov3(x)
+            want_mean, want_cov = mean_and_cov(x)
+            assert mean.tobytes() == want_mean.tobytes()
+            scale = np.sqrt(np.outer(np.diag(want_cov), np.diag(want_cov)))
+            np.testing.assert_array_less(np.abs(cov - want_cov), 1e-12 * scale + 1e-300)

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..certificate import Certificate
+from ..kernels import kernel
 from ..quasistatic import BAD_FLAGS, DetectorPool, QuasiStaticDetector, SharedDetectorReader
 from ..samples import SampleBlock
 from .config import DiagnosisConfig
@@ -260,7 +261,11 @@ class IntervalCollector:
                 )
         temp = rows[:, _TEMP]
         temp_mean = float(np.mean(temp)) if np.all(np.isfinite(temp)) else None
-        if n > 1:
+        compiled = kernel("mean_cov3")  # one pass each, compiled (fleet workers)
+        if n > 1 and compiled is not None:
+            gyro_mean, gyro_cov = compiled(g)
+            acc_mean, accel_cov = compiled(a)
+        elif n > 1:
             gyro_mean, gyro_cov = mean_and_cov(g)
             acc_mean, accel_cov = mean_and_cov(a)
         else:
