@@ -446,10 +446,14 @@ def test_the_local_workers_are_spawned_with_the_malloc_settings() -> None:
 
     from imudiag.fleet.runner import local_cluster
 
-    names = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
+    names = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_ARENA_MAX")
     with local_cluster(1, "1GiB") as cluster, Client(cluster) as client:
         (seen,) = client.run(lambda: {k: os.environ.get(k) for k in names}).values()
-    assert seen == {"MALLOC_MMAP_THRESHOLD_": "33554432", "MALLOC_TRIM_THRESHOLD_": "65536"}
+    assert seen == {
+        "MALLOC_MMAP_THRESHOLD_": "33554432",
+        "MALLOC_TRIM_THRESHOLD_": "65536",
+        "MALLOC_ARENA_MAX": "1",
+    }
 
 
 def test_a_log_that_kills_its_worker_is_a_row_with_the_reason(

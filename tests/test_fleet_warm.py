@@ -116,9 +116,13 @@ def test_local_workers_keep_glibcs_mmap_threshold_under_dasks_trimming() -> None
     assert env["MALLOC_MMAP_THRESHOLD_"] == WORKER_MALLOC["MALLOC_MMAP_THRESHOLD_"] == "33554432"
     assert str(env["MALLOC_TRIM_THRESHOLD_"]) == "65536"  # Dask's own, kept
     assert str(env["OPENBLAS_NUM_THREADS"]) == "1"
+    assert env["MALLOC_ARENA_MAX"] == WORKER_MALLOC["MALLOC_ARENA_MAX"] == "1"
     mine = {"MALLOC_MMAP_THRESHOLD_": "1048576"}
     with dask.config.set({"distributed.nanny.pre-spawn-environ": mine}):
-        assert worker_environment() == mine
+        assert worker_environment() == {
+            "MALLOC_MMAP_THRESHOLD_": "1048576",
+            "MALLOC_ARENA_MAX": "1",
+        }
 
 
 def test_a_memory_limit_no_worker_starts_under_is_refused_before_any_work(tmp_path) -> None:

@@ -85,10 +85,13 @@ def load_certificate_map(path: str) -> dict[str, str]:
 #: fixes glibc's mmap threshold at 128 KiB, where it otherwise slides up with use: every
 #: numpy array over 128 KiB was mapped anew and its pages faulted in again, about 1.6x the
 #: CPU of a task (docs/benchmarks.md, "Fleet"). 32 MiB is the most glibc's own sliding
-#: threshold reaches; the trimming stays. A setting of the user's Dask configuration wins.
+#: threshold reaches; the trimming stays. One malloc arena: the task's thread otherwise
+#: gets an arena of its own, whose heaps (64 MiB at most) are unmapped and mapped again as a
+#: log's arrays come and go (7 % of a fleet task's CPU). A setting of the user's Dask
+#: configuration wins.
 #: Each worker's warm-up then keeps freed memory for the whole log as well, and gives it back
 #: after a log past a mark (:mod:`.allocator`: a worker on any scheduler, not only these).
-WORKER_MALLOC = {"MALLOC_MMAP_THRESHOLD_": str(32 * 2**20)}
+WORKER_MALLOC = {"MALLOC_MMAP_THRESHOLD_": str(32 * 2**20), "MALLOC_ARENA_MAX": "1"}
 
 
 def worker_environment() -> dict[str, Any]:
