@@ -195,9 +195,21 @@ class CsvReader(LogReader):
             return int(linenos[row]) if linenos is not None else first_line + row
 
         ncols = len(self.columns)
-        commas_before_end = np.searchsorted(np.flatnonzero(buf == 44), ends)
-        fields = np.diff(commas_before_end, prepend=0) + 1
-        ragged = np.flatnonzero(fields != ncols)
+        commas = np.flatnonzero(buf == 44)
+        k = ncols - 1
+        if (
+            commas.size == ends.size * k
+            and k > 0
+            and ends.size
+            and bool(np.all(commas[k - 1 :: k] < ends))  # each line's last comma before its end
+            and bool(np.all(commas[k::k] > ends[:-1]))  # and its first after the line before
+        ):  # every line has ncols fields (the usual case: no search)
+            ragged = np.zeros(0, dtype=np.intp)
+            fields = np.full(ends.size, ncols)
+        else:
+            commas_before_end = np.searchsorted(commas, ends)
+            fields = np.diff(commas_before_end, prepend=0) + 1
+            ragged = np.flatnonzero(fields != ncols)
         n = int(ragged[0]) if ragged.size else len(ends)
         cols = self._convert(text[: int(ends[n - 1]) + 1] if n else b"", n, line_of)
         bad = first_violation(cols, last_t) if n else None
