@@ -1700,7 +1700,10 @@ def _failed(k, npred):
     e9 = np.empty(9)
     e99 = np.empty((9, 9))
     ek = np.empty(k)
-    return False, e9, ek, e99, e99, 0.0, 0.0, 0.0, 0.0, np.empty((k, 9)), ek, 0.0, np.empty(npred)
+    return (
+        False, e9, ek, e99, e99, 0.0, 0.0, 0.0, 0.0, np.empty((k, 9)), ek, 0.0, np.empty(npred),
+        np.full(9, np.nan),
+    )  # fmt: skip
 
 
 @jit
@@ -1715,8 +1718,10 @@ def exact_fit_kernel(
     one-row deletion figures of :func:`imudiag.diagnosis.robust.point_diagnostics` with their
     robust excess, and the prediction errors of the points ``pv`` (J, 3), ``pvar``, ``pmu``
     not in the fit (J = 0: none). Returns (ok, theta, r, info, cov, dof, cov_scale,
-    extra_used, rms, shift, z, robust excess, predicted z); ok False when a solve broke
-    down (the caller runs the plain path)."""
+    extra_used, rms, shift, z, robust excess, predicted z, the diagonal of the covariance
+    the points' noise alone and the prior give where the fit estimated an excess or a
+    Birge ratio (``_estimated_variance``; nan where not, or where its solve broke down));
+    ok False when a solve broke down (the caller runs the plain path)."""
     k = v.shape[0]
     theta = theta0.copy()
     if linear:
@@ -1860,7 +1865,22 @@ def exact_fit_kernel(
                 par += jp[n, i] * acc
             total = sp[n] + excess + max(par, 0.0)
             zp[n] = abs(rp[n]) / np.sqrt(total)
-    return True, th, r, info, cov_out, dof, cov_scale, extra_used, rms, shift, z, excess, zp
+    known_diag = np.full(9, np.nan)
+    if extra_used > 0.0 or cov_scale > 1.0:
+        w_known = np.empty(k)
+        for n in range(k):
+            w_known[n] = 1.0 / noise_var[n]
+        info_k = np.empty((9, 9))
+        hess_k = np.empty((9, 9))
+        weighted_info(jac, w_known, prior_prec, info_k, hess_k)
+        known = np.empty((9, 9))
+        if spd_inverse(hess_k, known):
+            for i in range(9):
+                known_diag[i] = known[i, i]
+    return (
+        True, th, r, info, cov_out, dof, cov_scale, extra_used, rms, shift, z, excess, zp,
+        known_diag,
+    )  # fmt: skip
 
 
 def warm_up(part: int | None = None) -> dict[str, Any]:

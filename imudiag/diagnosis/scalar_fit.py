@@ -431,7 +431,7 @@ def _compiled_fit(
         p_mu = np.atleast_1d(pmag) / m0
     else:
         p_v, p_var, p_mu = np.empty((0, 3)), np.empty((0, 3)), np.empty(0)
-    ok, theta, _r, info, cov, dof, cov_scale, extra_used, rms, shift, z, _e, zp = fit_kernel(
+    ok, theta, _r, info, cov, dof, cov_scale, extra_used, rms, shift, z, _e, zp, known = fit_kernel(
         np.ascontiguousarray(theta0, dtype=float),
         linear,
         np.ascontiguousarray(v),
@@ -467,7 +467,12 @@ def _compiled_fit(
     fit.dof = float(dof)
     fit.cov_scale = float(cov_scale)
     fit.excess_var = float(extra_used)
-    if extra_used > 0.0 or cov_scale > 1.0:
+    if (extra_used > 0.0 or cov_scale > 1.0) and np.all(np.isfinite(known)):
+        # the part of each variance estimated from the residuals (_estimated_variance), the
+        # noise-only covariance's diagonal from the kernel
+        part = np.maximum(np.diag(cov) - known, 0.0) * triad.scale(m0) ** 2
+        fit.estimated_var = np.where(~np.isfinite(part), 0.0, part)
+    elif extra_used > 0.0 or cov_scale > 1.0:
         _r0, x0, w0 = _residuals(theta, v, mu)
         fit.estimated_var = _estimated_variance(
             triad,
