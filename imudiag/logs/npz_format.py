@@ -46,6 +46,15 @@ _ZIP_ERRORS = (
 )
 
 
+#: Each array's header (shape, dtype, the offset of its data in its zip member, bytes) by
+#: file (path, size, modification time) and member (name, CRC-32, size, place in the
+#: archive): a fleet task opens a log twice (its first sample, then the diagnosis), and each
+#: opening parsed every header again (numpy's header parser, ``ast.literal_eval``, was a
+#: twentieth of a short log's CPU).
+_HEADERS: dict[tuple[Any, ...], tuple[tuple[int, ...], np.dtype, int]] = {}
+_HEADERS_KEPT = 256
+
+
 class NpzReader(LogReader):
     """Streaming reader of ``.npz`` logs: reads each array's zip member in blocks."""
 
@@ -62,9 +71,17 @@ class NpzReader(LogReader):
             self._used = [n for n in REQUIRED_COLUMNS + OPTIONAL_COLUMNS if n in members]
             self._members = {n: members[n] for n in self._used}
             self.length = -1  #: samples in the log
+            try:
+                st = os.stat(self.path)
+                self._file_key: tuple[str, int, int] | None = (
+                    os.path.abspath(self.path),
+                    st.st_size,
+                    st.st_mtime_ns,
+                )
+            except OSError:
+                self._file_key = None
             for name in self._used:
-                with zf.open(self._members[name]) as fp:
-                    shape, dtype = self._header(fp, name)
+                shape, dtype, _offset = self._member_header(zf, name)
                 if self.length < 0:
                     self.length = shape[0]
                 elif shape[0] != self.length:
@@ -90,6 +107,28 @@ class NpzReader(LogReader):
             raise
         except _ZIP_ERRORS as exc:
             raise LogError(self.path, f"not an NPZ (zip) file: {exc}") from None
+
+    def _member_header(
+        self, zf: zipfile.ZipFile, name: str
+    ) -> tuple[tuple[int, ...], np.dtype, int]:
+        """(shape, dtype, offset of the data in the member, bytes) of array ``name``, parsed
+        once per file version (:data:`_HEADERS`)."""
+        info = zf.getinfo(self._members[name])  # the member's CRC-32 covers its header
+        key = (
+            None
+            if self._file_key is None
+            else (*self._file_key, name, info.CRC, info.file_size, info.header_offset)
+        )
+        if key is not None and key in _HEADERS:
+            return _HEADERS[key]
+        with zf.open(self._members[name]) as fp:
+            shape, dtype = self._header(fp, name)
+            out = (shape, dtype, fp.tell())
+        if key is not None:
+            if len(_HEADERS) >= _HEADERS_KEPT:
+                _HEADERS.clear()
+            _HEADERS[key] = out
+        return out
 
     def _header(self, fp: IO[bytes], name: str) -> tuple[tuple[int, ...], np.dtype]:
         fmt = np.lib.format
@@ -127,7 +166,9 @@ class NpzReader(LogReader):
             dtypes = {}
             for name in self._used:
                 streams[name] = zf.open(self._members[name])
-                _, dtypes[name] = self._header(streams[name], name)
+                _, dtypes[name], offset = self._member_header(zf, name)
+                if len(streams[name].read(offset)) != offset:  # past the header, parsed once
+                    raise LogError(self.path, f"array {name!r} is truncated")
             last_t: float | None = None
             start = 0
             while start < self.length:
