@@ -41,3 +41,16 @@ def test_the_compiled_moments_equal_numpy(seed):
             assert mean.tobytes() == want_mean.tobytes()
             scale = np.sqrt(np.outer(np.diag(want_cov), np.diag(want_cov)))
             np.testing.assert_array_less(np.abs(cov - want_cov), 1e-12 * scale + 1e-300)
+
+
+def test_a_windows_mean_gyro_variance_is_numpys_mean_of_the_diagonals():
+    """The gyro rotation fit's per-sample variance of a window (``gyro_window_fit``: the
+    intervals' covariance diagonals averaged from the stacked covariances) equals np.mean of
+    the diagonals listed, bit for bit (the same sums down the intervals)."""
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        k = int(rng.integers(1, 60))
+        a = rng.normal(size=(k, 3, 3)) * 10 ** rng.uniform(-6, 6)
+        covs = a @ np.swapaxes(a, 1, 2)
+        want = np.mean([np.diag(c) for c in covs], axis=0)
+        assert covs.diagonal(axis1=1, axis2=2).mean(axis=0).tobytes() == want.tobytes()

@@ -365,7 +365,9 @@ def gyro_window_fit(
     rotations = count_rotations(pairs, config.attitude_separation_deg)
     rot = None
     if rotations:
-        sample_var = np.mean([np.diag(iv.gyro_cov) for iv in intervals], axis=0)
+        # the mean of the intervals' per-axis variances (the same sums in the same order as
+        # np.mean of their diagonals stacked)
+        sample_var = covs.diagonal(axis1=1, axis2=2).mean(axis=0)
         rot = rotation_fit(
             tri,
             pairs,
