@@ -16,7 +16,7 @@ import os
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, cast
 
 import numpy as np
 
@@ -37,6 +37,25 @@ from .base import (
     parse_meta_value,
 )
 
+#: What a corrupt gzip stream raises: gzip's and zlib's, and ISA-L's (:func:`_isal_gzip`).
+_GZIP_ERRORS: tuple[type[BaseException], ...] = (EOFError, gzip.BadGzipFile, zlib.error)
+_ISAL: dict[str, Any] = {}
+
+
+def _isal_gzip() -> Any | None:
+    """ISA-L's gzip module (``isal.igzip``, the ``fleet`` extra), or None where it is not
+    installed; its decompression errors join :data:`_GZIP_ERRORS` once imported."""
+    global _GZIP_ERRORS
+    if "igzip" not in _ISAL:
+        try:
+            from isal import igzip, isal_zlib
+
+            _ISAL["igzip"] = igzip
+            _GZIP_ERRORS = (*_GZIP_ERRORS, cast("type[BaseException]", isal_zlib.error))
+        except ImportError:
+            _ISAL["igzip"] = None
+    return _ISAL["igzip"]
+
 
 class CsvReader(LogReader):
     """Streaming reader of ``.csv`` and ``.csv.gz`` logs (parsing vectorised per block)."""
@@ -56,12 +75,17 @@ class CsvReader(LogReader):
         finally:
             self._release(fh)
 
-    def _file(self) -> IO[bytes]:
+    def _file(self, data: bool = False) -> IO[bytes]:
         if not self.gzip:
             return self._open(open, self.path, "rb")
         # a C-level buffered reader over the gzip stream: line iteration without
-        # a Python call per line
-        return self._open(lambda p: io.BufferedReader(gzip.GzipFile(p, "rb"), 1 << 18), self.path)
+        # a Python call per line; the data (``data``: past the header, read in large
+        # pieces), with the kernels on (a fleet task), inflated by ISA-L where the fleet
+        # extra installed it (the same bytes, about 2.3x less CPU than zlib; its line
+        # iteration, the header's, held far more memory than zlib's)
+        fast = _isal_gzip() if data and kernels.enabled() else None
+        opener = gzip.GzipFile if fast is None else fast.IGzipFile
+        return self._open(lambda p: io.BufferedReader(opener(p, "rb"), 1 << 18), self.path)
 
     def _read_header(self, fh: IO[bytes]) -> None:
         offset = 0
@@ -106,7 +130,7 @@ class CsvReader(LogReader):
         """Lines of ``it``, turning a corrupt gzip stream into a LogError."""
         try:
             yield from it
-        except (EOFError, gzip.BadGzipFile, zlib.error) as exc:
+        except _GZIP_ERRORS as exc:
             raise LogError(self.path, f"corrupt gzip data: {exc}") from None
 
     def _chunks(self, fh: IO[bytes]) -> Iterator[tuple[bytes, int]]:
@@ -124,7 +148,7 @@ class CsvReader(LogReader):
                 want = max(1 << 16, int((need - newlines) * per_line * 1.1))
                 try:
                     data = fh.read(want)
-                except (EOFError, gzip.BadGzipFile, zlib.error) as exc:
+                except _GZIP_ERRORS as exc:
                     raise LogError(self.path, f"corrupt gzip data: {exc}") from None
                 if not data:
                     eof = True
@@ -147,7 +171,7 @@ class CsvReader(LogReader):
                 newlines = 0
 
     def _blocks(self) -> Iterator[SampleBlock]:
-        fh = self._file()
+        fh = self._file(data=True)
         try:
             fh.seek(self._data_offset)
             lineno = self._header_line + 1
