@@ -99,16 +99,26 @@ def expand(paths: list[str]) -> list[Path]:
     return out
 
 
-def describe(path: Path, known: dict[tuple[str, int, int], str] | None = None) -> LogFile:
-    """The :class:`LogFile` of ``path``; ``known`` maps (path, size, mtime_ns) to a hash
-    already computed (a resumed run does not read unchanged logs twice)."""
+def _key(path: Path) -> tuple[str, int, int]:
+    """(path, size in bytes, modification time in ns) of a log (a directory's files summed)."""
     st = path.stat()
     size = st.st_size
     if path.is_dir():
         size = sum(q.stat().st_size for q in path.rglob("*") if q.is_file())
-    key = (str(path), size, st.st_mtime_ns)
+    return (str(path), size, st.st_mtime_ns)
+
+
+def is_known(path: Path, known: dict[tuple[str, int, int], str]) -> bool:
+    """Whether ``known`` (see :func:`describe`) has the hash of ``path`` as it is now."""
+    return _key(path) in known
+
+
+def describe(path: Path, known: dict[tuple[str, int, int], str] | None = None) -> LogFile:
+    """The :class:`LogFile` of ``path``; ``known`` maps (path, size, mtime_ns) to a hash
+    already computed (a resumed run does not read unchanged logs twice)."""
+    key = _key(path)
     digest = (known or {}).get(key) or sha256_of(path)
-    return LogFile(str(path), size, st.st_mtime_ns, digest)
+    return LogFile(key[0], key[1], key[2], digest)
 
 
-__all__ = ["LogFile", "describe", "expand", "sha256_of"]
+__all__ = ["LogFile", "describe", "expand", "is_known", "sha256_of"]

@@ -9,6 +9,7 @@ import logging
 import os
 import warnings
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,7 @@ from ..atomic import write_text_atomic
 from ..certificate import AUTO
 from ..errors import BadInput
 from ..logs.extras import MissingExtra
-from .discovery import describe, expand
+from .discovery import describe, expand, is_known
 from .records import RecordLog, read_records, write_table
 from .task import Job, diagnose_log
 
@@ -278,64 +279,88 @@ def run(
         if isinstance(r.get("size"), int) and isinstance(r.get("mtime_ns"), int)
     }
     done = {r["sha256"] for r in previous}
-    jobs: list[Job] = []
-    queued: set[str] = set()
-    for log in found:
-        info = describe(log.absolute(), known)
-        if info.sha256 in done or info.sha256 in queued:
-            continue
-        queued.add(info.sha256)
-        absolute = log.absolute()
-        root = next(
-            (r for r in roots.values() if r == absolute or r in absolute.parents),
-            absolute.parent,
-        )
-        jobs.append(
-            Job(
-                path=info.path,
-                sha256=info.sha256,
-                size=info.size,
-                mtime_ns=info.mtime_ns,
-                root=str(root),
-                certificate=(
-                    str(Path(certificate).absolute())
-                    if certificate and certificate != AUTO
-                    else certificate
-                ),
-                certificates=cmap,
-                certificates_source=certificates,
-                timeout_s=timeout_s,
-                config=dict(config or {}),
+
+    def make_jobs() -> list[Job]:
+        """The logs to diagnose (each hashed unless known: not done, nor twice), the
+        largest first (the last tasks to finish are then short ones: no worker left alone
+        with a long log at the end)."""
+        jobs: list[Job] = []
+        queued: set[str] = set()
+        for log in found:
+            info = describe(log.absolute(), known)
+            if info.sha256 in done or info.sha256 in queued:
+                continue
+            queued.add(info.sha256)
+            absolute = log.absolute()
+            root = next(
+                (r for r in roots.values() if r == absolute or r in absolute.parents),
+                absolute.parent,
             )
-        )
-    if redo and (outdir / "logs.jsonl").exists():
-        (outdir / "logs.jsonl").unlink()
-    total = len(jobs)
-    if progress:
-        progress(f"0/{total} logs", 0.0 if total else 1.0, 0)
-    if jobs:
+            jobs.append(
+                Job(
+                    path=info.path,
+                    sha256=info.sha256,
+                    size=info.size,
+                    mtime_ns=info.mtime_ns,
+                    root=str(root),
+                    certificate=(
+                        str(Path(certificate).absolute())
+                        if certificate and certificate != AUTO
+                        else certificate
+                    ),
+                    certificates=cmap,
+                    certificates_source=certificates,
+                    timeout_s=timeout_s,
+                    config=dict(config or {}),
+                )
+            )
+        jobs.sort(key=lambda j: -j.size)
+        return jobs
+
+    def collect(client: Any, jobs: list[Job]) -> None:
+        """Submit ``jobs`` and write each record as its log completes."""
         from dask.distributed import as_completed
 
-        with _client(scheduler, workers, memory_limit, retries, dashboard) as client:
-            futures = {}
-            for job in jobs:
-                fut = client.submit(diagnose_log, job, key=f"diagnose-{job.sha256}", pure=False)
-                futures[fut.key] = (fut, job)
-            with RecordLog(outdir) as log_file:
-                finished = 0
-                for fut in as_completed([f for f, _ in futures.values()]):
-                    job = futures[fut.key][1]
-                    try:
-                        record = fut.result()
-                    except Exception as exc:  # noqa: BLE001 - a dead worker is the log's row
-                        record = _lost(job, exc, retries)
-                    log_file.append(record)
-                    if on_record:
-                        on_record(record)
-                    finished += 1
-                    fut.release()
-                    if progress:
-                        progress(f"{finished}/{total} logs", finished / total, finished)
+        if redo and (outdir / "logs.jsonl").exists():
+            (outdir / "logs.jsonl").unlink()
+        if not jobs:
+            return
+        total = len(jobs)
+        if progress:
+            progress(f"0/{total} logs", 0.0 if total else 1.0, 0)
+        futures = {}
+        for job in jobs:
+            fut = client.submit(diagnose_log, job, key=f"diagnose-{job.sha256}", pure=False)
+            futures[fut.key] = (fut, job)
+        with RecordLog(outdir) as log_file:
+            finished = 0
+            for fut in as_completed([f for f, _ in futures.values()]):
+                job = futures[fut.key][1]
+                try:
+                    record = fut.result()
+                except Exception as exc:  # noqa: BLE001 - a dead worker is the log's row
+                    record = _lost(job, exc, retries)
+                log_file.append(record)
+                if on_record:
+                    on_record(record)
+                finished += 1
+                fut.release()
+                if progress:
+                    progress(f"{finished}/{total} logs", finished / total, finished)
+
+    if any(not is_known(log.absolute(), known) for log in found):
+        # logs to hash (their content, GBs): read in a thread while the workers start
+        with ThreadPoolExecutor(1) as pool:
+            hashing = pool.submit(make_jobs)
+            with _client(scheduler, workers, memory_limit, retries, dashboard) as client:
+                collect(client, hashing.result())
+    else:
+        jobs = make_jobs()
+        if jobs:
+            with _client(scheduler, workers, memory_limit, retries, dashboard) as client:
+                collect(client, jobs)
+        elif redo and (outdir / "logs.jsonl").exists():
+            (outdir / "logs.jsonl").unlink()
     records, _ = rebuild(outdir)
     return records
 
