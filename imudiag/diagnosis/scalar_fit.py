@@ -236,6 +236,8 @@ def exact_fit(
         m0 = 1.0
     elif mag_in.ndim == 0:  # one magnitude for all: np.median of equal values is that value
         m0 = float(mag_in)
+    elif (low := float(mag.min())) == float(mag.max()):  # equal values (no nan): the same
+        m0 = low
     else:
         m0 = float(np.median(mag))
     s = triad.scale_factor
