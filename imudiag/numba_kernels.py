@@ -779,6 +779,35 @@ def mean_cov3(x):
 
 
 @jit
+def attitude_labels(up, valid, cos_sep):
+    """:func:`imudiag.diagnosis.window.attitude_groups` compiled: each direction of ``up``
+    (K, 3) joins the first centre so far whose dot product with it is at least ``cos_sep``,
+    else starts a new one; -1 where not ``valid``. The dot products summed left to right
+    (numpy's matrix-vector product may round its last bit otherwise: a label could differ
+    only for a direction within a rounding of the separation)."""
+    k_all = up.shape[0]
+    labels = np.full(k_all, -1, dtype=np.int64)
+    centres = np.empty((k_all, 3))
+    k = 0
+    for i in range(k_all):
+        if not valid[i]:
+            continue
+        u0, u1, u2 = up[i, 0], up[i, 1], up[i, 2]
+        found = -1
+        for c in range(k):
+            if centres[c, 0] * u0 + centres[c, 1] * u1 + centres[c, 2] * u2 >= cos_sep:
+                found = c
+                break
+        if found >= 0:
+            labels[i] = found
+        else:
+            centres[k, 0], centres[k, 1], centres[k, 2] = u0, u1, u2
+            labels[i] = k
+            k += 1
+    return labels
+
+
+@jit
 def epoch_cut(accel, fc, gyro, big, big_mid, start, end, rotate, gyro_sums):
     """Per GNSS epoch k (samples start[k] <= i < end[k], in order), the sums (K, 3) of the
     samples ``fc`` (3, N) rotated to the epoch's mid time by the rotation vector ``big[:, i]
@@ -1948,6 +1977,7 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
             d_idx, rows.T[:3, :4].copy(), d_idx, d_max, d_max.copy(), 0, 0, rows.T[:5, :2].copy(),
             np.zeros(5, dtype=np.int64), 2, 3,
         )  # fmt: skip
+        attitude_labels(rng.normal(size=(5, 3)), np.ones(5, dtype=np.bool_), 0.98)
         r14 = rng.normal(size=(9, 14))
         mean_cov3(r14[:, 1:4])  # a strided view (the interval collector's rows)
         mean_cov3(r14[:, 1:4].copy())
@@ -2013,5 +2043,6 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         "rotation_loop": rotation_loop,
         "rotation_post": rotation_post,
         "mean_cov3": mean_cov3,
+        "attitude_labels": attitude_labels,
         "quantile_above": quantile_above,
     }

@@ -359,3 +359,25 @@ def test_rotation_fit_loop_kernel_equals_plain(both, seed, fit_frame, truth_off,
         with np.errstate(invalid="ignore"):  # inf - inf: a motion left without figures
             bad = ~((np.abs(a - b) <= tol) | (a == b) | (np.isnan(a) & np.isnan(b)))
         assert not bad.any(), f"{key}: {a[bad]} != {b[bad]} (tolerance {tol[bad]})"
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_attitude_groups_kernel_equals_plain(both, seed):
+    """The window's attitude groups (greedy clustering of the intervals' directions) compiled
+    against the numpy loop: the same labels, on seeded sets of directions (repeated
+    attitudes with noise, directions spread at random, zero and non-finite rows)."""
+    from imudiag.diagnosis.window import attitude_groups
+
+    rng = np.random.default_rng(seed)
+    for _ in range(200):
+        base = rng.normal(size=(int(rng.integers(1, 8)), 3))
+        up = base[rng.integers(0, base.shape[0], size=int(rng.integers(1, 40)))]
+        up = up + rng.normal(0.0, 10 ** rng.uniform(-4, -0.5), up.shape)
+        up /= np.linalg.norm(up, axis=1)[:, None]
+        if rng.random() < 0.3:
+            up[rng.integers(up.shape[0])] = 0.0
+        if rng.random() < 0.3:
+            up[rng.integers(up.shape[0]), rng.integers(3)] = np.nan
+        plain, fast = both(lambda up=up: attitude_groups(up, 10.0))
+        assert fast.dtype == plain.dtype
+        np.testing.assert_array_equal(fast, plain)

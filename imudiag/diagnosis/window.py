@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..certificate import Certificate, TriadModel, misalignment_of_n
+from . import kernels
 from .changepoint import window_exact_fit
 from .config import DiagnosisConfig
 from .gauge import p_matrix, shape_of_triad
@@ -83,6 +84,10 @@ def attitude_groups(up: np.ndarray, separation_deg: float) -> np.ndarray:
     cos_sep = math.cos(math.radians(separation_deg))
     up = np.asarray(up, dtype=float).reshape(-1, 3)
     valid = np.all(np.isfinite(up), axis=1) & np.any(up, axis=1)
+    compiled = kernels.kernel("attitude_labels")  # fleet workers: the same greedy clustering
+    if compiled is not None:
+        out: np.ndarray = compiled(np.ascontiguousarray(up), valid, cos_sep)
+        return out
     centres = np.empty_like(up)  # the first k rows: the centres so far
     labels = np.full(up.shape[0], -1, dtype=int)
     k = 0
