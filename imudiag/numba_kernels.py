@@ -501,20 +501,14 @@ def rotation_loop(
     a = np.empty((npar, npar))
     step = np.empty(npar)
     cand = np.empty(npar)
+    info = np.empty((npar, npar))
     for _ in range(max_iter):
+        weighted_info(jac, wgt, prior_prec, info, hess)
         for p in range(npar):
-            for q in range(p, npar):
-                acc = 0.0
-                for r in range(nr):
-                    acc += jac[r, p] * (jac[r, q] * wgt[r])
-                hess[p, q] = acc
-                hess[q, p] = acc
             g = 0.0
             for r in range(nr):
                 g += jac[r, p] * (res[r] * wgt[r])
             grad[p] = g - prior_prec[p] * x[p]
-        for p in range(npar):
-            hess[p, p] += prior_prec[p]
         accepted = False
         done = False
         for _try in range(8):
@@ -549,45 +543,18 @@ def rotation_loop(
 
 
 @jit
-def _solve_small(a, b, out):
-    """``out`` = a^-1 b for a small square ``a`` (m, m) and ``b`` (m, k), by Gaussian
-    elimination with partial pivoting (copies; False where a pivot is zero or not a
-    number)."""
-    m = a.shape[0]
-    k = b.shape[1]
-    aa = a.copy()
-    bb = b.copy()
-    for c in range(m):
-        piv = c
-        best = abs(aa[c, c])
-        for i in range(c + 1, m):
-            if abs(aa[i, c]) > best:
-                best = abs(aa[i, c])
-                piv = i
-        if not best > 0.0:
+def _solve_columns(a, b, out):
+    """``out`` = a^-1 b, column by column of ``b`` (m, k) by :func:`solve`; False where a
+    solve breaks down."""
+    col = np.empty(a.shape[0])
+    rhs = np.empty(a.shape[0])
+    for j in range(b.shape[1]):
+        for i in range(a.shape[0]):
+            rhs[i] = b[i, j]
+        if not solve(a, rhs, col):
             return False
-        if piv != c:
-            for j in range(m):
-                t = aa[c, j]
-                aa[c, j] = aa[piv, j]
-                aa[piv, j] = t
-            for j in range(k):
-                t = bb[c, j]
-                bb[c, j] = bb[piv, j]
-                bb[piv, j] = t
-        for i in range(c + 1, m):
-            f = aa[i, c] / aa[c, c]
-            if f != 0.0:
-                for j in range(c, m):
-                    aa[i, j] -= f * aa[c, j]
-                for j in range(k):
-                    bb[i, j] -= f * bb[c, j]
-    for j in range(k):
-        for i in range(m - 1, -1, -1):
-            acc = bb[i, j]
-            for q in range(i + 1, m):
-                acc -= aa[i, q] * out[q, j]
-            out[i, j] = acc / aa[i, i]
+        for i in range(a.shape[0]):
+            out[i, j] = col[i]
     return True
 
 
@@ -632,17 +599,9 @@ def rotation_post(jac, res, wgt, prior_prec, max_leverage, chi2_median):
     nr = jac.shape[0]
     npar = jac.shape[1]
     g_count = nr // 3
-    info = np.zeros((npar, npar))
-    for p in range(npar):
-        for q in range(p, npar):
-            acc = 0.0
-            for r in range(nr):
-                acc += jac[r, p] * (jac[r, q] * wgt[r])
-            info[p, q] = acc
-            info[q, p] = acc
-    hess = info.copy()
-    for p in range(npar):
-        hess[p, p] += prior_prec[p]
+    info = np.empty((npar, npar))
+    hess = np.empty((npar, npar))
+    weighted_info(jac, wgt, prior_prec, info, hess)
     cov = np.empty((npar, npar))
     shift = np.full((g_count, npar), np.nan)
     z = np.full(g_count, np.nan)
@@ -695,7 +654,7 @@ def rotation_post(jac, res, wgt, prior_prec, max_leverage, chi2_median):
                 eye_h[i, j] = (1.0 if i == j else 0.0) - hk[i, j]
             # the residual rows of -jac: s = sqrt(w) r, with a of -jac (signs cancel in shift)
             s[i, 0] = sw[3 * g + i] * res[3 * g + i]
-        if not _solve_small(eye_h, s, sol):
+        if not _solve_columns(eye_h, s, sol):
             return False, info, cov, chi2, dof, shift, z, 0.0, loo_var
         us = 0.0
         nvw = 0.0
@@ -712,30 +671,14 @@ def rotation_post(jac, res, wgt, prior_prec, max_leverage, chi2_median):
                 acc += ca[p, i] * sol[i, 0]
             shift[g, p] = -acc
         # deletion variances: diag(cov) + diag(cov a^T (I - hk)^-1 a cov)
-        if not _solve_small(eye_h, ca.T.copy(), sol_m):
+        if not _solve_columns(eye_h, ca.T.copy(), sol_m):
             return False, info, cov, chi2, dof, shift, z, 0.0, loo_var
         for p in range(npar):
             acc = 0.0
             for i in range(3):
                 acc += ca[p, i] * sol_m[i, p]
             loo_var[g, p] = cov[p, p] + acc
-    # the robust common excess (robust._robust_excess)
-    n_ok = 0
-    for g in range(g_count):
-        if np.isfinite(u[g]):
-            n_ok += 1
-    excess = 0.0
-    if n_ok >= 3:
-        aa = np.empty(n_ok)
-        nvv = np.empty(n_ok)
-        k = 0
-        for g in range(g_count):
-            if np.isfinite(u[g]):
-                aa[k] = u[g] / 3.0
-                nvv[k] = nv_mean[g]
-                k += 1
-        if sorted_median(aa) > chi2_median:
-            excess = robust_excess(aa, nvv, chi2_median)
+    excess = common_excess(u, nv_mean, 3.0, chi2_median)
     for g in range(g_count):
         z[g] = np.sqrt(u[g] / (3.0 * (1.0 + excess / nv_mean[g])))
     return True, info, cov, chi2, dof, shift, z, excess, loo_var
@@ -1122,6 +1065,31 @@ def sorted_median(x):
     if n % 2:
         return s[h]
     return (s[h - 1] + s[h]) / 2.0
+
+
+@jit
+def common_excess(u, nv_mean, m, target):
+    """:func:`imudiag.diagnosis.robust._robust_excess` of deletion residuals ``u`` (G,) with
+    noise ``nv_mean`` (G,), every point of ``m`` rows: 0 with fewer than 3 finite u or where
+    the median of u / m is at most the chi^2_1 median ``target``, else
+    :func:`robust_excess` of the finite ones."""
+    count = 0
+    for g in range(u.shape[0]):
+        if np.isfinite(u[g]):
+            count += 1
+    if count < 3:
+        return 0.0
+    a_ok = np.empty(count)
+    nv_ok = np.empty(count)
+    c = 0
+    for g in range(u.shape[0]):
+        if np.isfinite(u[g]):
+            a_ok[c] = u[g] / m
+            nv_ok[c] = nv_mean[g]
+            c += 1
+    if sorted_median(a_ok) > target:
+        return robust_excess(a_ok, nv_ok, target)
+    return 0.0
 
 
 @jit
@@ -1708,17 +1676,19 @@ def linear_start(theta_c, v, mu, out):
 
 @jit
 def weighted_info(jac, wgt, prior_prec, info, hess):
-    """J^T diag(wgt) J (9, 9) into ``info`` and the same plus diag(prior_prec) into ``hess``."""
+    """J^T diag(wgt) J (m, m) of the Jacobian ``jac`` (K, m) into ``info`` and the same plus
+    diag(prior_prec) into ``hess``."""
     k = jac.shape[0]
-    for i in range(9):
+    m = jac.shape[1]
+    for i in range(m):
         for j in range(i + 1):
             acc = 0.0
             for n in range(k):
                 acc += jac[n, i] * (jac[n, j] * wgt[n])
             info[i, j] = acc
             info[j, i] = acc
-    for i in range(9):
-        for j in range(9):
+    for i in range(m):
+        for j in range(m):
             hess[i, j] = info[i, j]
         hess[i, i] += prior_prec[i]
 
@@ -1846,22 +1816,7 @@ def exact_fit_kernel(
             nv_mean[n] = 1.0
         for j in range(9):
             shift[n, j] = ac[j] * sol
-    count = 0
-    for n in range(k):
-        if np.isfinite(u[n]):
-            count += 1
-    excess = 0.0
-    if count >= 3:
-        a_ok = np.empty(count)
-        nv_ok = np.empty(count)
-        c = 0
-        for n in range(k):
-            if np.isfinite(u[n]):
-                a_ok[c] = u[n]
-                nv_ok[c] = nv_mean[n]
-                c += 1
-        if sorted_median(a_ok) > chi2_median:
-            excess = robust_excess(a_ok, nv_ok, chi2_median)
+    excess = common_excess(u, nv_mean, 1.0, chi2_median)
     z = np.empty(k)
     for n in range(k):
         z[n] = np.sqrt(u[n] / (1.0 + excess / nv_mean[n]))
