@@ -887,8 +887,13 @@ def _history_extremes(d_idx, d_val, d_start, d_max, d_min, old, k, c):
     qmax = np.empty(total, dtype=np.int64)
     qmin = np.empty(total, dtype=np.int64)
     los = np.empty(total, dtype=np.int64)
+    first = 0  # np.searchsorted(d_idx, d_start[at]) (left), moved from the last one's
     for at in range(old, total):
-        first = np.searchsorted(d_idx, d_start[at])
+        target = d_start[at]
+        while first > 0 and d_idx[first - 1] >= target:
+            first -= 1
+        while first < total and d_idx[first] < target:
+            first += 1
         los[at] = max(at - k + 1, first)
     for j in range(c):
         hmax = 0
@@ -1504,6 +1509,21 @@ def drift_within(spread, to_si, limit, ok):
             ok[i] = False
 
 
+@jit
+def curve_test(spread, to_si, rate_limit, drift_limit, ok):
+    """The still detector's curve test in place: ``ok`` (M,) cleared where the rate about the
+    vertical drifted beyond ``rate_limit`` (``spread[:, 3]``) and the specific force beyond
+    ``drift_limit`` (the norm of ``spread[:, :3]`` times ``to_si``, its squares summed as
+    :func:`drift_within` sums them)."""
+    for i in range(spread.shape[0]):
+        if spread[i, 3] > rate_limit:
+            a0 = spread[i, 0] * to_si[0]
+            a1 = spread[i, 1] * to_si[1]
+            a2 = spread[i, 2] * to_si[2]
+            if np.sqrt((a0 * a0 + a2 * a2) + a1 * a1) > drift_limit:
+                ok[i] = False
+
+
 #: Largest 1-norm condition number of the information matrix (with its prior) the exact fit's
 #: kernel inverts itself (Cholesky); above it the plain path (``np.linalg.pinv``, whose
 #: cut-off at 1e-15 of the largest singular value may then matter) runs the fit.
@@ -1965,6 +1985,7 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
             x13[:, :6].copy(), np.ones(6), 3.0, ok6[:2].copy(), False, np.ones(3), 1.0, ok6
         )
         drift_within(x13[:, :3].copy(), np.ones(3), 1.0, ok6)
+        curve_test(x13[:, :4].copy(), np.ones(3), 0.5, 1.0, ok6)
         ext = np.zeros((9, 13))
         chunked_cumsum(x13, x13[0].copy(), 4, ext[3:])  # C rows into a C slice of ext
         stack_backs(ext, 3, np.array([1, 3], dtype=np.int64), np.empty((6, 2, 13)))
@@ -1999,5 +2020,6 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         "rotation_post": rotation_post,
         "mean_cov3": mean_cov3,
         "attitude_labels": attitude_labels,
+        "curve_test": curve_test,
         "quantile_above": quantile_above,
     }

@@ -599,6 +599,13 @@ class QuasiStaticDetector:
         # a curve: the rate about the vertical and the specific force changed together
         values = np.column_stack([accel_mean, vertical_long])
         spread = self._drift[1].update(first, values, start_long)
+        curved = kernel("curve_test")
+        if curved is not None:  # the same products, sums and comparisons compiled, in place
+            curved(spread, self._to_si, float(lim.rate_limit), float(lim.drift_limit), ok)
+            if skip:
+                out[skip:] = ok
+                return out
+            return ok
         curve = spread[:, 3] > lim.rate_limit
         if curve.any():  # (the specific force only where the rate drifted)
             acc = spread[:, :3] * self._to_si
