@@ -323,11 +323,11 @@ def run(
 
         if redo and (outdir / "logs.jsonl").exists():
             (outdir / "logs.jsonl").unlink()
-        if not jobs:
-            return
         total = len(jobs)
         if progress:
             progress(f"0/{total} logs", 0.0 if total else 1.0, 0)
+        if not jobs:
+            return
         futures = {}
         for job in jobs:
             fut = client.submit(diagnose_log, job, key=f"diagnose-{job.sha256}", pure=False)
@@ -359,8 +359,8 @@ def run(
         if jobs:
             with _client(scheduler, workers, memory_limit, retries, dashboard) as client:
                 collect(client, jobs)
-        elif redo and (outdir / "logs.jsonl").exists():
-            (outdir / "logs.jsonl").unlink()
+        else:  # everything recorded already: no cluster
+            collect(None, jobs)
     records, _ = rebuild(outdir)
     return records
 
