@@ -721,41 +721,37 @@ def rotation_fit(
         x, res, jac, cost = compiled
     else:
         res, jac, cost = evaluate(x)
-    lam = 1e-6
-    done = False
-    for _ in range(max_iter if compiled is None else 0):
-        info = jac.T @ (jac * wgt[:, None])
-        hess = info + np.diag(prior_prec)
-        grad = jac.T @ (res * wgt) - prior_prec * x
-        accepted = False
-        for _try in range(8):
-            a = hess + lam * np.diag(np.maximum(np.diag(hess), 1e-30))
-            step = np.linalg.lstsq(a, grad, rcond=None)[0]
-            cand = x + step
-            if np.max(np.abs(cand[:6])) > MAX_SHAPE:
+        lam = 1e-6
+        done = False
+        for _ in range(max_iter):
+            info = jac.T @ (jac * wgt[:, None])
+            hess = info + np.diag(prior_prec)
+            grad = jac.T @ (res * wgt) - prior_prec * x
+            accepted = False
+            for _try in range(8):
+                a = hess + lam * np.diag(np.maximum(np.diag(hess), 1e-30))
+                step = np.linalg.lstsq(a, grad, rcond=None)[0]
+                cand = x + step
+                if np.max(np.abs(cand[:6])) > MAX_SHAPE:
+                    lam *= 10.0
+                    continue
+                r1, j1, c1 = evaluate(cand)
+                if np.isfinite(c1) and c1 <= cost:
+                    # a chi^2 change far below 1 is statistically nothing
+                    done = cost - c1 <= max(1e-3, 1e-9 * cost)
+                    x, res, jac, cost = cand, r1, j1, c1
+                    lam = max(lam / 10.0, 1e-12)
+                    accepted = True
+                    break
                 lam *= 10.0
-                continue
-            r1, j1, c1 = evaluate(cand)
-            if np.isfinite(c1) and c1 <= cost:
-                # a chi^2 change far below 1 is statistically nothing
-                done = cost - c1 <= max(1e-3, 1e-9 * cost)
-                x, res, jac, cost = cand, r1, j1, c1
-                lam = max(lam / 10.0, 1e-12)
-                accepted = True
+            if not accepted or done:
                 break
-            lam *= 10.0
-        if not accepted or done:
-            break
-    loo = loo_params = loo_var = None
+    shift = loo = loo_params = loo_var = None
     point_z = None
     excess = 0.0
     post = kernels.rotation_post(jac, res, wgt, prior_prec) if compiled is not None else None
     if post is not None:  # what follows, compiled (fleet workers)
         info, cov, chi2, dof, shift, point_z, excess, loo_var = post
-        loo = x[None, :6] + shift[:, :6]
-        loo_params = x[None, :] + shift
-        if dof > 0.5 and scale_by_residual:
-            loo_var = loo_var * max(1.0, chi2 / dof)
     else:
         info = jac.T @ (jac * wgt[:, None])
         hess = info + np.diag(prior_prec)
@@ -763,15 +759,16 @@ def rotation_fit(
         chi2 = float(np.sum(res * res * wgt))
         # two observations per motion (a direction), less the parameters the data determine
         dof = 2 * len(pairs) - float(np.trace(cov @ info))
-    if post is None and pairs and max_iter > 0:
-        groups = [np.arange(3 * i, 3 * i + 3) for i in range(len(pairs))]
-        diag = point_diagnostics(-jac, res, 1.0 / wgt, cov, groups=groups, weights=wgt)
-        loo = x[None, :6] + diag.shift[:, :6]
-        loo_params = x[None, :] + diag.shift
-        loo_var = _deletion_variances(jac * np.sqrt(wgt)[:, None], cov, groups)
+        if pairs and max_iter > 0:
+            groups = [np.arange(3 * i, 3 * i + 3) for i in range(len(pairs))]
+            diag = point_diagnostics(-jac, res, 1.0 / wgt, cov, groups=groups, weights=wgt)
+            shift, point_z, excess = diag.shift, diag.z, diag.excess_var
+            loo_var = _deletion_variances(jac * np.sqrt(wgt)[:, None], cov, groups)
+    if shift is not None and loo_var is not None:  # each motion left out
+        loo = x[None, :6] + shift[:, :6]
+        loo_params = x[None, :] + shift
         if dof > 0.5 and scale_by_residual:
             loo_var = loo_var * max(1.0, chi2 / dof)
-        point_z, excess = diag.z, diag.excess_var
     predicted_z = float("nan")
     if predict is not None:
         predicted_z = _prediction_z(

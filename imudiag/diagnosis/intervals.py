@@ -261,13 +261,10 @@ class IntervalCollector:
                 )
         temp = rows[:, _TEMP]
         temp_mean = float(np.mean(temp)) if np.all(np.isfinite(temp)) else None
-        compiled = kernel("mean_cov3")  # one pass each, compiled (fleet workers)
-        if n > 1 and compiled is not None:
-            gyro_mean, gyro_cov = compiled(g)
-            acc_mean, accel_cov = compiled(a)
-        elif n > 1:
-            gyro_mean, gyro_cov = mean_and_cov(g)
-            acc_mean, accel_cov = mean_and_cov(a)
+        if n > 1:  # in fleet workers one compiled pass each (the mean exact)
+            moments = kernel("mean_cov3") or mean_and_cov
+            gyro_mean, gyro_cov = moments(g)
+            acc_mean, accel_cov = moments(a)
         else:
             gyro_mean, gyro_cov = g.mean(axis=0), np.zeros((3, 3))
             acc_mean, accel_cov = a.mean(axis=0), np.zeros((3, 3))

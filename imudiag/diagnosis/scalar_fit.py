@@ -142,7 +142,15 @@ def _estimated_variance(
     if (extra <= 0.0 and cov_scale <= 1.0) or jac.shape[0] == 0:
         return np.zeros(9)
     known = np.linalg.pinv(jac.T @ (jac / noise[:, None]) + prior_diag)
-    part = np.maximum(np.diag(cov) - np.diag(known), 0.0) * triad.scale(m0) ** 2
+    return _estimated_part(triad, m0, cov, np.diag(known), null)
+
+
+def _estimated_part(
+    triad: TriadForm, m0: float, cov: np.ndarray, known_diag: np.ndarray, null: np.ndarray
+) -> np.ndarray:
+    """:func:`_estimated_variance` from the noise-only covariance's diagonal ``known_diag``
+    (9,), certificate units^2."""
+    part = np.maximum(np.diag(cov) - known_diag, 0.0) * triad.scale(m0) ** 2
     return np.where(null | ~np.isfinite(part), 0.0, part)
 
 
@@ -230,14 +238,11 @@ def exact_fit(
     triad = triad_form(triad)
     means = np.asarray(means, dtype=float).reshape(-1, 3)
     k = means.shape[0]
-    mag_in = np.asarray(magnitude, dtype=float)
-    mag = np.broadcast_to(mag_in, (k,))
+    mag = np.broadcast_to(np.asarray(magnitude, dtype=float), (k,))
     if not k:
         m0 = 1.0
-    elif mag_in.ndim == 0:  # one magnitude for all: np.median of equal values is that value
-        m0 = float(mag_in)
-    elif (low := float(mag.min())) == float(mag.max()):  # equal values (no nan): the same
-        m0 = low
+    elif (low := float(mag.min())) == float(mag.max()):
+        m0 = low  # one magnitude for all (no nan): np.median of equal values is that value
     else:
         m0 = float(np.median(mag))
     s = triad.scale_factor
@@ -470,11 +475,10 @@ def _compiled_fit(
     fit.cov_scale = float(cov_scale)
     fit.excess_var = float(extra_used)
     if (extra_used > 0.0 or cov_scale > 1.0) and np.all(np.isfinite(known)):
-        # the part of each variance estimated from the residuals (_estimated_variance), the
-        # noise-only covariance's diagonal from the kernel
-        part = np.maximum(np.diag(cov) - known, 0.0) * triad.scale(m0) ** 2
-        fit.estimated_var = np.where(~np.isfinite(part), 0.0, part)
-    elif extra_used > 0.0 or cov_scale > 1.0:
+        # a part of each variance estimated from the residuals; the noise-only covariance's
+        # diagonal from the kernel
+        fit.estimated_var = _estimated_part(triad, m0, cov, known, null)
+    elif extra_used > 0.0 or cov_scale > 1.0:  # the kernel's solve broke down: numpy's
         _r0, x0, w0 = _residuals(theta, v, mu)
         fit.estimated_var = _estimated_variance(
             triad,

@@ -373,19 +373,32 @@ class QuasiStaticDetector:
     def _update_noise_estimate(
         self,
         triad: str,
-        var: np.ndarray,
+        windows_var: np.ndarray,
+        ok: np.ndarray,
         ceiling: np.ndarray | None = None,
         flat: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None,
     ) -> None:
         """The data-driven noise variances of ``triad`` from this block's window variances
-        ``var`` (K, 3). Where an axis's quantile is at most ``ceiling`` (3,), windows flat
-        on it (a stuck output) may have made it: ``flat()`` gives the window variances
-        again and which are flat (K, 3), and those are left out (module doc)."""
-        if self._noise_fixed[triad] or var.shape[0] < 10:
+        ``windows_var`` (M, 3) where ``ok`` (M,): the windows without a bad sample. Where an
+        axis's quantile is at most ``ceiling`` (3,), windows flat on it (a stuck output) may
+        have made it: ``flat()`` gives the kept windows' variances again and which are flat
+        (K, 3), and those are left out (module doc)."""
+        if self._noise_fixed[triad]:
             return
         ratio = _chi2_quantile_ratio(self.window - 1, _Z_NOISE_QUANTILE)
         prev = self._noise_var[triad]
-        # ``var`` is the caller's boolean-mask copy: partitioned in place, not copied again
+        above = kernel("quantile_above")
+        if above is not None and prev is not None and ceiling is not None:
+            # (compiled kernels) a block whose window variances' quantile is above both the
+            # present estimate's and the flat windows' ceiling cannot lower the estimate nor
+            # call for the flat windows: it changes nothing
+            thr = np.maximum(prev * ratio, ceiling) * (1.0 + 1e-9)
+            if above(windows_var, ok, thr, _NOISE_QUANTILE):
+                return
+        var = windows_var[ok] if ok.any() else windows_var[:0]
+        if var.shape[0] < 10:
+            return
+        # ``var`` is a boolean-mask copy: partitioned in place, not copied again
         q = np.quantile(var, _NOISE_QUANTILE, axis=0, overwrite_input=True)
         stands: list[int] = []
         if ceiling is not None and flat is not None and np.any(q <= ceiling):
@@ -513,24 +526,13 @@ class QuasiStaticDetector:
         ok = sums[:, 12] < 0.5  # no bad sample in the window
         if not (self._noise_fixed["gyro"] and self._noise_fixed["accel"]):
             ceiling = flat_ceiling(st, w, first + m)
-            above = kernel("quantile_above")
             for c, name in enumerate(("gyro", "accel")):
                 cols = slice(3 * c, 3 * c + 3)
-                v = var[:, cols]
-                prev = self._noise_var[name]
-                if above is not None and prev is not None and not self._noise_fixed[name]:
-                    # (compiled kernels) a block whose window variances' quantile is above
-                    # both the present estimate's and the flat windows' ceiling cannot
-                    # lower the estimate nor call for the flat windows: it changes nothing
-                    ratio = _chi2_quantile_ratio(self.window - 1, _Z_NOISE_QUANTILE)
-                    thr = np.maximum(prev * ratio, ceiling[cols]) * (1.0 + 1e-9)
-                    if above(v, ok, thr, _NOISE_QUANTILE):
-                        continue
 
                 def flat(cols: slice = cols) -> tuple[np.ndarray, np.ndarray]:
                     return st.var[:, cols][ok], flat_windows(st, w, cols)[ok]
 
-                self._update_noise_estimate(name, v[ok] if ok.any() else v[:0], ceiling[cols], flat)
+                self._update_noise_estimate(name, var[:, cols], ok, ceiling[cols], flat)
         lim = self._limits()
         limit = self.variance_ratio_limit
         compiled = kernel("variance_test")
@@ -602,15 +604,12 @@ class QuasiStaticDetector:
         curved = kernel("curve_test")
         if curved is not None:  # the same products, sums and comparisons compiled, in place
             curved(spread, self._to_si, float(lim.rate_limit), float(lim.drift_limit), ok)
-            if skip:
-                out[skip:] = ok
-                return out
-            return ok
-        curve = spread[:, 3] > lim.rate_limit
-        if curve.any():  # (the specific force only where the rate drifted)
-            acc = spread[:, :3] * self._to_si
-            curve &= np.sqrt(np.einsum("ij,ij->i", acc, acc)) > lim.drift_limit
-            ok &= ~curve
+        else:
+            curve = spread[:, 3] > lim.rate_limit
+            if curve.any():  # (the specific force only where the rate drifted)
+                acc = spread[:, :3] * self._to_si
+                curve &= np.sqrt(np.einsum("ij,ij->i", acc, acc)) > lim.drift_limit
+                ok &= ~curve
         if skip:
             out[skip:] = ok
             return out
