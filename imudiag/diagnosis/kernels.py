@@ -150,7 +150,8 @@ def rotation_loop(
     compiled too: (x, residuals (3 n,), Jacobian (3 n, npar), cost) at its end, as the plain
     loop of :func:`.gyro_fit.rotation_fit`, equal to rounding; None when the kernels are
     off or a damped solve was ill-conditioned (the caller runs the plain loop). ``stack``:
-    the motions' increments with their product plan (``turning`` (K, 3) rad, ``lengths``)."""
+    the motions' turning blocks (``turning`` (K, 3) rad) and each motion's count of them
+    (``lengths``)."""
     loop: Callable[..., Any] | None = kernel("rotation_loop")
     if loop is None:
         return None
