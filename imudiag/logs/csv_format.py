@@ -177,7 +177,7 @@ class CsvReader(LogReader):
             lineno = self._header_line + 1
             last_t: float | None = None
             for chunk, lines in self._chunks(fh):
-                cols = self._parse(chunk, lineno, last_t)
+                cols = self._parse(chunk, lineno, last_t, lines)
                 lineno += lines
                 if cols is not None:
                     last_t = float(cols["t"][-1])
@@ -186,15 +186,19 @@ class CsvReader(LogReader):
             self._release(fh)
 
     def _parse(
-        self, chunk: bytes, first_line: int, last_t: float | None
+        self, chunk: bytes, first_line: int, last_t: float | None, lines: int
     ) -> dict[str, np.ndarray] | None:
-        """Validated columns of a chunk of lines (their text) starting at file line
-        ``first_line``."""
+        """Validated columns of a chunk of ``lines`` lines (their text, the last perhaps
+        without its newline) starting at file line ``first_line``."""
         text = chunk
         if not text.endswith(b"\n"):
             text += b"\n"
         if b"\r" in text:  # after the final newline: a last line "\r" is empty (fuzz/)
             text = text.replace(b"\r\n", b"\n")
+        if kernels.enabled():
+            cols = self._parse_plain(text, first_line, last_t, lines)
+            if cols is not None:
+                return cols
         buf = np.frombuffer(text, dtype=np.uint8)
         ends = np.flatnonzero(buf == 10)  # one per line
         starts = np.r_[0, ends[:-1] + 1]
@@ -242,6 +246,28 @@ class CsvReader(LogReader):
         if ragged.size:
             k = int(fields[n])
             raise LogError(self.path, f"ragged row: {k} fields, header has {ncols}", line_of(n))
+        return cols
+
+    def _parse_plain(
+        self, text: bytes, first_line: int, last_t: float | None, lines: int
+    ) -> dict[str, np.ndarray] | None:
+        """:meth:`_parse` of a chunk whose every line is a data row (no "#", empty line or
+        carriage return) read whole by pyarrow's parser (:mod:`.arrow_csv`, the compiled
+        path): its parser checks each row's number of fields, so a chunk it reads has no
+        ragged row and needs no search for newlines and commas. None where the chunk is not
+        such or pyarrow is not sure: :meth:`_parse`'s own path then reads it (and decides
+        what is refused). ``text`` ends in a newline, one for each of its ``lines``."""
+        # (one byte searched for each: a comment line has its "#"; an empty line is a row
+        # of one field, which the parser refuses)
+        if b"#" in text or b"\r" in text:
+            return None
+        values = arrow_csv.floats(text, lines, len(self.columns), self._used_idx.tolist())
+        if values is None:
+            return None
+        cols = {name: values[:, j] for j, name in enumerate(self._used)}
+        bad = first_violation(cols, last_t)
+        if bad is not None:
+            raise LogError(self.path, bad[1], first_line + bad[0])
         return cols
 
     def _convert(self, text: bytes, n: int, line_of: Any) -> dict[str, np.ndarray]:
