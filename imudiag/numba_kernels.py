@@ -1016,6 +1016,120 @@ def quantile_above(v, ok, thr, q):
 
 
 @jit
+def _select(buf, n, k):
+    """Partition ``buf[:n]`` in place so that ``buf[k]`` is its k-th smallest value (0-based),
+    nothing after it smaller and nothing before it larger (Hoare's selection, the middle of
+    three as pivot; no nan in ``buf[:n]``). Returns that value."""
+    lo = 0
+    hi = n - 1
+    while hi > lo:
+        mid = (lo + hi) >> 1
+        a = buf[lo]
+        b = buf[mid]
+        c = buf[hi]
+        if a > b:
+            a, b = b, a
+        if b > c:
+            b = c
+            if a > b:
+                b = a
+        pivot = b
+        i = lo
+        j = hi
+        while i <= j:
+            while buf[i] < pivot:
+                i += 1
+            while buf[j] > pivot:
+                j -= 1
+            if i <= j:
+                t = buf[i]
+                buf[i] = buf[j]
+                buf[j] = t
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    return buf[k]
+
+
+@jit
+def masked_quantile(v, ok, q):
+    """numpy's ``np.quantile(v[ok], q, axis=0)`` (the linear method) of ``v`` (M, C) over
+    the rows where ``ok`` (M,), and whether it is that: False where no row is kept or a
+    kept value is nan (the caller then asks numpy). The two order statistics numpy
+    interpolates found by selection, and interpolated with numpy's own operations
+    (``_lerp``: from the lower one below half way, from the upper one at or above it), so
+    the values are numpy's, bit for bit."""
+    m = v.shape[0]
+    c = v.shape[1]
+    out = np.empty(c)
+    n = 0
+    for i in range(m):
+        if ok[i]:
+            n += 1
+    if n == 0:
+        return out, False
+    virtual = (n - 1) * q
+    prev = int(np.floor(virtual))
+    if virtual >= n - 1:
+        prev = n - 1
+    gamma = virtual - np.floor(virtual)
+    cols = np.empty((c, n))  # the kept values, a contiguous row per column (one pass)
+    k = 0
+    for i in range(m):
+        if ok[i]:
+            for j in range(c):
+                x = v[i, j]
+                if x != x:
+                    return out, False
+                cols[j, k] = x
+            k += 1
+    # a low quantile from the few values below a bound: the bound from every s-th value (a
+    # rank a little above the quantile's there), the values at or below it gathered (without
+    # a branch) and, when they hold both ranks sought, the selection run on them alone (the
+    # values below a bound are the lowest ones: their ranks are the whole column's)
+    stride = max(1, n // 1024)
+    ns = (n + stride - 1) // stride
+    rank = min(ns - 1, int(ns * q) + int(3.0 * np.sqrt(ns * q)) + 8)
+    sample = np.empty(ns)
+    low = np.empty(n)
+    need = prev + 2 if prev + 1 < n else prev + 1
+    for j in range(c):
+        col = cols[j]
+        for i in range(ns):
+            sample[i] = col[i * stride]
+        bound = _select(sample, ns, rank)
+        cnt = 0
+        for i in range(n):
+            x = col[i]
+            low[cnt] = x
+            cnt += x <= bound
+        buf = low
+        size = cnt
+        if cnt < need:  # too few below the bound: the whole column
+            buf = col
+            size = n
+        a = _select(buf, size, prev)
+        if prev + 1 < n and virtual < n - 1:
+            b = buf[prev + 1]
+            for i in range(prev + 2, size):
+                if buf[i] < b:
+                    b = buf[i]
+        else:
+            b = a
+        d = b - a
+        if gamma >= 0.5:
+            out[j] = b - d * (1.0 - gamma)
+        else:
+            out[j] = a + d * gamma
+    return out, True
+
+
+@jit
 def beyond_counts(x, bounds, ends, w):
     """The counts of :func:`imudiag.trailing.median_side`: per window ``x[e - w : e]`` (``e``
     in ``ends``, P, non-decreasing, each at least ``w``) and column of ``x`` (R, C), how many
@@ -1958,6 +2072,8 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         mean_cov3(r14[:, 1:4].copy())
         xv = rng.random(size=(20, 6))
         quantile_above(xv[:, 0:3], np.ones(20, dtype=np.bool_), np.zeros(3), 0.05)  # strided
+        masked_quantile(xv[:, 0:3], np.ones(20, dtype=np.bool_), 0.05)
+        masked_quantile(xv[:, 0:3].copy(), np.ones(20, dtype=np.bool_), 0.05)
         x = rng.normal(size=(12, 6))
         for layout in (x, x.T.copy().T):  # C-contiguous and strided (a transposed view)
             beyond_counts(layout, np.zeros((4, 6)), np.array([3, 12], dtype=np.int64), 3)
@@ -2022,4 +2138,5 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         "attitude_labels": attitude_labels,
         "curve_test": curve_test,
         "quantile_above": quantile_above,
+        "masked_quantile": masked_quantile,
     }

@@ -6,6 +6,8 @@ plain numpy they replace where the kernels are on:
   are the same numbers (``==``: the sign of a zero aside), on seeded random streams
   (restarts, values that are not finite, blocks of 1 row to 20 000 rows: both of the plain
   path's ways);
+- the data-noise estimate's quantile (:func:`imudiag.numba_kernels.masked_quantile`):
+  numpy's, bit for bit;
 - the jump test (:func:`imudiag.numba_kernels.jump_test`): the same element-wise operations
   and three-term sums in numpy's order, so the same flags, on random window sums with
   noise variances of very different sizes (where the order of a sum shows);
@@ -299,6 +301,56 @@ def test_quantile_above_never_says_above_when_the_quantile_is_not(seed):
         if kept.shape[0] >= 40 and not np.isnan(kept).any():
             assert quantile_above(v, ok, 0.5 * np.min(kept, axis=0) - 1.0, 0.05)
     assert said > 10
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_masked_quantile_is_numpys_bit_for_bit(seed):
+    """:func:`imudiag.numba_kernels.masked_quantile` (the data-noise estimate's quantile)
+    against ``np.quantile(v[ok], q, axis=0)`` on seeded columns: ties, a column of one
+    value, infinities, values of very different sizes, sorted and reversed columns (the
+    selection's worst orders), few and many rows, strided views, quantiles from 0 to 1.
+    Equal bit for bit (nan where numpy's is); a nan among the kept values is said, not
+    guessed."""
+    from imudiag.numba_kernels import masked_quantile
+
+    rng = np.random.default_rng(seed)
+    for trial in range(400):
+        m = int(rng.integers(1, 30)) if trial % 3 == 0 else int(rng.integers(30, 5000))
+        kind = trial % 4
+        if kind == 0:
+            v = rng.gamma(2.0, 1.0, (m, 3))
+        elif kind == 1:
+            v = np.round(rng.random((m, 3)) * 5) / 5  # ties
+        elif kind == 2:
+            v = rng.exponential(size=(m, 3)) * 10.0 ** float(rng.integers(-30, 5))
+        else:
+            v = np.full((m, 3), 0.3)  # one value, a few others
+            v[rng.random((m, 3)) < 0.3] = rng.random()
+        if trial % 7 == 0:
+            v = np.sort(v, axis=0)[::-1].copy()
+        elif trial % 7 == 1:
+            v = np.sort(v, axis=0)
+        if trial % 11 == 0:
+            v[rng.random((m, 3)) < 0.05] = np.inf
+        ok = rng.random(m) < rng.random()
+        ok[int(rng.integers(m))] = True
+        wide = np.zeros((m, 13))
+        wide[:, 3:6] = v
+        for q in (0.05, 0.0, 0.5, 1.0, float(rng.random())):
+            with np.errstate(invalid="ignore"):
+                want = np.quantile(v[ok], q, axis=0)
+            for layout in (v, wide[:, 3:6]):  # contiguous and strided (the detector's)
+                got, exact = masked_quantile(layout, ok, q)
+                assert exact
+                same = (got.view(np.int64) == want.view(np.int64)) | (
+                    np.isnan(got) & np.isnan(want)
+                )
+                assert same.all(), (trial, q, got, want)
+    v = rng.random((50, 3))
+    v[7, 1] = np.nan
+    assert not masked_quantile(v, np.ones(50, dtype=bool), 0.05)[1]
+    assert masked_quantile(v, np.arange(50) != 7, 0.05)[1]  # the nan not kept
+    assert not masked_quantile(v, np.zeros(50, dtype=bool), 0.05)[1]
 
 
 @pytest.mark.parametrize(

@@ -395,11 +395,19 @@ class QuasiStaticDetector:
             thr = np.maximum(prev * ratio, ceiling) * (1.0 + 1e-9)
             if above(windows_var, ok, thr, _NOISE_QUANTILE):
                 return
-        var = windows_var[ok] if ok.any() else windows_var[:0]
-        if var.shape[0] < 10:
-            return
-        # ``var`` is a boolean-mask copy: partitioned in place, not copied again
-        q = np.quantile(var, _NOISE_QUANTILE, axis=0, overwrite_input=True)
+        q = None
+        select = kernel("masked_quantile")
+        if select is not None:  # (compiled kernels) numpy's quantile, found by selection
+            if int(np.count_nonzero(ok)) < 10:
+                return
+            found, exact = select(windows_var, ok, _NOISE_QUANTILE)
+            q = found if exact else None
+        if q is None:
+            var = windows_var[ok] if ok.any() else windows_var[:0]
+            if var.shape[0] < 10:
+                return
+            # ``var`` is a boolean-mask copy: partitioned in place, not copied again
+            q = np.quantile(var, _NOISE_QUANTILE, axis=0, overwrite_input=True)
         stands: list[int] = []
         if ceiling is not None and flat is not None and np.any(q <= ceiling):
             fresh, frozen = flat()
