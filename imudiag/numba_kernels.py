@@ -1016,6 +1016,29 @@ def quantile_above(v, ok, thr, q):
 
 
 @jit
+def history_starts(idx, f0, lag0, f1, lag1, f2, lag2, restart, span):
+    """The still detector's history starts (:meth:`imudiag.quasistatic.QuasiStaticDetector.
+    _starts`) in one pass: per row i the latest restart so far (``restart`` before the
+    block; ``idx[i] + lag`` where a flag of (f0, lag0), (f1, lag1), (f2, lag2) (M,) each is
+    set), at least ``idx[i] - span``; and the latest restart at the block's end. Integers
+    only: the numpy path's values."""
+    m = idx.shape[0]
+    out = np.empty(m, dtype=np.int64)
+    last = restart
+    for i in range(m):
+        x = idx[i]
+        if f0[i] and x + lag0 > last:
+            last = x + lag0
+        if f1[i] and x + lag1 > last:
+            last = x + lag1
+        if f2[i] and x + lag2 > last:
+            last = x + lag2
+        low = x - span
+        out[i] = last if last > low else low
+    return out, last
+
+
+@jit
 def _select(buf, n, k):
     """Partition ``buf[:n]`` in place so that ``buf[k]`` is its k-th smallest value (0-based),
     nothing after it smaller and nothing before it larger (Hoare's selection, the middle of
@@ -2073,6 +2096,8 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         xv = rng.random(size=(20, 6))
         quantile_above(xv[:, 0:3], np.ones(20, dtype=np.bool_), np.zeros(3), 0.05)  # strided
         masked_quantile(xv[:, 0:3], np.ones(20, dtype=np.bool_), 0.05)
+        flags = np.zeros(20, dtype=np.bool_)
+        history_starts(np.arange(20, dtype=np.int64), flags, 3, flags, 0, flags, 5, 0, 7)
         masked_quantile(xv[:, 0:3].copy(), np.ones(20, dtype=np.bool_), 0.05)
         x = rng.normal(size=(12, 6))
         for layout in (x, x.T.copy().T):  # C-contiguous and strided (a transposed view)
@@ -2139,4 +2164,5 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         "curve_test": curve_test,
         "quantile_above": quantile_above,
         "masked_quantile": masked_quantile,
+        "history_starts": history_starts,
     }

@@ -6,6 +6,7 @@ plain numpy they replace where the kernels are on:
   are the same numbers (``==``: the sign of a zero aside), on seeded random streams
   (restarts, values that are not finite, blocks of 1 row to 20 000 rows: both of the plain
   path's ways);
+- the histories' starts (:func:`imudiag.numba_kernels.history_starts`): the same integers;
 - the data-noise estimate's quantile (:func:`imudiag.numba_kernels.masked_quantile`):
   numpy's, bit for bit;
 - the jump test (:func:`imudiag.numba_kernels.jump_test`): the same element-wise operations
@@ -301,6 +302,38 @@ def test_quantile_above_never_says_above_when_the_quantile_is_not(seed):
         if kept.shape[0] >= 40 and not np.isnan(kept).any():
             assert quantile_above(v, ok, 0.5 * np.min(kept, axis=0) - 1.0, 0.05)
     assert said > 10
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_history_starts_equal_plain(seed, switch):
+    """The histories' starts (:meth:`QuasiStaticDetector._starts`, compiled as
+    :func:`imudiag.numba_kernels.history_starts`) equal the numpy path's, row for row and
+    in the restart carried to the next block, over seeded blocks of one to three marks
+    (sparse, dense and no flags; lags 0 to 300 rows; spans shorter and longer than them)."""
+    from imudiag.certificate import load_default
+
+    rng = np.random.default_rng(seed)
+    dets = {}
+    for on in (False, True):
+        switch(on)
+        dets[on] = QuasiStaticDetector(load_default())
+    row = 0
+    for _trial in range(60):
+        m = int(rng.integers(1, 3000))
+        idx = np.arange(row, row + m, dtype=np.int64)
+        row += m
+        marks = [
+            (rng.random(m) < rng.choice([0.0, 0.001, 0.3]), int(rng.integers(0, 300)))
+            for _ in range(int(rng.integers(1, 4)))
+        ]
+        key = int(rng.integers(2))
+        span = int(rng.integers(1, 2000))
+        got = {}
+        for on in (False, True):
+            switch(on)
+            got[on] = dets[on]._starts(key, idx, marks, span)
+        np.testing.assert_array_equal(got[True], got[False])
+        assert dets[True]._restart == dets[False]._restart
 
 
 @pytest.mark.parametrize("seed", range(4))

@@ -492,6 +492,15 @@ class QuasiStaticDetector:
     ) -> np.ndarray:
         """First row of each row's history (M,): ``lag`` rows after the last row each
         (flags, lag) of ``marks`` flags, ``span`` rows back at most."""
+        compiled = kernel("history_starts")
+        if compiled is not None and 1 <= len(marks) <= 3:  # the same integers in one pass
+            (f0, lag0), (f1, lag1), (f2, lag2) = (marks + marks[:1] * 2)[:3]  # (a mark twice)
+            out, last = compiled(
+                np.ascontiguousarray(idx, dtype=np.int64), f0, lag0, f1, lag1, f2, lag2,
+                self._restart[key], span,
+            )  # fmt: skip
+            self._restart[key] = int(last)
+            return out
         marks = [(flags, lag) for flags, lag in marks if flags.any()]
         if not marks:  # no restart in this block
             return np.maximum(idx - span, self._restart[key])
@@ -607,7 +616,9 @@ class QuasiStaticDetector:
             spread = self._drift[0].update(first, accel_mean, start_short) * self._to_si
             ok &= np.sqrt(np.einsum("ij,ij->i", spread, spread)) <= lim.drift_limit
         # a curve: the rate about the vertical and the specific force changed together
-        values = np.column_stack([accel_mean, vertical_long])
+        values = np.empty((m, 4))
+        values[:, :3] = accel_mean
+        values[:, 3] = vertical_long
         spread = self._drift[1].update(first, values, start_long)
         curved = kernel("curve_test")
         if curved is not None:  # the same products, sums and comparisons compiled, in place
