@@ -1493,6 +1493,21 @@ def highpass_squares(full, n, h, to_si, out):
 
 
 @jit
+def window_row_sums(x, pos, whole, w):
+    """The sums (whole, C) of ``whole`` consecutive windows of ``w`` rows of ``x`` (N, C) from
+    row ``pos`` on, each column summed row by row from 0, as numpy sums a (whole, w, C)
+    reshape over its middle axis (the vibration meter's windows): equal bit for bit."""
+    c = x.shape[1]
+    out = np.zeros((whole, c))
+    for q in range(whole):
+        r0 = pos + q * w
+        for r in range(r0, r0 + w):
+            for j in range(c):
+                out[q, j] += x[r, j]
+    return out
+
+
+@jit
 def stuck_scan(raw, last):
     """The stuck check's scan of a block (:meth:`imudiag.monitor.stuck.StuckCheck.update`),
     compiled: per channel of ``raw`` (6, N) after its ``last`` output (6,), the smallest
@@ -2085,10 +2100,11 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
                 epoch_cut(rows, rows, rows, rows, mid, *bounds, rotate, rotate)
         d_idx = np.array([0, 2, 4], dtype=np.int64)
         d_max = np.zeros((3, 2))
-        trailing_spread(
-            d_idx, rows.T[:3, :4].copy(), d_idx, d_max, d_max.copy(), 0, 0, rows.T[:5, :2].copy(),
-            np.zeros(5, dtype=np.int64), 2, 3,
-        )  # fmt: skip
+        for vals in (rows.T[:5, :2].copy(), np.zeros((5, 6))[:, 3:5]):  # C and a strided view
+            trailing_spread(
+                d_idx, rows.T[:3, :4].copy(), d_idx, d_max, d_max.copy(), 0, 0, vals,
+                np.zeros(5, dtype=np.int64), 2, 3,
+            )  # fmt: skip
         attitude_labels(rng.normal(size=(5, 3)), np.ones(5, dtype=np.bool_), 0.98)
         r14 = rng.normal(size=(9, 14))
         mean_cov3(r14[:, 1:4])  # a strided view (the interval collector's rows)
@@ -2131,6 +2147,7 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         chunked_cumsum(x13, x13[0].copy(), 4, ext[3:])  # C rows into a C slice of ext
         stack_backs(ext, 3, np.array([1, 3], dtype=np.int64), np.empty((6, 2, 13)))
         highpass_squares(x13[:, :6].copy(), 4, 3, np.ones(6), np.empty((4, 6)))
+        window_row_sums(x13[:, :6].copy(), 1, 2, 2)
         stuck_scan(x13[:, :6].T.copy(), np.full(6, np.nan))  # a C-contiguous (6, N) block
         second_diff_squares(x13[:, :6].T.copy())
         stuck_scan(np.empty((6, 9))[:, 2:], np.full(6, np.nan))  # a slice after the history
@@ -2138,6 +2155,7 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         "chunked_cumsum": chunked_cumsum,
         "stack_backs": stack_backs,
         "highpass_squares": highpass_squares,
+        "window_row_sums": window_row_sums,
         "stuck_scan": stuck_scan,
         "second_diff_squares": second_diff_squares,
         "variance_test": variance_test,

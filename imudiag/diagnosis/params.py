@@ -8,6 +8,7 @@ are checked on these in this order.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -248,16 +249,14 @@ class TriadFit:
         """Estimates and standard deviations grouped by cause (non-finite values as null)."""
 
         def clean(v: np.ndarray) -> list:
-            return [float(x) if np.isfinite(x) else None for x in v]
+            return [x if math.isfinite(x) else None for x in np.asarray(v, dtype=float).tolist()]
 
         out: dict = {"method": self.method, "points": int(self.points)}
+        estimate, std = clean(self.estimate), clean(self.std)
+        determined = [bool(x) for x in np.asarray(self.determined).tolist()]
         for k, key in enumerate(PARAM_KEYS):
             sl = slice(3 * k, 3 * k + 3)
-            out[key] = {
-                "estimate": clean(self.estimate[sl]),
-                "std": clean(self.std[sl]),
-                "determined": [bool(x) for x in self.determined[sl]],
-            }
+            out[key] = {"estimate": estimate[sl], "std": std[sl], "determined": determined[sl]}
         out["condition"] = float(self.condition) if np.isfinite(self.condition) else None
         out["dof"] = float(self.dof) if np.isfinite(self.dof) else None
         out["rms_residual"] = float(self.rms_residual) if np.isfinite(self.rms_residual) else None

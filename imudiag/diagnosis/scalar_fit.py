@@ -22,6 +22,7 @@ of the symmetric part P of N (see :mod:`.gauge`).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -97,15 +98,16 @@ def _finish(
     std = np.where(null, np.inf, std)
     est = np.where(null, cert, est)
     determined = std <= determined_std_ratio * limit
+    std_list, limit_list = std.tolist(), limit.tolist()
     reasons = [
         ""
-        if determined[i]
+        if ok
         else (
             "not excited by the data (no information on it)"
-            if not np.isfinite(std[i])
-            else std_above_limit(std[i], determined_std_ratio, limit[i], units[i])
+            if not math.isfinite(std_list[i])
+            else std_above_limit(std_list[i], determined_std_ratio, limit_list[i], units[i])
         )
-        for i in range(9)
+        for i, ok in enumerate(determined.tolist())
     ]
     return TriadFit(
         triad=form.name,

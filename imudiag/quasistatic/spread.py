@@ -148,7 +148,7 @@ class TrailingSpread:
         step, k, c = self.step, self.k, self.columns
         old = self._idx.shape[0]
         k0 = -first % step
-        values = np.ascontiguousarray(values, dtype=float)
+        values = np.asarray(values, dtype=float)  # (a strided view is read in place)
         if k0 < m:
             kept = values[k0::step]
             d_idx = np.concatenate([self._idx, np.arange(first + k0, first + m, step)])
