@@ -1039,6 +1039,65 @@ def history_starts(idx, f0, lag0, f1, lag1, f2, lag2, restart, span):
 
 
 @jit
+def _prefix_mean_var_rows(x, mean_var, counts, reverse, est, var):
+    """:func:`imudiag.diagnosis.gyro_fit._prefix_mean_var` of the rows of ``x`` (K, 3) (the
+    means, centred by the caller; taken from the last when ``reverse``) into ``est`` and
+    ``var`` (K, 3): the same running sums in the same order, the same operations."""
+    k = x.shape[0]
+    for j in range(3):
+        bw = 0.0
+        sw = 0.0
+        sn = 0.0
+        ss = 0.0
+        for r in range(k):
+            i = k - 1 - r if reverse else r
+            w = counts[i]
+            xi = x[i, j]
+            bw += w
+            sw += w * xi
+            sn += w * w * mean_var[i, j]
+            ss += w * xi * xi
+            e = sw / bw
+            noise = sn / (bw * bw)
+            scatter = 0.0
+            if r > 0:
+                scatter = nan_max(ss / bw - e * e, 0.0) / r
+            est[r, j] = e
+            var[r, j] = nan_max(noise, scatter)
+
+
+@jit
+def rest_step_scores(means, mean_var, counts, lo, hi, min_size):
+    """:func:`imudiag.diagnosis.gyro_fit.rest_rate_steps`' scores compiled: per split
+    lo..hi (S = hi - lo + 1) and axis, |mean after - mean before| over its std, 0 where the
+    step is below ``min_size`` (3,) or the score is not finite (S, 3); ``counts`` (K,) all
+    positive. The prefix figures of both parts as the numpy path makes them (its cumulative
+    sums run in order too, the means centred on the first): equal bit for bit."""
+    k = means.shape[0]
+    centred = np.empty((k, 3))
+    for i in range(k):
+        for j in range(3):
+            centred[i, j] = means[i, j] - means[0, j]
+    m_old = np.empty((k, 3))
+    v_old = np.empty((k, 3))
+    m_new = np.empty((k, 3))
+    v_new = np.empty((k, 3))
+    _prefix_mean_var_rows(centred, mean_var, counts, False, m_old, v_old)
+    _prefix_mean_var_rows(centred, mean_var, counts, True, m_new, v_new)
+    out = np.zeros((hi - lo + 1, 3))
+    for a in range(hi - lo + 1):
+        split = lo + a
+        for j in range(3):
+            step = abs(m_new[k - split - 1, j] - m_old[split - 1, j])
+            den = np.sqrt(v_old[split - 1, j] + v_new[k - split - 1, j])
+            if step >= min_size[j] and den > 0.0:
+                z = step / den
+                if np.isfinite(z):
+                    out[a, j] = z
+    return out
+
+
+@jit
 def _select(buf, n, k):
     """Partition ``buf[:n]`` in place so that ``buf[k]`` is its k-th smallest value (0-based),
     nothing after it smaller and nothing before it larger (Hoare's selection, the middle of
@@ -2112,6 +2171,7 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         xv = rng.random(size=(20, 6))
         quantile_above(xv[:, 0:3], np.ones(20, dtype=np.bool_), np.zeros(3), 0.05)  # strided
         masked_quantile(xv[:, 0:3], np.ones(20, dtype=np.bool_), 0.05)
+        rest_step_scores(xv[:12, :3].copy(), xv[:12, 3:6].copy(), np.ones(12), 5, 7, np.zeros(3))
         flags = np.zeros(20, dtype=np.bool_)
         history_starts(np.arange(20, dtype=np.int64), flags, 3, flags, 0, flags, 5, 0, 7)
         masked_quantile(xv[:, 0:3].copy(), np.ones(20, dtype=np.bool_), 0.05)
@@ -2183,4 +2243,5 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         "quantile_above": quantile_above,
         "masked_quantile": masked_quantile,
         "history_starts": history_starts,
+        "rest_step_scores": rest_step_scores,
     }

@@ -237,3 +237,35 @@ def test_the_prefix_sums_score_every_split_as_the_definition_does() -> None:
             assert (s.before, s.after) == (w[3], w[4])
         found += len(got)
     assert found > 50  # 75 steps found on these windows
+
+
+def test_the_compiled_scores_equal_the_plain_ones() -> None:
+    """The rest-rate steps with the compiled kernels (numba, the ``fleet`` extra:
+    :func:`imudiag.numba_kernels.rest_step_scores`) and without, on 300 seeded windows as
+    above plus windows of one repeated mean (every score 0) and an interval of zero noise:
+    the same steps, at the same intervals, the same sigma and levels, bit for bit."""
+    from imudiag import kernels
+
+    pytest.importorskip("numba", reason="numba (the fleet extra) is not installed")
+    rng = np.random.default_rng(2914)
+    found = 0
+    for trial in range(300):
+        k = int(rng.integers(5, 25))
+        sigma = rng.uniform(0.3, 3.0, 3)
+        counts = rng.integers(200, 900, k).astype(float)
+        means = 32_000.0 + sigma * rng.standard_normal((k, 3))
+        if rng.random() < 2 / 3:
+            means[int(rng.integers(1, k)) :, int(rng.integers(3))] += rng.uniform(-80, 80)
+        var = np.tile(sigma**2, (k, 1)) * rng.uniform(0.5, 2.0, (k, 1))
+        if trial % 10 == 0:
+            means[:] = means[0]
+            var[int(rng.integers(k))] = 0.0
+        floor = float(rng.uniform(0, 20)) if rng.random() < 0.5 else rng.uniform(0, 20, 3)
+        got = {}
+        for on in (False, True):
+            with kernels.switched(on) as active:
+                assert active == on, kernels.status()
+                got[on] = rest_rate_steps(means, var, counts, floor)
+        assert got[True] == got[False]
+        found += len(got[True])
+    assert found > 40  # 47 steps found on these windows

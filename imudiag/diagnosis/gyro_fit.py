@@ -228,15 +228,22 @@ def rest_rate_steps(
     lo, hi = REST_STEP_MIN_SIDE, k - REST_STEP_MIN_SIDE  # splits lo..hi
     if hi < lo:
         return []
-    centred = means - means[0]
-    m_old, v_old = _prefix_mean_var(centred, mean_var, counts)
-    m_new, v_new = _prefix_mean_var(centred[::-1], mean_var[::-1], counts[::-1])
     splits = np.arange(lo, hi + 1)
-    m0, v0 = m_old[splits - 1], v_old[splits - 1]  # parts [:split]
-    m1, v1 = m_new[k - splits - 1], v_new[k - splits - 1]  # parts [split:]
-    step = np.abs(m1 - m0)
-    z = step / np.sqrt(v0 + v1)
-    z[~(step >= min_size) | ~np.isfinite(z)] = 0.0
+    scores = kernels.kernel("rest_step_scores") if bool(np.all(counts > 0)) else None
+    if scores is not None:  # (fleet workers) the same sums and scores compiled: exact
+        z = scores(
+            np.ascontiguousarray(means), np.ascontiguousarray(mean_var), counts, lo, hi,
+            np.ascontiguousarray(np.broadcast_to(np.asarray(min_size, dtype=float), (3,))),
+        )  # fmt: skip
+    else:
+        centred = means - means[0]
+        m_old, v_old = _prefix_mean_var(centred, mean_var, counts)
+        m_new, v_new = _prefix_mean_var(centred[::-1], mean_var[::-1], counts[::-1])
+        m0, v0 = m_old[splits - 1], v_old[splits - 1]  # parts [:split]
+        m1, v1 = m_new[k - splits - 1], v_new[k - splits - 1]  # parts [split:]
+        step = np.abs(m1 - m0)
+        z = step / np.sqrt(v0 + v1)
+        z[~(step >= min_size) | ~np.isfinite(z)] = 0.0
     out = []
     for a in range(3):
         best = int(np.argmax(z[:, a]))
