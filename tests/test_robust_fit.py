@@ -19,7 +19,7 @@ from conftest import run_imudiag_in_process
 from imudiag.certificate import load, load_default
 from imudiag.diagnosis.intervals import IntervalCollector
 from imudiag.diagnosis.params import limit_vector
-from imudiag.diagnosis.predicates import candidates, held_back
+from imudiag.diagnosis.predicates import candidates, held_back, judge
 from imudiag.diagnosis.robust import REJECT_SIGMA
 from imudiag.diagnosis.scalar_fit import exact_fit, robust_exact_fit
 from imudiag.logs import open_log
@@ -117,6 +117,12 @@ def test_a_fault_that_one_interval_makes_is_held_back_and_said(cert):
     labels = [f"interval {i}" for i in range(14)]
     hb = held_back(fit, 4.0, labels)
     assert [(h["sensor"], h["cause"], h["point"]) for h in hb] == [("ax", "bias", "interval 6")]
+    # the fit judged once (a window's judgement, passed to both): the same answers; one made
+    # at another k_sigma is not used
+    once = judge(fit, 4.0)
+    assert held_back(fit, 4.0, labels, once) == hb
+    np.testing.assert_array_equal(candidates(fit, 4.0, once), candidates(fit, 4.0))
+    np.testing.assert_array_equal(candidates(fit, 4.0, judge(fit, 100.0)), candidates(fit, 4.0))
     assert hb[0]["without_point"] == pytest.approx(fit.certificate[0] + 0.3 * lim[0])
     # a point the parameter cannot be seen without cannot be contradicted: still a fault
     fit.loo_deviation[6, 0] = np.nan

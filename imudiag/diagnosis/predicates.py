@@ -56,16 +56,44 @@ def _eligible(fit: TriadFit, k_sigma: float) -> np.ndarray:
     return _beyond(dev, fit, k_sigma) & np.isfinite(fit.std) & fit.judged & fit.determined
 
 
-def candidates(fit: TriadFit, k_sigma: float) -> np.ndarray:
+@dataclass(frozen=True)
+class Judgement:
+    """What :func:`candidates` and :func:`held_back` both work out of one fit at one
+    ``k_sigma`` (:func:`judge`), made once for a window's fit as the window left it
+    (:func:`imudiag.diagnosis.window.diagnose_window`) and passed to both."""
+
+    k_sigma: float
+    eligible: np.ndarray  #: (9,) bool, :func:`_eligible`
+    #: (G, 9) bool, :func:`_stable_rows`; None where the fit has no point left out
+    rows: np.ndarray | None
+
+
+def judge(fit: TriadFit, k_sigma: float) -> Judgement:
+    """The fit's :class:`Judgement` at ``k_sigma``."""
+    loo = fit.loo_deviation
+    has_rows = loo is not None and loo.shape[0] > 0
+    rows = _stable_rows(fit, k_sigma) if has_rows else None
+    return Judgement(float(k_sigma), _eligible(fit, k_sigma), rows)
+
+
+def _judged(fit: TriadFit, k_sigma: float, judgement: Judgement | None) -> Judgement:
+    """``judgement`` where it is of ``k_sigma``, else the fit judged now."""
+    if judgement is not None and judgement.k_sigma == float(k_sigma):
+        return judgement
+    return judge(fit, k_sigma)
+
+
+def candidates(fit: TriadFit, k_sigma: float, judgement: Judgement | None = None) -> np.ndarray:
     """Signs (9,) of the parameters beyond their limit and k_sigma std (0 where not).
 
     A candidate must be well determined (``fit.determined``: its std at most the
     configured fraction of its limit), judged (the fit had redundancy), and
     stable: still beyond, with the same sign, with any single point of the fit
     left out (``fit.loo_deviation``, :mod:`.robust`), so one interval or motion
-    cannot make a fault.
+    cannot make a fault. ``judgement``: the fit's, made once (:func:`judge`).
     """
-    beyond = _eligible(fit, k_sigma) & stable(fit, k_sigma)
+    j = _judged(fit, k_sigma, judgement)
+    beyond = j.eligible if j.rows is None else j.eligible & np.all(j.rows, axis=0)
     return np.where(beyond, np.sign(fit.deviation), 0.0)
 
 
@@ -91,15 +119,18 @@ def stable(fit: TriadFit, k_sigma: float) -> np.ndarray:
     return np.all(_stable_rows(fit, k_sigma), axis=0)
 
 
-def held_back(fit: TriadFit, k_sigma: float, labels: list[str]) -> list[dict]:
+def held_back(
+    fit: TriadFit, k_sigma: float, labels: list[str], judgement: Judgement | None = None
+) -> list[dict]:
     """Parameters that would be fault candidates but for one point (the first such point):
     ``sensor``, ``cause``, ``estimate``, the estimate without that ``point`` and the
-    reason."""
+    reason. ``judgement``: the fit's, made once (:func:`judge`)."""
     loo = fit.loo_deviation
     if loo is None or loo.shape[0] == 0:
         return []
-    would = _eligible(fit, k_sigma)
-    rows = _stable_rows(fit, k_sigma)
+    j = _judged(fit, k_sigma, judgement)
+    would, rows = j.eligible, j.rows
+    assert rows is not None
     out = []
     for i in np.flatnonzero(would & ~np.all(rows, axis=0)):
         g = int(np.flatnonzero(~rows[:, i])[0])
@@ -139,9 +170,10 @@ class PredicateTracker:
         #: faults withdrawn by :meth:`restart`, each with its ``reason``
         self.withdrawn: list[dict] = []
 
-    def update(self, fit: TriadFit, t: float) -> list[dict]:
-        """Judge one window's fit at time ``t`` (s); returns this window's candidates."""
-        sign_arr = candidates(fit, self.k_sigma)
+    def update(self, fit: TriadFit, t: float, judgement: Judgement | None = None) -> list[dict]:
+        """Judge one window's fit at time ``t`` (s); returns this window's candidates.
+        ``judgement``: the fit's, made once (:func:`judge`)."""
+        sign_arr = candidates(fit, self.k_sigma, judgement)
         # informative: judged, a finite std, and determined or a candidate (all 9 at once)
         informative_all = (
             np.asarray(fit.judged, dtype=bool)
@@ -268,4 +300,4 @@ def _public(f: dict) -> dict:
     return {k: f[k] for k in keys if k in f}
 
 
-__all__ = ["PredicateTracker", "candidates", "held_back", "stable"]
+__all__ = ["Judgement", "PredicateTracker", "candidates", "held_back", "judge", "stable"]

@@ -246,7 +246,7 @@ class StreamingDiagnoser:
         self.windows_run += 1
         for triad in TRIADS:
             fit = res.fit(triad)
-            res.candidates.extend(self.tracker.update(fit, res.t_end))
+            res.candidates.extend(self.tracker.update(fit, res.t_end, res.judgements.get(triad)))
             self._determined[triad] |= fit.determined
             for i in range(9):
                 if not fit.determined[i]:

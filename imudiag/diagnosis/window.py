@@ -38,7 +38,7 @@ from .params import (
     triad_form,
     undetermined_fit,
 )
-from .predicates import held_back
+from .predicates import Judgement, held_back, judge
 from .scalar_fit import linear_fit
 
 
@@ -56,6 +56,9 @@ class WindowResult:
     gyro: TriadFit
     method: str
     candidates: list[dict] = field(default_factory=list)  #: predicates beyond their limits
+    #: each fit's :class:`~.predicates.Judgement` as the window left it (for the stream's
+    #: tracker: worked out once); not part of the report
+    judgements: dict[str, Judgement] = field(default_factory=dict, repr=False, compare=False)
 
     def fit(self, triad: str) -> TriadFit:
         """The fit of ``gyro`` or ``accel``."""
@@ -482,8 +485,10 @@ def diagnose_window(
         acc = accel_window_fit(cert, intervals, config, method, attitudes)
         accel_model = model_with(cert.accel, acc.estimate)
         gyr, rotations = gyro_window_fit(cert, intervals, config, method, accel_model, attitudes)
-    for fit in (acc, gyr):
-        hb = held_back(fit, config.k_sigma, fit.point_labels or [])
+    judgements = {}
+    for name, fit in (("accel", acc), ("gyro", gyr)):
+        judgements[name] = judge(fit, config.k_sigma)
+        hb = held_back(fit, config.k_sigma, fit.point_labels or [], judgements[name])
         if hb:
             fit.extra["held_back"] = hb
     return WindowResult(
@@ -496,6 +501,7 @@ def diagnose_window(
         accel=acc,
         gyro=gyr,
         method=method,
+        judgements=judgements,
     )
 
 
