@@ -117,16 +117,17 @@ def test_a_fault_that_one_interval_makes_is_held_back_and_said(cert):
     labels = [f"interval {i}" for i in range(14)]
     hb = held_back(fit, 4.0, labels)
     assert [(h["sensor"], h["cause"], h["point"]) for h in hb] == [("ax", "bias", "interval 6")]
-    # the fit judged once (a window's judgement, passed to both): the same answers; one made
-    # at another k_sigma is not used
+    # the fit judged once (a window's judgement, passed to both): the same answers
     once = judge(fit, 4.0)
     assert held_back(fit, 4.0, labels, once) == hb
     np.testing.assert_array_equal(candidates(fit, 4.0, once), candidates(fit, 4.0))
-    np.testing.assert_array_equal(candidates(fit, 4.0, judge(fit, 100.0)), candidates(fit, 4.0))
     assert hb[0]["without_point"] == pytest.approx(fit.certificate[0] + 0.3 * lim[0])
     # a point the parameter cannot be seen without cannot be contradicted: still a fault
     fit.loo_deviation[6, 0] = np.nan
     assert candidates(fit, 4.0)[0] == 1.0
+    # (a judgement made at another k_sigma, where it is not a fault, is not used)
+    assert not judge(fit, 100.0).eligible[0]
+    assert candidates(fit, 4.0, judge(fit, 100.0))[0] == 1.0
     # and an undetermined estimate is never a fault, however far
     fit.determined[0] = False
     assert candidates(fit, 4.0)[0] == 0.0
