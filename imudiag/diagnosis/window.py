@@ -283,11 +283,15 @@ def rotation_pairs(
     # whether it has one (a zero vector has no direction)
     ups: np.ndarray | None = None
     positive: list[bool] = []
+    key: tuple | None = None  # the direction variance's memo key (this accelerometer scale)
     for i, (prev, cur) in enumerate(zip(intervals[:-1], intervals[1:], strict=True)):
         seg = cur.before
         if seg is None or not seg.usable or cur.index != prev.index + 1 or seg.t.shape[0] < 2:
             continue
-        if not _motion_usable(gyro, prev, seg, max_step, min_path, screened):
+        usable = seg.memo.get(screened)  # (screened in an earlier window of its interval)
+        if usable is None:
+            usable = _motion_usable(gyro, prev, seg, max_step, min_path, screened)
+        if not usable:
             continue
         if ups is None:
             f_all = accel.inverse(np.array([iv.accel_mean for iv in intervals]))
@@ -303,7 +307,8 @@ def rotation_pairs(
                 (prev.mean_var("accel") + cur.mean_var("accel")) / 2.0,
             )
         bias, bias_var, accel_var = seg.memo["pair"]
-        key = ("dir_var", float(g_in), np.asarray(accel.scale_factor, dtype=float).tobytes())
+        if key is None:
+            key = ("dir_var", float(g_in), np.asarray(accel.scale_factor, dtype=float).tobytes())
         if key not in seg.memo:  # the same accelerometer scale in every window
             seg.memo[key] = float(np.mean(accel_var / accel.scale_factor**2)) / g_in**2
         pairs.append(
