@@ -206,10 +206,10 @@ class CsvReader(LogReader):
         # comment or empty lines (a line of only "\r"s is empty too: found by fuzz/)
         if np.any((buf[starts] == 35) | (buf[starts] == 10) | (buf[starts] == 13)):
             parts = chunk.split(b"\n")  # the file's lines, each with its b"\n"
-            lines = [ln + b"\n" for ln in parts[:-1]] + ([parts[-1]] if parts[-1] else [])
+            file_lines = [ln + b"\n" for ln in parts[:-1]] + ([parts[-1]] if parts[-1] else [])
             keep = [
                 (first_line + i, ln.rstrip(b"\r\n") + b"\n")
-                for i, ln in enumerate(lines)
+                for i, ln in enumerate(file_lines)
                 if not ln.startswith(b"#") and ln.rstrip(b"\r\n")
             ]
             if not keep:
