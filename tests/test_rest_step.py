@@ -214,6 +214,19 @@ def _steps_by_definition(means, var, counts, min_size=0.0):
     return [b for b in best if b is not None]
 
 
+def _random_window(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A seeded random window: 5 to 24 interval means (K, 3), their variances and sample
+    counts (unequal), with a step of random size on a random axis in two thirds of them."""
+    k = int(rng.integers(5, 25))
+    sigma = rng.uniform(0.3, 3.0, 3)
+    counts = rng.integers(200, 900, k).astype(float)
+    means = 32_000.0 + sigma * rng.standard_normal((k, 3))
+    if rng.random() < 2 / 3:
+        means[int(rng.integers(1, k)) :, int(rng.integers(3))] += rng.uniform(-80, 80)
+    var = np.tile(sigma**2, (k, 1)) * rng.uniform(0.5, 2.0, (k, 1))
+    return means, var, counts
+
+
 def test_the_prefix_sums_score_every_split_as_the_definition_does() -> None:
     """On 300 seeded random windows (5 to 24 intervals, unequal counts and noise, a step
     of random size on a random axis in two thirds of them, a size floor in half): the
@@ -221,13 +234,7 @@ def test_the_prefix_sums_score_every_split_as_the_definition_does() -> None:
     rng = np.random.default_rng(2913)
     found = 0
     for _ in range(300):
-        k = int(rng.integers(5, 25))
-        sigma = rng.uniform(0.3, 3.0, 3)
-        counts = rng.integers(200, 900, k).astype(float)
-        means = 32_000.0 + sigma * rng.standard_normal((k, 3))
-        if rng.random() < 2 / 3:
-            means[int(rng.integers(1, k)) :, int(rng.integers(3))] += rng.uniform(-80, 80)
-        var = np.tile(sigma**2, (k, 1)) * rng.uniform(0.5, 2.0, (k, 1))
+        means, var, counts = _random_window(rng)
         floor = float(rng.uniform(0, 20)) if rng.random() < 0.5 else 0.0
         want = _steps_by_definition(means, var, counts, floor)
         got = rest_rate_steps(means, var, counts, floor)
@@ -250,16 +257,10 @@ def test_the_compiled_scores_equal_the_plain_ones() -> None:
     rng = np.random.default_rng(2914)
     found = 0
     for trial in range(300):
-        k = int(rng.integers(5, 25))
-        sigma = rng.uniform(0.3, 3.0, 3)
-        counts = rng.integers(200, 900, k).astype(float)
-        means = 32_000.0 + sigma * rng.standard_normal((k, 3))
-        if rng.random() < 2 / 3:
-            means[int(rng.integers(1, k)) :, int(rng.integers(3))] += rng.uniform(-80, 80)
-        var = np.tile(sigma**2, (k, 1)) * rng.uniform(0.5, 2.0, (k, 1))
+        means, var, counts = _random_window(rng)
         if trial % 10 == 0:
             means[:] = means[0]
-            var[int(rng.integers(k))] = 0.0
+            var[int(rng.integers(len(counts)))] = 0.0
         floor = float(rng.uniform(0, 20)) if rng.random() < 0.5 else rng.uniform(0, 20, 3)
         got = {}
         for on in (False, True):
