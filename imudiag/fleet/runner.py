@@ -9,7 +9,7 @@ import logging
 import os
 import warnings
 from collections.abc import Callable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -348,25 +348,20 @@ def run(
                 if progress:
                     progress(f"{finished}/{total} logs", finished / total, finished)
 
-    # the outputs are rebuilt from the records in a thread while the cluster closes (its
-    # workers' exit is mostly waiting: about half a second of a run's fixed end)
-    rebuilt: Future[tuple[list[dict[str, Any]], dict[str, Any]]] | None = None
-    with ThreadPoolExecutor(1) as pool:
-        if any(not is_known(log.absolute(), known) for log in found):
-            # logs to hash (their content, GBs): read in a thread while the workers start
+    if any(not is_known(log.absolute(), known) for log in found):
+        # logs to hash (their content, GBs): read in a thread while the workers start
+        with ThreadPoolExecutor(1) as pool:
             hashing = pool.submit(make_jobs)
             with _client(scheduler, workers, memory_limit, retries, dashboard) as client:
                 collect(client, hashing.result())
-                rebuilt = pool.submit(rebuild, outdir)
-        else:
-            jobs = make_jobs()
-            if jobs:
-                with _client(scheduler, workers, memory_limit, retries, dashboard) as client:
-                    collect(client, jobs)
-                    rebuilt = pool.submit(rebuild, outdir)
-            else:  # everything recorded already: no cluster
-                collect(None, jobs)
-        records, _ = rebuilt.result() if rebuilt is not None else rebuild(outdir)
+    else:
+        jobs = make_jobs()
+        if jobs:
+            with _client(scheduler, workers, memory_limit, retries, dashboard) as client:
+                collect(client, jobs)
+        else:  # everything recorded already: no cluster
+            collect(None, jobs)
+    records, _ = rebuild(outdir)
     return records
 
 
