@@ -64,6 +64,45 @@ def test_magic_bytes_pick_among_formats_sharing_an_ending(tmp_path: Path, magic_
     assert lookup(tmp_path / "new.bin").name == ".bin"
 
 
+def test_which_formats_may_carry_gnss_of_their_own(tmp_path: Path, monkeypatch) -> None:
+    """A format may hold GNSS fixes of its own unless its reader is a LogReader class that
+    keeps the base's ``gnss`` (none): ``diagnose`` then does not open such a log again to
+    ask (a CSV, NPZ or wire capture); a reader made by a function is always asked; and a
+    CSV log's report is the same without that second open (no ``moving_base`` section)."""
+    carries = {f.name: f.may_carry_gnss for f in formats()}
+    assert not any(carries[n] for n in (".csv", ".csv.gz", ".npz", ".bin"))
+    assert all(carries[n] for n in ("dataflash", ".ulg", "rosbag2", "rosbag1"))
+
+    class _WithGnss(LogReader):
+        def gnss(self):  # type: ignore[no-untyped-def]
+            return None
+
+    assert registry.LogFormat("x", (".x",), _WithGnss).may_carry_gnss
+    assert registry.LogFormat("y", (".y",), lambda path, block_size: _WithGnss(path)).may_carry_gnss
+    assert not registry.LogFormat("z", (".z",), _MagicReader).may_carry_gnss
+
+    from imudiag.api import diagnose
+    from imudiag.certificate import load_default
+    from imudiag.logs.csv_format import CsvReader
+    from imudiag.sim import multi_position, simulate
+
+    cert = load_default()
+    traj = multi_position(n_attitudes=8, dwell_s=20.0, turn_s=2.0, rate_hz=100, seed=3)
+    log = tmp_path / "session.csv"
+    write_log(log, simulate(cert, traj, seed=4).samples)
+    opened = []
+    real_init = CsvReader.__init__
+
+    def counting_init(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+        opened.append(args[0] if args else kwargs.get("path"))
+        real_init(self, *args, **kwargs)
+
+    monkeypatch.setattr(CsvReader, "__init__", counting_init)
+    report = diagnose(str(log), None)
+    assert "moving_base" not in report
+    assert len(opened) == 1, opened  # read once, not opened again to ask for its GNSS
+
+
 def test_reading_only_format_refuses_writing(tmp_path: Path) -> None:
     fmt = registry.LogFormat("readonly-test", (".rotest",), _MagicReader)
     register_format(fmt)

@@ -231,7 +231,7 @@ def gnss_section_of(
     ``gnss`` as :func:`moving_base_for_recording`, or a
     :class:`~imudiag.logs.gnss_fixes.GnssFixes` (fixes of the samples' clock, tied as a
     log's own)."""
-    from ..logs import DEFAULT_BLOCK_SIZE, open_log
+    from ..logs import DEFAULT_BLOCK_SIZE, lookup, open_log
 
     if gnss is None or gnss == "none":
         return None
@@ -242,6 +242,8 @@ def gnss_section_of(
         block, where = data, "(samples)"
     else:
         where = str(data)
+        if gnss == "auto" and fixes is None and not lookup(data).may_carry_gnss:  # type: ignore[arg-type]
+            return None  # a format without GNSS of its own (CSV, NPZ, a wire capture): not opened
         with open_log(data, block_size=block_size or DEFAULT_BLOCK_SIZE, options=options) as r:  # type: ignore[arg-type]
             fixes = fixes or r.gnss()
             if gnss == "auto" and fixes is None:

@@ -41,6 +41,17 @@ class LogFormat:
     #: typical bytes a written sample takes (the writer's output), for free-space checks
     bytes_per_sample: float = 0.0
 
+    @property
+    def may_carry_gnss(self) -> bool:
+        """Whether a log of this format can hold GNSS fixes of its own: False only where its
+        reader is a :class:`LogReader` class that keeps the base's :meth:`LogReader.gnss`
+        (none), so a caller asking for a log's own GNSS need not open it (a plug-in's
+        reader made by a function is asked)."""
+        reader = self.reader
+        if isinstance(reader, type) and issubclass(reader, LogReader):
+            return reader.gnss is not LogReader.gnss
+        return True
+
     def open_reader(self, path: str | Path, block_size: int, options: Any = None) -> LogReader:
         """A reader of ``path``; raises LogError when the format cannot be read."""
         if self.reader is None:
