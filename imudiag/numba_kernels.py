@@ -1599,6 +1599,48 @@ def stuck_scan(raw, last):
 
 
 @jit
+def stuck_episodes(raw, last, run, need, active, maybe):
+    """The stuck check's new episodes in a block (:meth:`imudiag.monitor.stuck.StuckCheck.
+    _episodes`), compiled: per channel of ``raw`` (6, N) where ``maybe``, the runs of equal
+    consecutive outputs (``==``, the first against ``last``), each a hit when its equal
+    steps, with the ``run`` carried into the block for one at its start, reach ``need``,
+    but for a run at the start of a channel ``active`` at the last block's end; returns the
+    hits (6,) and the sample index (clipped to the block) where each channel's first hit
+    completed ``need`` (-1: none). Comparisons and integers: the numpy path's values."""
+    c = raw.shape[0]
+    n = raw.shape[1]
+    hits = np.zeros(c, dtype=np.int64)
+    first = np.full(c, -1, dtype=np.int64)
+    for j in range(c):
+        if not maybe[j]:
+            continue
+        prev = last[j]
+        start = -1  # the first equal step of the run in progress (-1: none)
+        for i in range(n + 1):
+            same = False
+            if i < n:
+                x = raw[j, i]
+                same = x == prev
+                prev = x
+            if same:
+                if start < 0:
+                    start = i
+                continue
+            if start >= 0:  # a run of equal steps [start, i) ended
+                carried = run[j] if start == 0 else 0
+                hit = i - start + carried >= need
+                if start == 0 and active[j]:
+                    hit = False  # the episode in force at the last block's end goes on
+                if hit:
+                    if hits[j] == 0:
+                        reach = start + need - 1 - carried
+                        first[j] = min(max(reach, 0), n - 1)
+                    hits[j] += 1
+                start = -1
+    return hits, first
+
+
+@jit
 def second_diff_squares(chan):
     """The noise judge's squared second differences (:meth:`imudiag.monitor.noise.NoiseCheck.
     judge`), compiled: per row of ``chan`` (C, M), ``((x[i+2] - x[i+1]) - (x[i+1] - x[i]))^2``
@@ -2211,12 +2253,18 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         stuck_scan(x13[:, :6].T.copy(), np.full(6, np.nan))  # a C-contiguous (6, N) block
         second_diff_squares(x13[:, :6].T.copy())
         stuck_scan(np.empty((6, 9))[:, 2:], np.full(6, np.nan))  # a slice after the history
+        for raw6 in (x13[:, :6].T.copy(), np.empty((6, 9))[:, 2:]):  # C and a slice, as the scan
+            stuck_episodes(
+                raw6, np.zeros(6), np.zeros(6, dtype=np.int64), 3, np.zeros(6, dtype=np.bool_),
+                np.ones(6, dtype=np.bool_),
+            )  # fmt: skip
     return {
         "chunked_cumsum": chunked_cumsum,
         "stack_backs": stack_backs,
         "highpass_squares": highpass_squares,
         "window_row_sums": window_row_sums,
         "stuck_scan": stuck_scan,
+        "stuck_episodes": stuck_episodes,
         "second_diff_squares": second_diff_squares,
         "variance_test": variance_test,
         "drift_within": drift_within,

@@ -3,7 +3,8 @@ random streams cut into random blocks and on the real recordings (issue 30 item 
 
 - :class:`~imudiag.monitor.StuckCheck`: after every block, a channel is stuck exactly when
   its last ``stuck_samples`` raw outputs are equal (and its noise is checked), and the
-  episodes it counts are the stream's runs of one value that long, however it was cut;
+  episodes it counts are the stream's runs of one value that long, however it was cut
+  (with the compiled kernels and without);
 - :class:`~imudiag.monitor.batching.F0Screen`: its count of samples beyond the F0 limit is
   that of the F0 of each sample corrected with the certificate, and it never counts fewer
   (the bound the gathered reads rely on);
@@ -16,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from imudiag import kernels
 from imudiag.certificate import load_default
 from imudiag.monitor import MonitorConfig, NoiseCheck, StuckCheck
 from imudiag.monitor.batching import F0Screen
@@ -63,14 +65,21 @@ def _plain_episodes(raw: np.ndarray, samples: int) -> tuple[np.ndarray, np.ndarr
     return count, first
 
 
-def _check_stuck(raw: np.ndarray, sigma: tuple, seed: int, samples: int = 50) -> int:
+def _check_stuck(
+    raw: np.ndarray, sigma: tuple, seed: int, samples: int = 50, compiled: bool = False
+) -> int:
     """The state in force after every block, and the episodes the whole stream raised
-    (:attr:`StuckCheck.raised`, also those inside one block), against their definitions."""
+    (:attr:`StuckCheck.raised`, also those inside one block), against their definitions;
+    ``compiled``: with the kernels (numba, the ``fleet`` extra: the block's scan and its
+    episodes, :func:`imudiag.numba_kernels.stuck_episodes`)."""
     rng = np.random.default_rng(seed)
     check = StuckCheck(sigma, 1.0, samples)
     stuck_seen = 0
     for a, b in _blocks(rng, raw.shape[0]):
-        active = check.update(raw[a:b].T.copy(), np.arange(a, b, dtype=float))
+        with kernels.switched(compiled) as on:
+            if compiled and not on:
+                pytest.skip(f"the compiled kernels cannot be loaded: {kernels.status()}")
+            active = check.update(raw[a:b].T.copy(), np.arange(a, b, dtype=float))
         want = _plain_stuck(raw, b, samples) & check.enabled
         assert np.array_equal(active, want), f"block {a}..{b}"
         stuck_seen += int(active.any())
@@ -81,8 +90,9 @@ def _check_stuck(raw: np.ndarray, sigma: tuple, seed: int, samples: int = 50) ->
     return stuck_seen
 
 
+@pytest.mark.parametrize("compiled", [False, True])
 @pytest.mark.parametrize("seed", range(4))
-def test_stuck_runs_are_their_definition_on_random_streams(seed):
+def test_stuck_runs_are_their_definition_on_random_streams(seed, compiled):
     rng = np.random.default_rng(500 + seed)
     n = 6000
     raw = np.round(rng.normal(scale=3.0, size=(n, 6)))
@@ -92,14 +102,16 @@ def test_stuck_runs_are_their_definition_on_random_streams(seed):
     raw[rng.random((n, 6)) < 0.001] = np.nan  # NaN never equals: it ends a run
     raw[1000:2000, 0] = 7.0  # and one run on a channel checked
     sigma = (np.array([5.0, 0.5, 5.0]), None if seed % 2 else np.array([5.0, 5.0, 5.0]))
-    assert _check_stuck(raw, sigma, seed) > 0
+    assert _check_stuck(raw, sigma, seed, compiled=compiled) > 0
 
 
+@pytest.mark.parametrize("compiled", [False, True])
 @pytest.mark.parametrize("name", REAL_NAMES)
-def test_stuck_runs_are_their_definition_on_the_real_recordings(name):
+def test_stuck_runs_are_their_definition_on_the_real_recordings(name, compiled):
     block, _cert = _real(name)
     raw = np.concatenate([block.gyro, block.accel], axis=1)[:30_000]
-    _check_stuck(raw, (np.ones(3), np.ones(3)), 600 + REAL_NAMES.index(name), samples=5)
+    seed = 600 + REAL_NAMES.index(name)
+    _check_stuck(raw, (np.ones(3), np.ones(3)), seed, samples=5, compiled=compiled)
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -233,7 +233,7 @@ def rest_rate_steps(
     if scores is not None:  # (fleet workers) the same sums and scores compiled: exact
         z = scores(
             np.ascontiguousarray(means), np.ascontiguousarray(mean_var), counts, lo, hi,
-            np.ascontiguousarray(np.broadcast_to(np.asarray(min_size, dtype=float), (3,))),
+            np.array(np.broadcast_to(np.asarray(min_size, dtype=float), (3,))),  # (writable)
         )  # fmt: skip
     else:
         centred = means - means[0]

@@ -149,6 +149,17 @@ class StuckCheck:
         n = raw.shape[1]
         # a new episode needs need equal steps in the block, or fewer after a carried run
         maybe = self.enabled & (n_same + self.run >= need)
+        compiled = kernel("stuck_episodes") if maybe.any() else None
+        if compiled is not None:  # the same runs, comparisons and counts in one pass
+            hits, first = compiled(
+                np.asarray(raw, dtype=float), np.asarray(self.last, dtype=float),
+                np.asarray(self.run, dtype=np.int64), int(need), self._active, maybe,
+            )  # fmt: skip
+            for c in np.flatnonzero(hits):
+                self.raised[c] += int(hits[c])
+                if np.isnan(self.t_first_raised[c]) and t is not None:
+                    self.t_first_raised[c] = float(np.asarray(t, dtype=float)[first[c]])
+            return
         for c in np.flatnonzero(maybe):
             x = raw[c]
             same = np.empty(n, dtype=bool)
