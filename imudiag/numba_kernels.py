@@ -1763,6 +1763,28 @@ def drift_within(spread, to_si, limit, ok):
 
 
 @jit
+def turning_rows(now, back2, back3, per_s, m, gate, check_bad):
+    """The monitor's turning flags (:meth:`imudiag.monitor.Monitor._slow_stage`) compiled:
+    per row of the prefix sums ``now`` and two and three steps back (M, >= 5: the gyro rates
+    in 0-2, the bad samples in 4), the angular acceleration |2 (P - P2) - (P - P3)| (its
+    squares summed as ``np.einsum`` sums three terms here, ((0 + 2) + 1)) times ``per_s``,
+    over ``m``; nan where ``check_bad`` and a bad sample is in the last three steps; turning
+    (1.0) where it is not within ``gate``, as the (M, 1) column the numpy path makes: the
+    same operations in the same order."""
+    n = now.shape[0]
+    out = np.empty((n, 1))
+    for i in range(n):
+        d0 = (now[i, 0] - 2.0 * back2[i, 0]) + back3[i, 0]
+        d1 = (now[i, 1] - 2.0 * back2[i, 1]) + back3[i, 1]
+        d2 = (now[i, 2] - 2.0 * back2[i, 2]) + back3[i, 2]
+        alpha = np.sqrt((d0 * d0 + d2 * d2) + d1 * d1) * per_s / m
+        if check_bad and now[i, 4] - back3[i, 4] > 0:
+            alpha = np.nan
+        out[i, 0] = 0.0 if alpha <= gate else 1.0
+    return out
+
+
+@jit
 def curve_test(spread, to_si, rate_limit, drift_limit, ok):
     """The still detector's curve test in place: ``ok`` (M,) cleared where the rate about the
     vertical drifted beyond ``rate_limit`` (``spread[:, 3]``) and the specific force beyond
@@ -2244,6 +2266,8 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
             x13[:, :6].copy(), np.ones(6), 3.0, ok6[:2].copy(), False, np.ones(3), 1.0, ok6
         )
         drift_within(x13[:, :3].copy(), np.ones(3), 1.0, ok6)
+        for p5 in (x13[:, :5].copy(), x13[:, 2:7]):  # C and a view of the prefix sums
+            turning_rows(p5, p5, p5, 1.0, 2, 0.5, True)
         curve_test(x13[:, :4].copy(), np.ones(3), 0.5, 1.0, ok6)
         ext = np.zeros((9, 13))
         chunked_cumsum(x13, x13[0].copy(), 4, ext[3:])  # C rows into a C slice of ext
@@ -2288,6 +2312,7 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         "mean_cov3": mean_cov3,
         "attitude_labels": attitude_labels,
         "curve_test": curve_test,
+        "turning_rows": turning_rows,
         "quantile_above": quantile_above,
         "masked_quantile": masked_quantile,
         "history_starts": history_starts,

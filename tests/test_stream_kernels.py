@@ -11,7 +11,9 @@ against the plain numpy they replace where the kernels are on, all equal bit for
   across the shift back to zero every 2^20 rows), with columns of very different sizes
   (where the order of a sum shows);
 - the vibration meter's high-pass (:func:`imudiag.numba_kernels.highpass_squares`);
-- the stuck check's scan (:func:`imudiag.numba_kernels.stuck_scan`)."""
+- the stuck check's scan and its episodes (:func:`imudiag.numba_kernels.stuck_scan`,
+  :func:`imudiag.numba_kernels.stuck_episodes`);
+- the monitor's turning flags (:func:`imudiag.numba_kernels.turning_rows`)."""
 
 from __future__ import annotations
 
@@ -165,11 +167,47 @@ def test_stuck_check_identical(seed: int) -> None:
                 a += size
                 seen += int(active.any())
                 parts = (active, check.run, check.quantum, check.pairs, check.repeats,
-                         check.t_first, check.last, check.enabled)  # fmt: skip
+                         check.t_first, check.last, check.enabled, check.raised,
+                         check.t_first_raised)  # fmt: skip
                 out += [p.tobytes() for p in parts]
             states.append(out)
     assert states[0] == states[1]
     assert seen > 0  # some blocks end stuck
+    assert check.raised.sum() > 0  # and episodes were counted (also inside blocks)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_turning_rows_bit_for_bit(seed: int) -> None:
+    """The monitor's turning flags (:func:`imudiag.numba_kernels.turning_rows`) against the
+    numpy path's operations (:meth:`imudiag.monitor.Monitor._slow_stage`), on seeded prefix
+    sums of rates of very different sizes (where the order of the sum of squares shows), as
+    views of a wider array and contiguous, with bad samples and without, at gates from
+    always to never turning."""
+    from imudiag.numba_kernels import turning_rows
+
+    rng = np.random.default_rng(4000 + seed)
+    n = 50_000
+    rates = rng.normal(size=(n, 3)) * rng.uniform(1e-4, 1e3, size=(n, 3))
+    wide = np.zeros((n + 30, 7))
+    wide[30:, 1:4] = np.cumsum(rates, axis=0)
+    wide[30:, 5] = np.cumsum(rng.random(n) < 1e-3)  # bad samples, counted
+    now, b2, b3 = wide[30:, 1:6], wide[20:-10, 1:6], wide[15:-15, 1:6]
+    m, per_s = 5, 100.0 / 5
+    for gate in (0.0, 1.0, 50.0, np.inf):
+        for bad in (False, True):
+            d = np.multiply(2.0, b2[:, :3])
+            np.subtract(now[:, :3], d, out=d)
+            d += b3[:, :3]
+            alpha = np.einsum("ij,ij->i", d, d)
+            np.sqrt(alpha, out=alpha)
+            alpha *= per_s
+            alpha /= m
+            if bad:
+                alpha[now[:, 4] - b3[:, 4] > 0] = np.nan
+            want = (~(alpha <= gate))[:, None].astype(float)
+            for layout in ((now, b2, b3), (now.copy(), b2.copy(), b3.copy())):
+                got = turning_rows(*layout, per_s, m, gate, bad)
+                assert got.tobytes() == want.tobytes(), (gate, bad)
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from ..certificate import SENSOR_NAMES, TRIADS, Certificate, TriadModel
+from ..kernels import kernel
 from ..persistence import Persistence
 from ..quasistatic import DetectorPool, QuasiStaticDetector, SharedDetectorReader
 from ..ringbuffer import SampleRing
@@ -656,17 +657,24 @@ class Monitor:
         # (2 (P[s] - P[s-m]) - (P[s] - P[s-2m])) / m per 0.1 s (in place: the same
         # operations in the same order as now - 2 back2 + back3, fewer (N, 3) arrays)
         m = self._accel_m
-        d = np.multiply(2.0, back[2][:, :3])
-        np.subtract(now[:, :3], d, out=d)
-        d += back[3][:, :3]
-        alpha = np.einsum("ij,ij->i", d, d)
-        np.sqrt(alpha, out=alpha)
-        alpha *= self.rate_hz / m
-        alpha /= m
-        if not finite:
-            alpha[now[:, 4] - back[3][:, 4] > 0] = np.nan
-        turning = ~(alpha <= self.config.noise_motion_gate)  # NaN (ADC error): turning
-        turns = turning[:, None].astype(float)
+        compiled = kernel("turning_rows")
+        if compiled is not None:  # the same operations in one pass
+            turns = compiled(
+                now, back[2], back[3], self.rate_hz / m, m,
+                float(self.config.noise_motion_gate), not finite,
+            )  # fmt: skip
+        else:
+            d = np.multiply(2.0, back[2][:, :3])
+            np.subtract(now[:, :3], d, out=d)
+            d += back[3][:, :3]
+            alpha = np.einsum("ij,ij->i", d, d)
+            np.sqrt(alpha, out=alpha)
+            alpha *= self.rate_hz / m
+            alpha /= m
+            if not finite:
+                alpha[now[:, 4] - back[3][:, 4] > 0] = np.nan
+            turning = ~(alpha <= self.config.noise_motion_gate)  # NaN (ADC error): turning
+            turns = turning[:, None].astype(float)
         tnow, tback, _ = self._turn_prefix.update_views(turns, self._turn_offsets)
         first = self._checked_samples - n
         pos = self._noise.positions(first, self._noise_seen(n), tnow[:, 0] == tback[0][:, 0])
