@@ -1532,22 +1532,42 @@ def highpass_squares(full, n, h, to_si, out):
     minus the mean of the ``h`` rows ending at it (fewer at the stream's start) from the
     prefix sums of the rows centred on the first, times ``to_si`` (6,), squared, into ``out``
     (N, 6). The same operations in the same order as the numpy path: equal bit for bit."""
-    m = full.shape[0]
-    k = full.shape[1]
+    highpass_parts(full[: full.shape[0] - n], full[full.shape[0] - n :, :3],
+                   full[full.shape[0] - n :, 3:], h, to_si, out)  # fmt: skip
+
+
+@jit
+def highpass_parts(tail, gyro, accel, h, to_si, out):
+    """:func:`highpass_squares` of the rows ``tail`` (T, 6) then the block's ``gyro`` and
+    ``accel`` (N, 3) side by side, without joining them into one array first."""
+    t = tail.shape[0]
+    n = gyro.shape[0]
+    m = t + n
+    k = 6
+    first = np.empty(k)
+    for j in range(k):
+        first[j] = tail[0, j] if t else (gyro[0, j] if j < 3 else accel[0, j - 3])
     c = np.empty((m + 1, k))
     for j in range(k):
         c[0, j] = 0.0
-        c[1, j] = full[0, j] - full[0, j]
+        c[1, j] = first[j] - first[j]
     for i in range(1, m):
         for j in range(k):
-            c[i + 1, j] = c[i, j] + (full[i, j] - full[0, j])
+            if i < t:
+                x = tail[i, j]
+            elif j < 3:
+                x = gyro[i - t, j]
+            else:
+                x = accel[i - t, j - 3]
+            c[i + 1, j] = c[i, j] + (x - first[j])
     for r in range(n):
         e = m - n + 1 + r
         s = max(e - h, 0)
         d = float(e - s)
         for j in range(k):
-            mean = (c[e, j] - c[s, j]) / d + full[0, j]
-            hp = (full[m - n + r, j] - mean) * to_si[j]
+            mean = (c[e, j] - c[s, j]) / d + first[j]
+            x = gyro[r, j] if j < 3 else accel[r, j - 3]
+            hp = (x - mean) * to_si[j]
             out[r, j] = hp * hp
 
 
@@ -2273,6 +2293,9 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         chunked_cumsum(x13, x13[0].copy(), 4, ext[3:])  # C rows into a C slice of ext
         stack_backs(ext, 3, np.array([1, 3], dtype=np.int64), np.empty((6, 2, 13)))
         highpass_squares(x13[:, :6].copy(), 4, 3, np.ones(6), np.empty((4, 6)))
+        for g3, a3 in ((x13[:, :3].copy(), x13[:, 3:6].copy()), (x13[:, :3], x13[:, 3:6])):
+            highpass_parts(np.zeros((2, 6)), g3, a3, 3, np.ones(6), np.empty((6, 6)))
+            highpass_parts(np.zeros((0, 6)), g3, a3, 3, np.ones(6), np.empty((6, 6)))
         window_row_sums(x13[:, :6].copy(), 1, 2, 2)
         stuck_scan(x13[:, :6].T.copy(), np.full(6, np.nan))  # a C-contiguous (6, N) block
         second_diff_squares(x13[:, :6].T.copy())
@@ -2286,6 +2309,7 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         "chunked_cumsum": chunked_cumsum,
         "stack_backs": stack_backs,
         "highpass_squares": highpass_squares,
+        "highpass_parts": highpass_parts,
         "window_row_sums": window_row_sums,
         "stuck_scan": stuck_scan,
         "stuck_episodes": stuck_episodes,

@@ -10,7 +10,8 @@ against the plain numpy they replace where the kernels are on, all equal bit for
   into random blocks (rows of 1 to 40 000: the chunked, the gathered and the one-pass ways,
   across the shift back to zero every 2^20 rows), with columns of very different sizes
   (where the order of a sum shows);
-- the vibration meter's high-pass (:func:`imudiag.numba_kernels.highpass_squares`);
+- the vibration meter's high-pass (:func:`imudiag.numba_kernels.highpass_squares`, and on a
+  block as it is, :func:`imudiag.numba_kernels.highpass_parts`);
 - the stuck check's scan and its episodes (:func:`imudiag.numba_kernels.stuck_scan`,
   :func:`imudiag.numba_kernels.stuck_episodes`);
 - the monitor's turning flags (:func:`imudiag.numba_kernels.turning_rows`)."""
