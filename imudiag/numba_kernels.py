@@ -1805,6 +1805,26 @@ def turning_rows(now, back2, back3, per_s, m, gate, check_bad):
 
 
 @jit
+def rest_rate_rows(now, back0, back1, w, thr, ok, idx, span):
+    """The monitor's MEMS rest-rate check (:meth:`imudiag.monitor.Monitor._gyro_rest_rate`)
+    compiled: per row of the prefix sums (M, >= 4: the rates in 0-2, the still samples in
+    3) the worst axis's |mean rate of the w samples from ``back1`` to ``back0``| over its
+    threshold ``thr`` (3,) (nan where an axis's is), and whether the row is usable (``ok``,
+    a whole history at stream row ``idx``, and all ``span`` samples still): the numpy
+    path's operations in its order."""
+    n = now.shape[0]
+    worst = np.empty(n)
+    usable = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        e0 = abs((back0[i, 0] - back1[i, 0]) / w) / thr[0]
+        e1 = abs((back0[i, 1] - back1[i, 1]) / w) / thr[1]
+        e2 = abs((back0[i, 2] - back1[i, 2]) / w) / thr[2]
+        worst[i] = nan_max(nan_max(e0, e1), e2)
+        usable[i] = ok[i] and idx[i] + 1 >= span and now[i, 3] - back1[i, 3] == span
+    return worst, usable
+
+
+@jit
 def curve_test(spread, to_si, rate_limit, drift_limit, ok):
     """The still detector's curve test in place: ``ok`` (M,) cleared where the rate about the
     vertical drifted beyond ``rate_limit`` (``spread[:, 3]``) and the specific force beyond
@@ -2288,6 +2308,7 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         drift_within(x13[:, :3].copy(), np.ones(3), 1.0, ok6)
         for p5 in (x13[:, :5].copy(), x13[:, 2:7]):  # C and a view of the prefix sums
             turning_rows(p5, p5, p5, 1.0, 2, 0.5, True)
+            rest_rate_rows(p5, p5, p5, 3, np.ones(3), ok6, np.arange(6, dtype=np.int64), 2)
         curve_test(x13[:, :4].copy(), np.ones(3), 0.5, 1.0, ok6)
         ext = np.zeros((9, 13))
         chunked_cumsum(x13, x13[0].copy(), 4, ext[3:])  # C rows into a C slice of ext
@@ -2337,6 +2358,7 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         "attitude_labels": attitude_labels,
         "curve_test": curve_test,
         "turning_rows": turning_rows,
+        "rest_rate_rows": rest_rate_rows,
         "quantile_above": quantile_above,
         "masked_quantile": masked_quantile,
         "history_starts": history_starts,

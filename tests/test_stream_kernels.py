@@ -14,7 +14,9 @@ against the plain numpy they replace where the kernels are on, all equal bit for
   block as it is, :func:`imudiag.numba_kernels.highpass_parts`);
 - the stuck check's scan and its episodes (:func:`imudiag.numba_kernels.stuck_scan`,
   :func:`imudiag.numba_kernels.stuck_episodes`);
-- the monitor's turning flags (:func:`imudiag.numba_kernels.turning_rows`)."""
+- the monitor's turning flags (:func:`imudiag.numba_kernels.turning_rows`) and its MEMS
+  rest-rate check (:func:`imudiag.numba_kernels.rest_rate_rows`), and a whole monitor's
+  judgements with the kernels and without."""
 
 from __future__ import annotations
 
@@ -297,3 +299,50 @@ def test_the_warm_up_covers_what_diagnose_passes(tmp_path: Path) -> None:
         assert report.get("moving_base")
     after = {k: len(f.signatures) for k, f in compiled.items()}
     assert after == before
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_the_monitor_judges_the_same_with_the_kernels(seed: int) -> None:
+    """A whole monitor (:class:`imudiag.monitor.Monitor`: its turning flags, MEMS rest-rate
+    check, stuck episodes, vibration and noise checks, compiled or not) fed the same seeded
+    session in random blocks, with a gyro bias fault that fails the rest-rate check and a
+    stuck accelerometer run: every counter, the last values, the worst axis, each check's
+    values in the F0 trace and the faults equal, with the kernels and without."""
+    from imudiag.certificate import load_default
+    from imudiag.monitor import Monitor
+    from imudiag.sim import Effects, Fault, multi_position, simulate
+
+    cert = load_default()
+    rng = np.random.default_rng(5000 + seed)
+    traj = multi_position(n_attitudes=10, dwell_s=20.0, turn_s=2.0, rate_hz=100, seed=seed)
+    faults = [Fault("bias", "gy", 3.0, 150.0), Fault("stuck", "ax", 80.0)]
+    samples = simulate(cert, traj, seed=50 + seed, faults=faults, effects=Effects()).samples
+    sizes = _blocks(rng, len(samples))
+    results = []
+    for on in (False, True):
+        with kernels.switched(on) as got:
+            assert got == on, kernels.status()
+            monitor = Monitor(cert, rate_hz=100.0)
+            trace = monitor.keep_f0_trace()
+            a = 0
+            for size in sizes:
+                monitor.update(samples.slice(a, a + size))
+                a += size
+            monitor.flush()
+            state = monitor.state
+            out = []
+            for name in ("gyro", "accel"):
+                st = state[name]
+                out += [st.checked, st.failed, st.last_f0, st.sum_f0_sq, st.worst_axis,
+                        st.noise_judged, st.noise_not_at_rest, st.stuck_active.tobytes(),
+                        st.noise_ratio_last.tobytes()]  # fmt: skip
+                for part in (trace[name].passed, trace[name].failed):
+                    out += [np.concatenate(part._t or [np.zeros(0)]).tobytes(),
+                            np.concatenate(part._v or [np.zeros(0)]).tobytes()]  # fmt: skip
+            out.append(repr(monitor.active_faults))
+            out.append(repr(monitor.stuck_faults()))
+            results.append(out)
+    assert results[0] == results[1]
+    gyro = results[0][:5]
+    assert gyro[0] > 0 and gyro[1] > 0  # the rest-rate check ran, and failed on the fault
+    assert "ax" in results[0][-1]  # and the stuck accelerometer was found

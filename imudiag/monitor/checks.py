@@ -742,19 +742,24 @@ class Monitor:
         ``now`` (N, 5), ``back`` four (N, 5), ``idx`` (N,): the prefix sums (see ``_offsets``).
         """
         w, span = self._gyro_window, self._span
-        # per axis, the mean of the w samples that end lag samples back as a ratio to its
-        # threshold (> 1 fails): for every sample, in place, then kept where usable
-        excess = np.subtract(back[0][:, :3], back[1][:, :3])
-        excess /= w
-        np.abs(excess, out=excess)
-        rows_op(np.divide, excess, self._rest_thr, out=excess)
-        still = now[:, 3] - back[1][:, 3]
-        # the averaging window and the lag after it were all still
-        usable = ok & (idx + 1 >= span) & (still == span)
-        # the ratio of the worst axis (elementwise maxima: a reduction along rows of 3
-        # costs 20 times more; NaN stays NaN either way)
-        worst = np.maximum(excess[:, 0], excess[:, 1])
-        np.maximum(worst, excess[:, 2], out=worst)
+        compiled = kernel("rest_rate_rows")
+        if compiled is not None:  # the same operations in one pass
+            thr = np.asarray(self._rest_thr, dtype=float)
+            worst, usable = compiled(now, back[0], back[1], w, thr, ok, idx, span)
+        else:
+            # per axis, the mean of the w samples that end lag samples back as a ratio to its
+            # threshold (> 1 fails): for every sample, in place, then kept where usable
+            excess = np.subtract(back[0][:, :3], back[1][:, :3])
+            excess /= w
+            np.abs(excess, out=excess)
+            rows_op(np.divide, excess, self._rest_thr, out=excess)
+            still = now[:, 3] - back[1][:, 3]
+            # the averaging window and the lag after it were all still
+            usable = ok & (idx + 1 >= span) & (still == span)
+            # the ratio of the worst axis (elementwise maxima: a reduction along rows of 3
+            # costs 20 times more; NaN stays NaN either way)
+            worst = np.maximum(excess[:, 0], excess[:, 1])
+            np.maximum(worst, excess[:, 2], out=worst)
         values = rows_where(worst, usable)  # ratio of the worst axis' mean rate to its threshold
         failed = values > 1.0
         st = self._state["gyro"]
@@ -768,7 +773,9 @@ class Monitor:
             st.last_f0 = float(values[-1])
         if np.any(failed):
             last = np.flatnonzero(usable)[np.flatnonzero(failed)[-1]]
-            st.worst_axis = int(np.argmax(excess[last]))
+            # that row's ratios again (the same operations as for every row above)
+            row = np.abs((back[0][last, :3] - back[1][last, :3]) / w) / self._rest_thr
+            st.worst_axis = int(np.argmax(row))
         assert st.persistence is not None
         st.persistence.update(failed, t_used)
 
