@@ -12,6 +12,7 @@ whatever their grade), for comparison.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -135,9 +136,24 @@ def model_with(triad: TriadModel, estimate: np.ndarray) -> TriadModel:
     )
 
 
+def _interval_label(index: int, t_start: float, t_end: float) -> str:
+    """:func:`interval_labels`' name of one interval."""
+    return f"interval {index} ({t_start:.2f}-{t_end:.2f} s)"
+
+
+#: The names made so far (every window of an interval names it again); not for a time of
+#: zero, whose sign (``-0.00``) a key equal to ``0.0`` would lose
+_interval_label_once = functools.lru_cache(maxsize=4096)(_interval_label)
+
+
 def interval_labels(intervals: list[QuasiStaticInterval]) -> list[str]:
     """How reports name each interval: running number and time span (s)."""
-    return [f"interval {iv.index} ({iv.t_start:.2f}-{iv.t_end:.2f} s)" for iv in intervals]
+    return [
+        (_interval_label_once if iv.t_start and iv.t_end else _interval_label)(
+            iv.index, iv.t_start, iv.t_end
+        )
+        for iv in intervals
+    ]
 
 
 def motion_labels(pairs: list[RotationPair]) -> list[str]:
