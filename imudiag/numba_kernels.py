@@ -1704,10 +1704,9 @@ def window_rates(mean, long_sums, count, ref, g_bias, g_scale, g_ninvt, a_bias, 
     """The still detector's rates (:meth:`imudiag.quasistatic.windows.WindowStats.rates`) for a
     certificate without temperature or nonlinearity terms: the gyro rate about the vertical
     (the corrected accelerometer window mean) of the window means and of the longer means
-    (``long_sums`` (M, >= 3), the gyro columns first, over ``count`` (M,) rows), and the
-    window means' rate magnitude, (M,) each, gyro input units. The certificate's inverse and
-    the projections element by element: equal to numpy's to rounding (the rate band's
-    comparisons: docs/benchmarks.md)."""
+    (``long_sums`` (M, 13) over ``count`` (M,) rows), and the window means' rate magnitude,
+    (M,) each, gyro input units. The certificate's inverse and the projections element by
+    element: equal to numpy's to rounding (the rate band's comparisons: docs/benchmarks.md)."""
     m = mean.shape[0]
     vertical = np.empty(m)
     vertical_long = np.empty(m)

@@ -30,7 +30,6 @@ from imudiag.quasistatic import (
     WindowStats,
 )
 from imudiag.quasistatic.spread import plain_spread
-from imudiag.quasistatic.windows import LONG_COLUMNS
 from imudiag.samples import FLAG_ACCEL_SATURATED, FLAG_ADC_ERROR, SampleBlock
 from imudiag.sim import Effects, Fault, multi_position, simulate
 from tests.test_detector_equivalence import REAL_NAMES, _real
@@ -115,7 +114,7 @@ def _check_windows(block: SampleBlock, cert: Certificate, window: int, rate_wind
         got["mean"].append(st.mean)
         got["var"].append(st.var)
         got["bad"].append(st.sums[:, 12] >= 0.5)
-        got["long"].append(st.long_sums[:, 3] >= 0.5)
+        got["long"].append(st.long_sums[:, 12] >= 0.5)
         got["rates"].append(np.column_stack(st.rates()))
     fast = {k: np.concatenate(v) for k, v in got.items()}
 
@@ -225,7 +224,6 @@ class PlainWindowStage:
         prev = np.array(
             [self.rows[max(0, e - 2 * w + 1) : max(0, e - w + 1)].sum(axis=0) for e in idx]
         ).reshape(n, 13)
-        long_sums = long_sums[:, LONG_COLUMNS]  # (the columns the stage keeps)
         return WindowStats(self, n, idx, sums, long_sums, prev, np.zeros((n, 13)))  # type: ignore[arg-type]
 
 

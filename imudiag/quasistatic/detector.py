@@ -581,7 +581,7 @@ class QuasiStaticDetector:
         vertical_ok, turning, rotating, vertical_long = self._rate_band(st)
         ok &= vertical_ok
         # the histories' restarts (module doc)
-        bad = st.long_sums[:, 3] >= 0.5  # in either window (the long one holds the short one)
+        bad = st.long_sums[:, 12] >= 0.5  # in either window (the long one holds the short one)
         long_mark = turning | bad
         short_mark = long_mark
         if rotating.any():  # and far beyond the variance test

@@ -28,11 +28,6 @@ from ..trailing import PrefixSums
 BAD_FLAGS = FLAG_GYRO_SATURATED | FLAG_ACCEL_SATURATED | FLAG_ADC_ERROR | FLAG_SELF_TEST
 
 
-#: The columns of the 13 window sums (:class:`WindowStats`) the long sums keep: the gyro
-#: outputs and the bad flags
-LONG_COLUMNS = np.array([0, 1, 2, 12])
-
-
 class WindowStats:
     """What a block's trailing windows hold, whatever the noise figures: the part of the
     still detector two detectors of one stream with different noise share (:mod:`.pool`).
@@ -64,9 +59,7 @@ class WindowStats:
         self.idx = idx[sl]  #: (M,) stream row of each window's last sample
         self.first = int(self.idx[0])
         self.sums = sums[sl]  #: (M, 13) the window's sums
-        #: (M, 4) the sums over rate_window rows of the gyro outputs (0-2) and of the bad
-        #: flags (3): the columns :data:`LONG_COLUMNS` of the window sums' 13
-        self.long_sums = long_sums[sl]
+        self.long_sums = long_sums[sl]  #: (M, 13) the sums over rate_window rows
         self.back_w, self.back_2w = back_w[sl], back_2w[sl]  #: P one and two windows back
         assert stage.ref is not None
         compiled = kernel("window_moments")  # the same element-wise operations, compiled
@@ -207,14 +200,10 @@ class WindowStage:
         # the window (``sums``) and of the rate_window rows (``long_sums``: the gyro means)
         if self.prefix.whole(n):  # diagnose-sized: slices of one array, no gathers
             now, (back_w, back_long, back_2w), idx = self.prefix.update_views(rows, self.offsets)
-            sums = now - back_w
-            # the long sums of the columns used only (the gyro means, the bad flags)
-            long_sums = np.empty((now.shape[0], 4))
-            np.subtract(now[:, :3], back_long[:, :3], out=long_sums[:, :3])
-            np.subtract(now[:, 12], back_long[:, 12], out=long_sums[:, 3])
+            sums, long_sums = now - back_w, now - back_long
         else:
             now, back, idx = self.prefix.update(rows, self.offsets)
             both = now[:, None, :] - back[:, :2, :]
-            sums, long_sums = both[:, 0], both[:, 1][:, LONG_COLUMNS]
+            sums, long_sums = both[:, 0], both[:, 1]
             back_w, back_2w = back[:, 0], back[:, 2]
         return WindowStats(self, n, idx, sums, long_sums, back_w, back_2w)
