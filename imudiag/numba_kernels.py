@@ -1677,6 +1677,27 @@ def second_diff_squares(chan):
 
 
 @jit
+def interval_rows(t, gyro, accel, temp, flags, bad_bits, out):
+    """The interval collector's rows (N, 9) of a block (:func:`imudiag.diagnosis.intervals.
+    _rows`): the time, the outputs, the temperature (nan where ``temp`` is (0,): none) and
+    whether a ``bad_bits`` flag is set (``flags`` (N,) int64 or (0,): none), as 1.0 or 0.0.
+    Copies and one test per sample: the numpy path's rows."""
+    n = t.shape[0]
+    has_temp = temp.shape[0] == n
+    has_flags = flags.shape[0] == n
+    for i in range(n):
+        out[i, 0] = t[i]
+        out[i, 1] = gyro[i, 0]
+        out[i, 2] = gyro[i, 1]
+        out[i, 3] = gyro[i, 2]
+        out[i, 4] = accel[i, 0]
+        out[i, 5] = accel[i, 1]
+        out[i, 6] = accel[i, 2]
+        out[i, 7] = temp[i] if has_temp else np.nan
+        out[i, 8] = 1.0 if has_flags and (flags[i] & bad_bits) != 0 else 0.0
+
+
+@jit
 def window_rows(gyro, accel, flags, bad_bits, cols, ref, rows):
     """The still detector's rows (N, 13) of a block (:meth:`imudiag.quasistatic.windows.
     WindowStage.run`): outputs centred on ``ref`` (0-5, a value that is not finite as 0), their
@@ -2295,6 +2316,12 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         rows6 = np.empty((5, 13))
         g12 = rng.normal(size=(5, 12))
         for fl in (np.zeros(5, dtype=np.int64), np.zeros(0, dtype=np.int64)):
+            # time and temperature contiguous or columns of a wider array (a CSV block's)
+            for tt, tmp in ((np.zeros(5), np.zeros(5)), (g12[:, 3], g12[:, 4]), (g6[:, 0], None)):
+                tmp = np.zeros(0) if tmp is None else tmp
+                for gy, ac in ((g6, g6.copy()), (g12[:, 0:3], g12[:, 6:9])):
+                    interval_rows(tt, gy, ac, tmp, fl, 7, np.empty((5, 9)))
+                    interval_rows(tt, gy, ac, np.zeros(0), fl, 7, np.empty((5, 9)))
             for gy, ac in ((g6, g6.copy()), (g12[:, 0:3], g12[:, 6:9])):  # C and strided
                 window_rows(gy, ac, fl, 7, np.ones(6, dtype=np.bool_), np.zeros(6), rows6)
         window_rates(
@@ -2338,6 +2365,7 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         "variance_test": variance_test,
         "drift_within": drift_within,
         "window_rows": window_rows,
+        "interval_rows": interval_rows,
         "window_rates": window_rates,
         "exact_fit": exact_fit_kernel,
         "beyond_counts": beyond_counts,

@@ -54,3 +54,35 @@ def test_a_windows_mean_gyro_variance_is_numpys_mean_of_the_diagonals():
         covs = a @ np.swapaxes(a, 1, 2)
         want = np.mean([np.diag(c) for c in covs], axis=0)
         assert covs.diagonal(axis1=1, axis2=2).mean(axis=0).tobytes() == want.tobytes()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_collectors_rows_equal_with_the_kernels(seed):
+    """The interval collector's rows of a block (:func:`imudiag.diagnosis.intervals._rows`:
+    time, outputs, temperature, bad flag), compiled (:func:`imudiag.numba_kernels.
+    interval_rows`) and not: the same bytes, for blocks with and without temperature and
+    flags (bad bits and others), contiguous and as the columns of a CSV block's array."""
+    pytest.importorskip("numba", reason="numba (the fleet extra) is not installed")
+    from imudiag import kernels
+    from imudiag.diagnosis.intervals import _rows
+    from imudiag.samples import SampleBlock
+
+    rng = np.random.default_rng(300 + seed)
+    for _ in range(20):
+        n = int(rng.integers(1, 5000))
+        wide = rng.normal(size=(n, 10)) * 1e3
+        wide[:, 0] = np.cumsum(rng.uniform(0.001, 0.02, n))
+        wide[rng.random((n, 10)) < 0.001] = np.nan
+        flags = rng.integers(0, 1 << 12, n).astype(np.uint16) if rng.random() < 0.7 else None
+        temp = wide[:, 7] if rng.random() < 0.5 else None
+        for t, gyro, accel in (
+            (wide[:, 0], wide[:, 1:4], wide[:, 4:7]),  # columns of one array (strided)
+            (wide[:, 0].copy(), wide[:, 1:4].copy(), wide[:, 4:7].copy()),
+        ):
+            block = SampleBlock(t=t, gyro=gyro, accel=accel, temp=temp, flags=flags)
+            got = []
+            for on in (False, True):
+                with kernels.switched(on) as active:
+                    assert active == on, kernels.status()
+                    got.append(_rows(block).tobytes())
+            assert got[0] == got[1]

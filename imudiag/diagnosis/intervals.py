@@ -154,6 +154,21 @@ def mean_and_cov(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _rows(block: SampleBlock) -> np.ndarray:
     n = len(block)
     out = np.empty((n, _NCOL))
+    compiled = kernel("interval_rows")
+    if compiled is not None:  # the same rows in one pass
+        none = np.zeros(0)
+        compiled(
+            np.asarray(block.t, dtype=float),
+            np.asarray(block.gyro, dtype=float),
+            np.asarray(block.accel, dtype=float),
+            none if block.temp is None else np.asarray(block.temp, dtype=float),
+            np.zeros(0, dtype=np.int64)
+            if block.flags is None
+            else np.ascontiguousarray(block.flags, dtype=np.int64),
+            int(BAD_FLAGS),
+            out,
+        )
+        return out
     out[:, _T] = block.t
     out[:, _G] = block.gyro
     out[:, _A] = block.accel
