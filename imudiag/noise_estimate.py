@@ -31,6 +31,7 @@ from statistics import NormalDist
 
 import numpy as np
 
+from .kernels import kernel
 from .stats import chi2_ratio_quantile
 
 #: Name of the method, printed beside every measured figure.
@@ -120,6 +121,10 @@ def second_difference_sigmas(chunks: np.ndarray) -> np.ndarray:
     d -= medians(d.transpose(0, 2, 1).copy())[:, None, :]
     ad = np.abs(d)
     mad = medians(ad.transpose(0, 2, 1).copy())
+    compiled = kernel("clipped_sigmas")
+    if compiled is not None:  # the clipping and the sums below in one pass: the same values
+        out: np.ndarray = compiled(d, mad, _MAD_TO_SIGMA)
+        return out
     d2 = np.multiply(d, d, out=d)
     if (mad > 0).all():
         kept = ad <= 5.0 * (_MAD_TO_SIGMA * mad)[:, None, :]

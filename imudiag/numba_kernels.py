@@ -1661,6 +1661,41 @@ def stuck_episodes(raw, last, run, need, active, maybe):
 
 
 @jit
+def clipped_sigmas(d, mad, mad_to_sigma):
+    """The last steps of :func:`imudiag.noise_estimate.second_difference_sigmas`, compiled:
+    per chunk and column of the centred second differences ``d`` (K, N, C) with their
+    median absolute deviation ``mad`` (K, C), the values within 5 sigma kept (sigma the MAD's,
+    or where the MAD is 0 the RMS of all N; all where that is 0 too), and
+    sqrt(mean of the kept squares / 6) (K, C). The squares summed along the samples in
+    order, as numpy sums them there; the numpy path's values."""
+    kk = d.shape[0]
+    n = d.shape[1]
+    c = d.shape[2]
+    out = np.empty((kk, c))
+    for k in range(kk):
+        for j in range(c):
+            m = mad[k, j]
+            if m > 0:
+                s0 = mad_to_sigma * m
+            else:
+                tot = 0.0
+                for i in range(n):
+                    tot += d[k, i, j] * d[k, i, j]
+                s0 = np.sqrt(tot / n)
+            lim = 5.0 * s0
+            keep_all = s0 <= 0  # (not where s0 is nan: then none is kept, as in numpy)
+            tot = 0.0
+            cnt = 0
+            for i in range(n):
+                x = d[k, i, j]
+                if keep_all or abs(x) <= lim:
+                    tot += x * x
+                    cnt += 1
+            out[k, j] = np.sqrt(tot / cnt / 6.0) if cnt else np.nan
+    return out
+
+
+@jit
 def second_diff_squares(chan):
     """The noise judge's squared second differences (:meth:`imudiag.monitor.noise.NoiseCheck.
     judge`), compiled: per row of ``chan`` (C, M), ``((x[i+2] - x[i+1]) - (x[i+1] - x[i]))^2``
@@ -2347,6 +2382,7 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         window_row_sums(x13[:, :6].copy(), 1, 2, 2)
         stuck_scan(x13[:, :6].T.copy(), np.full(6, np.nan))  # a C-contiguous (6, N) block
         second_diff_squares(x13[:, :6].T.copy())
+        clipped_sigmas(rng.normal(size=(2, 5, 6)), np.array([[1.0] * 6, [0.0] * 6]), 1.48)
         stuck_scan(np.empty((6, 9))[:, 2:], np.full(6, np.nan))  # a slice after the history
         for raw6 in (x13[:, :6].T.copy(), np.empty((6, 9))[:, 2:]):  # C and a slice, as the scan
             stuck_episodes(
@@ -2362,6 +2398,7 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
         "stuck_scan": stuck_scan,
         "stuck_episodes": stuck_episodes,
         "second_diff_squares": second_diff_squares,
+        "clipped_sigmas": clipped_sigmas,
         "variance_test": variance_test,
         "drift_within": drift_within,
         "window_rows": window_rows,

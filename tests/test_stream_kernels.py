@@ -16,7 +16,8 @@ against the plain numpy they replace where the kernels are on, all equal bit for
   :func:`imudiag.numba_kernels.stuck_episodes`);
 - the monitor's turning flags (:func:`imudiag.numba_kernels.turning_rows`) and its MEMS
   rest-rate check (:func:`imudiag.numba_kernels.rest_rate_rows`), and a whole monitor's
-  judgements with the kernels and without."""
+  judgements with the kernels and without;
+- the noise figures' clipping (:func:`imudiag.numba_kernels.clipped_sigmas`)."""
 
 from __future__ import annotations
 
@@ -346,3 +347,29 @@ def test_the_monitor_judges_the_same_with_the_kernels(seed: int) -> None:
     gyro = results[0][:5]
     assert gyro[0] > 0 and gyro[1] > 0  # the rest-rate check ran, and failed on the fault
     assert "ax" in results[0][-1]  # and the stuck accelerometer was found
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_noise_figures_clipping_bit_for_bit(seed: int) -> None:
+    """The noise figures' last steps (:func:`imudiag.numba_kernels.clipped_sigmas` behind
+    :func:`imudiag.noise_estimate.second_difference_sigmas`): the same sigmas, bit for bit,
+    on seeded chunks of white noise, with outliers beyond the clip, quantised outputs whose
+    MAD is 0 (the RMS then), constant channels (nothing to clip) and values of very
+    different sizes (where the order of the sums shows)."""
+    from imudiag.noise_estimate import second_difference_sigmas
+
+    rng = np.random.default_rng(6000 + seed)
+    for trial in range(30):
+        k, n = int(rng.integers(1, 300)), int(rng.choice([8, 100, 400]))
+        chunks = rng.normal(size=(k, n, 6)) * 10.0 ** rng.uniform(-3, 4, size=6)
+        chunks[rng.random((k, n, 6)) < 0.01] *= 50.0  # outliers
+        if trial % 3 == 0:
+            chunks[:, :, 1] = np.round(chunks[:, :, 1] / 1e6)  # mostly equal: MAD 0
+            chunks[:, :, 2] = 7.0  # constant: nothing at all
+            chunks[0, n // 2, 2] = 9.0  # one spike in a constant chunk
+        got = []
+        for on in (False, True):
+            with kernels.switched(on) as active:
+                assert active == on, kernels.status()
+                got.append(second_difference_sigmas(chunks.copy()).tobytes())
+        assert got[0] == got[1], trial
