@@ -2368,9 +2368,14 @@ def warm_up(part: int | None = None) -> dict[str, Any]:
             x13[:, :6].copy(), np.ones(6), 3.0, ok6[:2].copy(), False, np.ones(3), 1.0, ok6
         )
         drift_within(x13[:, :3].copy(), np.ones(3), 1.0, ok6)
-        for p5 in (x13[:, :5].copy(), x13[:, 2:7]):  # C and a view of the prefix sums
-            turning_rows(p5, p5, p5, 1.0, 2, 0.5, True)
-            rest_rate_rows(p5, p5, p5, 3, np.ones(3), ok6, np.arange(6, dtype=np.int64), 2)
+        # the prefix sums contiguous or views, now and back alike or not (a block's own
+        # array and the carried sums' views)
+        for now5 in (x13[:, :5].copy(), x13[:, 2:7]):
+            for back5 in (x13[:, :5].copy(), x13[:, 2:7]):
+                turning_rows(now5, back5, back5, 1.0, 2, 0.5, True)
+                rest_rate_rows(
+                    now5, back5, back5, 3, np.ones(3), ok6, np.arange(6, dtype=np.int64), 2
+                )
         curve_test(x13[:, :4].copy(), np.ones(3), 0.5, 1.0, ok6)
         ext = np.zeros((9, 13))
         chunked_cumsum(x13, x13[0].copy(), 4, ext[3:])  # C rows into a C slice of ext

@@ -288,14 +288,19 @@ def test_the_warm_up_covers_what_diagnose_passes(tmp_path: Path) -> None:
     compiled = {k: f for k, f in kernels._KERNELS.items() if hasattr(f, "signatures")}
     before = {k: len(f.signatures) for k, f in compiled.items()}
     cert = load_default()
-    log = tmp_path / "board.npz"
-    write_flight(log, cert, "multiposition", 600.0, 100.0, [], 5, {"sample_rate": 100.0})
+    # a board log of one block, and CSV logs of a block and a short second one (whose
+    # prefix sums are an array of their own beside the carried ones' views: a CSV log of
+    # the simulated fleet compiled the monitor's kernels again for it)
+    logs = [tmp_path / "board.npz", tmp_path / "board.csv", tmp_path / "longer.csv.gz"]
+    for log, seconds in zip(logs, (600.0, 671.8, 700.0), strict=True):
+        write_flight(log, cert, "multiposition", seconds, 100.0, [], 5, {"sample_rate": 100.0})
     res, reports, _ = simulate_drive("urban", 300.0, cert, 3, 100.0)
     track = track_from_reports([parse_tpv(r) for r in reports])
     with kernels.switched(True):
-        st = log.stat()
-        record = diagnose_log(Job(str(log), "-", st.st_size, st.st_mtime_ns, str(tmp_path)))
-        assert record["status"] == "ok", record
+        for log in logs:
+            st = log.stat()
+            record = diagnose_log(Job(str(log), "-", st.st_size, st.st_mtime_ns, str(tmp_path)))
+            assert record["status"] == "ok", record
         report = imudiag.diagnose(res.samples, None, gnss=track)
         assert report.get("moving_base")
     after = {k: len(f.signatures) for k, f in compiled.items()}
