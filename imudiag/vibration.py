@@ -137,27 +137,26 @@ class VibrationMeter:
             flags = np.asarray(block.flags).astype(np.int64)
             self.clipping["accel"] += int(np.count_nonzero(flags & FLAG_ACCEL_SATURATED))
             self.clipping["gyro"] += int(np.count_nonzero(flags & FLAG_GYRO_SATURATED))
-        h = self.hp
+        sq = self._highpassed(block)
+        if not np.isfinite(sq).all():
+            sq = np.nan_to_num(sq, nan=0.0, posinf=0.0, neginf=0.0)
+        self._add_squares(sq)
+        self.seen += n
+
+    def _highpassed(self, block: SampleBlock) -> np.ndarray:
+        """The block's high-passed samples squared (N, 6), SI units^2, the last ``hp - 1``
+        samples kept for the next block's trailing means."""
+        n, h = len(block), self.hp
         gyro = np.asarray(block.gyro, dtype=float)
         accel = np.asarray(block.accel, dtype=float)
         parts = kernel("highpass_parts")  # the compiled pass on the block as it is
         if parts is not None and np.isfinite(gyro).all() and np.isfinite(accel).all():
             sq = np.empty((n, 6))
             parts(self._tail, gyro, accel, h, self._to_si, sq)
-            if h <= 1:
-                self._tail = np.zeros((0, 6))
-            elif n >= h - 1:  # the last h - 1 samples, all of this block
-                self._tail = np.empty((h - 1, 6))
-                self._tail[:, :3] = gyro[n - (h - 1) :]
-                self._tail[:, 3:] = accel[n - (h - 1) :]
-            else:
-                rows = np.concatenate([self._tail, np.concatenate([gyro, accel], axis=1)])
-                self._tail = rows[-(h - 1) :].copy()
-            if not np.isfinite(sq).all():  # (an overflow)
-                sq = np.nan_to_num(sq, nan=0.0, posinf=0.0, neginf=0.0)
-            self._add_squares(sq)
-            self.seen += n
-            return
+            if h > 1:  # the tail's rows then the block's, the last h - 1 of them
+                last = np.concatenate([gyro[-(h - 1) :], accel[-(h - 1) :]], axis=1)
+                self._tail = np.concatenate([self._tail, last])[-(h - 1) :]
+            return sq
         full = np.empty((self._tail.shape[0] + n, 6))
         full[: self._tail.shape[0]] = self._tail
         full[self._tail.shape[0] :, :3] = block.gyro
@@ -195,10 +194,7 @@ class VibrationMeter:
             hp *= self._to_si
             sq = np.square(hp, out=hp)
         self._tail = full[-(h - 1) :].copy() if h > 1 else np.zeros((0, 6))
-        if not np.isfinite(sq).all():
-            sq = np.nan_to_num(sq, nan=0.0, posinf=0.0, neginf=0.0)
-        self._add_squares(sq)
-        self.seen += n
+        return sq
 
     def _add_squares(self, sq: np.ndarray) -> None:
         """Add the squared high-passed samples ``sq`` (N, 6), SI units^2, to the windows."""
