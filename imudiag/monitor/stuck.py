@@ -149,38 +149,39 @@ class StuckCheck:
         n = raw.shape[1]
         # a new episode needs need equal steps in the block, or fewer after a carried run
         maybe = self.enabled & (n_same + self.run >= need)
+        # per channel the episodes begun in the block and the sample where the first one
+        # reached ``need`` (-1: none)
+        hits = np.zeros(raw.shape[0], dtype=np.int64)
+        first = np.full(raw.shape[0], -1, dtype=np.int64)
         compiled = kernel("stuck_episodes") if maybe.any() else None
         if compiled is not None:  # the same runs, comparisons and counts in one pass
             hits, first = compiled(
                 np.asarray(raw, dtype=float), np.asarray(self.last, dtype=float),
                 np.asarray(self.run, dtype=np.int64), int(need), self._active, maybe,
             )  # fmt: skip
-            for c in np.flatnonzero(hits):
-                self.raised[c] += int(hits[c])
-                if np.isnan(self.t_first_raised[c]) and t is not None:
-                    self.t_first_raised[c] = float(np.asarray(t, dtype=float)[first[c]])
-            return
-        for c in np.flatnonzero(maybe):
-            x = raw[c]
-            same = np.empty(n, dtype=bool)
-            same[0] = x[0] == self.last[c]
-            np.equal(x[1:], x[:-1], out=same[1:])
-            edges = np.diff(np.concatenate(([0], same.view(np.int8), [0])))
-            starts = np.flatnonzero(edges == 1)  # runs of equal steps [start, end)
-            ends = np.flatnonzero(edges == -1)
-            carried = np.where(starts == 0, self.run[c], 0)
-            # the sample whose step completes ``need``: a run's first sample is the one
-            # before its first equal step
-            reach = starts + need - 1 - carried
-            hit = ends - starts + carried >= need
-            if starts.size and starts[0] == 0 and self._active[c]:
-                hit[0] = False  # the episode in force at the last block's end goes on
-            if not hit.any():
-                continue
-            self.raised[c] += int(np.count_nonzero(hit))
+        else:
+            for c in np.flatnonzero(maybe):
+                x = raw[c]
+                same = np.empty(n, dtype=bool)
+                same[0] = x[0] == self.last[c]
+                np.equal(x[1:], x[:-1], out=same[1:])
+                edges = np.diff(np.concatenate(([0], same.view(np.int8), [0])))
+                starts = np.flatnonzero(edges == 1)  # runs of equal steps [start, end)
+                ends = np.flatnonzero(edges == -1)
+                carried = np.where(starts == 0, self.run[c], 0)
+                # the sample whose step completes ``need``: a run's first sample is the one
+                # before its first equal step
+                reach = starts + need - 1 - carried
+                hit = ends - starts + carried >= need
+                if starts.size and starts[0] == 0 and self._active[c]:
+                    hit[0] = False  # the episode in force at the last block's end goes on
+                if hit.any():
+                    hits[c] = np.count_nonzero(hit)
+                    first[c] = int(np.clip(reach[hit][0], 0, n - 1))
+        for c in np.flatnonzero(hits):
+            self.raised[c] += int(hits[c])
             if np.isnan(self.t_first_raised[c]) and t is not None:
-                at = int(np.clip(reach[hit][0], 0, n - 1))
-                self.t_first_raised[c] = float(np.asarray(t, dtype=float)[at])
+                self.t_first_raised[c] = float(np.asarray(t, dtype=float)[first[c]])
 
     def _enabled(self) -> np.ndarray:
         """The channels (6,) checked: noise of at least ``min_sigma`` steps, and counts or a
