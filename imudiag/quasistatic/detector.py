@@ -395,19 +395,14 @@ class QuasiStaticDetector:
             thr = np.maximum(prev * ratio, ceiling) * (1.0 + 1e-9)
             if above(windows_var, ok, thr, _NOISE_QUANTILE):
                 return
-        q = None
-        select = kernel("masked_quantile")
-        if select is not None:  # (compiled kernels) numpy's quantile, found by selection
-            if int(np.count_nonzero(ok)) < 10:
-                return
-            found, exact = select(windows_var, ok, _NOISE_QUANTILE)
-            q = found if exact else None
-        if q is None:
-            var = windows_var[ok] if ok.any() else windows_var[:0]
-            if var.shape[0] < 10:
-                return
-            # ``var`` is a boolean-mask copy: partitioned in place, not copied again
-            q = np.quantile(var, _NOISE_QUANTILE, axis=0, overwrite_input=True)
+        if int(np.count_nonzero(ok)) < 10:
+            return
+        select = kernel("masked_quantile")  # (compiled kernels) numpy's, found by selection
+        found = select(windows_var, ok, _NOISE_QUANTILE) if select is not None else None
+        if found is not None and found[1]:
+            q = found[0]
+        else:  # the boolean-mask copy, partitioned in place: not copied again
+            q = np.quantile(windows_var[ok], _NOISE_QUANTILE, axis=0, overwrite_input=True)
         stands: list[int] = []
         if ceiling is not None and flat is not None and np.any(q <= ceiling):
             fresh, frozen = flat()
@@ -616,9 +611,7 @@ class QuasiStaticDetector:
             spread = self._drift[0].update(first, accel_mean, start_short) * self._to_si
             ok &= np.sqrt(np.einsum("ij,ij->i", spread, spread)) <= lim.drift_limit
         # a curve: the rate about the vertical and the specific force changed together
-        values = np.empty((m, 4))
-        values[:, :3] = accel_mean
-        values[:, 3] = vertical_long
+        values = np.column_stack([accel_mean, vertical_long])
         spread = self._drift[1].update(first, values, start_long)
         curved = kernel("curve_test")
         if curved is not None:  # the same products, sums and comparisons compiled, in place
