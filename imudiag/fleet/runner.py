@@ -105,19 +105,55 @@ def worker_environment() -> dict[str, Any]:
     return {**WORKER_MALLOC, **configured}
 
 
+#: Dask's monitoring of a local cluster whose dashboard is off (nothing shows what it
+#: gathers), eased: each worker's statistical profiler (a sample of the task thread's stack
+#: every 10 ms, holding the GIL), every server's event-loop check (every 20 ms; each second
+#: still catches a loop blocked for the 3 s Dask warns at) and the system monitor (CPU,
+#: memory and I/O counters every 0.5 s; the nanny's memory limit has its own check every
+#: 0.1 s). On two cores they took about a tenth of the CPU the logs left (docs/benchmarks.md,
+#: "Session 38"). ``--dashboard`` keeps Dask's defaults; a setting of the user's Dask
+#: configuration wins.
+QUIET_MONITORING: dict[str, Any] = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "2s",
+}
+
+
+def monitoring_config(dashboard: bool) -> dict[str, Any]:
+    """The settings of :data:`QUIET_MONITORING` a local cluster starts under: none with the
+    dashboard on, else each one the user's Dask configuration leaves at Dask's default."""
+    if dashboard:
+        return {}
+    import dask
+    import distributed  # noqa: F401 - its defaults join dask's configuration on import
+
+    shipped = dask.config.merge(*dask.config.defaults)
+    return {
+        key: value
+        for key, value in QUIET_MONITORING.items()
+        if dask.config.get(key, default=None) == dask.config.get(key, default=None, config=shipped)
+    }
+
+
 @contextlib.contextmanager
 def local_cluster(
     workers: int | None, memory_limit: str | float | None, dashboard: bool = False
 ) -> Iterator[Any]:
     """A LocalCluster of ``workers`` processes (default: this machine's cores), one thread
-    each, spawned with :func:`worker_environment`; closed after the block."""
+    each, spawned with :func:`worker_environment` under :func:`monitoring_config`; closed
+    after the block."""
     import dask
     from dask.distributed import LocalCluster
 
     # the scheduler always serves /health on 8787 (the dashboard stays off unless asked
     # for); another cluster on the machine moves it to a free port: not worth a warning
     warnings.filterwarnings("ignore", message="Port 8787 is already in use")
-    with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environment()}):
+    settings = {
+        "distributed.nanny.pre-spawn-environ": worker_environment(),
+        **monitoring_config(dashboard),
+    }
+    with dask.config.set(settings):
         cluster = LocalCluster(
             n_workers=workers or os.cpu_count() or 1,
             threads_per_worker=1,
