@@ -441,19 +441,25 @@ def test_simulate_fleet_writes_mixed_logs_and_the_truth(tmp_path: Path) -> None:
 
 def test_the_local_workers_are_spawned_with_the_malloc_settings() -> None:
     """A local worker's own environment holds Dask's trimming and the mmap threshold the
-    runner adds (:data:`imudiag.fleet.runner.WORKER_MALLOC`, tests/test_fleet_warm.py)."""
+    runner adds (:data:`imudiag.fleet.runner.WORKER_MALLOC`, tests/test_fleet_warm.py),
+    and its Dask configuration the eased monitoring (:data:`~imudiag.fleet.runner.
+    QUIET_MONITORING`: the dashboard is off)."""
+    import dask
     from dask.distributed import Client
 
-    from imudiag.fleet.runner import local_cluster
+    from imudiag.fleet.runner import QUIET_MONITORING, local_cluster
 
     names = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_ARENA_MAX")
     with local_cluster(1, "1GiB") as cluster, Client(cluster) as client:
         (seen,) = client.run(lambda: {k: os.environ.get(k) for k in names}).values()
+        (settings,) = client.run(lambda: {k: dask.config.get(k) for k in QUIET_MONITORING}).values()
     assert seen == {
         "MALLOC_MMAP_THRESHOLD_": "33554432",
         "MALLOC_TRIM_THRESHOLD_": "65536",
         "MALLOC_ARENA_MAX": "1",
     }
+    assert settings == QUIET_MONITORING
+    assert settings["distributed.worker.profile.enabled"] is False
 
 
 def test_a_log_that_kills_its_worker_is_a_row_with_the_reason(

@@ -125,6 +125,38 @@ def test_local_workers_keep_glibcs_mmap_threshold_under_dasks_trimming() -> None
         }
 
 
+def test_the_monitoring_is_eased_only_where_nothing_shows_it_and_the_user_set_nothing() -> None:
+    """Dask's profiler, event-loop check and system monitor feed the dashboard: a local
+    cluster without one runs them less (:data:`QUIET_MONITORING`), with ``--dashboard`` as
+    Dask ships them, and a key the user's Dask configuration sets (to other than Dask's
+    default: the two are one value to Dask) keeps the user's value."""
+    import dask
+
+    from imudiag.fleet.runner import QUIET_MONITORING, monitoring_config
+
+    assert monitoring_config(dashboard=False) == QUIET_MONITORING
+    assert QUIET_MONITORING["distributed.worker.profile.enabled"] is False
+    assert monitoring_config(dashboard=True) == {}
+    mine = {
+        "distributed.admin.tick.interval": "50ms",
+        "distributed.admin.system-monitor.interval": 1,
+    }
+    with dask.config.set(mine):
+        eased = monitoring_config(dashboard=False)
+    assert eased == {"distributed.worker.profile.enabled": False}
+
+
+def test_a_warm_worker_freezes_what_it_keeps_for_its_life() -> None:
+    """After the warm-up the worker's modules and kernels sit in the collector's permanent
+    generation (``gc.freeze``): no collection, nor the worker's exit, traverses them."""
+    import gc
+
+    from imudiag.fleet import task
+
+    task.warm_up()
+    assert task._FROZEN and gc.get_freeze_count() > 10_000
+
+
 def test_a_memory_limit_no_worker_starts_under_is_refused_before_any_work(tmp_path) -> None:
     """The library refuses a size below the 100 MiB floor (the command: tests/
     test_option_validation.py) before it reads a log or starts a cluster; Dask's other

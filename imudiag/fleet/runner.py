@@ -122,7 +122,8 @@ QUIET_MONITORING: dict[str, Any] = {
 
 def monitoring_config(dashboard: bool) -> dict[str, Any]:
     """The settings of :data:`QUIET_MONITORING` a local cluster starts under: none with the
-    dashboard on, else each one the user's Dask configuration leaves at Dask's default."""
+    dashboard on, else each one the user's Dask configuration leaves at Dask's default (a
+    key set to that default is the same to Dask)."""
     if dashboard:
         return {}
     import dask
