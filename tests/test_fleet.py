@@ -192,6 +192,40 @@ def _lines(path: Path) -> int:
         return 0
 
 
+def test_the_first_logs_are_diagnosed_while_the_last_is_still_hashed(
+    fleet: tuple[Path, dict], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each log is submitted once hashed (imudiag/fleet/feed.py), largest first: the hash of
+    the smallest log (the last) is held until the first record is written, which a run that
+    hashed every log before its first task could never write."""
+    import threading
+
+    import imudiag.fleet
+    import imudiag.fleet.runner as runner
+
+    root, _ = fleet
+    logs = sorted((root / "unit-01").glob("flight-00[123].*"), key=lambda p: p.stat().st_size)
+    assert len(logs) == 3 and logs[0].stat().st_size < logs[1].stat().st_size
+    last = str(logs[0].absolute())
+    first_record = threading.Event()
+    held: list[bool] = []
+    describe = runner.describe
+
+    def held_describe(path: Path, known: dict | None = None):  # type: ignore[no-untyped-def]
+        if str(path) == last:
+            held.append(first_record.wait(300))  # a bound never reached: the run's own end
+        return describe(path, known)
+
+    monkeypatch.setattr(runner, "describe", held_describe)
+    records = imudiag.fleet.run(
+        [str(p) for p in logs], tmp_path, workers=1, on_record=lambda r: first_record.set()
+    )
+    assert held == [True]
+    assert sorted(r["path"] for r in records) == sorted(str(p.absolute()) for p in logs)
+    written = read_records(tmp_path)
+    assert written[-1]["path"] == last and all(r["status"] == "ok" for r in written)
+
+
 def test_a_killed_run_resumes_to_the_same_table(
     fleet: tuple[Path, dict], two_workers: Path, tmp_path: Path
 ) -> None:

@@ -99,7 +99,7 @@ def expand(paths: list[str]) -> list[Path]:
     return out
 
 
-def _key(path: Path) -> tuple[str, int, int]:
+def key_of(path: Path) -> tuple[str, int, int]:
     """(path, size in bytes, modification time in ns) of a log (a directory's files summed)."""
     st = path.stat()
     size = st.st_size
@@ -110,15 +110,15 @@ def _key(path: Path) -> tuple[str, int, int]:
 
 def is_known(path: Path, known: dict[tuple[str, int, int], str]) -> bool:
     """Whether ``known`` (see :func:`describe`) has the hash of ``path`` as it is now."""
-    return _key(path) in known
+    return key_of(path) in known
 
 
 def describe(path: Path, known: dict[tuple[str, int, int], str] | None = None) -> LogFile:
     """The :class:`LogFile` of ``path``; ``known`` maps (path, size, mtime_ns) to a hash
     already computed (a resumed run does not read unchanged logs twice)."""
-    key = _key(path)
+    key = key_of(path)
     digest = (known or {}).get(key) or sha256_of(path)
     return LogFile(key[0], key[1], key[2], digest)
 
 
-__all__ = ["LogFile", "describe", "expand", "is_known", "sha256_of"]
+__all__ = ["LogFile", "describe", "expand", "is_known", "key_of", "sha256_of"]

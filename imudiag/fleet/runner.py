@@ -9,7 +9,6 @@ import logging
 import os
 import warnings
 from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +16,8 @@ from ..atomic import write_text_atomic
 from ..certificate import AUTO
 from ..errors import BadInput
 from ..logs.extras import MissingExtra
-from .discovery import describe, expand, is_known
+from .discovery import describe, expand, key_of
+from .feed import Feed
 from .records import RecordLog, read_records, write_table
 from .task import Job, diagnose_log
 
@@ -317,87 +317,106 @@ def run(
     }
     done = {r["sha256"] for r in previous}
 
-    def make_jobs() -> list[Job]:
-        """The logs to diagnose (each hashed unless known: not done, nor twice), the
-        largest first (the last tasks to finish are then short ones: no worker left alone
-        with a long log at the end)."""
-        jobs: list[Job] = []
+    # the logs by size, largest first (a stat each; a bag's files summed): the last tasks to
+    # finish are then short ones, no worker left alone with a long log at the end
+    sized = sorted(
+        ((log.absolute(), key_of(log.absolute())) for log in found), key=lambda item: -item[1][1]
+    )
+    # logs recorded already as they are now (same path, size and time): no hash to read
+    pending = [(log, key) for log, key in sized if known.get(key) not in done]
+
+    def make_jobs() -> Iterator[Job]:
+        """The logs to diagnose, largest first, each hashed as it comes (unless known): not
+        one already done, nor one twice."""
         queued: set[str] = set()
-        for log in found:
-            info = describe(log.absolute(), known)
+        for log, _ in pending:
+            info = describe(log, known)
             if info.sha256 in done or info.sha256 in queued:
+                skipped[0] += 1
                 continue
             queued.add(info.sha256)
-            absolute = log.absolute()
             root = next(
-                (r for r in roots.values() if r == absolute or r in absolute.parents),
-                absolute.parent,
+                (r for r in roots.values() if r == log or r in log.parents),
+                log.parent,
             )
-            jobs.append(
-                Job(
-                    path=info.path,
-                    sha256=info.sha256,
-                    size=info.size,
-                    mtime_ns=info.mtime_ns,
-                    root=str(root),
-                    certificate=(
-                        str(Path(certificate).absolute())
-                        if certificate and certificate != AUTO
-                        else certificate
-                    ),
-                    certificates=cmap,
-                    certificates_source=certificates,
-                    timeout_s=timeout_s,
-                    config=dict(config or {}),
-                )
+            yield Job(
+                path=info.path,
+                sha256=info.sha256,
+                size=info.size,
+                mtime_ns=info.mtime_ns,
+                root=str(root),
+                certificate=(
+                    str(Path(certificate).absolute())
+                    if certificate and certificate != AUTO
+                    else certificate
+                ),
+                certificates=cmap,
+                certificates_source=certificates,
+                timeout_s=timeout_s,
+                config=dict(config or {}),
             )
-        jobs.sort(key=lambda j: -j.size)
-        return jobs
 
-    def collect(client: Any, jobs: list[Job]) -> None:
-        """Submit ``jobs`` and write each record as its log completes."""
+    skipped = [0]  # logs found done (or twice) once hashed
+
+    def collect(client: Any, feed: Feed[Job]) -> None:
+        """Submit each job the feed makes and write each record as its log completes."""
         from dask.distributed import as_completed
 
         if redo and (outdir / "logs.jsonl").exists():
             (outdir / "logs.jsonl").unlink()
-        total = len(jobs)
+
+        def total() -> int:  # the logs to diagnose, as far as known yet
+            return len(pending) - skipped[0]
+
         if progress:
-            progress(f"0/{total} logs", 0.0 if total else 1.0, 0)
-        if not jobs:
-            return
-        futures = {}
-        for job in jobs:
+            progress(f"0/{total()} logs", 0.0 if total() else 1.0, 0)
+        futures: dict[str, tuple[Any, Job]] = {}
+        running = as_completed()
+
+        def submit(job: Job) -> None:
             fut = client.submit(diagnose_log, job, key=f"diagnose-{job.sha256}", pure=False)
             futures[fut.key] = (fut, job)
+            running.add(fut)
+
+        feed.attach(submit)
         with RecordLog(outdir) as log_file:
             finished = 0
-            for fut in as_completed([f for f, _ in futures.values()]):
-                job = futures[fut.key][1]
-                try:
-                    record = fut.result()
-                except Exception as exc:  # noqa: BLE001 - a dead worker is the log's row
-                    record = _lost(job, exc, retries)
-                log_file.append(record)
-                if on_record:
-                    on_record(record)
-                finished += 1
-                fut.release()
-                if progress:
-                    progress(f"{finished}/{total} logs", finished / total, finished)
+            while True:
+                feed.more.clear()
+                for fut in running:
+                    job = futures.pop(fut.key)[1]
+                    try:
+                        record = fut.result()
+                    except Exception as exc:  # noqa: BLE001 - a dead worker is the log's row
+                        record = _lost(job, exc, retries)
+                    log_file.append(record)
+                    if on_record:
+                        on_record(record)
+                    finished += 1
+                    fut.release()
+                    if progress:
+                        n = max(total(), finished)
+                        progress(f"{finished}/{n} logs", finished / n, finished)
+                feed.check()
+                if feed.ended.is_set() and running.is_empty():
+                    return
+                if running.is_empty():
+                    feed.more.wait()
 
-    if any(not is_known(log.absolute(), known) for log in found):
-        # logs to hash (their content, GBs): read in a thread while the workers start
-        with ThreadPoolExecutor(1) as pool:
-            hashing = pool.submit(make_jobs)
+    if pending:
+        # hashed in a thread (their content, GBs), each log submitted once hashed, while
+        # the workers start and then work
+        feed = Feed(make_jobs).start()
+        try:
             with _client(scheduler, workers, memory_limit, retries, dashboard) as client:
-                collect(client, hashing.result())
-    else:
-        jobs = make_jobs()
-        if jobs:
-            with _client(scheduler, workers, memory_limit, retries, dashboard) as client:
-                collect(client, jobs)
-        else:  # everything recorded already: no cluster
-            collect(None, jobs)
+                try:
+                    collect(client, feed)
+                finally:
+                    feed.close()  # no submission to a client being closed
+        finally:
+            feed.close()
+    elif progress:  # everything recorded already: no cluster
+        progress("0/0 logs", 1.0, 0)
     records, _ = rebuild(outdir)
     return records
 
