@@ -226,6 +226,30 @@ def test_the_first_logs_are_diagnosed_while_the_last_is_still_hashed(
     assert written[-1]["path"] == last and all(r["status"] == "ok" for r in written)
 
 
+def test_two_copies_of_one_log_are_diagnosed_once(fleet: tuple[Path, dict], tmp_path: Path) -> None:
+    """The same content under two names (a log copied into another folder) is one task and
+    one record: the copy found later, once hashed, is skipped, and the progress's total
+    drops to the logs left."""
+    import imudiag.fleet
+
+    root, _ = fleet
+    original = next(iter(sorted((root / "unit-03").glob("flight-001.*"))))
+    other = next(iter(sorted((root / "unit-04").glob("flight-002.*"))))
+    copy = tmp_path / "copies" / ("again" + "".join(original.suffixes))
+    copy.parent.mkdir()
+    shutil.copyfile(original, copy)
+    seen: list[tuple[str, float | None, int]] = []
+    records = imudiag.fleet.run(
+        [str(original), str(other), str(copy)],
+        tmp_path / "out",
+        workers=1,
+        progress=lambda what, fraction, done: seen.append((what, fraction, done)),
+    )
+    assert len(records) == 2
+    assert {r["path"] for r in records} == {str(original.absolute()), str(other.absolute())}
+    assert seen[-1] == ("2/2 logs", 1.0, 2)
+
+
 def test_a_killed_run_resumes_to_the_same_table(
     fleet: tuple[Path, dict], two_workers: Path, tmp_path: Path
 ) -> None:
