@@ -1,15 +1,18 @@
 """Benchmark: ``imudiag fleet`` throughput on a simulated fleet, with 1 and 2 local workers.
 
 Run: ``.venv/bin/python benchmarks/fleet.py [--logs 200] [--seconds 300:1800] [--rate 100]
-[--workers 1,2] [--fleet DIR]``. Simulates ``--logs`` flights (``imudiag simulate
+[--workers 1,2] [--fleet DIR] [--repeat 3]``. Simulates ``--logs`` flights (``imudiag simulate
 fleet``: 10 flights per vehicle, mixed formats and flight types, no corrupt file) of
-``--seconds`` MIN:MAX each, or reuses ``--fleet DIR``, then runs
-:func:`imudiag.fleet.run` on it once per worker count, each into a fresh folder, and
+``--seconds`` MIN:MAX each, or reuses ``--fleet DIR``, then runs ``imudiag fleet DIR --out
+OUT --workers N --quiet`` on it ``--repeat`` times per worker count, each a fresh process (as a user runs
+it: the interpreter's start and every import in each run's time) into a fresh folder, and
 prints:
 
-- logs per CPU-hour: logs / (CPU of this process, the scheduler in it and every worker
-  process, from ``getrusage`` of self and reaped children), and logs per wall-hour;
-- the 2-worker speed-up in wall time over 1 worker;
+- logs per CPU-hour: logs / (CPU of the command, the Dask scheduler in it and every worker
+  process, from ``getrusage`` of reaped children), and logs per wall-hour;
+- the 2-worker speed-up in wall time over 1 worker, of each pair of runs and over
+  ``--repeat`` pairs (default 3; the counts alternated: a shared VM's pace drifts by 5 %
+  between minutes);
 - per-log CPU in a warm worker per 10^6 samples: each task's own thread CPU (``cpu_s`` of
   the record) over its samples, median and total, the first task of each worker left out;
   and the median of those first tasks alone (each worker imports the diagnosis when it
@@ -30,7 +33,9 @@ from __future__ import annotations
 import argparse
 import os
 import resource
+import shutil
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -38,21 +43,25 @@ from pathlib import Path
 from typing import Any
 
 
-def _cpu_s() -> float:
-    total = 0.0
-    for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN):
-        r = resource.getrusage(who)
-        total += r.ru_utime + r.ru_stime
-    return total
+def _children_cpu_s() -> float:
+    """CPU of the reaped child processes and theirs (the command, its workers), s."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
 
 
 def measure(fleet: Path, workers: int, out: Path) -> dict[str, Any]:
-    """One run of the fleet on ``workers`` local workers; its figures."""
-    import imudiag.fleet
+    """One run of ``imudiag fleet`` on ``workers`` local workers, a process of its own; its
+    figures."""
+    from imudiag.fleet.records import read_records
 
-    cpu0, wall0 = _cpu_s(), time.perf_counter()
-    records = imudiag.fleet.run([str(fleet)], out, workers=workers, timeout_s=3600)
-    wall, cpu = time.perf_counter() - wall0, _cpu_s() - cpu0
+    cmd = [sys.executable, "-m", "imudiag", "fleet", str(fleet), "--out", str(out)]
+    cmd += ["--workers", str(workers), "--timeout", "3600", "--quiet"]
+    cpu0, wall0 = _children_cpu_s(), time.perf_counter()
+    done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    wall, cpu = time.perf_counter() - wall0, _children_cpu_s() - cpu0
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)}: exit {done.returncode}\n{done.stderr}")
+    records = read_records(out)
     ok = [r for r in records if r["status"] == "ok"]
     seen: set[int] = set()
     warm, first = [], []
@@ -93,6 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--workers", default="1,2", help="worker counts to run, comma-separated")
     p.add_argument("--fleet", type=Path, help="reuse (or create) the simulated fleet here")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--repeat", type=int, default=3, help="runs of each worker count, alternated")
     args = p.parse_args(argv)
     lo, _, hi = args.seconds.partition(":")
     seconds = (float(lo), float(hi or lo))
@@ -115,23 +125,36 @@ def main(argv: list[str] | None = None) -> int:
             )
             print(f"simulated {vehicles * flights} logs in {time.perf_counter() - t0:.0f} s")
         print(f"fleet {fleet}: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}")
-        results = {}
-        for n in (int(w) for w in args.workers.split(",")):
-            r = measure(fleet, n, Path(tmp) / f"out-{n}")
-            results[n] = r
+        counts = [int(w) for w in args.workers.split(",")]
+        walls: dict[int, list[float]] = {n: [] for n in counts}
+        for rep in range(args.repeat):  # the worker counts alternated, each run fresh
+            for n in counts:
+                out = Path(tmp) / f"out-{n}-{rep}"
+                r = measure(fleet, n, out)
+                shutil.rmtree(out)
+                walls[n].append(r["wall_s"])
+                print(
+                    f"{n} worker(s): {r['logs']} logs ({r['ok']} ok, {r['samples'] / 1e6:.1f}e6 "
+                    f"samples), wall {r['wall_s']:.1f} s, CPU {r['cpu_s']:.1f} s "
+                    f"(tasks {r['task_cpu_s']:.1f} s): {r['logs_per_cpu_hour']:.0f} logs per "
+                    f"CPU-hour, {r['logs_per_wall_hour']:.0f} logs per wall-hour; warm worker "
+                    f"{r['warm_cpu_per_1e6_median_s']:.2f} s CPU per 10^6 samples (median; "
+                    f"{r['warm_cpu_per_1e6_total_s']:.2f} over all warm tasks; each worker's "
+                    f"first task {r['first_cpu_per_1e6_median_s']:.2f}); workers' warm-up "
+                    f"{r['warm_up_cpu_s']:.1f} s CPU; window-fit loops: {r['kernels']}",
+                    flush=True,
+                )
+            if 1 in walls and 2 in walls:
+                print(f"  2 workers / 1 worker, wall: {walls[1][-1] / walls[2][-1]:.2f}x")
+        if 1 in walls and 2 in walls and args.repeat > 1:
+            ratios = sorted(a / b for a, b in zip(walls[1], walls[2], strict=True))
             print(
-                f"{n} worker(s): {r['logs']} logs ({r['ok']} ok, {r['samples'] / 1e6:.1f}e6 "
-                f"samples), wall {r['wall_s']:.0f} s, CPU {r['cpu_s']:.0f} s "
-                f"(tasks {r['task_cpu_s']:.0f} s): {r['logs_per_cpu_hour']:.0f} logs per "
-                f"CPU-hour, {r['logs_per_wall_hour']:.0f} logs per wall-hour; warm worker "
-                f"{r['warm_cpu_per_1e6_median_s']:.2f} s CPU per 10^6 samples (median; "
-                f"{r['warm_cpu_per_1e6_total_s']:.2f} over all warm tasks; each worker's "
-                f"first task {r['first_cpu_per_1e6_median_s']:.2f}); workers' warm-up "
-                f"{r['warm_up_cpu_s']:.1f} s CPU; window-fit loops: {r['kernels']}",
-                flush=True,
+                f"2 workers / 1 worker over {args.repeat} pairs: median "
+                f"{statistics.median(ratios):.2f}x (from {ratios[0]:.2f}x to {ratios[-1]:.2f}x); "
+                f"median walls {statistics.median(walls[1]):.1f} s / "
+                f"{statistics.median(walls[2]):.1f} s: "
+                f"{statistics.median(walls[1]) / statistics.median(walls[2]):.2f}x"
             )
-        if 1 in results and 2 in results:
-            print(f"2 workers / 1 worker, wall: {results[1]['wall_s'] / results[2]['wall_s']:.2f}x")
     return 0
 
 
