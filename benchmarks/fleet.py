@@ -4,9 +4,9 @@ Run: ``.venv/bin/python benchmarks/fleet.py [--logs 200] [--seconds 300:1800] [-
 [--workers 1,2] [--fleet DIR] [--repeat 3]``. Simulates ``--logs`` flights (``imudiag simulate
 fleet``: 10 flights per vehicle, mixed formats and flight types, no corrupt file) of
 ``--seconds`` MIN:MAX each, or reuses ``--fleet DIR``, then runs ``imudiag fleet DIR --out
-OUT --workers N --quiet`` on it ``--repeat`` times per worker count, each a fresh process (as a user runs
-it: the interpreter's start and every import in each run's time) into a fresh folder, and
-prints:
+OUT --workers N --quiet`` on it ``--repeat`` times per worker count, each a fresh process
+(as a user runs it: the interpreter's start and every import in each run's time) into a
+fresh folder, and prints:
 
 - logs per CPU-hour: logs / (CPU of the command, the Dask scheduler in it and every worker
   process, from ``getrusage`` of reaped children), and logs per wall-hour;

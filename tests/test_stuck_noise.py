@@ -151,3 +151,38 @@ def test_a_stuck_output_drawn_at_random_gets_one_answer_from_both_faces(triad, t
     for t in ("accel", "gyro"):
         assert last["verdict"][t] == report["verdict"][t], (sensor, t)
     assert named_faults(last["verdict"]["faults"]) == named
+
+
+def test_an_axis_without_a_noise_figure_leaves_its_triads_other_axes_measured(tmp_path):
+    """``diagnose``'s noise section with a gyro axis frozen from the start (drawn under a
+    seed): that axis's density is null and named ``unmeasured``, the triad's other two are
+    measured (within 20 % of the certificate's), no ratio is judged on the triad, and the
+    accelerometers' section is whole; the daemon's noise object says the same per axis.
+    Before 2026-11-30 the one frozen axis blanked the whole triad's figures in ``diagnose``
+    (``measured: null``) while the daemon kept the other two."""
+    from imudiag.commands.noise import noise_lines
+    from imudiag.logs import open_writer
+    from tests.helpers import run_both_faces
+
+    axis = int(np.random.default_rng(38).integers(3))
+    sensor = "g" + "xyz"[axis]
+    s = _session(None)
+    gyro = s.gyro.copy()
+    gyro[:, axis] = gyro[0, axis]
+    log = tmp_path / f"frozen-{sensor}.npz"
+    with open_writer(log, {"sample_rate": 200.0, "units": "gyro=count accel=count"}) as w:
+        w.write(SampleBlock(t=s.t, gyro=gyro, accel=s.accel))
+    both = run_both_faces(log, Path(__file__).parent.parent / "config" / "default-certificate.yaml")
+    noise = both["report"]["noise"]
+    g = noise["gyro"]
+    density = g["measured"]["density"]
+    assert g["unmeasured"] == [sensor], (sensor, g)
+    assert not np.isfinite(density[axis])
+    others = [d for i, d in enumerate(density) if i != axis]
+    assert all(0.8 < d / 6.55 < 1.2 for d in others), density
+    assert g["ratio"] is None and g["disagrees"] is None and g["certificate"] == [6.55] * 3
+    assert noise["accel"]["disagrees"] is False and "unmeasured" not in noise["accel"]
+    lines = noise_lines(noise)
+    assert any(line.strip().startswith(f"{sensor}: no noise figure") for line in lines), lines
+    live = both["lines"][-1]["noise"]["gyro"]["density"]
+    assert [v is None for v in live] == [i == axis for i in range(3)], live

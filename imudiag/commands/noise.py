@@ -12,6 +12,7 @@ certificate.
 from __future__ import annotations
 
 import argparse
+import math
 from typing import Any
 
 
@@ -25,6 +26,11 @@ def add_noise_argument(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _figure(value: float | None, spec: str) -> str:
+    """A figure of the report for a console line: ``-`` where it has none (null or NaN)."""
+    return "-" if value is None or not math.isfinite(value) else format(value, spec)
+
+
 def noise_lines(report: dict[str, Any]) -> list[str]:
     """Console lines: the measured noise beside the certificate's, and any disagreement."""
     lines = []
@@ -32,14 +38,20 @@ def noise_lines(report: dict[str, Any]) -> list[str]:
         e = report.get(name)
         if not e or not e.get("measured"):
             continue
-        meas = ", ".join(f"{v:.3g}" for v in e["measured"]["density"])
+        meas = ", ".join(_figure(v, ".3g") for v in e["measured"]["density"])
         text = f"{name} white noise measured [{meas}] {e['unit']} ({report['method']})"
         if e.get("certificate") is not None:
             cert = ", ".join(f"{v:.3g}" for v in e["certificate"])
-            ratio = ", ".join(f"{v:.2f}" for v in e["ratio"])
-            text += f", certificate [{cert}], ratio [{ratio}]"
+            text += f", certificate [{cert}]"
+            if e.get("ratio") is not None:
+                text += f", ratio [{', '.join(f'{v:.2f}' for v in e['ratio'])}]"
         text += f"; still detector: {e['detector_noise']} noise"
         lines.append(text)
+        if e.get("unmeasured"):
+            lines.append(
+                f"  {', '.join(e['unmeasured'])}: no noise figure (a stuck or constant output, "
+                "or every stretch of it flagged): no ratio judged on this triad"
+            )
         if e.get("disagrees"):
             lines.append(
                 f"  finding: the certificate's {name} noise differs from the unit's by more "

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..certificate import Certificate
+from ..certificate import SENSOR_NAMES, Certificate
 from ..errors import BadInput
 from ..logs import open_log
 from ..logs.options import LogOptions
@@ -152,7 +152,8 @@ class NoiseMeasure:
         for name, fig in (figures or {}).items():
             tri = cert.triad(name)
             certified = tri.noise.density if tri.noise is not None else None
-            if not np.all(np.isfinite(fig.density)):
+            finite = np.isfinite(fig.density)
+            if not finite.any():
                 # a gyro-only log (known rate): nothing to measure on that triad
                 report[name] = {"measured": None, "unit": f"{tri.output_unit}/sqrt(Hz)"}
                 continue
@@ -160,7 +161,17 @@ class NoiseMeasure:
                 "measured": fig.as_dict(),
                 "unit": f"{tri.output_unit}/sqrt(Hz)",
             }
-            entry.update(compare(fig.density, certified))
+            if finite.all():
+                entry.update(compare(fig.density, certified))
+            else:
+                # an axis without a figure (a stuck or constant output has no noise to
+                # measure; or every chunk of it flagged) is null and the others kept, as in
+                # the daemon's noise object; no ratio is judged on a triad so measured
+                entry.update(compare(fig.density, certified))
+                entry["ratio"] = entry["disagrees"] = None
+                entry["unmeasured"] = [
+                    s for s, ok in zip(SENSOR_NAMES[name], finite, strict=True) if not ok
+                ]
             report[name] = entry
             report["method"] = fig.method
         for name in ("gyro", "accel"):
@@ -581,10 +592,11 @@ def calibrate_recording(
     intervals, rate, moving = collect_intervals(
         data, like, config, rate_hz, table, *reading, holds=holds, stuck=stuck
     )
-    measured = {
+    measured = {  # a triad's measured noise where every axis has a figure
         triad: np.asarray(noise_report[triad]["measured"]["density"], dtype=float)
         for triad in ("gyro", "accel")
         if (noise_report.get(triad) or {}).get("measured")
+        and not (noise_report.get(triad) or {}).get("unmeasured")
     }
     try:
         if known is not None:
