@@ -161,13 +161,11 @@ class NoiseMeasure:
                 "measured": fig.as_dict(),
                 "unit": f"{tri.output_unit}/sqrt(Hz)",
             }
-            if finite.all():
-                entry.update(compare(fig.density, certified))
-            else:
+            entry.update(compare(fig.density, certified))
+            if not finite.all():
                 # an axis without a figure (a stuck or constant output has no noise to
                 # measure; or every chunk of it flagged) is null and the others kept, as in
                 # the daemon's noise object; no ratio is judged on a triad so measured
-                entry.update(compare(fig.density, certified))
                 entry["ratio"] = entry["disagrees"] = None
                 entry["unmeasured"] = [
                     s for s, ok in zip(SENSOR_NAMES[name], finite, strict=True) if not ok
@@ -592,12 +590,11 @@ def calibrate_recording(
     intervals, rate, moving = collect_intervals(
         data, like, config, rate_hz, table, *reading, holds=holds, stuck=stuck
     )
-    measured = {  # a triad's measured noise where every axis has a figure
-        triad: np.asarray(noise_report[triad]["measured"]["density"], dtype=float)
-        for triad in ("gyro", "accel")
-        if (noise_report.get(triad) or {}).get("measured")
-        and not (noise_report.get(triad) or {}).get("unmeasured")
-    }
+    measured: dict[str, np.ndarray] = {}  # a triad's measured noise, every axis measured
+    for triad in ("gyro", "accel"):
+        entry = noise_report.get(triad) or {}
+        if entry.get("measured") and not entry.get("unmeasured"):
+            measured[triad] = np.asarray(entry["measured"]["density"], dtype=float)
     try:
         if known is not None:
             result = calibrate_known_rate(

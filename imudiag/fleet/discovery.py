@@ -108,11 +108,6 @@ def key_of(path: Path) -> tuple[str, int, int]:
     return (str(path), size, st.st_mtime_ns)
 
 
-def is_known(path: Path, known: dict[tuple[str, int, int], str]) -> bool:
-    """Whether ``known`` (see :func:`describe`) has the hash of ``path`` as it is now."""
-    return key_of(path) in known
-
-
 def describe(path: Path, known: dict[tuple[str, int, int], str] | None = None) -> LogFile:
     """The :class:`LogFile` of ``path``; ``known`` maps (path, size, mtime_ns) to a hash
     already computed (a resumed run does not read unchanged logs twice)."""
@@ -121,4 +116,4 @@ def describe(path: Path, known: dict[tuple[str, int, int], str] | None = None) -
     return LogFile(key[0], key[1], key[2], digest)
 
 
-__all__ = ["LogFile", "describe", "expand", "is_known", "key_of", "sha256_of"]
+__all__ = ["LogFile", "describe", "expand", "key_of", "sha256_of"]

@@ -31,7 +31,6 @@ class Feed(Generic[T]):
         self._error: BaseException | None = None
         self.more = threading.Event()
         self.ended = threading.Event()
-        self.made = 0  #: items made so far
         self._thread = threading.Thread(target=self._run, name="imudiag-fleet-feed", daemon=True)
 
     def start(self) -> Feed[T]:
@@ -44,7 +43,6 @@ class Feed(Generic[T]):
             for item in self._produce():
                 if self._stop.is_set():
                     return
-                self.made += 1
                 with self._lock:
                     submit = self._submit
                     if submit is None:

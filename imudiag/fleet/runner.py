@@ -319,9 +319,8 @@ def run(
 
     # the logs by size, largest first (a stat each; a bag's files summed): the last tasks to
     # finish are then short ones, no worker left alone with a long log at the end
-    sized = sorted(
-        ((log.absolute(), key_of(log.absolute())) for log in found), key=lambda item: -item[1][1]
-    )
+    absolute = [log.absolute() for log in found]
+    sized = sorted(((log, key_of(log)) for log in absolute), key=lambda item: -item[1][1])
     # logs recorded already as they are now (same path, size and time): no hash to read
     pending = [(log, key) for log, key in sized if known.get(key) not in done]
 
@@ -370,12 +369,12 @@ def run(
 
         if progress:
             progress(f"0/{total()} logs", 0.0 if total() else 1.0, 0)
-        futures: dict[str, tuple[Any, Job]] = {}
+        jobs: dict[str, Job] = {}  # by task key, while its task runs
         running = as_completed()
 
         def submit(job: Job) -> None:
             fut = client.submit(diagnose_log, job, key=f"diagnose-{job.sha256}", pure=False)
-            futures[fut.key] = (fut, job)
+            jobs[fut.key] = job
             running.add(fut)
 
         feed.attach(submit)
@@ -384,7 +383,7 @@ def run(
             while True:
                 feed.more.clear()
                 for fut in running:
-                    job = futures.pop(fut.key)[1]
+                    job = jobs.pop(fut.key)
                     try:
                         record = fut.result()
                     except Exception as exc:  # noqa: BLE001 - a dead worker is the log's row
