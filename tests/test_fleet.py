@@ -7,6 +7,7 @@ Chromium."""
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 import signal
@@ -497,53 +498,153 @@ def test_simulate_fleet_writes_mixed_logs_and_the_truth(tmp_path: Path) -> None:
     assert bad.returncode == 2 and "--vehicles N and --flights M" in bad.stderr
 
 
-def test_the_local_workers_are_spawned_with_the_malloc_settings() -> None:
-    """A local worker's own environment holds Dask's trimming and the mmap threshold the
-    runner adds (:data:`imudiag.fleet.runner.WORKER_MALLOC`, tests/test_fleet_warm.py),
-    and its Dask configuration the eased monitoring (:data:`~imudiag.fleet.runner.
-    QUIET_MONITORING`: the dashboard is off)."""
+def test_the_local_workers_are_forked_warm_with_the_malloc_and_memory_settings(
+    fleet: tuple[Path, dict], tmp_path: Path
+) -> None:
+    """The local workers are forked from a forkserver that has loaded what every worker
+    keeps (:data:`imudiag.fleet.runner.FORKSERVER_PRELOAD`) and runs no thread but its own
+    (Arrow's allocator thread off: nothing holds a lock as it forks); before any task each
+    worker holds the diagnosis' modules and the compiled kernels, and its first log's
+    warm-up has nothing left to load. A worker's own environment holds Dask's trimming
+    and the mmap threshold the runner adds (:data:`~imudiag.fleet.runner.WORKER_MALLOC`,
+    tests/test_fleet_warm.py), its Dask configuration the eased monitoring (:data:`~imudiag.
+    fleet.runner.QUIET_MONITORING`: the dashboard is off) and no pause (:data:`~imudiag.
+    fleet.runner.WORKER_MEMORY`), and it gives its free heap back after a log above half its
+    memory limit."""
+    import glob
+    import sys
+
     import dask
     from dask.distributed import Client
 
-    from imudiag.fleet.runner import QUIET_MONITORING, local_cluster
+    import imudiag.fleet
+    from imudiag.fleet.allocator import RELEASE_ABOVE_BYTES
+    from imudiag.fleet.runner import (
+        QUIET_MONITORING,
+        WORKER_MEMORY,
+        local_cluster,
+        worker_start_method,
+    )
+    from imudiag.fleet.task import release_mark
 
+    def state() -> dict:
+        import imudiag.fleet.task as task
+        from imudiag.kernels import _STATE
+
+        return {
+            "ppid": os.getppid(),
+            "preloaded": "imudiag.fleet.forkserver" in sys.modules,
+            "modules": all(name in sys.modules for name in task.WARM_MODULES),
+            "kernels": _STATE["loaded"],
+            "mark": task.release_mark(),
+        }
+
+    assert worker_start_method() == "forkserver"
+    assert release_mark() == RELEASE_ABOVE_BYTES  # not in a worker: no limit to go by
     names = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_ARENA_MAX")
-    with local_cluster(1, "1GiB") as cluster, Client(cluster) as client:
-        (seen,) = client.run(lambda: {k: os.environ.get(k) for k in names}).values()
-        (settings,) = client.run(lambda: {k: dask.config.get(k) for k in QUIET_MONITORING}).values()
-    assert seen == {
+    keys = [*QUIET_MONITORING, *WORKER_MEMORY, "distributed.worker.multiprocessing-method"]
+    with local_cluster(2, "1GiB") as cluster, Client(cluster) as client:
+        seen = list(client.run(lambda: {k: os.environ.get(k) for k in names}).values())
+        settings = list(client.run(lambda: {k: dask.config.get(k) for k in keys}).values())
+        states = list(client.run(state).values())
+        servers = {s["ppid"] for s in states}
+        threads = {pid: len(glob.glob(f"/proc/{pid}/task/*")) for pid in servers}
+        (record,) = imudiag.fleet.run(
+            sorted(str(p) for p in (fleet[0] / "unit-01").glob("flight-001.*")),
+            tmp_path,
+            scheduler=cluster.scheduler_address,
+        )
+    malloc = {
         "MALLOC_MMAP_THRESHOLD_": "33554432",
         "MALLOC_TRIM_THRESHOLD_": "65536",
         "MALLOC_ARENA_MAX": "1",
     }
-    assert settings == QUIET_MONITORING
-    assert settings["distributed.worker.profile.enabled"] is False
+    assert seen == [malloc, malloc]
+    expected = {
+        **QUIET_MONITORING,
+        "distributed.worker.memory.pause": False,
+        "distributed.worker.multiprocessing-method": "forkserver",
+    }
+    assert settings == [expected, expected]
+    assert QUIET_MONITORING["distributed.worker.profile.enabled"] is False
+    assert len(servers) == 1 and os.getpid() not in servers  # both forked from one server
+    assert threads == {next(iter(servers)): 1}
+    warm = {"ppid": next(iter(servers)), "preloaded": True, "modules": True, "kernels": True}
+    assert states == [{**warm, "mark": 2**29}, {**warm, "mark": 2**29}]  # half of 1 GiB
+    assert record["status"] == "ok" and record["kernels"] == "numba"
+    assert record["warm_up_cpu_s"] < 0.05  # nothing left to load: the first parse only
 
 
 def test_a_log_that_kills_its_worker_is_a_row_with_the_reason(
     fleet: tuple[Path, dict], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A worker whose Dask memory limit is the least the runner takes (100 MiB: an idle
-    worker holds about 65 MB) is killed by its nanny while running a log: the task's
-    warm-up loads the compiled kernels (numba, about 230 MB in all). The log is tried once
-    more (``retries=1``), then recorded with the reason, and the run itself ends normally
-    with its summary. (Each kill costs a worker's start, about 1 s on the 2-core machine. A
-    limit below the idle worker's, 60 MB before, had each restarted worker killed before it
-    took the log, over and over until one raced past its nanny's memory monitor: 19 s, and
-    no bound; the runner now refuses such a limit, tests/test_option_validation.py.)"""
+    """A worker of an existing cluster (spawned, as Dask starts them) whose memory limit,
+    150 MiB, is below what a fleet task needs (an idle worker holds about 65 MB, the first
+    task's warm-up loads the compiled kernels, about 230 MB in all) is killed by its nanny
+    while running the log. The scheduler tries the log on as many workers as its own
+    configuration says (``allowed-failures``: 2 here, whatever ``retries`` the client
+    asks, which only a local cluster takes), and the record names that count; the run
+    itself ends normally with its summary. (imudiag's own local workers start warm, so
+    the least limit it takes, :data:`imudiag.fleet.runner.MIN_MEMORY_LIMIT`, is above an
+    idle worker's: tests/test_option_validation.py, and below.)"""
+    import dask
+    from dask.distributed import LocalCluster
+
     import imudiag.fleet
     from imudiag import kernels
-    from imudiag.fleet.runner import MIN_MEMORY_LIMIT
 
     assert kernels.available(), "the fleet extra installs numba; the kill needs its kernels"
     monkeypatch.delenv("IMUDIAG_KERNELS", raising=False)  # the workers load the kernels
     root, _ = fleet
     logs = sorted(str(p) for p in (root / "unit-02").glob("flight-001.*"))
     assert len(logs) == 1
-    records = imudiag.fleet.run(logs, tmp_path, workers=1, memory_limit=MIN_MEMORY_LIMIT, retries=1)
+    with (
+        dask.config.set({"distributed.scheduler.allowed-failures": 2}),
+        LocalCluster(
+            n_workers=1,
+            threads_per_worker=1,
+            memory_limit="150MiB",
+            dashboard_address=None,
+            silence_logs=logging.CRITICAL,
+        ) as cluster,
+    ):
+        records = imudiag.fleet.run(logs, tmp_path, scheduler=cluster.scheduler_address, retries=1)
     assert [r["path"] for r in records] == logs
     (r,) = records
     assert r["status"] == "error"
-    assert r["reason"] == "killed its worker 2 time(s) (the worker memory limit, or a crash)"
+    assert r["reason"] == "killed its worker 3 time(s) (the worker memory limit, or a crash)"
     summary = json.loads((tmp_path / "fleet.json").read_text())
     assert summary["ok"] == 0 and len(summary["errors"]) == 1
+
+
+def test_a_run_at_the_least_memory_limit_diagnoses_its_logs_one_after_another(
+    fleet: tuple[Path, dict], tmp_path: Path
+) -> None:
+    """At :data:`imudiag.fleet.runner.MIN_MEMORY_LIMIT` one local worker, forked warm from
+    the forkserver (about 180 MB resident, most of it shared), is neither restarted before
+    its first log nor paused after one (Dask pauses a worker past 80 % of its limit, and the
+    heap a log leaves kept it there: the run hung), and diagnoses the logs in turn. The
+    command is a real process with a deadline: a hang fails the test."""
+    from conftest import run_imudiag
+
+    from imudiag.fleet.runner import MIN_MEMORY_LIMIT
+
+    root, _ = fleet
+    logs = sorted(str(p) for p in (root / "unit-03").glob("flight-00[1-3].*"))
+    assert len(logs) == 3
+    r = run_imudiag(
+        "fleet",
+        *logs,
+        "--out",
+        str(tmp_path),
+        "--workers",
+        "1",
+        "--quiet",
+        "--memory-limit",
+        f"{MIN_MEMORY_LIMIT // 2**20}MiB",
+        timeout=120,
+    )
+    assert r.returncode == 0, r.stderr
+    records = [json.loads(line) for line in (tmp_path / "logs.jsonl").read_text().splitlines()]
+    assert sorted(rec["path"] for rec in records) == logs
+    assert [rec["status"] for rec in records] == ["ok"] * 3, [rec["reason"] for rec in records]

@@ -122,6 +122,7 @@ def test_local_workers_keep_glibcs_mmap_threshold_under_dasks_trimming() -> None
         assert worker_environment() == {
             "MALLOC_MMAP_THRESHOLD_": "1048576",
             "MALLOC_ARENA_MAX": "1",
+            "JE_ARROW_MALLOC_CONF": "background_thread:false",
         }
 
 
@@ -154,11 +155,11 @@ def test_a_warm_worker_freezes_what_it_keeps_for_its_life() -> None:
     from imudiag.fleet import task
 
     task.warm_up()
-    assert task._FROZEN and gc.get_freeze_count() > 10_000
+    assert task._FROZEN_IN == os.getpid() and gc.get_freeze_count() > 10_000
 
 
 def test_a_memory_limit_no_worker_starts_under_is_refused_before_any_work(tmp_path) -> None:
-    """The library refuses a size below the 100 MiB floor (the command: tests/
+    """The library refuses a size below the 256 MiB floor (the command: tests/
     test_option_validation.py) before it reads a log or starts a cluster; Dask's other
     forms of a limit ("auto", a fraction of the machine's memory, 0: none) pass to Dask."""
     import imudiag.fleet
@@ -166,7 +167,7 @@ def test_a_memory_limit_no_worker_starts_under_is_refused_before_any_work(tmp_pa
     from imudiag.fleet.runner import MIN_MEMORY_LIMIT, memory_limit_bytes
 
     for small in ("60MB", 60e6, MIN_MEMORY_LIMIT - 1):
-        with pytest.raises(BadInput, match="below the 100 MiB a fleet worker needs"):
+        with pytest.raises(BadInput, match="below the 256 MiB a fleet worker needs"):
             imudiag.fleet.run([str(tmp_path)], tmp_path / "out", memory_limit=small)
     assert not (tmp_path / "out").exists()
     assert memory_limit_bytes("2GiB") == 2 * 2**30

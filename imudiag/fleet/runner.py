@@ -26,10 +26,11 @@ EXTRA = "fleet"
 DEFAULT_TIMEOUT_S = 1800.0
 #: Default memory limit of each local worker (Dask's, per worker process).
 DEFAULT_MEMORY_LIMIT = "2GiB"
-#: The least memory limit of a local worker, bytes (100 MiB): an idle worker (Python, numpy,
-#: Dask) holds about 65 MB, and a nanny whose worker passes 95 % of its limit restarts it,
-#: before it takes a log too, over and over: the run would not end.
-MIN_MEMORY_LIMIT = 100 * 2**20
+#: The least memory limit of a local worker, bytes (256 MiB): a worker forked from the warm
+#: forkserver holds about 180 MB (its resident pages, most shared with the server and the
+#: other workers, all counted by the nanny), and a nanny whose worker passes 95 % of its
+#: limit restarts it, before it takes a log too, over and over: the run would not end.
+MIN_MEMORY_LIMIT = 256 * 2**20
 #: Default times a log whose worker died is tried again on another worker.
 DEFAULT_RETRIES = 1
 SUMMARY = "fleet.json"
@@ -92,7 +93,16 @@ def load_certificate_map(path: str) -> dict[str, str]:
 #: configuration wins.
 #: Each worker's warm-up then keeps freed memory for the whole log as well, and gives it back
 #: after a log past a mark (:mod:`.allocator`: a worker on any scheduler, not only these).
-WORKER_MALLOC = {"MALLOC_MMAP_THRESHOLD_": str(32 * 2**20), "MALLOC_ARENA_MAX": "1"}
+#: Arrow's own allocator (jemalloc, in pyarrow: the CSV reader's) without its background
+#: purging thread, which it starts as pyarrow is imported: the forkserver the workers are
+#: forked from (:data:`FORKSERVER_PRELOAD`) then runs no thread but its own, so nothing can
+#: hold a lock as it forks; the purging is done by the allocating thread (the CSV logs' CPU
+#: the same within 2 %, docs/benchmarks.md, "Session 39").
+WORKER_MALLOC = {
+    "MALLOC_MMAP_THRESHOLD_": str(32 * 2**20),
+    "MALLOC_ARENA_MAX": "1",
+    "JE_ARROW_MALLOC_CONF": "background_thread:false",
+}
 
 
 def worker_environment() -> dict[str, Any]:
@@ -124,17 +134,96 @@ def monitoring_config(dashboard: bool) -> dict[str, Any]:
     """The settings of :data:`QUIET_MONITORING` a local cluster starts under: none with the
     dashboard on, else each one the user's Dask configuration leaves at Dask's default (a
     key set to that default is the same to Dask)."""
-    if dashboard:
-        return {}
+    return {} if dashboard else unless_set_by_user(QUIET_MONITORING)
+
+
+#: Dask's memory management of a local worker, as a fleet task needs it: no pause. Dask
+#: pauses a worker whose memory passes 80 % of its limit until it falls back, which a
+#: worker's modules and the heap a log leaves (kept for the next log, :mod:`.allocator`)
+#: need not do: with a limit of 400 MiB the worker paused after its first log and the run
+#: hung. A task keeps no data in its worker for others, so pausing frees nothing; the
+#: nanny still restarts a worker past 95 % of its limit (the log's row then says so).
+WORKER_MEMORY: dict[str, Any] = {"distributed.worker.memory.pause": False}
+
+
+def unless_set_by_user(settings: dict[str, Any]) -> dict[str, Any]:
+    """The keys of ``settings`` that the user's Dask configuration leaves at Dask's default
+    (a key set to that default is the same to Dask), with their values."""
     import dask
     import distributed  # noqa: F401 - its defaults join dask's configuration on import
 
     shipped = dask.config.merge(*dask.config.defaults)
     return {
         key: value
-        for key, value in QUIET_MONITORING.items()
+        for key, value in settings.items()
         if dask.config.get(key, default=None) == dask.config.get(key, default=None, config=shipped)
     }
+
+
+#: The modules a local cluster's forkserver imports before it forks any worker: Dask's
+#: worker (as Dask preloads it) and :mod:`.forkserver`, whose import loads what every fleet
+#: worker keeps (:func:`.task.preload`). Each worker then starts warm, one load paid for
+#: all (on two cores the second worker's own start took about 1 s of CPU from the logs),
+#: its pages shared among the workers, and a worker restarted after a kill is forked in a
+#: few ms instead of paying its start again.
+FORKSERVER_PRELOAD = ("distributed", "imudiag.fleet.forkserver")
+
+
+def worker_start_method() -> str:
+    """How a local cluster starts its worker processes: ``forkserver`` (forked from a
+    warm server, :data:`FORKSERVER_PRELOAD`) where the platform has it (Linux, macOS) and
+    the user's Dask configuration leaves ``distributed.worker.multiprocessing-method`` at
+    Dask's default (a file, a ``DASK_`` variable or ``dask.config.set`` naming ``spawn``
+    keeps it); else the configured method."""
+    import multiprocessing
+
+    import dask
+    import distributed  # noqa: F401 - its defaults join dask's configuration on import
+
+    key = "distributed.worker.multiprocessing-method"
+    configured = dask.config.get(key)
+    shipped = dask.config.get(key, config=dask.config.merge(*dask.config.defaults))
+    set_by_user = configured != shipped or _in_user_config(key)
+    if set_by_user or "forkserver" not in multiprocessing.get_all_start_methods():
+        return str(configured)
+    return "forkserver"
+
+
+def _in_user_config(key: str) -> bool:
+    """Whether ``key`` is set in the user's Dask configuration files or ``DASK_``
+    environment variables (whatever its value)."""
+    import dask
+
+    node: Any = dask.config.collect()
+    for part in key.split("."):
+        if not isinstance(node, dict):
+            return False
+        name = dask.config.canonical_name(part, node)  # dashes or underscores
+        if name not in node:
+            return False
+        node = node[name]
+    return True
+
+
+def start_forkserver() -> bool:
+    """Start the forkserver the local workers are forked from, where
+    :func:`worker_start_method` chooses it, so that it loads :data:`FORKSERVER_PRELOAD`
+    while this process goes on (hashing the logs, starting the scheduler); whether it runs.
+    It starts under :func:`worker_environment` (set in this process's environment, as
+    Dask's nanny sets it before starting each worker), which it keeps for its life. One
+    server serves the process: a later local cluster forks its workers from the same one,
+    with its modules and environment (a choice of ``IMUDIAG_KERNELS`` made since still
+    reaches each task, :func:`local_cluster`)."""
+    import multiprocessing
+    from multiprocessing import forkserver
+
+    if worker_start_method() != "forkserver":
+        return False
+    os.environ.update({name: str(value) for name, value in worker_environment().items()})
+    # before Dask's own list (Dask sets it on its first use in this process, too late then)
+    multiprocessing.get_context("forkserver").set_forkserver_preload(list(FORKSERVER_PRELOAD))
+    forkserver.ensure_running()
+    return True
 
 
 @contextlib.contextmanager
@@ -142,19 +231,27 @@ def local_cluster(
     workers: int | None, memory_limit: str | float | None, dashboard: bool = False
 ) -> Iterator[Any]:
     """A LocalCluster of ``workers`` processes (default: this machine's cores), one thread
-    each, spawned with :func:`worker_environment` under :func:`monitoring_config`; closed
-    after the block."""
+    each, started (:func:`worker_start_method`) with :func:`worker_environment` under
+    :data:`WORKER_MEMORY` and :func:`monitoring_config`, which hold for the cluster's life
+    (a worker restarted after a kill starts as the others did); closed after the block."""
     import dask
     from dask.distributed import LocalCluster
 
     # the scheduler always serves /health on 8787 (the dashboard stays off unless asked
     # for); another cluster on the machine moves it to a free port: not worth a warning
     warnings.filterwarnings("ignore", message="Port 8787 is already in use")
+    method = worker_start_method()
     settings = {
         "distributed.nanny.pre-spawn-environ": worker_environment(),
+        "distributed.worker.multiprocessing-method": method,
+        **unless_set_by_user(WORKER_MEMORY),
         **monitoring_config(dashboard),
     }
+    # a choice of kernels made after a forkserver started reaches the forked workers too
+    env = {k: os.environ[k] for k in ("IMUDIAG_KERNELS",) if k in os.environ}
     with dask.config.set(settings):
+        if method == "forkserver":
+            start_forkserver()
         cluster = LocalCluster(
             n_workers=workers or os.cpu_count() or 1,
             threads_per_worker=1,
@@ -162,11 +259,12 @@ def local_cluster(
             memory_limit=memory_limit,
             dashboard_address=":8787" if dashboard else None,
             silence_logs=logging.ERROR,
+            env=env,
         )
-    try:
-        yield cluster
-    finally:
-        cluster.close()
+        try:
+            yield cluster
+        finally:
+            cluster.close()
 
 
 @contextlib.contextmanager
@@ -209,7 +307,9 @@ def _lost(job: Job, exc: BaseException, retries: int) -> dict[str, Any]:
 
     name = type(exc).__name__
     if name == "KilledWorker":
-        reason = f"killed its worker {retries + 1} time(s) (the worker memory limit, or a crash)"
+        # the scheduler's own count (an existing cluster's configuration, not --retries)
+        tries = int(getattr(exc, "allowed_failures", retries)) + 1
+        reason = f"killed its worker {tries} time(s) (the worker memory limit, or a crash)"
     else:
         reason = f"the task failed: {name}: {exc}"
     return {
@@ -403,6 +503,8 @@ def run(
                     feed.more.wait()
 
     if pending:
+        if not scheduler:  # the workers' server loads while the logs are hashed
+            start_forkserver()
         # hashed in a thread (their content, GBs), each log submitted once hashed, while
         # the workers start and then work
         feed = Feed(make_jobs).start()

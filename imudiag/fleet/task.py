@@ -20,7 +20,7 @@ import numpy as np
 from ..certificate import AUTO
 from ..errors import ImudiagError
 from ..reports import finite_or_null
-from .allocator import keep_freed_memory, release_freed_memory
+from .allocator import RELEASE_ABOVE_BYTES, keep_freed_memory, release_freed_memory
 
 #: Certificate file names looked for in a log's folder and the folders above it (up to the
 #: folder named on the command line).
@@ -54,27 +54,23 @@ WARM_MODULES = (
 )
 
 
-#: Whether :func:`warm_up` has set this worker's malloc (:mod:`.allocator`).
+#: Whether :func:`preload` has set this process's malloc (:mod:`.allocator`).
 _ALLOCATOR_SET = False
-#: Whether :func:`warm_up` has moved the worker's objects out of the garbage collector's view.
-_FROZEN = False
+#: The process whose objects :func:`warm_up` froze last (a worker forked from a warm
+#: forkserver inherits the server's frozen objects, then freezes its own).
+_FROZEN_IN: int | None = None
 
 
-def warm_up() -> float:
-    """Import :data:`WARM_MODULES` in this process (a fleet worker) and load the compiled
-    window-fit kernels where numba is installed (:mod:`imudiag.diagnosis.kernels`; not with
-    ``IMUDIAG_KERNELS=plain``) and pyarrow's CSV parser (:mod:`imudiag.logs.arrow_csv`);
-    the CPU of this thread it took, s (about 0 once done).
-
-    The first warm-up then freezes the objects the worker holds (``gc.freeze``: its modules,
-    Dask's, the compiled kernels, all kept for the worker's life): no later collection
-    traverses them, nor the worker's exit, whose last collection made closing a local
-    cluster wait 0.40 s instead of 0.08 (docs/benchmarks.md, "Session 38")."""
-    import gc
+def preload() -> None:
+    """Load what a fleet worker keeps for its life, without starting a thread (a local
+    cluster's forkserver preloads it, :mod:`.forkserver`, before forking workers): this
+    process's malloc settings (:mod:`.allocator`), :data:`WARM_MODULES`, and where the
+    compiled kernels are used (numba installed; not with ``IMUDIAG_KERNELS=plain``) the
+    window-fit kernels (:mod:`imudiag.diagnosis.kernels`) and pyarrow's CSV reader
+    (:func:`imudiag.logs.arrow_csv.load`)."""
     import importlib
 
-    cpu0 = time.thread_time()
-    global _ALLOCATOR_SET, _FROZEN
+    global _ALLOCATOR_SET
     if not _ALLOCATOR_SET:
         # freed arrays kept for the next during a log, given back after it (allocator.py)
         keep_freed_memory()
@@ -82,19 +78,52 @@ def warm_up() -> float:
     for name in WARM_MODULES:
         importlib.import_module(name)
     if _use_kernels():
-        # the compiled window-fit kernels where numba is installed (the fleet extra): the
-        # compile, or the load of numba's disk cache, is paid here once per worker
+        # the compile, or the load of numba's disk cache, is paid here once per worker
         from ..diagnosis import kernels
         from ..logs import arrow_csv
 
         kernels.load()
-        # pyarrow's CSV parser (the CSV reader's compiled path): its first parse costs
-        # about 0.4 s of set-up, paid here instead of by the first CSV log
+        arrow_csv.load()
+
+
+def warm_up() -> float:
+    """:func:`preload` in this process (a fleet worker; nothing left to load in one forked
+    from a warm forkserver) and pyarrow's first CSV parse (Arrow's allocator and its
+    thread); the CPU of this thread it took, s (about 0 once done).
+
+    Then the objects the worker holds are frozen (``gc.freeze``: its modules, Dask's, the
+    compiled kernels, all kept for the worker's life): no later collection traverses them,
+    nor the worker's exit, whose last collection made closing a local cluster wait 0.40 s
+    instead of 0.08 (docs/benchmarks.md, "Session 38")."""
+    import gc
+
+    cpu0 = time.thread_time()
+    preload()
+    if _use_kernels():
+        from ..logs import arrow_csv
+
         arrow_csv.floats(b"0\n", 1, 1, [0])
-    if not _FROZEN:
+    global _FROZEN_IN
+    if _FROZEN_IN != os.getpid():
         gc.freeze()
-        _FROZEN = True
+        _FROZEN_IN = os.getpid()
     return time.thread_time() - cpu0
+
+
+def release_mark() -> int:
+    """Resident memory above which this worker gives its free heap back after a log, bytes:
+    :data:`~.allocator.RELEASE_ABOVE_BYTES`, or half the worker's Dask memory limit where
+    that is lower (a worker on a cluster whose configuration pauses it at 80 % of its limit
+    takes no log while its memory stays above that)."""
+    try:
+        from distributed import get_worker
+
+        limit = get_worker().memory_manager.memory_limit
+    except (ImportError, ValueError, AttributeError):  # not in a Dask worker
+        limit = None
+    if not limit:
+        return RELEASE_ABOVE_BYTES
+    return min(RELEASE_ABOVE_BYTES, int(limit) // 2)
 
 
 def _use_kernels() -> bool:
@@ -460,7 +489,8 @@ def diagnose_log(job: Job) -> dict[str, Any]:
         record["reason"] = (
             f"{stage}: {type(exc).__name__}: {exc} ({Path(where.filename).name}:{where.lineno})"
         )
-    release_freed_memory()  # the log's freed arrays back to the system (allocator.py)
+    # the log's freed arrays back to the system past a mark (allocator.py)
+    release_freed_memory(release_mark())
     record["cpu_s"] = _cpu_s() - cpu0
     record["warm_up_cpu_s"] = warm_cpu
     record["wall_s"] = time.monotonic() - started
@@ -481,5 +511,7 @@ __all__ = [
     "load_certificate_once",
     "other_instances",
     "tagged",
+    "preload",
+    "release_mark",
     "warm_up",
 ]

@@ -37,6 +37,15 @@ def _csv() -> Any:
     return _ARROW["csv"]
 
 
+def load() -> bool:
+    """Import pyarrow's CSV reader, without parsing: no thread of Arrow's starts here (its
+    allocator's starts with pyarrow unless ``JE_ARROW_MALLOC_CONF`` turns it off, as a fleet
+    worker's environment does); whether the reader is there. The values are read from
+    each column's buffer, not through ``to_numpy``, which imports pandas (0.2 s of a
+    worker's start) where it is installed."""
+    return bool(_csv())
+
+
 def floats(text: bytes, n: int, ncols: int, used: list[int]) -> np.ndarray | None:
     """The values of columns ``used`` (indices into the ``ncols`` fields of a row) of the
     ``n`` lines of ``text`` (each ending in a newline, no comment or empty line) as an
@@ -79,10 +88,17 @@ def floats(text: bytes, n: int, ncols: int, used: list[int]) -> np.ndarray | Non
     for j, column in enumerate(table.columns):
         if column.null_count:
             return None
-        columns[j] = column.to_numpy()
+        row = 0
+        for chunk in column.chunks:  # its values buffer as numpy reads it (no copy)
+            size = len(chunk)
+            data = chunk.buffers()[1]
+            columns[j, row : row + size] = np.frombuffer(
+                data, dtype=np.float64, count=size, offset=chunk.offset * 8
+            )
+            row += size
     if not np.isfinite(columns).all():  # nan, inf and 1e400 spellings: numpy's to judge
         return None
     return columns.T
 
 
-__all__ = ["floats"]
+__all__ = ["floats", "load"]
