@@ -41,8 +41,9 @@ DROPPED_REPORT_KEYS = ("windows",)
 
 
 #: Modules a per-log task imports (the library's diagnosis, every log reader, the monitor, the
-#: GNSS aiding the diagnosis looks for): imported by :func:`warm_up` at the start of a
-#: worker's first task, outside the log's own CPU (``cpu_s``), so no log's figure pays them.
+#: GNSS aiding the diagnosis looks for): imported by :func:`preload`, in the forkserver local
+#: workers are forked from, or else by :func:`warm_up` at the start of a worker's first task,
+#: outside the log's own CPU (``cpu_s``), so no log's figure pays them.
 WARM_MODULES = (
     "imudiag.api",
     "imudiag.logs",
@@ -62,8 +63,9 @@ _FROZEN_IN: int | None = None
 
 
 def preload() -> None:
-    """Load what a fleet worker keeps for its life, without starting a thread (a local
-    cluster's forkserver preloads it, :mod:`.forkserver`, before forking workers): this
+    """Load what a fleet worker keeps for its life, parsing nothing, so that no thread
+    starts under the local workers' environment (a local cluster's forkserver preloads
+    it, :mod:`.forkserver`, before forking workers; ``runner.WORKER_MALLOC``): this
     process's malloc settings (:mod:`.allocator`), :data:`WARM_MODULES`, and where the
     compiled kernels are used (numba installed; not with ``IMUDIAG_KERNELS=plain``) the
     window-fit kernels (:mod:`imudiag.diagnosis.kernels`) and pyarrow's CSV reader
@@ -88,8 +90,8 @@ def preload() -> None:
 
 def warm_up() -> float:
     """:func:`preload` in this process (a fleet worker; nothing left to load in one forked
-    from a warm forkserver) and pyarrow's first CSV parse (Arrow's allocator and its
-    thread); the CPU of this thread it took, s (about 0 once done).
+    from a warm forkserver) and pyarrow's first CSV parse (its set-up, 0.01 s); the CPU of
+    this thread it took, s (about 0 once done).
 
     Then the objects the worker holds are frozen (``gc.freeze``: its modules, Dask's, the
     compiled kernels, all kept for the worker's life): no later collection traverses them,

@@ -38,11 +38,11 @@ def _csv() -> Any:
 
 
 def load() -> bool:
-    """Import pyarrow's CSV reader, without parsing: no thread of Arrow's starts here (its
-    allocator's starts with pyarrow unless ``JE_ARROW_MALLOC_CONF`` turns it off, as a fleet
-    worker's environment does); whether the reader is there. The values are read from
-    each column's buffer, not through ``to_numpy``, which imports pandas (0.2 s of a
-    worker's start) where it is installed."""
+    """Import pyarrow's CSV reader, without parsing (Arrow's thread pools start at a parse;
+    its allocator's purging thread starts with the import unless ``JE_ARROW_MALLOC_CONF``
+    turns it off, as a fleet worker's environment does); whether the reader is there. The
+    values are read from each column's buffer, not through ``to_numpy``, which imports
+    pandas (0.2 s of a worker's start) where it is installed."""
     return bool(_csv())
 
 
