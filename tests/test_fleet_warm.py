@@ -174,3 +174,27 @@ def test_a_memory_limit_no_worker_starts_under_is_refused_before_any_work(tmp_pa
     assert memory_limit_bytes(MIN_MEMORY_LIMIT) == MIN_MEMORY_LIMIT
     with pytest.raises(BadInput, match="--memory-limit 'lots': expected a size"):
         memory_limit_bytes("lots", "--memory-limit")
+
+
+def test_the_local_workers_are_forked_unless_the_user_names_a_start_method(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A local cluster forks its workers from a warm forkserver where the platform has one;
+    a start method the user's Dask configuration names wins, even Dask's own default
+    (``spawn``) set in a ``DASK_`` variable, and then no forkserver is started. (The forked
+    workers themselves: tests/test_fleet.py, real-time tier.)"""
+    import multiprocessing
+
+    import dask
+
+    from imudiag.fleet.runner import start_forkserver, worker_start_method
+
+    assert "forkserver" in multiprocessing.get_all_start_methods()  # Linux
+    monkeypatch.delenv("DASK_DISTRIBUTED__WORKER__MULTIPROCESSING_METHOD", raising=False)
+    assert worker_start_method() == "forkserver"
+    with dask.config.set({"distributed.worker.multiprocessing-method": "fork"}):
+        assert worker_start_method() == "fork"
+        assert start_forkserver() is False
+    monkeypatch.setenv("DASK_DISTRIBUTED__WORKER__MULTIPROCESSING_METHOD", "spawn")
+    assert worker_start_method() == "spawn"
+    assert start_forkserver() is False
