@@ -510,7 +510,8 @@ def test_the_local_workers_are_forked_warm_with_the_malloc_and_memory_settings(
     tests/test_fleet_warm.py), its Dask configuration the eased monitoring (:data:`~imudiag.
     fleet.runner.QUIET_MONITORING`: the dashboard is off) and no pause (:data:`~imudiag.
     fleet.runner.WORKER_MEMORY`), and it gives its free heap back after a log above half its
-    memory limit."""
+    memory limit; the scheduler gives each worker one log at a time (:data:`~imudiag.fleet.
+    runner.ONE_LOG_PER_WORKER`)."""
     import glob
     import sys
 
@@ -520,6 +521,7 @@ def test_the_local_workers_are_forked_warm_with_the_malloc_and_memory_settings(
     import imudiag.fleet
     from imudiag.fleet.allocator import RELEASE_ABOVE_BYTES
     from imudiag.fleet.runner import (
+        ONE_LOG_PER_WORKER,
         QUIET_MONITORING,
         WORKER_MEMORY,
         local_cluster,
@@ -549,6 +551,9 @@ def test_the_local_workers_are_forked_warm_with_the_malloc_and_memory_settings(
         states = list(client.run(state).values())
         servers = {s["ppid"] for s in states}
         threads = {pid: len(glob.glob(f"/proc/{pid}/task/*")) for pid in servers}
+        saturation = client.run_on_scheduler(
+            lambda dask_scheduler: dask_scheduler.WORKER_SATURATION
+        )
         (record,) = imudiag.fleet.run(
             sorted(str(p) for p in (fleet[0] / "unit-01").glob("flight-001.*")),
             tmp_path,
@@ -567,6 +572,8 @@ def test_the_local_workers_are_forked_warm_with_the_malloc_and_memory_settings(
     }
     assert settings == [expected, expected]
     assert QUIET_MONITORING["distributed.worker.profile.enabled"] is False
+    # one log at a time on a worker: no log queued behind one that kills it is counted
+    assert saturation == ONE_LOG_PER_WORKER["distributed.scheduler.worker-saturation"] == 1.0
     assert len(servers) == 1 and os.getpid() not in servers  # both forked from one server
     assert threads == {next(iter(servers)): 1}
     warm = {"ppid": next(iter(servers)), "preloaded": True, "modules": True, "kernels": True}
