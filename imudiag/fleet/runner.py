@@ -477,7 +477,9 @@ def run(
         if progress:
             progress(f"0/{total()} logs", 0.0 if total() else 1.0, 0)
         jobs: dict[str, Job] = {}  # by task key, while its task runs
-        running = as_completed()
+        # each result gathered on Dask's event loop as its task ends, not by a call from
+        # this thread per log; a failed task's outcome is its exception, not raised here
+        running = as_completed(with_results=True, raise_errors=False)
 
         def submit(job: Job) -> None:
             fut = client.submit(diagnose_log, job, key=f"diagnose-{job.sha256}", pure=False)
@@ -489,11 +491,12 @@ def run(
             finished = 0
             while True:
                 feed.more.clear()
-                for fut in running:
+                for fut, outcome in running:
                     job = jobs.pop(fut.key)
-                    try:
-                        record = fut.result()
-                    except Exception as exc:  # noqa: BLE001 - a dead worker is the log's row
+                    if fut.status == "finished":
+                        record = outcome
+                    else:  # a dead worker (or a cancelled task) is the log's row
+                        exc = outcome[1] if isinstance(outcome, tuple) else outcome
                         record = _lost(job, exc, retries)
                     log_file.append(record)
                     if on_record:
