@@ -652,6 +652,6 @@ def test_a_run_at_the_least_memory_limit_diagnoses_its_logs_one_after_another(
         timeout=120,
     )
     assert r.returncode == 0, r.stderr
-    records = [json.loads(line) for line in (tmp_path / "logs.jsonl").read_text().splitlines()]
+    records = read_records(tmp_path)
     assert sorted(rec["path"] for rec in records) == logs
     assert [rec["status"] for rec in records] == ["ok"] * 3, [rec["reason"] for rec in records]

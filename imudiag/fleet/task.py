@@ -57,8 +57,9 @@ WARM_MODULES = (
 
 #: Whether :func:`preload` has set this process's malloc (:mod:`.allocator`).
 _ALLOCATOR_SET = False
-#: The process whose objects :func:`warm_up` froze last (a worker forked from a warm
-#: forkserver inherits the server's frozen objects, then freezes its own).
+#: The process whose warm-up has run its once-only part (pyarrow's first parse, the freeze
+#: of its objects): a worker forked from a warm forkserver inherits the server's frozen
+#: objects, then runs that part for its own.
 _FROZEN_IN: int | None = None
 
 
@@ -101,12 +102,12 @@ def warm_up() -> float:
 
     cpu0 = time.thread_time()
     preload()
-    if _use_kernels():
-        from ..logs import arrow_csv
-
-        arrow_csv.floats(b"0\n", 1, 1, [0])
     global _FROZEN_IN
-    if _FROZEN_IN != os.getpid():
+    if _FROZEN_IN != os.getpid():  # once per process, not at every task
+        if _use_kernels():
+            from ..logs import arrow_csv
+
+            arrow_csv.floats(b"0\n", 1, 1, [0])
         gc.freeze()
         _FROZEN_IN = os.getpid()
     return time.thread_time() - cpu0
